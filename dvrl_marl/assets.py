@@ -154,7 +154,8 @@ def robot_xml(tool: Tool | str) -> str:
         pos, quat = _row_frame(row)
         lower, upper = tool.lower[row.joint], tool.upper[row.joint]
         joint_type = "slide" if row.prismatic else "hinge"
-        lines.append(f'{indent}<body name="{name}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">')
+        # gravcomp: the arm is kinematic; physics steps (for free objects) must not let it sag.
+        lines.append(f'{indent}<body name="{name}" pos="{_fmt(pos)}" quat="{_fmt(quat)}" gravcomp="1">')
         lines.append(f'{indent}  <joint name="{name}" type="{joint_type}" axis="0 0 1" range="{_fmt((lower, upper))}"/>')
         lines.append(f'{indent}  <inertial pos="0 0 0" mass="0.05" diaginertia="1e-5 1e-5 1e-5"/>')
         for mesh, gpos, gquat, material in geometry.get(name, []):
@@ -170,7 +171,7 @@ def robot_xml(tool: Tool | str) -> str:
         # Fingers turn about the yaw axis (frame z); they extend along the tip direction (frame y).
         # The left finger lies on the frame's +x side and opens towards +x, i.e. turns about -z.
         for side, sign in (("left", -1.0), ("right", 1.0)):
-            lines.append(f'{indent}<body name="jaw_{side}">')
+            lines.append(f'{indent}<body name="jaw_{side}" gravcomp="1">')
             lines.append(
                 f'{indent}  <joint name="jaw_{side}" type="hinge" axis="0 0 {sign:g}" range="-0.349 0.698"/>'
             )

@@ -1,0 +1,5 @@
+"""Scripted experts, one per task (Meta-World style): callables ``policy(observation) -> action``."""
+
+from dvrl_marl.agents.experts import PickExpert, ReachExpert
+
+__all__ = ["ReachExpert", "PickExpert"]

@@ -1,0 +1,235 @@
+"""PSM Pick: grasp a small cylinder with the Large Needle Driver and carry it to a goal (paper Sec. III-C).
+
+## Description
+The LND starts at the workspace centre p_c with its jaw open, right above a 3 mm cylinder lying on the table. The
+agent must descend, close the jaw on the object, and bring the object to the goal g. The arm is kinematic (eta
+steps through inverse kinematics); the object has MuJoCo physics: it rests on the table and falls when released.
+Grasping follows the paper's rule: when the jaw value is below ``grasp_threshold`` (0.25) and the proximity sensor
+between the jaws sees the object, the object is rigidly attached to the gripper; opening the jaw to the threshold
+or more releases it. Nothing else moves the object through the jaws (the instrument has no contacts).
+
+## Action Space
+``Box(-1, 1, (4,), float32)``: [Delta, phi]. ``p <- p + eta * Delta`` (eta = 1 mm, projected into the workspace,
+above the table, within the joint limits; a carried object is kept above the table too), ``j = (phi + 1) / 2``.
+
+## Observation Space
+``Dict`` of ``float64`` Boxes, positions normalised as in the paper (x~ = (x - p_c) / rho):
+
+| key | shape | content |
+|---|---|---|
+| ``observation`` | (7,) | [p~, 2j - 1, o~] |
+| ``achieved_goal`` | (3,) | o~, the object |
+| ``desired_goal`` | (3,) | g~ |
+
+## Rewards
+Sparse (``PSMPick-v0``): ``-1`` while ``rho * ||o~ - g~|| > delta`` (3 mm), else ``0``. Dense
+(``PSMPickDense-v0``): minus the object-goal distance in metres.
+
+## Starting State
+p_0 = p_c = (0, 0, -0.10) m, jaw open, the object on the table directly below the gripper, g uniform in the
+workspace (rho = 2.5 cm) at heights the object can reach (not below its resting height). ``reset(options=...)``
+accepts ``start``, ``goal`` and ``object`` positions in metres (base frame); an object above the table falls.
+
+## Episode End
+No termination; ``max_episode_steps=100`` truncates. ``info`` has ``is_success`` and ``grasped``; if MuJoCo
+becomes unstable the episode truncates with ``info["sim_unstable"] = True`` and the last finite observation.
+
+## Arguments
+``reward_type``, ``render_mode``, ``grasp_threshold`` and the paper's parameters as in PSM Reach; defaults in
+``tasks/psm_pick.toml``.
+
+## Version History
+- v0: initial release (MuJoCo re-creation of dVRL's PSM Pick).
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from dvrl_marl.envs.single_arm import PSMGoalEnv
+from dvrl_marl.scene import has_warnings, object_id
+
+__all__ = ["PSMPickEnv"]
+
+#: The object is considered at rest (and physics stops being stepped for it) below these speeds.
+_REST_LINEAR_SPEED = 1e-4  # m/s
+_REST_ANGULAR_SPEED = 1e-2  # rad/s
+#: Normalised object positions are bounded by this in the observation space (the table is smaller).
+_OBJECT_BOUND = 50.0
+
+
+class PSMPickEnv(PSMGoalEnv):
+    """PSM Pick (see the module documentation)."""
+
+    task_name = "psm_pick"
+    reset_option_keys = ("goal", "start", "object")
+
+    def __init__(self, *, grasp_threshold: float | None = None, **kwargs):
+        kwargs.pop("tool", None)  # Pick needs the jaw: always the LND
+        super().__init__(tool="lnd", grasp_threshold=grasp_threshold, **kwargs)
+        self.grasp_threshold = float(self.spec_task.grasp_threshold)
+        self.initial_jaw = float(self.spec_task.initial_jaw if self.spec_task.initial_jaw is not None else 1.0)
+        body = object_id(self.model, "body", "object")
+        joint = self.model.body_jntadr[body]
+        self._object_qpos = int(self.model.jnt_qposadr[joint])
+        self._object_qvel = int(self.model.jnt_dofadr[joint])
+        geom = object_id(self.model, "geom", "object")
+        #: Height (base frame) of the object's centre when it stands on the table.
+        self.object_rest_height = self.table_height + float(self.model.geom_size[geom][1])
+        self.goal_low = self.tip_low.copy()
+        self.goal_low[2] = max(self.goal_low[2], self.object_rest_height)
+
+        bound = np.full(3, _OBJECT_BOUND)
+        tip_bound = np.full(3, 1.0 + 1e-9)
+        self.observation_space = spaces.Dict(
+            {
+                "observation": spaces.Box(
+                    np.concatenate([-tip_bound, [-1.0], -bound]), np.concatenate([tip_bound, [1.0], bound]),
+                    dtype=np.float64,
+                ),
+                "achieved_goal": spaces.Box(-bound, bound, dtype=np.float64),
+                "desired_goal": spaces.Box(-bound, bound, dtype=np.float64),
+            }
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.grasped = False
+        self._grasp_offset = (0.0, 0.0, 0.0)
+        self._object_at_rest = True
+        self._object_normalised = (0.0, 0.0, 0.0)
+
+    # --- object state -----------------------------------------------------------------------------------
+    def object_position(self) -> np.ndarray:
+        """The object's centre in the base frame (metres)."""
+        return self.arm.to_base(self.data.qpos[self._object_qpos:self._object_qpos + 3])
+
+    def _place_object(self, position_base: np.ndarray) -> None:
+        adr = self._object_qpos
+        self.data.qpos[adr:adr + 3] = self.arm.to_world(position_base)
+        self.data.qpos[adr + 3:adr + 7] = (1.0, 0.0, 0.0, 0.0)
+        self.data.qvel[self._object_qvel:self._object_qvel + 6] = 0.0
+
+    def _update_object_normalised(self) -> None:
+        base = self.arm.base_position
+        adr = self._object_qpos
+        x, y, z = self.data.qpos[adr:adr + 3].tolist()
+        self._object_normalised = self._normalised_tuple(x - base[0], y - base[1], z - base[2])
+
+    def _carry_object(self) -> None:
+        tx, ty, tz = self.arm.tip_world()
+        ox, oy, oz = self._grasp_offset
+        adr = self._object_qpos
+        self.data.qpos[adr:adr + 3] = (tx + ox, ty + oy, tz + oz)
+
+    def _simulate_object(self) -> bool:
+        """Step physics for a free, moving object. Returns False if MuJoCo went unstable (state restored)."""
+        saved_qpos = self.data.qpos.copy()
+        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
+        if has_warnings(self.data) or not np.all(np.isfinite(self.data.qpos)):
+            self.data.qpos[:] = saved_qpos
+            self.data.qvel[:] = 0.0
+            for warning in self.data.warning:
+                warning.number = 0
+            return False
+        velocity = self.data.qvel[self._object_qvel:self._object_qvel + 6]
+        linear = math.sqrt(float(velocity[0] ** 2 + velocity[1] ** 2 + velocity[2] ** 2))
+        angular = math.sqrt(float(velocity[3] ** 2 + velocity[4] ** 2 + velocity[5] ** 2))
+        if linear < _REST_LINEAR_SPEED and angular < _REST_ANGULAR_SPEED and self.data.ncon > 0:
+            self._object_at_rest = True
+            velocity[:] = 0.0
+        return True
+
+    # --- Gymnasium API ------------------------------------------------------------------------------------
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        options = self._check_options(options)
+        mujoco.mj_resetData(self.model, self.data)
+        start = self._position_option(options, "start", self.tip_low, self.tip_high)
+        goal = self._position_option(options, "goal", self.goal_low, self.tip_high)
+        obj = self._object_option(options)
+        if start is None:
+            start = self.workspace_centre.copy()
+        if goal is None:
+            goal = self._sample_in_box(self.goal_low, self.tip_high)
+        if obj is None:
+            obj = np.array([start[0], start[1], self.object_rest_height])
+        self.arm.set_tip(*start.tolist())
+        self.arm.set_jaw(self.initial_jaw)
+        self._set_goal(goal)
+        self._place_object(obj)
+        self.grasped = False
+        self._object_at_rest = bool(obj[2] <= self.object_rest_height + 1e-9)
+        self._update_object_normalised()
+        return self._observation(), self._info(self._reward_and_success(self._object_normalised)[1])
+
+    def _object_option(self, options: dict) -> np.ndarray | None:
+        low = np.array([self.tip_low[0], self.tip_low[1], self.object_rest_height])
+        high = self.tip_high
+        if "object" not in options or options["object"] is None:
+            return None
+        try:
+            value = np.asarray(options["object"], dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise ValueError("PSMPickEnv: reset option 'object' must be 3 numbers (m)") from error
+        if value.shape != (3,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"PSMPickEnv: reset option 'object' must be 3 finite numbers (m), got {options['object']!r}")
+        if np.any(value < low - 1e-12) or np.any(value > high + 1e-12):
+            raise ValueError(
+                f"PSMPickEnv: reset option 'object' = {value.tolist()} is outside [{low.tolist()}, {high.tolist()}]"
+                " (base frame, m; the object cannot start inside the table)"
+            )
+        return np.clip(value, low, high)
+
+    def step(self, action):
+        dx, dy, dz, phi = self._read_action(action)
+        eta = self.step_size
+        high = self._tip_high
+        low = self._tip_low
+        if self.grasped:
+            # A carried object stays above the table: raise the tip's floor by how far the object hangs below it.
+            floor = self.object_rest_height - self._grasp_offset[2]
+            if floor > low[2]:
+                low = (low[0], low[1], min(floor, high[2]))
+        self.arm.move(eta * dx, eta * dy, eta * dz, low, high)
+        jaw = (phi + 1.0) * 0.5
+        self.arm.set_jaw(jaw)
+
+        # The paper's grasp rule.
+        adr = self._object_qpos
+        if self.grasped and jaw >= self.grasp_threshold:
+            self.grasped = False
+            self._object_at_rest = False
+            self.data.qvel[self._object_qvel:self._object_qvel + 6] = 0.0
+        elif not self.grasped and jaw < self.grasp_threshold and self.arm.grasp_sensor(self.data.qpos[adr:adr + 3]):
+            self.grasped = True
+            tx, ty, tz = self.arm.tip_world()
+            ox, oy, oz = self.data.qpos[adr:adr + 3].tolist()
+            self._grasp_offset = (ox - tx, oy - ty, oz - tz)
+            self.data.qvel[self._object_qvel:self._object_qvel + 6] = 0.0
+
+        unstable = False
+        if self.grasped:
+            self._carry_object()
+        elif not self._object_at_rest:
+            unstable = not self._simulate_object()
+        self._update_object_normalised()
+        reward, success = self._reward_and_success(self._object_normalised)
+        info = self._info(success)
+        if unstable:
+            info["sim_unstable"] = True
+        return self._observation(), reward, False, unstable, info
+
+    def _info(self, success: bool) -> dict:
+        return {"is_success": success, "grasped": self.grasped}
+
+    def _observation(self) -> dict:
+        tip = self._normalised_tuple(*self.arm.tip)
+        obj = self._object_normalised
+        return {
+            "observation": np.array((*tip, 2.0 * self.arm.jaw - 1.0, *obj)),
+            "achieved_goal": np.array(obj),
+            "desired_goal": np.array(self._goal_normalised),
+        }

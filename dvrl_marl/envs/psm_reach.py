@@ -1,0 +1,97 @@
+"""PSM Reach: move the tool tip of a dVRK PSM to a goal position (paper Sec. III-B).
+
+## Description
+A single Patient Side Manipulator holds an EndoWrist pointing down. The agent moves the tool tip, position
+p in the PSM base (remote centre of motion) frame, towards a goal g. As in the paper the arm is kinematic: every
+step sets new joint values by inverse kinematics, the way the dVRK takes new set points at 50 Hz. The policy
+uses only the tip position, so it runs on any EndoWrist: ``tool="lnd"`` (Large Needle Driver) or
+``tool="suction_irrigation"``.
+
+## Action Space
+``Box(-1, 1, (3,), float32)``: Delta. The tip moves by ``p <- p + eta * Delta`` (eta = 1 mm), then is
+projected back into the workspace box, above the table and within the joint limits. Values outside [-1, 1] are
+clipped; NaN/inf or a wrong shape raise ``ValueError``.
+
+## Observation Space
+``Dict`` of ``float64`` Boxes, positions normalised as in the paper, x~ = (x - p_c) / rho:
+
+| key | shape | content |
+|---|---|---|
+| ``observation`` | (3,) | p~, the tip |
+| ``achieved_goal`` | (3,) | p~ |
+| ``desired_goal`` | (3,) | g~ |
+
+## Rewards
+Sparse (``PSMReach-v0``): ``-1`` while ``rho * ||p~ - g~|| > delta`` (delta = 3 mm), else ``0``. Dense
+(``PSMReachDense-v0``): minus the distance in metres. ``compute_reward`` is vectorised for HER.
+
+## Starting State
+p_0 and g uniform in the reachable workspace: the box p_c +/- rho (p_c = (0, 0, -0.11) m, rho = 5 cm) above the
+table (the tip stays 3 mm above it) and within the joint limits. ``reset(options={"start": ..., "goal": ...})``
+sets either in metres (base frame).
+
+## Episode End
+No termination (the paper); ``max_episode_steps=100`` truncates. ``info["is_success"]`` reports the goal.
+
+## Arguments
+``tool``, ``reward_type`` ("sparse" | "dense"), ``render_mode`` ("rgb_array" | "depth_array" | "human"), and the
+paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`` (eta), ``distance_threshold``
+(delta), ``control_dt``, ``tip_clearance``; defaults in ``tasks/psm_reach.toml``.
+
+## Version History
+- v0: initial release (MuJoCo re-creation of dVRL's PSM Reach).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from dvrl_marl.envs.single_arm import PSMGoalEnv
+
+__all__ = ["PSMReachEnv"]
+
+
+class PSMReachEnv(PSMGoalEnv):
+    """PSM Reach (see the module documentation)."""
+
+    task_name = "psm_reach"
+    reset_option_keys = ("goal", "start")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        bound = np.full(3, 1.0 + 1e-9)  # the tip and goals never leave the workspace box
+        position = spaces.Box(-bound, bound, dtype=np.float64)
+        self.observation_space = spaces.Dict(
+            {"observation": position, "achieved_goal": position, "desired_goal": position}
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        options = self._check_options(options)
+        start = self._position_option(options, "start", self.tip_low, self.tip_high)
+        goal = self._position_option(options, "goal", self.tip_low, self.tip_high)
+        if start is None:
+            start = self._sample_in_box(self.tip_low, self.tip_high)
+        if goal is None:
+            goal = self._sample_in_box(self.tip_low, self.tip_high)
+        self.arm.set_tip(*start.tolist())
+        self._set_goal(goal)
+        tip = self._normalised_tuple(*self.arm.tip)
+        return self._observation(tip), {"is_success": self._reward_and_success(tip)[1]}
+
+    def step(self, action):
+        dx, dy, dz = self._read_action(action)
+        eta = self.step_size
+        self.arm.move(eta * dx, eta * dy, eta * dz, self._tip_low, self._tip_high)
+        tip = self._normalised_tuple(*self.arm.tip)
+        reward, success = self._reward_and_success(tip)
+        return self._observation(tip), reward, False, False, {"is_success": success}
+
+    def _observation(self, tip) -> dict:
+        return {
+            "observation": np.array(tip),
+            "achieved_goal": np.array(tip),
+            "desired_goal": np.array(self._goal_normalised),
+        }

@@ -1,0 +1,204 @@
+"""What PSM Reach and PSM Pick share: the paper's workspace, normalisation, eta steps and sparse reward.
+
+Subclasses define the task-specific state (an object for Pick), their spaces and their reset distribution. The
+arm is kinematic (paper Sec. III-A): a step moves the tip by ``eta * Delta`` through the closed-form IK; no MuJoCo
+call is made unless a free object needs physics or a frame is rendered.
+"""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from dvrl_marl import kinematics
+from dvrl_marl.arm import Arm
+from dvrl_marl.rendering import RENDER_MODES, SceneRenderer
+from dvrl_marl.scene import geom_top, load_model, object_id
+from dvrl_marl.task import TaskSpec, load_task
+
+__all__ = ["PSMGoalEnv"]
+
+#: How many candidate positions to draw at once when sampling the reachable workspace.
+_SAMPLE_BATCH = 16
+
+
+class PSMGoalEnv(gym.Env):
+    """Base class of the single-arm goal environments (see :class:`PSMReachEnv` and :class:`PSMPickEnv`)."""
+
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
+    #: Name of the task file in ``tasks/`` holding the defaults.
+    task_name: str = ""
+    #: Reset options this environment accepts (positions in metres, base frame).
+    reset_option_keys: tuple[str, ...] = ("goal", "start")
+
+    def __init__(
+        self,
+        *,
+        tool: str = "lnd",
+        reward_type: str = "sparse",
+        render_mode: str | None = None,
+        workspace_centre=None,
+        workspace_range: float | None = None,
+        step_size: float | None = None,
+        distance_threshold: float | None = None,
+        tip_clearance: float | None = None,
+        control_dt: float | None = None,
+        task: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        **task_overrides,
+    ):
+        if reward_type not in ("sparse", "dense"):
+            raise ValueError(f"{type(self).__name__}: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"{type(self).__name__}: render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+        spec = load_task(task or self.task_name).with_overrides(
+            workspace_centre=None if workspace_centre is None else tuple(float(v) for v in workspace_centre),
+            workspace_range=workspace_range,
+            step_size=step_size,
+            distance_threshold=distance_threshold,
+            tip_clearance=tip_clearance,
+            control_dt=control_dt,
+            **task_overrides,
+        ).validate()
+        if tool not in spec.scenes:
+            raise ValueError(f"{type(self).__name__}: tool must be one of {sorted(spec.scenes)}, got {tool!r}")
+        self.spec_task: TaskSpec = spec
+        self.tool = kinematics.get_tool(tool)
+        self.reward_type = reward_type
+        self.render_mode = render_mode
+
+        # The paper's parameters, as plain floats for the step path.
+        self.workspace_centre = np.array(spec.workspace_centre, dtype=np.float64)
+        self.workspace_range = float(spec.workspace_range)
+        self.step_size = float(spec.step_size)
+        self.distance_threshold = float(spec.distance_threshold)
+        self._centre = tuple(spec.workspace_centre)
+        self._inv_range = 1.0 / self.workspace_range
+
+        self.model = load_model(spec.scenes[tool])
+        self.data = mujoco.MjData(self.model)
+        self.arm = Arm(self.model, self.data, "psm/", self.tool)
+        if not np.allclose(self.arm.base_rotation[:, 2], (0.0, 0.0, 1.0)):
+            raise ValueError("single-arm scenes need an upright PSM base (the table is a floor in its frame)")
+        self.dt = float(spec.control_dt)
+        self.n_substeps = max(1, round(self.dt / self.model.opt.timestep))
+        #: Table top height in the base frame; the tip stays ``tip_clearance`` above it.
+        self.table_height = geom_top(self.model, "table") - float(self.arm.base_position[2])
+        low = self.workspace_centre - self.workspace_range
+        high = self.workspace_centre + self.workspace_range
+        low[2] = max(low[2], self.table_height + spec.tip_clearance)
+        if low[2] >= high[2]:
+            raise ValueError(f"the workspace lies entirely below the table (tip floor {low[2]:.4f} m)")
+        #: The tip's allowed box (base frame): the paper's p_c +/- rho, floored above the table.
+        self.tip_low, self.tip_high = low, high
+        self._tip_low, self._tip_high = tuple(low.tolist()), tuple(high.tolist())
+        if not kinematics.within_limits(self.tool, self.workspace_centre):
+            raise ValueError(f"the workspace centre {spec.workspace_centre} is outside the {tool} joint limits")
+        self._goal_mocap = self.model.body_mocapid[object_id(self.model, "body", "goal")]
+        self.goal = np.zeros(3)
+        self._goal_normalised = (0.0, 0.0, 0.0)
+        self._renderer = SceneRenderer(self.model, self.data, render_mode, width=width, height=height)
+
+    # --- helpers for subclasses ---------------------------------------------------------------------------
+    def normalise(self, position) -> np.ndarray:
+        """p~ = (p - p_c) / rho (paper Eq. 2), for base-frame positions (..., 3)."""
+        return (np.asarray(position, dtype=np.float64) - self.workspace_centre) * self._inv_range
+
+    def denormalise(self, normalised) -> np.ndarray:
+        """Inverse of :meth:`normalise`."""
+        return np.asarray(normalised, dtype=np.float64) * self.workspace_range + self.workspace_centre
+
+    def _normalised_tuple(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        c, k = self._centre, self._inv_range
+        return ((x - c[0]) * k, (y - c[1]) * k, (z - c[2]) * k)
+
+    def _read_action(self, action) -> list[float]:
+        """Validate an action and return it as clipped Python floats."""
+        try:
+            array = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{type(self).__name__}: action {action!r} is not numeric") from error
+        if array.shape != self.action_space.shape:
+            raise ValueError(
+                f"{type(self).__name__}: action must have shape {self.action_space.shape}, got {array.shape}"
+            )
+        values = array.tolist()
+        for value in values:
+            if not math.isfinite(value):
+                raise ValueError(f"{type(self).__name__}: action {values} contains NaN or inf")
+        return [-1.0 if v < -1.0 else 1.0 if v > 1.0 else v for v in values]
+
+    def _sample_in_box(self, low, high) -> np.ndarray:
+        """Uniform sample from the box [low, high] restricted to positions the arm can reach."""
+        for _ in range(1000):
+            candidates = self.np_random.uniform(low, high, size=(_SAMPLE_BATCH, 3))
+            ok = kinematics.within_limits(self.tool, candidates)
+            if ok.any():
+                return candidates[int(np.argmax(ok))]
+        raise RuntimeError(f"no reachable position in the box {low} .. {high}")
+
+    def _position_option(self, options: dict, key: str, low, high) -> np.ndarray | None:
+        if key not in options or options[key] is None:
+            return None
+        try:
+            value = np.asarray(options[key], dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{type(self).__name__}: reset option {key!r} must be 3 numbers (m)") from error
+        if value.shape != (3,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"{type(self).__name__}: reset option {key!r} must be 3 finite numbers (m), got {options[key]!r}")
+        tolerance = 1e-12
+        if np.any(value < np.asarray(low) - tolerance) or np.any(value > np.asarray(high) + tolerance):
+            raise ValueError(
+                f"{type(self).__name__}: reset option {key!r} = {value.tolist()} is outside "
+                f"[{np.asarray(low).tolist()}, {np.asarray(high).tolist()}] (base frame, m)"
+            )
+        value = np.clip(value, low, high)
+        if not kinematics.within_limits(self.tool, value):
+            raise ValueError(f"{type(self).__name__}: reset option {key!r} = {value.tolist()} is not reachable by the arm")
+        return value
+
+    def _check_options(self, options) -> dict:
+        if options is None:
+            return {}
+        if not isinstance(options, dict):
+            raise ValueError(f"{type(self).__name__}: reset options must be a dict, got {type(options).__name__}")
+        unknown = set(options) - set(self.reset_option_keys)
+        if unknown:
+            raise ValueError(
+                f"{type(self).__name__}: unknown reset option(s) {sorted(unknown)}; expected {list(self.reset_option_keys)}"
+            )
+        return options
+
+    def _set_goal(self, goal: np.ndarray) -> None:
+        self.goal = goal.copy()
+        self._goal_normalised = self._normalised_tuple(*goal.tolist())
+        self.data.mocap_pos[self._goal_mocap] = self.arm.to_world(goal)
+
+    def _reward_and_success(self, achieved: tuple[float, float, float]) -> tuple[float, bool]:
+        distance = self.workspace_range * math.dist(achieved, self._goal_normalised)
+        success = distance <= self.distance_threshold
+        if self.reward_type == "sparse":
+            return (0.0 if success else -1.0), success
+        return -distance, success
+
+    # --- Gymnasium API ------------------------------------------------------------------------------------
+    def compute_reward(self, achieved_goal, desired_goal, info) -> np.ndarray:
+        """The paper's reward for (batches of) normalised goals: -1 while rho*||a~ - g~|| > delta, else 0.
+
+        Dense variant: minus the distance in metres. Shapes ``(..., 3)`` give rewards of shape ``(...)``.
+        """
+        difference = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
+        distance = self.workspace_range * np.sqrt(np.sum(difference * difference, axis=-1))
+        if self.reward_type == "sparse":
+            return -(distance > self.distance_threshold).astype(np.float64)
+        return -distance
+
+    def render(self):
+        return self._renderer.render()
+
+    def close(self):
+        self._renderer.close()

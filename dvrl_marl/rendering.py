@@ -1,0 +1,54 @@
+"""Rendering a scene from its endoscope camera: RGB, depth, or a MuJoCo viewer window."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+__all__ = ["SceneRenderer", "RENDER_MODES"]
+
+RENDER_MODES = ("human", "rgb_array", "depth_array")
+
+
+class SceneRenderer:
+    """Lazily creates MuJoCo's offscreen renderer (or a passive viewer for ``"human"``)."""
+
+    def __init__(self, model, data, render_mode: str | None, camera: str = "endoscope", width: int = 640,
+                 height: int = 480):
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+        self.model, self.data, self.render_mode = model, data, render_mode
+        self.camera, self.width, self.height = camera, width, height
+        self._renderer = None
+        self._viewer = None
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            return None
+        mujoco.mj_forward(self.model, self.data)  # only when drawing: the step path keeps kinematics lazy
+        if self.render_mode == "human":
+            if self._viewer is None:
+                import mujoco.viewer
+
+                self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+            self._viewer.sync()
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, self.height, self.width)
+            if self.render_mode == "depth_array":
+                self._renderer.enable_depth_rendering()
+        self._renderer.update_scene(self.data, camera=self.camera)
+        return self._renderer.render()
+
+    @property
+    def viewer(self):
+        """The passive viewer in ``"human"`` mode (None until the first render)."""
+        return self._viewer
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
