@@ -21,6 +21,14 @@ __all__ = ["Arm"]
 _PROJECTION_ITERATIONS = 20
 
 
+def _as_slice(addresses):
+    """A slice when the addresses are consecutive (cheaper to assign through), else an index array."""
+    addresses = [int(a) for a in addresses]
+    if addresses == list(range(addresses[0], addresses[0] + len(addresses))):
+        return slice(addresses[0], addresses[0] + len(addresses))
+    return np.array(addresses)
+
+
 class Arm:
     """A PSM with ``tool`` whose bodies carry ``prefix`` (e.g. ``"psm/"``) in ``model``.
 
@@ -42,12 +50,12 @@ class Arm:
         self.base_position = data.xpos[base].copy()
         self.base_rotation = data.xmat[base].reshape(3, 3).copy()
         self._axis_aligned = bool(np.allclose(self.base_rotation, np.eye(3)))
-        self._joint_qpos = np.array(
+        self._joint_qpos = _as_slice(
             [model.jnt_qposadr[object_id(model, "joint", f"{prefix}{n}")] for n in self.tool.joint_names]
         )
         self.tip_site = object_id(model, "site", f"{prefix}tip")
         if self.tool.has_jaw:
-            self._jaw_qpos = np.array(
+            self._jaw_qpos = _as_slice(
                 [model.jnt_qposadr[object_id(model, "joint", f"{prefix}jaw_{side}")] for side in ("left", "right")]
             )
             zone = object_id(model, "site", f"{prefix}grasp_zone")

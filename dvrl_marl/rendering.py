@@ -28,9 +28,9 @@ class SceneRenderer:
         mujoco.mj_forward(self.model, self.data)  # only when drawing: the step path keeps kinematics lazy
         if self.render_mode == "human":
             if self._viewer is None:
-                import mujoco.viewer
+                from mujoco import viewer
 
-                self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+                self._viewer = viewer.launch_passive(self.model, self.data)
             self._viewer.sync()
             return None
         if self._renderer is None:

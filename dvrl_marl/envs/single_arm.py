@@ -179,7 +179,10 @@ class PSMGoalEnv(gym.Env):
         self.data.mocap_pos[self._goal_mocap] = self.arm.to_world(goal)
 
     def _reward_and_success(self, achieved: tuple[float, float, float]) -> tuple[float, bool]:
-        distance = self.workspace_range * math.dist(achieved, self._goal_normalised)
+        gx, gy, gz = self._goal_normalised
+        dx, dy, dz = achieved[0] - gx, achieved[1] - gy, achieved[2] - gz
+        # The same operations, in the same order, as compute_reward: step rewards equal it bit for bit.
+        distance = self.workspace_range * math.sqrt(dx * dx + dy * dy + dz * dz)
         success = distance <= self.distance_threshold
         if self.reward_type == "sparse":
             return (0.0 if success else -1.0), success
