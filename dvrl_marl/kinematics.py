@@ -36,6 +36,7 @@ __all__ = [
     "inverse_kinematics",
     "inverse_kinematics_point",
     "within_limits",
+    "wrist_position_point",
     "get_tool",
 ]
 
@@ -287,6 +288,14 @@ def inverse_kinematics_point(tool: Tool, x: float, y: float, z: float) -> tuple[
                 tool.name, (x, y, z), tool.joint_names[index], value, (tool.lower[index], tool.upper[index])
             )
     return q
+
+
+def wrist_position_point(tool: Tool, q) -> tuple[float, float, float]:
+    """The wrist pitch axis point on the shaft (base frame) for joint vector ``q``: where the straight shaft ends."""
+    s1, c1 = math.sin(q[0]), math.cos(q[0])
+    s2, c2 = math.sin(q[1]), math.cos(q[1])
+    length = q[2] - tool.insertion_offset
+    return (length * s1 * c2, -length * s2, -length * c1 * c2)
 
 
 def _solve_batch(tool: Tool, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

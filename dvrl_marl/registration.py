@@ -1,10 +1,10 @@
-"""Gymnasium registration of the single-arm environments (PettingZoo envs register in their own modules)."""
+"""Registration: the single-arm environments with Gymnasium, the collaborative one with PettingZoo."""
 
 from __future__ import annotations
 
 import gymnasium as gym
 
-__all__ = ["register_envs", "SINGLE_ARM_ENV_IDS"]
+__all__ = ["register_envs", "SINGLE_ARM_ENV_IDS", "MULTI_AGENT_ENV_IDS"]
 
 _PAPER_EPISODE_STEPS = 100  # paper Sec. IV-A (also tasks/*.toml max_episode_steps)
 
@@ -17,9 +17,29 @@ SINGLE_ARM_ENV_IDS = {
 }
 
 
+#: PettingZoo ids -> (parallel entry point, AEC entry point)
+MULTI_AGENT_ENV_IDS = {
+    "dvrl_marl/suction_debris-v0": (
+        "dvrl_marl.envs.suction_debris_v0:parallel_env",
+        "dvrl_marl.envs.suction_debris_v0:env",
+    ),
+}
+
+
 def register_envs() -> None:
-    """Register every single-arm id with Gymnasium (idempotent)."""
+    """Register every single-arm id with Gymnasium and, where PettingZoo has a registry, the collaborative one."""
     for env_id, (entry_point, kwargs) in SINGLE_ARM_ENV_IDS.items():
         if env_id in gym.registry:
             continue
         gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs, max_episode_steps=_PAPER_EPISODE_STEPS)
+    try:
+        import pettingzoo
+    except ImportError:  # pragma: no cover - pettingzoo is a dependency, but registration must never break import
+        return
+    if not hasattr(pettingzoo, "register"):  # PettingZoo releases before its registry
+        return
+    for env_id, (parallel_entry, aec_entry) in MULTI_AGENT_ENV_IDS.items():
+        if env_id not in pettingzoo.parallel_registry:
+            pettingzoo.register("parallel", env_id, entry_point=parallel_entry)
+        if env_id not in pettingzoo.aec_registry:
+            pettingzoo.register("aec", env_id, entry_point=aec_entry)

@@ -14,11 +14,12 @@ class SceneRenderer:
     """Lazily creates MuJoCo's offscreen renderer (or a passive viewer for ``"human"``)."""
 
     def __init__(self, model, data, render_mode: str | None, camera: str = "endoscope", width: int = 640,
-                 height: int = 480):
+                 height: int = 480, key_callback=None):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
         self.model, self.data, self.render_mode = model, data, render_mode
         self.camera, self.width, self.height = camera, width, height
+        self.key_callback = key_callback  # keys pressed in the "human" viewer (e.g. a KeyboardDevice)
         self._renderer = None
         self._viewer = None
 
@@ -30,7 +31,7 @@ class SceneRenderer:
             if self._viewer is None:
                 from mujoco import viewer
 
-                self._viewer = viewer.launch_passive(self.model, self.data)
+                self._viewer = viewer.launch_passive(self.model, self.data, key_callback=self.key_callback)
             self._viewer.sync()
             return None
         if self._renderer is None:

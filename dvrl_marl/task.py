@@ -12,7 +12,7 @@ from pathlib import Path
 
 from dvrl_marl.assets import tasks_dir
 
-__all__ = ["TaskSpec", "load_task", "available_tasks"]
+__all__ = ["TaskSpec", "load_task", "load_task_table", "available_tasks"]
 
 
 @dataclass(frozen=True)
@@ -61,17 +61,22 @@ def available_tasks() -> list[str]:
     return sorted(p.stem for p in tasks_dir().glob("*.toml"))
 
 
-def load_task(name: str | Path) -> TaskSpec:
-    """Read a task by name (``"psm_reach"``) or from a TOML file path."""
+def load_task_table(name: str | Path) -> tuple[str, dict]:
+    """The ``[task]`` table of a task file, by name (``"psm_reach"``) or path: (task name, table)."""
     path = Path(name)
     if path.suffix != ".toml":
         path = tasks_dir() / f"{name}.toml"
     if not path.is_file():
         raise FileNotFoundError(f"no task file {path}; available tasks: {available_tasks()}")
     with path.open("rb") as handle:
-        table = tomllib.load(handle)["task"]
+        return path.stem, tomllib.load(handle)["task"]
+
+
+def load_task(name: str | Path) -> TaskSpec:
+    """Read a single-arm task by name (``"psm_reach"``) or from a TOML file path."""
+    task_name, table = load_task_table(name)
     known = {f.name for f in fields(TaskSpec)} - {"name", "extra"}
     values = {k: v for k, v in table.items() if k in known}
     values["workspace_centre"] = tuple(float(v) for v in values["workspace_centre"])
     extra = {k: v for k, v in table.items() if k not in known}
-    return TaskSpec(name=path.stem, extra=extra, **values).validate()
+    return TaskSpec(name=task_name, extra=extra, **values).validate()

@@ -1,0 +1,772 @@
+"""Suction & debris removal: two PSMs clear a surgical phantom together (PettingZoo parallel environment).
+
+```python
+from dvrl_marl.envs import suction_debris_v0
+env = suction_debris_v0.parallel_env()                      # both arms learn
+env = suction_debris_v0.parallel_env(surgeon="scripted")    # the LND is driven by a scripted surgeon
+```
+
+## Description
+The paper's collaborative experiment (Sec. IV-D, Figs. 1, 6, 7) in one MuJoCo scene (``scenes/collaborative.xml``).
+A Suction & Irrigation PSM (agent ``"suction"``) removes fake blood from the two cavities of a gelatin phantom; as
+the blood level falls it reveals debris, 3 x 28 mm spring pins lying on the cavity floors, which a Large Needle
+Driver PSM (agent ``"grasper"``) grasps by the paper's grasp rule and hands to the first assistant by holding
+them within delta of the hand-off point. Arms are kinematic (eta steps through the closed-form IK, as in the
+single-arm environments); debris moves only with the gripper (released elsewhere, it drops onto the surface
+below it).
+
+The **surgeon seat**: ``surgeon=None`` (default) leaves both arms to the learning agents. ``"scripted"`` puts the
+built-in expert in ``surgeon_seat`` (``"grasper"`` by default, as in the paper where the surgeon worked the LND;
+``"suction"`` also works), a callable ``policy(observation) -> action`` puts a learned surgeon there, and a
+:mod:`dvrl_marl.teleop` device puts a human there. A bound seat leaves ``possible_agents`` and is driven inside
+``step()``. A device that raises, returns an unusable action or misses ``teleop_timeout`` holds its seat still
+that step (zero Delta, jaw or valve unchanged) and every agent's info gets ``teleop_lost=True``.
+
+## Agents and Action Spaces
+| agent | tool | action ``Box(-1, 1, (4,), float32)`` |
+|---|---|---|
+| ``"suction"`` | Suction & Irrigation | [Delta (3), valve: open when > 0] |
+| ``"grasper"`` | Large Needle Driver | [Delta (3), phi: jaw j = (phi + 1) / 2] |
+
+``p <- p + eta * Delta`` (eta = 1 mm), projected into the workspace box, above the phantom, cavity floors and
+table, and within the joint limits. A move that would make the instruments intersect is refused (the tip stays)
+and counts as a contact. Values outside [-1, 1] are clipped; a missing or unknown agent key, NaN/inf or a wrong
+shape raises ``ValueError`` naming the agent.
+
+## Observation Space
+Per agent, a flat ``Box(float64)`` with finite bounds; positions are normalised as in the paper,
+x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris.toml``):
+
+| slice | content |
+|---|---|
+| 0:3 | own tip~ |
+| 3 | own tool: jaw 2j - 1 (grasper) or valve +1 open / -1 closed (suction) |
+| 4:7 | other arm's tip~ |
+| 7:7+C | blood fraction left in each of the C = 2 cavities |
+| then 6 per debris | [position~ (zeros while hidden), visible, held, delivered] |
+| last 3 | hand-off point~ |
+
+``state()`` / ``state_space`` give the global state for centralised critics: both tips, jaw, valve, blood
+fractions, every debris with its true position (hidden ones included) and flags, the hand-off point.
+``observation_layout`` names the slices.
+
+## Rewards
+``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
+``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and minus
+10 x each agent's own distance (m) to what it should work on next. Both: each agent in an
+instrument-instrument contact gets ``-contact_penalty``.
+
+## Starting State
+Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper jaw open, valve closed; blood
+``blood_ml`` per cavity; ``debris_count`` pins placed at seeded random slots and orientations on the cavity
+floors, hidden under the blood.
+
+## Episode End
+Complete (every cavity below ``blood_threshold_ml`` and every debris delivered): all agents terminate.
+``max_cycles`` steps: all agents truncate. ``infos[agent]``: ``blood_remaining`` (ml, total),
+``blood_remaining_per_cavity``, ``debris_delivered``, ``collision``, ``is_success``.
+
+## Arguments
+``surgeon``, ``surgeon_seat``, ``reward_type``, ``render_mode`` ("rgb_array" | "human"), ``max_cycles``,
+``blood_ml``, ``blood_threshold_ml``, ``suction_rate_ml_s``, ``debris_count``, ``contact_penalty``,
+``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
+``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris.toml``.
+
+## Version History
+- v0: initial release.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import math
+from dataclasses import dataclass, fields, replace
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec
+
+from dvrl_marl import assets, kinematics
+from dvrl_marl.arm import Arm
+from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
+from dvrl_marl.rendering import SceneRenderer
+from dvrl_marl.scene import geom_top, load_model, object_id
+from dvrl_marl.task import load_task_table
+
+__all__ = ["parallel_env", "env", "raw_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS"]
+
+AGENTS = ("suction", "grasper")
+_TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
+_PREFIX = {"suction": "suction/", "grasper": "grasper/"}
+#: Radii used for instrument-instrument contact: the 8.5 mm shaft and the wrist/tube segment beyond it.
+_SHAFT_RADIUS = assets.SHAFT_RADIUS
+_WRIST_RADIUS = {"suction": assets.SUCTION_TUBE_RADIUS, "grasper": 0.0025}
+#: Instruments closer than this beyond touching also count as in contact (they touch after a refused move).
+_CONTACT_MARGIN = 5e-4
+#: Pin geometry (spring pins: 3 mm x 28 mm) and the spacing of the slots they lie in on a cavity floor.
+_PIN_RADIUS = 0.0015
+_PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28 mm
+_PIN_SLOTS = (0.0, -0.004, 0.004, -0.008, 0.008)
+#: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
+_PIN_SENSOR_RANGE = _PIN_RADIUS + 0.0015
+#: Tip start positions (world) before the seeded jitter.
+_STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
+_START_JITTER = 0.005
+_OBS_POSITION_BOUND = 10.0
+
+
+@dataclass(frozen=True)
+class SuctionDebrisParams:
+    """The task's parameters (see ``tasks/suction_debris.toml`` for defaults and sources)."""
+
+    scene: str
+    workspace_centre: tuple[float, float, float]
+    workspace_range: float
+    step_size: float
+    distance_threshold: float
+    grasp_threshold: float
+    control_dt: float
+    tip_clearance: float
+    blood_ml: tuple[float, ...]
+    blood_threshold_ml: float
+    suction_rate_ml_s: float
+    debris_count: int
+    contact_penalty: float
+    max_cycles: int
+
+    @classmethod
+    def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
+        _, table = load_task_table(task)
+        names = {f.name for f in fields(cls)}
+        unknown = set(overrides) - names
+        if unknown:
+            raise ValueError(f"suction_debris_v0: unknown argument(s) {sorted(unknown)}")
+        values = {k: v for k, v in table.items() if k in names}
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        values["workspace_centre"] = tuple(float(v) for v in values["workspace_centre"])
+        values["blood_ml"] = tuple(float(v) for v in values["blood_ml"])
+        return cls(**values).validated()
+
+    def validated(self) -> "SuctionDebrisParams":
+        for key in ("workspace_range", "step_size", "distance_threshold", "control_dt", "suction_rate_ml_s"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"suction_debris_v0: {key} must be positive, got {getattr(self, key)!r}")
+        if not 0.0 < self.grasp_threshold <= 1.0:
+            raise ValueError(f"suction_debris_v0: grasp_threshold must be in (0, 1], got {self.grasp_threshold!r}")
+        if not 1 <= int(self.debris_count) <= 2 * len(_PIN_SLOTS):
+            raise ValueError(f"suction_debris_v0: debris_count must be in 1..{2 * len(_PIN_SLOTS)}, got {self.debris_count!r}")
+        if int(self.max_cycles) < 1:
+            raise ValueError(f"suction_debris_v0: max_cycles must be >= 1, got {self.max_cycles!r}")
+        if self.blood_threshold_ml < 0 or self.contact_penalty < 0 or self.tip_clearance < 0:
+            raise ValueError("suction_debris_v0: blood_threshold_ml, contact_penalty and tip_clearance must be >= 0")
+        return replace(self, debris_count=int(self.debris_count), max_cycles=int(self.max_cycles))
+
+
+@dataclass(frozen=True)
+class SceneLayout:
+    """Fixed facts of the scene in normalised coordinates, for scripted agents and pipelines."""
+
+    cavity_centres: tuple[tuple[float, float], ...]  # x~, y~
+    cavity_mouth_radius: float  # normalised
+    cavity_floor: tuple[float, ...]  # z~ of each floor centre
+    phantom_top: float  # z~
+    blood_threshold_fraction: tuple[float, ...]
+    handoff: tuple[float, float, float]
+    base_positions: dict  # agent -> RCM position~
+    gain: float  # rho / eta: steps per normalised unit
+    clearance: float  # tip clearance, normalised
+
+
+def _segment_distance(p1, q1, p2, q2) -> float:
+    """Shortest distance between segments p1-q1 and p2-q2 (3-tuples), in plain floats."""
+    d1 = (q1[0] - p1[0], q1[1] - p1[1], q1[2] - p1[2])
+    d2 = (q2[0] - p2[0], q2[1] - p2[1], q2[2] - p2[2])
+    r = (p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2])
+    a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]
+    e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]
+    f = d2[0] * r[0] + d2[1] * r[1] + d2[2] * r[2]
+    c = d1[0] * r[0] + d1[1] * r[1] + d1[2] * r[2]
+    b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+    denominator = a * e - b * b
+    s = min(max((b * f - c * e) / denominator, 0.0), 1.0) if denominator > 1e-18 else 0.0
+    t = (b * s + f) / e if e > 1e-18 else 0.0
+    if t < 0.0:
+        t, s = 0.0, (min(max(-c / a, 0.0), 1.0) if a > 1e-18 else 0.0)
+    elif t > 1.0:
+        t, s = 1.0, (min(max((b - c) / a, 0.0), 1.0) if a > 1e-18 else 0.0)
+    dx = r[0] + d1[0] * s - d2[0] * t
+    dy = r[1] + d1[1] * s - d2[1] * t
+    dz = r[2] + d1[2] * s - d2[2] * t
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+def _point_segment_distance(point, start, end) -> float:
+    d = (end[0] - start[0], end[1] - start[1], end[2] - start[2])
+    v = (point[0] - start[0], point[1] - start[1], point[2] - start[2])
+    length2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    t = min(max((v[0] * d[0] + v[1] * d[1] + v[2] * d[2]) / length2, 0.0), 1.0) if length2 > 0 else 0.0
+    return math.dist(point, (start[0] + t * d[0], start[1] + t * d[1], start[2] + t * d[2]))
+
+
+class _Debris:
+    """One spring pin: plain state; the env mirrors it into the MuJoCo body."""
+
+    __slots__ = ("position", "yaw", "cavity", "visible", "held", "delivered", "lifted")
+
+    def __init__(self):
+        self.position = [0.0, 0.0, 0.0]
+        self.yaw = 0.0
+        self.cavity = 0
+        self.visible = False
+        self.held = False
+        self.delivered = False
+        self.lifted = False
+
+    def axis_ends(self):
+        dx, dy = _PIN_HALF_LENGTH * math.cos(self.yaw), _PIN_HALF_LENGTH * math.sin(self.yaw)
+        x, y, z = self.position
+        return (x - dx, y - dy, z), (x + dx, y + dy, z)
+
+
+class SuctionDebrisEnv(ParallelEnv):
+    """The collaborative suction and debris-removal environment (see the module documentation)."""
+
+    metadata = {
+        "name": "suction_debris_v0",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 50,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        surgeon=None,
+        surgeon_seat: str = "grasper",
+        reward_type: str = "sparse",
+        render_mode: str | None = None,
+        max_cycles: int | None = None,
+        teleop_timeout: float | None = 0.5,
+        width: int = 640,
+        height: int = 480,
+        task: str = "suction_debris",
+        **params,
+    ):
+        if reward_type not in ("sparse", "dense"):
+            raise ValueError(f"suction_debris_v0: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"suction_debris_v0: render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if surgeon_seat not in AGENTS:
+            raise ValueError(f"suction_debris_v0: surgeon_seat must be one of {AGENTS}, got {surgeon_seat!r}")
+        self.params = SuctionDebrisParams.from_task(task, max_cycles=max_cycles, **params)
+        p = self.params
+        self.reward_type = reward_type
+        self.render_mode = render_mode
+        self.teleop_timeout = teleop_timeout
+
+        self.model = load_model(p.scene)
+        self._hide_unused_debris()
+        self.data = mujoco.MjData(self.model)
+        self.arms = {agent: Arm(self.model, self.data, _PREFIX[agent], _TOOLS[agent]) for agent in AGENTS}
+        for arm in self.arms.values():
+            if not np.allclose(arm.base_rotation, np.eye(3)):
+                raise ValueError("suction_debris_v0 needs upright, unrotated PSM bases in its scene")
+        self.phantom = self._phantom_from_model()
+        self.blood = BloodState(self.phantom, p.blood_ml, p.suction_rate_ml_s)
+        self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.phantom.cavities))]
+        self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
+        self.handoff = tuple(float(v) for v in self.data.site_xpos[object_id(self.model, "site", "handoff")])
+        self._debris_bodies = [object_id(self.model, "body", f"debris_{i}") for i in range(p.debris_count)]
+        self._debris_qpos = [int(self.model.jnt_qposadr[self.model.body_jntadr[b]]) for b in self._debris_bodies]
+        self.debris = [_Debris() for _ in range(p.debris_count)]
+
+        # Workspace (world): the paper's box around p_c, tips kept above every surface by tip_clearance.
+        self.workspace_centre = np.array(p.workspace_centre)
+        self.workspace_range = float(p.workspace_range)
+        self._centre = p.workspace_centre
+        self._inv_range = 1.0 / self.workspace_range
+        self._low = tuple((self.workspace_centre - self.workspace_range).tolist())
+        self._high = tuple((self.workspace_centre + self.workspace_range).tolist())
+
+        # Seats and agents.
+        self.surgeon_seat = surgeon_seat if surgeon is not None else None
+        self._surgeon, self._surgeon_is_device = self._bind_surgeon(surgeon, surgeon_seat)
+        self.possible_agents = [a for a in AGENTS if a != self.surgeon_seat]
+        self.agents = []
+        n_cav = len(self.phantom.cavities)
+        self.observation_layout = {
+            "own_tip": slice(0, 3), "own_tool": slice(3, 4), "other_tip": slice(4, 7),
+            "blood": slice(7, 7 + n_cav), "debris": slice(7 + n_cav, 7 + n_cav + 6 * p.debris_count),
+            "handoff": slice(7 + n_cav + 6 * p.debris_count, 10 + n_cav + 6 * p.debris_count),
+        }
+        obs_dim = 10 + n_cav + 6 * p.debris_count
+        self._observation_space = spaces.Box(
+            -_OBS_POSITION_BOUND, _OBS_POSITION_BOUND, shape=(obs_dim,), dtype=np.float64
+        )
+        self._action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self._observation_spaces = {a: self._observation_space for a in AGENTS}
+        self._action_spaces = {a: self._action_space for a in AGENTS}
+        self.state_space = spaces.Box(-_OBS_POSITION_BOUND, _OBS_POSITION_BOUND, shape=(11 + n_cav + 6 * p.debris_count,),
+                                      dtype=np.float64)
+        self._renderer = SceneRenderer(self.model, self.data, render_mode, width=width, height=height,
+                                       key_callback=getattr(self._surgeon, "key_callback", None))
+        self._executor = None
+        self._pending_teleop = None
+        self._rng = np.random.default_rng()
+        self._step_count = 0
+        self.valve_open = False
+
+    # --- construction helpers -----------------------------------------------------------------------------
+    def _hide_unused_debris(self) -> None:
+        count = self.params.debris_count
+        index = count
+        available = 0
+        while mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, f"debris_{available}") >= 0:
+            available += 1
+        if count > available:
+            self.model = _model_with_more_debris(self.params.scene, count)
+            return
+        while index < available:  # more pins in the scene than asked for: take them out of sight and play
+            geom = object_id(self.model, "geom", f"debris_{index}")
+            self.model.geom_rgba[geom][3] = 0.0
+            self.model.geom_contype[geom] = 0
+            self.model.geom_conaffinity[geom] = 0
+            body = object_id(self.model, "body", f"debris_{index}")
+            self.model.body_pos[body] = (0.0, 0.0, -1.0)
+            self.model.qpos0[self.model.jnt_qposadr[self.model.body_jntadr[body]] + 2] = -1.0
+            index += 1
+
+    def _phantom_from_model(self) -> Phantom:
+        geom = object_id(self.model, "geom", "phantom")
+        hfield = self.model.geom_dataid[geom]
+        size = self.model.hfield_size[hfield]
+        px, py, pz = (float(v) for v in self.model.geom_pos[geom])
+        top = pz + float(size[2])
+        cavities = tuple(
+            Cavity(px + cx, py + cy, top, assets.CAVITY_MOUTH_RADIUS, assets.CAVITY_DEPTH)
+            for cx, cy in assets.CAVITY_CENTRES
+        )
+        return Phantom(px, py, float(size[0]), float(size[1]), top, geom_top(self.model, "table"), cavities)
+
+    def _bind_surgeon(self, surgeon, seat):
+        if surgeon is None:
+            return None, False
+        if isinstance(surgeon, str):
+            if surgeon != "scripted":
+                raise ValueError(f"suction_debris_v0: surgeon must be None, 'scripted', a callable or a teleop device, got {surgeon!r}")
+            from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon  # agents build on this env
+
+            return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self), False
+        if hasattr(surgeon, "action") and callable(surgeon.action):
+            return surgeon, True
+        if callable(surgeon):
+            return surgeon, False
+        raise ValueError(f"suction_debris_v0: surgeon {surgeon!r} is neither callable nor a teleop device")
+
+    # --- PettingZoo API -------------------------------------------------------------------------------------
+    def observation_space(self, agent):
+        try:
+            return self._observation_spaces[agent]
+        except KeyError:
+            raise ValueError(f"suction_debris_v0: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
+
+    def action_space(self, agent):
+        try:
+            return self._action_spaces[agent]
+        except KeyError:
+            raise ValueError(f"suction_debris_v0: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
+
+    def reset(self, seed=None, options=None):
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"suction_debris_v0: options must be a dict or None, got {type(options).__name__}")
+        if options:
+            raise ValueError(f"suction_debris_v0: unknown reset option(s) {sorted(options)}")
+        mujoco.mj_resetData(self.model, self.data)
+        rng = self._rng
+        for agent in AGENTS:
+            start = np.array(_STARTS[agent]) + rng.uniform(-_START_JITTER, _START_JITTER, 3)
+            arm = self.arms[agent]
+            arm.set_tip(*arm.to_base(start).tolist())
+            if arm.tool.has_jaw:
+                arm.set_jaw(1.0)
+        self.valve_open = False
+        self.blood.reset()
+        for index in range(len(self._blood_geoms)):
+            self._update_blood_visual(index)
+        self._place_debris(rng)
+        self._held = None
+        self._hold_offset = (0.0, 0.0, 0.0)
+        self._step_count = 0
+        self._contact = False
+        self.agents = list(self.possible_agents)
+        if self._surgeon is not None and hasattr(self._surgeon, "reset"):
+            self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
+        observations = {agent: self._observe(agent) for agent in self.agents}
+        infos = {agent: self._info(False, False) for agent in self.agents}
+        return observations, infos
+
+    def step(self, actions):
+        if not self.agents:
+            raise ValueError("suction_debris_v0: step() called after the episode ended; call reset()")
+        commands = self._read_actions(actions)
+        teleop_lost = False
+        if self._surgeon is not None:
+            command, teleop_lost = self._seat_command()
+            commands[self.surgeon_seat] = command
+        p = self.params
+        eta = p.step_size
+        contact = False
+        for agent in AGENTS:
+            dx, dy, dz, tool_value = commands[agent]
+            contact |= self._move(agent, eta * dx, eta * dy, eta * dz)
+            if agent == "suction":
+                if tool_value is not None:
+                    self.valve_open = tool_value > 0.0
+            elif tool_value is not None:
+                self.arms["grasper"].set_jaw((tool_value + 1.0) * 0.5)
+        removed = self._suction()
+        lifted, delivered = self._grasping()
+        self._step_count += 1
+        self._contact = contact
+
+        complete = self._complete()
+        truncated = self._step_count >= p.max_cycles and not complete
+        rewards = self._rewards(removed, lifted, delivered, complete, contact)
+        observations = {agent: self._observe(agent) for agent in self.agents}
+        infos = {agent: self._info(contact, complete) for agent in self.agents}
+        if teleop_lost:
+            for info in infos.values():
+                info["teleop_lost"] = True
+        terminations = {agent: complete for agent in self.agents}
+        truncations = {agent: truncated for agent in self.agents}
+        if complete or truncated:
+            self.agents = []
+        return observations, rewards, terminations, truncations, infos
+
+    def state(self) -> np.ndarray:
+        """The global state: tips, jaw, valve, blood, every debris (hidden included), hand-off point."""
+        values = [*self._norm(*self.arms["suction"].tip_world()), 1.0 if self.valve_open else -1.0,
+                  *self._norm(*self.arms["grasper"].tip_world()), 2.0 * self.arms["grasper"].jaw - 1.0]
+        values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
+        for pin in self.debris:
+            values += [*self._norm(*pin.position), float(pin.visible), float(pin.held), float(pin.delivered)]
+        values += self._norm(*self.handoff)
+        return np.array(values)
+
+    def render(self):
+        return self._renderer.render()
+
+    def close(self):
+        self._renderer.close()
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+        if self._surgeon_is_device and hasattr(self._surgeon, "close"):
+            self._safe_device_call(self._surgeon.close)
+
+    # --- public helpers -------------------------------------------------------------------------------------
+    def layout(self) -> SceneLayout:
+        """The scene's fixed facts in normalised coordinates (for scripted agents and pipelines)."""
+        k = self._inv_range
+        cavities = self.phantom.cavities
+        return SceneLayout(
+            cavity_centres=tuple(self._norm(c.centre_x, c.centre_y, 0.0)[:2] for c in cavities),
+            cavity_mouth_radius=assets.CAVITY_MOUTH_RADIUS * k,
+            cavity_floor=tuple(self._norm(0.0, 0.0, c.floor_z)[2] for c in cavities),
+            phantom_top=self._norm(0.0, 0.0, self.phantom.top_z)[2],
+            blood_threshold_fraction=tuple(
+                self.params.blood_threshold_ml / v if v > 0 else 0.0 for v in self.params.blood_ml
+            ),
+            handoff=self._norm(*self.handoff),
+            base_positions={a: self._norm(*self.arms[a].base_position.tolist()) for a in AGENTS},
+            gain=self.workspace_range / self.params.step_size,
+            clearance=self.params.tip_clearance * k,
+        )
+
+    def normalise(self, position_world) -> np.ndarray:
+        """x~ = (x - p_c) / rho for world positions (..., 3)."""
+        return (np.asarray(position_world, float) - self.workspace_centre) * self._inv_range
+
+    # --- internals ------------------------------------------------------------------------------------------
+    def _norm(self, x, y, z):
+        c, k = self._centre, self._inv_range
+        return ((x - c[0]) * k, (y - c[1]) * k, (z - c[2]) * k)
+
+    def _read_actions(self, actions) -> dict:
+        if not isinstance(actions, dict):
+            raise ValueError(f"suction_debris_v0: actions must be a dict keyed by agent, got {type(actions).__name__}")
+        for agent in actions:
+            if agent not in self.agents:
+                raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in actions; live agents are {self.agents}")
+        commands = {}
+        for agent in self.agents:
+            if agent not in actions:
+                raise ValueError(f"suction_debris_v0: no action for agent {agent!r}")
+            commands[agent] = self._validate(agent, actions[agent])
+        return commands
+
+    @staticmethod
+    def _validate(agent, action):
+        try:
+            array = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"suction_debris_v0: action for {agent!r} is not numeric: {action!r}") from error
+        if array.shape != (4,):
+            raise ValueError(f"suction_debris_v0: action for {agent!r} must have shape (4,), got {array.shape}")
+        values = array.tolist()
+        for value in values:
+            if not math.isfinite(value):
+                raise ValueError(f"suction_debris_v0: action for {agent!r} contains NaN or inf: {values}")
+        return [-1.0 if v < -1.0 else 1.0 if v > 1.0 else v for v in values]
+
+    def _seat_command(self):
+        """The bound seat's command; a failing device holds the seat still (tool value None = unchanged)."""
+        seat = self.surgeon_seat
+        observation = self._observe(seat)
+        hold = [0.0, 0.0, 0.0, None]
+        if not self._surgeon_is_device:
+            return self._validate(seat, self._surgeon(observation)), False
+        action = self._safe_device_call(self._surgeon.action, observation)
+        if action is None:
+            return hold, True
+        try:
+            return self._validate(seat, action), False
+        except ValueError:
+            return hold, True
+
+    def _safe_device_call(self, method, *args):
+        """Call a device method; None if it raises or misses the timeout (the episode must go on)."""
+        try:
+            if self.teleop_timeout is None:
+                return method(*args)
+            if self._pending_teleop is not None and not self._pending_teleop.done():
+                return None  # still stuck in an earlier call
+            if self._executor is None:
+                self._executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="teleop")
+            self._pending_teleop = self._executor.submit(method, *args)
+            return self._pending_teleop.result(timeout=self.teleop_timeout)
+        except Exception:  # noqa: BLE001  (any device failure holds the seat; it never ends the episode)
+            return None
+
+    def _floor(self, x, y) -> float:
+        return self.phantom.surface_height(x, y) + self.params.tip_clearance
+
+    def _move(self, agent, dx, dy, dz) -> bool:
+        """Move one arm's tip (world deltas); returns True when the instruments are in contact."""
+        arm = self.arms[agent]
+        old = arm.tip_world()
+        low, high = self._low, self._high
+        x = min(max(old[0] + dx, low[0]), high[0])
+        y = min(max(old[1] + dy, low[1]), high[1])
+        z = min(max(old[2] + dz, low[2]), high[2])
+        floor = self._floor(x, y)
+        if z < floor:
+            if floor - old[2] <= self.params.step_size + 1e-12:
+                z = floor  # slide up a gentle slope by at most one step
+            else:  # a wall: keep the horizontal position, move only vertically
+                x, y = old[0], old[1]
+                z = max(z, self._floor(x, y))
+        previous = list(arm.tip)
+        arm.move(x - old[0], y - old[1], z - old[2], (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+        clearance = self._instrument_distance()
+        if clearance < 0.0:
+            arm.set_tip(*previous)  # instruments never pass through each other
+            return True
+        return clearance < _CONTACT_MARGIN
+
+    def _instrument_segments(self, agent):
+        arm = self.arms[agent]
+        bx, by, bz = arm.base_position.tolist()
+        wx, wy, wz = kinematics.wrist_position_point(arm.tool, arm.q)
+        wrist = (wx + bx, wy + by, wz + bz)
+        return (bx, by, bz), wrist, arm.tip_world()
+
+    def _instrument_distance(self) -> float:
+        """Clearance between the two instruments (negative when they intersect)."""
+        rcm_a, wrist_a, tip_a = self._instrument_segments("suction")
+        rcm_b, wrist_b, tip_b = self._instrument_segments("grasper")
+        ra, rb = _WRIST_RADIUS["suction"], _WRIST_RADIUS["grasper"]
+        return min(
+            _segment_distance(rcm_a, wrist_a, rcm_b, wrist_b) - 2 * _SHAFT_RADIUS,
+            _segment_distance(rcm_a, wrist_a, wrist_b, tip_b) - _SHAFT_RADIUS - rb,
+            _segment_distance(wrist_a, tip_a, rcm_b, wrist_b) - ra - _SHAFT_RADIUS,
+            _segment_distance(wrist_a, tip_a, wrist_b, tip_b) - ra - rb,
+        )
+
+    def _suction(self) -> float:
+        if not self.valve_open:
+            return 0.0
+        x, y, z = self.arms["suction"].tip_world()
+        cavity, removed = self.blood.suck(x, y, z, self.params.control_dt)
+        if removed > 0.0:
+            self._update_blood_visual(cavity)
+            surface = self.blood.surface_z[cavity]
+            for pin in self.debris:
+                if pin.cavity == cavity and not pin.visible and pin.position[2] + _PIN_RADIUS > surface:
+                    pin.visible = True
+        return removed
+
+    def _update_blood_visual(self, index: int) -> None:
+        geom = self._blood_geoms[index]
+        radius = self.blood.surface_radius[index]
+        if self.blood.remaining_ml[index] <= 0.0 or radius <= 1e-4:
+            self.model.geom_rgba[geom][3] = 0.0
+            return
+        self.model.geom_rgba[geom] = self._blood_rgba[index]
+        self.model.geom_size[geom][0] = radius
+        self.model.geom_pos[geom][2] = self.blood.surface_z[index] - self.model.geom_size[geom][1]
+
+    def _place_debris(self, rng) -> None:
+        cavities = self.phantom.cavities
+        slots = [list(rng.permutation(len(_PIN_SLOTS))) for _ in cavities]
+        yaws = [float(rng.uniform(0.0, math.pi)) for _ in cavities]
+        for index, pin in enumerate(self.debris):
+            cavity_index = int(rng.integers(len(cavities)))
+            if not slots[cavity_index]:
+                cavity_index = 1 - cavity_index if len(cavities) == 2 else next(i for i, s in enumerate(slots) if s)
+            cavity = cavities[cavity_index]
+            offset = _PIN_SLOTS[slots[cavity_index].pop()]
+            yaw = yaws[cavity_index] + float(rng.uniform(-0.15, 0.15))
+            # Lying across the bowl: its end caps touch the sphere, so its axis sits this far below the centre.
+            radius = cavity.sphere_radius - _PIN_RADIUS
+            below_centre = math.sqrt(radius**2 - _PIN_HALF_LENGTH**2 - offset**2)
+            sphere_centre_z = cavity.top_z - cavity.depth + cavity.sphere_radius
+            pin.position = [cavity.centre_x - offset * math.sin(yaw), cavity.centre_y + offset * math.cos(yaw),
+                            sphere_centre_z - below_centre]
+            pin.yaw, pin.cavity = yaw, cavity_index
+            pin.held = pin.delivered = pin.lifted = False
+            pin.visible = pin.position[2] + _PIN_RADIUS > self.blood.surface_z[cavity_index]
+            self._sync_debris(index)
+
+    def _sync_debris(self, index: int) -> None:
+        pin = self.debris[index]
+        adr = self._debris_qpos[index]
+        if pin.delivered:  # handed to the assistant: out of the scene
+            self.data.qpos[adr:adr + 3] = (0.0, 0.0, -1.0)
+            return
+        self.data.qpos[adr:adr + 3] = pin.position
+        # Capsule axis is the body z axis: turn it horizontal (about y), then to the pin's yaw (about z).
+        half_yaw, c = 0.5 * pin.yaw, math.sqrt(0.5)
+        self.data.qpos[adr + 3:adr + 7] = (c * math.cos(half_yaw), -c * math.sin(half_yaw), c * math.cos(half_yaw),
+                                           c * math.sin(half_yaw))
+
+    def _grasping(self) -> tuple[int, int]:
+        """The paper's grasp rule for the LND and the hand-off. Returns (debris first lifted, delivered) counts."""
+        grasper = self.arms["grasper"]
+        tip = grasper.tip_world()
+        closed = grasper.jaw < self.params.grasp_threshold
+        lifted = delivered = 0
+        if self._held is not None and not closed:
+            pin = self.debris[self._held]
+            pin.held = False
+            # Released away from the assistant: it drops onto the surface below it.
+            pin.position[2] = self.phantom.surface_height(pin.position[0], pin.position[1]) + _PIN_RADIUS
+            self._sync_debris(self._held)
+            self._held = None
+        elif self._held is None and closed:
+            for index, pin in enumerate(self.debris):
+                if pin.visible and not pin.delivered:
+                    start, end = pin.axis_ends()
+                    if _point_segment_distance(tip, start, end) <= _PIN_SENSOR_RANGE:
+                        self._held = index
+                        pin.held = True
+                        self._hold_offset = tuple(pin.position[i] - tip[i] for i in range(3))
+                        if not pin.lifted:
+                            pin.lifted = True
+                            lifted = 1
+                        break
+        if self._held is not None:
+            pin = self.debris[self._held]
+            pin.position = [tip[i] + self._hold_offset[i] for i in range(3)]
+            if math.dist(pin.position, self.handoff) <= self.params.distance_threshold:
+                pin.held, pin.delivered = False, True
+                self._held = None
+                delivered = 1
+            self._sync_debris(self.debris.index(pin))
+        return lifted, delivered
+
+    def _complete(self) -> bool:
+        threshold = self.params.blood_threshold_ml
+        return all(v < threshold or v <= 0.0 for v in self.blood.remaining_ml) and all(p.delivered for p in self.debris)
+
+    def _rewards(self, removed, lifted, delivered, complete, contact) -> dict:
+        if self.reward_type == "sparse":
+            team = 0.0 if complete else -1.0
+            rewards = {agent: team for agent in self.agents}
+        else:
+            team = removed + 2.0 * lifted + 5.0 * delivered
+            rewards = {agent: team - 10.0 * self._work_distance(agent) for agent in self.agents}
+        if contact:
+            for agent in rewards:
+                rewards[agent] -= self.params.contact_penalty
+        return rewards
+
+    def _work_distance(self, agent) -> float:
+        """Distance (m) from the agent's tip to what it should work on next (0 when nothing is left)."""
+        tip = self.arms[agent].tip_world()
+        if agent == "suction":
+            targets = [(c.centre_x, c.centre_y, c.floor_z) for c, v in zip(self.phantom.cavities, self.blood.remaining_ml)
+                       if v >= self.params.blood_threshold_ml and v > 0.0]
+            return min((math.dist(tip, t) for t in targets), default=0.0)
+        if self._held is not None:
+            return math.dist(self.debris[self._held].position, self.handoff)
+        targets = [pin.position for pin in self.debris if pin.visible and not pin.delivered]
+        return min((math.dist(tip, t) for t in targets), default=0.0)
+
+    def _observe(self, agent) -> np.ndarray:
+        own = self.arms[agent]
+        other = self.arms["grasper" if agent == "suction" else "suction"]
+        tool = (1.0 if self.valve_open else -1.0) if agent == "suction" else 2.0 * own.jaw - 1.0
+        values = [*self._norm(*own.tip_world()), tool, *self._norm(*other.tip_world())]
+        values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
+        for pin in self.debris:
+            if pin.visible and not pin.delivered:
+                values += self._norm(*pin.position)
+            else:
+                values += (0.0, 0.0, 0.0)
+            values += (float(pin.visible), float(pin.held), float(pin.delivered))
+        values += self._norm(*self.handoff)
+        return np.array(values)
+
+    def _info(self, contact: bool, complete: bool) -> dict:
+        remaining = tuple(self.blood.remaining_ml)
+        return {
+            "blood_remaining": float(sum(remaining)),
+            "blood_remaining_per_cavity": remaining,
+            "debris_delivered": sum(p.delivered for p in self.debris),
+            "collision": bool(contact),
+            "is_success": bool(complete),
+        }
+
+
+def _model_with_more_debris(scene: str, count: int) -> mujoco.MjModel:
+    """The scene with extra pins (copies of debris_0) when ``debris_count`` exceeds the pins in the file."""
+    spec = mujoco.MjSpec.from_file(str(assets.scene_path(scene)))
+    template = spec.geom("debris_0")
+    index = 0
+    while spec.body(f"debris_{index}") is not None:
+        index += 1
+    while index < count:
+        body = spec.worldbody.add_body(name=f"debris_{index}", pos=[0.0, 0.0, -1.0])
+        body.add_freejoint(name=f"debris_{index}")
+        body.add_geom(name=f"debris_{index}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=template.size,
+                      material=template.material, density=template.density)
+        index += 1
+    return spec.compile()
+
+
+def parallel_env(**kwargs) -> SuctionDebrisEnv:
+    """The parallel environment (the native form)."""
+    return SuctionDebrisEnv(**kwargs)
+
+
+raw_env = parallel_env
+
+
+def env(**kwargs):
+    """The AEC form, through PettingZoo's parallel-to-AEC conversion."""
+    return parallel_to_aec(parallel_env(**kwargs))
+
