@@ -52,14 +52,15 @@ fractions, every debris with its true position (hidden ones included) and flags,
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
-``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and minus
-10 x each agent's own distance (m) to what it should work on next. Both: each agent in an
+``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and
+10 x the decrease of each agent's own distance (m) to what it should work on next (potential-based shaping). Both: each agent in an
 instrument-instrument contact gets ``-contact_penalty``.
 
 ## Starting State
 Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper jaw open, valve closed; blood
 ``blood_ml`` per cavity; ``debris_count`` pins placed at seeded random slots and orientations on the cavity
-floors, hidden under the blood.
+floors, hidden under the blood. ``reset(options={"blood_ml": [v0, v1]})`` sets the blood for that episode (and
+the ones after it); other keys are ignored with a warning.
 
 ## Episode End
 Complete (every cavity below ``blood_threshold_ml`` and every debris delivered): all agents terminate.
@@ -80,6 +81,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
+import warnings
 from dataclasses import dataclass, fields, replace
 
 import mujoco
@@ -289,11 +291,6 @@ class SuctionDebrisEnv(ParallelEnv):
         self._low = tuple((self.workspace_centre - self.workspace_range).tolist())
         self._high = tuple((self.workspace_centre + self.workspace_range).tolist())
 
-        # Seats and agents.
-        self.surgeon_seat = surgeon_seat if surgeon is not None else None
-        self._surgeon, self._surgeon_is_device = self._bind_surgeon(surgeon, surgeon_seat)
-        self.possible_agents = [a for a in AGENTS if a != self.surgeon_seat]
-        self.agents = []
         n_cav = len(self.phantom.cavities)
         self.observation_layout = {
             "own_tip": slice(0, 3), "own_tool": slice(3, 4), "other_tip": slice(4, 7),
@@ -309,6 +306,11 @@ class SuctionDebrisEnv(ParallelEnv):
         self._action_spaces = {a: self._action_space for a in AGENTS}
         self.state_space = spaces.Box(-_OBS_POSITION_BOUND, _OBS_POSITION_BOUND, shape=(11 + n_cav + 6 * p.debris_count,),
                                       dtype=np.float64)
+        # Seats and agents (a scripted surgeon reads the layout above).
+        self.surgeon_seat = surgeon_seat if surgeon is not None else None
+        self._surgeon, self._surgeon_is_device = self._bind_surgeon(surgeon, surgeon_seat)
+        self.possible_agents = [a for a in AGENTS if a != self.surgeon_seat]
+        self.agents = []
         self._renderer = SceneRenderer(self.model, self.data, render_mode, width=width, height=height,
                                        key_callback=getattr(self._surgeon, "key_callback", None))
         self._executor = None
@@ -382,8 +384,13 @@ class SuctionDebrisEnv(ParallelEnv):
             self._rng = np.random.default_rng(seed)
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"suction_debris_v0: options must be a dict or None, got {type(options).__name__}")
-        if options:
-            raise ValueError(f"suction_debris_v0: unknown reset option(s) {sorted(options)}")
+        options = dict(options or {})
+        blood_ml = options.pop("blood_ml", None)
+        if options:  # PettingZoo's own API test passes arbitrary options, so unknown ones warn rather than raise
+            warnings.warn(f"suction_debris_v0: ignoring unknown reset option(s) {sorted(options)}; known: ['blood_ml']",
+                          stacklevel=2)
+        if blood_ml is not None:
+            self.blood = BloodState(self.phantom, [float(v) for v in np.atleast_1d(blood_ml)], self.params.suction_rate_ml_s)
         mujoco.mj_resetData(self.model, self.data)
         rng = self._rng
         for agent in AGENTS:
@@ -402,6 +409,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._step_count = 0
         self._contact = False
         self.agents = list(self.possible_agents)
+        self._work_distances = {agent: self._work_distance(agent) for agent in AGENTS}
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
         observations = {agent: self._observe(agent) for agent in self.agents}
@@ -698,7 +706,12 @@ class SuctionDebrisEnv(ParallelEnv):
             rewards = {agent: team for agent in self.agents}
         else:
             team = removed + 2.0 * lifted + 5.0 * delivered
-            rewards = {agent: team - 10.0 * self._work_distance(agent) for agent in self.agents}
+            rewards = {}
+            for agent in self.agents:
+                # Potential-based shaping (Ng et al. 1999): it rewards progress without changing the optimum.
+                distance = self._work_distance(agent)
+                rewards[agent] = team + 10.0 * (self._work_distances[agent] - distance)
+                self._work_distances[agent] = distance
         if contact:
             for agent in rewards:
                 rewards[agent] -= self.params.contact_penalty
