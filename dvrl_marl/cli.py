@@ -23,6 +23,53 @@ def _render(args) -> int:
     return 0
 
 
+def _train(args) -> int:
+    from dvrl_marl.training.runner import load_config, train
+
+    config = load_config(args.config)
+    out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
+    history = train(config, args.seed, out, total_timesteps=args.steps, progress=not args.no_progress,
+                    resume=args.resume, tensorboard=args.tensorboard)
+    final = history[-1]
+    print(f"{config.name} seed {args.seed}: success {final['success_rate']:.2f} after {int(final['timesteps'])} steps; "
+          f"run folder {out}")
+    if args.export:
+        import gymnasium as gym
+
+        from dvrl_marl.training.export import export_policy
+        from dvrl_marl.training.runner import _algorithms
+
+        model = _algorithms()[config.algorithm].load(out / "final_model.zip", env=gym.make(config.env_id, **config.env))
+        export_policy(model, args.export, name=Path(args.export).name, env_id=config.env_id,
+                      training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
+                                "success_rate": final["success_rate"]})
+        print(f"exported the policy to {args.export}")
+    return 0
+
+
+def _evaluate(args) -> int:
+    import json
+
+    from dvrl_marl import policies
+    from dvrl_marl.training.runner import evaluate_policy
+
+    policy = policies.load(args.policy)
+    env_id = args.env or policy.spec["env_id"]
+    env_kwargs = {"tool": args.tool} if args.tool else {}
+    result = evaluate_policy(policy, env_id, args.episodes, seed=args.seed, env_kwargs=env_kwargs, video_path=args.video)
+    result.update({"policy": str(args.policy), "env_id": env_id, **env_kwargs})
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def _plot(args) -> int:
+    from dvrl_marl.training.plots import plot_learning_curves
+
+    png, csv_path = plot_learning_curves(args.runs, args.out)
+    print(f"wrote {png} and {csv_path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dvrl-marl", description="dVRK reinforcement-learning environments on MuJoCo")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -32,6 +79,31 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--width", type=int, default=640)
     render.add_argument("--height", type=int, default=480)
     render.set_defaults(func=_render)
+
+    train = sub.add_parser("train", help="train a policy from a configuration (baselines/configs/*.toml)")
+    train.add_argument("config", help="configuration TOML file")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--steps", type=int, help="override total_timesteps")
+    train.add_argument("--out", help="run folder (default runs/<config>-seed<seed>)")
+    train.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
+    train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs (needs tensorboard)")
+    train.add_argument("--export", help="folder to export the final policy to (numpy format)")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.set_defaults(func=_train)
+
+    evaluate = sub.add_parser("evaluate", help="success rate of a policy over seeded episodes")
+    evaluate.add_argument("policy", help="a shipped policy name (see dvrl_marl.policies.available()) or a folder")
+    evaluate.add_argument("--env", help="environment id (default: the one the policy was trained on)")
+    evaluate.add_argument("--tool", choices=["lnd", "suction_irrigation"], help="Reach: roll out on this tool")
+    evaluate.add_argument("--episodes", type=int, default=50)
+    evaluate.add_argument("--seed", type=int, default=1_000_000)
+    evaluate.add_argument("--video", help="write the first episodes to this MP4")
+    evaluate.set_defaults(func=_evaluate)
+
+    plot = sub.add_parser("plot", help="success rate against training steps (paper Fig. 4 style)")
+    plot.add_argument("runs", nargs="+", help="run folders (each with progress.csv)")
+    plot.add_argument("--out", default="baselines/results/learning_curves", help="output path without suffix")
+    plot.set_defaults(func=_plot)
     return parser
 
 

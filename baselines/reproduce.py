@@ -1,0 +1,87 @@
+"""Reproduce the baselines: train every configuration x seed, ship the best policies, plot the learning curves.
+
+    python baselines/reproduce.py --seeds 0 1 2 --jobs 2                 # everything (hours of CPU)
+    python baselines/reproduce.py --configs reach_lnd_ddpg_her --seeds 0  # one configuration
+
+Run folders go to ``runs/baselines/<config>-seed<N>``; the figure and its CSV to ``baselines/results/``; shipped
+policies (``--ship``) to ``baselines/policies/<name>`` with their evaluation and the command that made them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RUNS = Path("runs") / "baselines"
+#: Shipped policy name -> (configuration, evaluation keyword arguments)
+SHIPPED = {
+    "reach-lnd": ("reach_lnd_ddpg_her", {}),
+    "reach-suction-irrigation": ("reach_suction_irrigation_ddpg_her", {"tool": "suction_irrigation"}),
+    "pick-lnd": ("pick_lnd_ddpg_her_bc", {}),
+}
+
+
+def run(config: str, seed: int) -> Path:
+    out = RUNS / f"{config}-seed{seed}"
+    command = [sys.executable, "-m", "dvrl_marl.cli", "train", str(HERE / "configs" / f"{config}.toml"),
+               "--seed", str(seed), "--out", str(out), "--no-progress"]
+    if (out / "checkpoint.zip").is_file():
+        command.append("--resume")
+    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # one core per job
+    subprocess.run(command, check=True, env=env)
+    return out
+
+
+def ship(name: str, seed: int, episodes: int = 50) -> dict:
+    """Export a trained run as a shipped policy, with its evaluation and the commands behind it."""
+    from dvrl_marl import policies
+    from dvrl_marl.training.export import export_policy
+    from dvrl_marl.training.runner import _algorithms, evaluate_policy, load_config
+
+    config_name, eval_kwargs = SHIPPED[name]
+    config = load_config(HERE / "configs" / f"{config_name}.toml")
+    out = RUNS / f"{config_name}-seed{seed}"
+    import gymnasium as gym
+
+    model = _algorithms()[config.algorithm].load(out / "final_model.zip", env=gym.make(config.env_id, **config.env))
+    target = HERE / "policies" / name
+    export_policy(model, target, name=name, env_id=config.env_id, **eval_kwargs)
+    result = evaluate_policy(policies.load(target), config.env_id, episodes, seed=1_000_000, env_kwargs=eval_kwargs)
+    spec = json.loads((target / "policy.json").read_text())
+    spec["evaluation"] = {**result, "seed": 1_000_000,
+                          "command": f"dvrl-marl evaluate {name} --episodes {episodes}"
+                          + (f" --tool {eval_kwargs['tool']}" if "tool" in eval_kwargs else "")}
+    spec["training"] = {"config": f"baselines/configs/{config_name}.toml", "seed": seed,
+                        "command": f"python baselines/reproduce.py --configs {config_name} --seeds {seed} --ship {name}"}
+    (target / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
+    return spec["evaluation"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--configs", nargs="*", default=sorted(p.stem for p in (HERE / "configs").glob("*.toml")))
+    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--ship", nargs="*", default=[], help=f"export these from the first seed: {sorted(SHIPPED)}")
+    parser.add_argument("--no-train", action="store_true", help="only ship and plot existing runs")
+    args = parser.parse_args()
+    if not args.no_train:
+        with ThreadPoolExecutor(args.jobs) as pool:
+            list(pool.map(lambda job: run(*job), [(c, s) for c in args.configs for s in args.seeds]))
+    for name in args.ship:
+        print(name, ship(name, args.seeds[0]))
+    runs = sorted(str(p) for p in RUNS.glob("*-seed*") if (p / "progress.csv").is_file())
+    if runs:
+        from dvrl_marl.training.plots import plot_learning_curves
+
+        print(plot_learning_curves(runs, HERE / "results" / "learning_curves"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,101 @@
+"""Trained policies without torch: numpy inference for exported actors, and the policies shipped with the library.
+
+An exported policy is a folder with ``policy.npz`` (weights ``W0, b0, W1, b1, ...``; no pickles) and
+``policy.json`` (format, observation keys in the order the network reads them, layer activations, action bounds,
+and the evaluation figures with the command that produced them).
+
+>>> from dvrl_marl import policies
+>>> policies.available()                       # doctest: +SKIP
+['pick-lnd', 'reach-lnd', 'reach-suction-irrigation']
+>>> policy = policies.load("reach-lnd")        # doctest: +SKIP
+>>> action = policy(observation)               # the env's observation dict in, an action array out
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["NumpyPolicy", "available", "load", "shipped_dir", "POLICY_FORMAT"]
+
+POLICY_FORMAT = "dvrl-marl-policy-v1"
+_ACTIVATIONS = {
+    "relu": lambda x: np.maximum(x, 0.0),
+    "tanh": np.tanh,
+    "identity": lambda x: x,
+}
+
+
+def shipped_dir() -> Path:
+    """Folder of the shipped policies (``baselines/policies`` in the repository, inside the wheel when installed)."""
+    here = Path(__file__).resolve().parent
+    for candidate in (here / "shipped", here.parents[1] / "baselines" / "policies"):
+        if candidate.is_dir():
+            return candidate
+    raise FileNotFoundError("no shipped policies found (is the package installed?)")
+
+
+class NumpyPolicy:
+    """A multilayer perceptron actor evaluated with numpy: ``policy(observation) -> action``."""
+
+    def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]], spec: dict):
+        if spec.get("format") != POLICY_FORMAT:
+            raise ValueError(f"not a {POLICY_FORMAT} policy (format {spec.get('format')!r})")
+        activations = spec["activations"]
+        if len(activations) != len(weights):
+            raise ValueError(f"{len(weights)} layers but {len(activations)} activations")
+        unknown = set(activations) - set(_ACTIVATIONS)
+        if unknown:
+            raise ValueError(f"unknown activation(s) {sorted(unknown)}")
+        self.weights = weights
+        self.spec = spec
+        self.observation_keys = list(spec["observation_keys"])
+        self._activations = [_ACTIVATIONS[a] for a in activations]
+        self.action_low = np.asarray(spec["action_low"], dtype=np.float64)
+        self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
+
+    @property
+    def name(self) -> str:
+        return self.spec.get("name", "policy")
+
+    def features(self, observation) -> np.ndarray:
+        if isinstance(observation, dict):
+            parts = [np.asarray(observation[key], dtype=np.float64) for key in self.observation_keys]
+            return np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
+        return np.asarray(observation, dtype=np.float64)
+
+    def __call__(self, observation) -> np.ndarray:
+        x = self.features(observation)
+        for (weight, bias), activation in zip(self.weights, self._activations):
+            x = activation(x @ weight.T + bias)
+        # Networks act in [-1, 1]; map to the action space (identity for the dvrl-marl envs).
+        action = self.action_low + (x + 1.0) * 0.5 * (self.action_high - self.action_low)
+        return action.astype(np.float32)
+
+
+def available() -> list[str]:
+    """Names of the shipped policies."""
+    try:
+        root = shipped_dir()
+    except FileNotFoundError:
+        return []
+    return sorted(p.name for p in root.iterdir() if (p / "policy.json").is_file())
+
+
+def load(name_or_path) -> NumpyPolicy:
+    """A shipped policy by name, or an exported one from its folder (or its ``policy.json``)."""
+    path = Path(name_or_path)
+    if path.suffix == ".json":
+        path = path.parent
+    if not (path / "policy.json").is_file():
+        if str(name_or_path) in available():
+            path = shipped_dir() / str(name_or_path)
+        else:
+            raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
+    spec = json.loads((path / "policy.json").read_text())
+    with np.load(path / "policy.npz", allow_pickle=False) as archive:
+        count = len(spec["activations"])
+        weights = [(archive[f"W{i}"], archive[f"b{i}"]) for i in range(count)]
+    return NumpyPolicy(weights, spec)

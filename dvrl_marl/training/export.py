@@ -1,0 +1,79 @@
+"""Export an SB3 actor (DDPG/TD3 or SAC/TQC) to the torch-free format of :mod:`dvrl_marl.policies`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch as th
+from torch import nn
+
+from dvrl_marl.policies import POLICY_FORMAT
+
+__all__ = ["export_policy", "actor_layers"]
+
+_ACTIVATION_NAMES = {nn.ReLU: "relu", nn.Tanh: "tanh"}
+
+
+def _collect(modules, layers):
+    for module in modules:
+        if isinstance(module, nn.Linear):
+            layers.append([module.weight.detach().cpu().numpy().astype(np.float32),
+                           module.bias.detach().cpu().numpy().astype(np.float32), "identity"])
+        elif type(module) in _ACTIVATION_NAMES:
+            layers[-1][2] = _ACTIVATION_NAMES[type(module)]
+        elif isinstance(module, nn.Sequential):
+            _collect(module, layers)
+        elif not isinstance(module, (nn.Flatten, nn.Identity)):
+            raise ValueError(f"cannot export layer {module!r}")
+
+
+def actor_layers(model) -> list[tuple[np.ndarray, np.ndarray, str]]:
+    """The deterministic actor as (weight, bias, activation) layers."""
+    actor = model.actor
+    layers: list = []
+    if hasattr(actor, "mu") and hasattr(actor, "latent_pi"):  # SAC / TQC: tanh(mu(latent_pi(x)))
+        _collect(actor.latent_pi, layers)
+        _collect([actor.mu], layers)
+        layers[-1][2] = "tanh"
+    else:  # DDPG / TD3: mu already ends in tanh
+        _collect(actor.mu, layers)
+    return [tuple(layer) for layer in layers]
+
+
+def _observation_keys(model) -> list[str]:
+    return list(model.observation_space.spaces.keys())
+
+
+def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Path:
+    """Write ``policy.npz`` and ``policy.json`` into ``directory``; returns the folder."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    layers = actor_layers(model)
+    arrays = {}
+    for index, (weight, bias, _) in enumerate(layers):
+        arrays[f"W{index}"], arrays[f"b{index}"] = weight, bias
+    with (directory / "policy.npz").open("wb") as handle:
+        np.savez(handle, **arrays)
+    spec = {
+        "format": POLICY_FORMAT,
+        "name": name,
+        "env_id": env_id,
+        "algorithm": type(model).__name__,
+        "observation_keys": _observation_keys(model),
+        "layer_sizes": [int(layers[0][0].shape[1])] + [int(w.shape[0]) for w, _, _ in layers],
+        "activations": [activation for _, _, activation in layers],
+        "action_low": model.action_space.low.tolist(),
+        "action_high": model.action_space.high.tolist(),
+        **metadata,
+    }
+    (directory / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
+    return directory
+
+
+def torch_actions(model, observation: dict) -> np.ndarray:
+    """The SB3 policy's deterministic actions for a batch of observation dicts (for checking an export)."""
+    with th.no_grad():
+        actions, _ = model.predict(observation, deterministic=True)
+    return actions

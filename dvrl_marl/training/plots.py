@@ -1,0 +1,75 @@
+"""Learning curves in the style of the paper's Fig. 4: success rate against environment steps, mean and spread
+over seeds, one line per configuration."""
+
+from __future__ import annotations
+
+import csv
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["read_progress", "aggregate", "plot_learning_curves"]
+
+
+def read_progress(run_dir) -> dict[str, np.ndarray]:
+    with (Path(run_dir) / "progress.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    return {key: np.array([float(r[key]) for r in rows]) for key in rows[0]} if rows else {}
+
+
+def _label(run_dir: Path) -> str:
+    """Runs named ``<config>-seed<N>`` group by config."""
+    name = run_dir.name
+    return name.rsplit("-seed", 1)[0] if "-seed" in name else name
+
+
+def aggregate(run_dirs) -> dict[str, dict[str, np.ndarray]]:
+    """Per configuration: timesteps, mean and std of success over seeds (on the common evaluation steps)."""
+    groups: dict[str, list] = defaultdict(list)
+    for run in map(Path, run_dirs):
+        progress = read_progress(run)
+        if progress:
+            groups[_label(run)].append(progress)
+    result = {}
+    for label, runs in sorted(groups.items()):
+        length = min(len(r["timesteps"]) for r in runs)
+        success = np.stack([r["success_rate"][:length] for r in runs])
+        result[label] = {"timesteps": runs[0]["timesteps"][:length], "mean": success.mean(0), "std": success.std(0),
+                         "seeds": np.array(len(runs))}
+    return result
+
+
+def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
+    """Write ``<out>.png`` (the figure) and ``<out>.csv`` (the numbers behind it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    curves = aggregate(run_dirs)
+    figure, axis = plt.subplots(figsize=(7, 4.2))
+    rows = []
+    for label, curve in curves.items():
+        steps, mean, std = curve["timesteps"], curve["mean"], curve["std"]
+        axis.plot(steps, mean, label=f"{label} ({int(curve['seeds'])} seeds)")
+        axis.fill_between(steps, np.clip(mean - std, 0, 1), np.clip(mean + std, 0, 1), alpha=0.2)
+        rows += [(label, int(s), float(m), float(d), int(curve["seeds"])) for s, m, d in zip(steps, mean, std)]
+    axis.set_xlabel("environment steps")
+    axis.set_ylabel("success rate (50 evaluation episodes)")
+    axis.set_ylim(-0.02, 1.02)
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8, loc="lower right")
+    axis.set_title("dvrl-marl: PSM Reach and Pick")
+    figure.tight_layout()
+    png = out.with_suffix(".png")
+    figure.savefig(png, dpi=120)
+    plt.close(figure)
+    csv_path = out.with_suffix(".csv")
+    with csv_path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["config", "timesteps", "success_mean", "success_std", "seeds"])
+        writer.writerows(rows)
+    return png, csv_path

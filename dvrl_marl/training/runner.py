@@ -1,0 +1,263 @@
+"""Reproducible training runs from a configuration file, with evaluation, CSV logs, checkpoints and resume.
+
+A configuration (``baselines/configs/*.toml``, one per environment x algorithm, in the spirit of
+rl-baselines3-zoo's hyperparameter files)::
+
+    [run]
+    env_id = "dvrl_marl/PSMReach-v0"
+    algorithm = "ddpg"          # ddpg | ddpg_bc | td3 | sac | tqc
+    total_timesteps = 20000
+    eval_every = 2000           # environment steps between evaluations
+    eval_episodes = 50
+    demonstrations = 0          # expert episodes to seed the replay buffer (and, for ddpg_bc, the BC loss)
+    action_noise = 0.2          # Gaussian exploration noise (DDPG/TD3)
+    [env]                       # keyword arguments of gym.make
+    [her]                       # HerReplayBuffer keyword arguments
+    [algorithm]                 # keyword arguments of the SB3 class
+    [policy]                    # policy_kwargs
+
+A run folder holds ``config.toml`` (what ran), ``progress.csv`` (one row per evaluation: timesteps, success rate,
+mean final distance, wall time), SB3's ``train_log.csv``, ``checkpoint.zip`` + ``replay_buffer.pkl`` (``resume``
+continues from them) and ``demonstrations.npz`` when demonstrations were used.
+"""
+
+from __future__ import annotations
+
+import csv
+import shutil
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import dvrl_marl  # noqa: F401  (registers the environments)
+from dvrl_marl.training.bc import DDPGBC
+from dvrl_marl.training.demonstrations import (
+    generate_demonstrations,
+    observation_batch,
+    save_demonstrations,
+)
+
+__all__ = ["RunConfig", "load_config", "train", "evaluate_policy", "ALGORITHMS"]
+
+
+def _algorithms() -> dict:
+    from stable_baselines3 import DDPG, SAC, TD3
+
+    table = {"ddpg": DDPG, "ddpg_bc": DDPGBC, "td3": TD3, "sac": SAC}
+    try:
+        from sb3_contrib import TQC
+
+        table["tqc"] = TQC
+    except ImportError:  # sb3-contrib is optional
+        pass
+    return table
+
+
+ALGORITHMS = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
+
+
+@dataclass
+class RunConfig:
+    name: str
+    env_id: str
+    algorithm: str
+    total_timesteps: int
+    eval_every: int = 2000
+    eval_episodes: int = 50
+    demonstrations: int = 0
+    action_noise: float = 0.0
+    env: dict = field(default_factory=dict)
+    her: dict = field(default_factory=dict)
+    algorithm_kwargs: dict = field(default_factory=dict)
+    policy: dict = field(default_factory=dict)
+    source: str = ""
+
+    def validate(self) -> "RunConfig":
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(f"config {self.name}: algorithm must be one of {ALGORITHMS}, got {self.algorithm!r}")
+        if self.env_id not in gym.registry:
+            raise ValueError(f"config {self.name}: unknown env_id {self.env_id!r}")
+        for key in ("total_timesteps", "eval_every", "eval_episodes"):
+            if int(getattr(self, key)) <= 0:
+                raise ValueError(f"config {self.name}: {key} must be positive")
+        return self
+
+
+def load_config(path) -> RunConfig:
+    """Read a run configuration from a TOML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no configuration file {path}")
+    text = path.read_text()
+    table = tomllib.loads(text)
+    run = dict(table.get("run", {}))
+    unknown = set(run) - {"env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations",
+                          "action_noise"}
+    if unknown:
+        raise ValueError(f"config {path}: unknown [run] key(s) {sorted(unknown)}")
+    return RunConfig(
+        name=path.stem, env=table.get("env", {}), her=table.get("her", {}),
+        algorithm_kwargs=table.get("algorithm", {}), policy=table.get("policy", {}), source=text, **run,
+    ).validate()
+
+
+def evaluate_policy(policy, env_id: str, episodes: int, seed: int = 1_000_000, env_kwargs: dict | None = None,
+                    video_path=None) -> dict:
+    """Success rate and mean final distance over seeded episodes; ``policy(observation_dict) -> action``."""
+    render_mode = "rgb_array" if video_path else None
+    env = gym.make(env_id, render_mode=render_mode, **(env_kwargs or {}))
+    successes, distances, frames = 0, [], []
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=seed + episode)
+        done = False
+        while not done:
+            obs, _, terminated, truncated, info = env.step(policy(obs))
+            done = terminated or truncated
+            if video_path and episode < 3:
+                frames.append(env.render())
+        successes += bool(info["is_success"])
+        unwrapped = env.unwrapped
+        distances.append(unwrapped.workspace_range * float(np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])))
+    env.close()
+    if video_path:
+        from dvrl_marl.video import write_video
+
+        write_video(video_path, frames, fps=env.metadata["render_fps"])
+    return {"success_rate": successes / episodes, "mean_final_distance": float(np.mean(distances)),
+            "episodes": episodes}
+
+
+def _sb3_policy(model):
+    def act(observation):
+        action, _ = model.predict(observation, deterministic=True)
+        return action
+
+    return act
+
+
+def _seed_buffer_with_demonstrations(model, demos: dict) -> None:
+    observations = observation_batch(demos)
+    next_observations = observation_batch(demos, "next_")
+    episodes = demos["episode"]
+    for i in range(len(episodes)):
+        last = i + 1 == len(episodes) or episodes[i + 1] != episodes[i]
+        model.replay_buffer.add(
+            {k: v[i:i + 1] for k, v in observations.items()},
+            {k: v[i:i + 1] for k, v in next_observations.items()},
+            demos["action"][i:i + 1], np.array([demos["reward"][i]]), np.array([last]),
+            [{"TimeLimit.truncated": bool(last)}],
+        )
+
+
+def _build_model(config: RunConfig, env, seed: int, out_dir: Path, tensorboard: bool):
+    from stable_baselines3 import HerReplayBuffer
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    cls = _algorithms().get(config.algorithm)
+    if cls is None:
+        raise ValueError(f"algorithm {config.algorithm!r} needs sb3-contrib (pip install sb3-contrib)")
+    kwargs = dict(config.algorithm_kwargs)
+    if "train_freq" in kwargs and isinstance(kwargs["train_freq"], list):
+        kwargs["train_freq"] = tuple(kwargs["train_freq"])
+    if config.action_noise > 0:
+        dim = env.action_space.shape[0]
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(dim), config.action_noise * np.ones(dim))
+    return cls(
+        "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, replay_buffer_kwargs=dict(config.her),
+        policy_kwargs=dict(config.policy), seed=seed, verbose=0,
+        tensorboard_log=str(out_dir / "tensorboard") if tensorboard else None, **kwargs,
+    )
+
+
+def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None = None, progress: bool = True,
+          resume: bool = False, tensorboard: bool = False) -> list[dict]:
+    """Train ``config`` with ``seed`` into ``out_dir``; returns the evaluation history."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.monitor import Monitor
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    total = int(total_timesteps or config.total_timesteps)
+    env = Monitor(gym.make(config.env_id, **config.env))
+    checkpoint, buffer_path = out_dir / "checkpoint.zip", out_dir / "replay_buffer.pkl"
+    progress_csv = out_dir / "progress.csv"
+    history: list[dict] = []
+    if resume and checkpoint.is_file():
+        model = _algorithms()[config.algorithm].load(checkpoint, env=env)
+        model.load_replay_buffer(buffer_path)
+        if progress_csv.is_file():
+            with progress_csv.open() as handle:
+                history = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
+        if isinstance(model, DDPGBC) and (out_dir / "demonstrations.npz").is_file():
+            from dvrl_marl.training.demonstrations import load_demonstrations
+
+            demos = load_demonstrations(out_dir / "demonstrations.npz")
+            model.set_demonstrations(observation_batch(demos), demos["action"])
+    else:
+        (out_dir / "config.toml").write_text(config.source or "")
+        model = _build_model(config, env, seed, out_dir, tensorboard)
+        if config.demonstrations:
+            demos = generate_demonstrations(config.env_id, config.demonstrations, seed=10_000 * (seed + 1),
+                                            env_kwargs=config.env)
+            save_demonstrations(demos, out_dir / "demonstrations.npz")
+            _seed_buffer_with_demonstrations(model, demos)
+            if isinstance(model, DDPGBC):
+                model.set_demonstrations(observation_batch(demos), demos["action"])
+        if progress_csv.exists():
+            progress_csv.unlink()
+    formats = ["csv"] + (["tensorboard"] if tensorboard and _has_tensorboard() else [])
+    model.set_logger(configure(str(out_dir / "sb3_log"), formats))
+
+    start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, initial=model.num_timesteps, desc=config.name, unit="step", dynamic_ncols=True)
+
+    def evaluate_and_checkpoint():
+        result = evaluate_policy(_sb3_policy(model), config.env_id, config.eval_episodes, env_kwargs=config.env)
+        row = {"timesteps": model.num_timesteps, "success_rate": result["success_rate"],
+               "mean_final_distance": result["mean_final_distance"], "wall_seconds": time.perf_counter() - start}
+        history.append(row)
+        new_file = not progress_csv.exists()
+        with progress_csv.open("a", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(row))
+            if new_file:
+                writer.writeheader()
+            writer.writerow(row)
+        model.save(checkpoint)
+        model.save_replay_buffer(buffer_path)
+        if bar is not None:
+            bar.set_postfix(success=f"{result['success_rate']:.2f}")
+
+    class _Callback(BaseCallback):
+        def _on_step(self) -> bool:
+            if bar is not None:
+                bar.update(1)
+            if self.model.num_timesteps % config.eval_every == 0:
+                evaluate_and_checkpoint()
+            return True
+
+    remaining = total - model.num_timesteps
+    if remaining > 0:
+        model.learn(remaining, callback=_Callback(), reset_num_timesteps=not resume, progress_bar=False)
+    if not history or history[-1]["timesteps"] != model.num_timesteps:
+        evaluate_and_checkpoint()
+    if bar is not None:
+        bar.close()
+    shutil.copyfile(checkpoint, out_dir / "final_model.zip")
+    return history
+
+
+def _has_tensorboard() -> bool:
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        return False
+    return True

@@ -1,0 +1,148 @@
+"""Training extensions and the run machinery (fast versions only; the real runs are in baselines/)."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+
+from dvrl_marl import policies
+from dvrl_marl.training import bc_loss, export_policy, load_config, q_filter_mask, train
+from dvrl_marl.training.demonstrations import generate_demonstrations, load_demonstrations, save_demonstrations
+from dvrl_marl.training.runner import _algorithms, evaluate_policy
+
+CONFIGS = sorted((Path(__file__).parents[1] / "baselines" / "configs").glob("*.toml"))
+
+
+def test_bc_loss_on_a_hand_made_batch():
+    policy = th.tensor([[0.0, 0.0], [1.0, -1.0], [0.5, 0.5]])
+    demo = th.tensor([[1.0, 0.0], [1.0, 1.0], [0.5, 0.5]])
+    assert bc_loss(policy, demo).item() == pytest.approx(1.0 + 4.0 + 0.0)
+    mask = th.tensor([1.0, 0.0, 1.0])
+    assert bc_loss(policy, demo, mask).item() == pytest.approx(1.0)
+
+
+def test_q_filter_keeps_only_demonstrations_the_critic_prefers():
+    q_demo = th.tensor([[1.0], [0.0], [2.0], [-1.0]])
+    q_policy = th.tensor([[0.5], [0.0], [3.0], [-2.0]])
+    assert q_filter_mask(q_demo, q_policy).tolist() == [1.0, 0.0, 0.0, 1.0]
+
+
+def test_bc_gradient_pulls_the_actor_towards_the_demonstrations():
+    from stable_baselines3 import HerReplayBuffer
+
+    from dvrl_marl.training import DDPGBC
+
+    env = gym.make("dvrl_marl/PSMReach-v0")
+    model = DDPGBC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, learning_starts=100, batch_size=16,
+                   bc_weight=1.0, demo_batch_size=8, action_l2=0.0, policy_kwargs={"net_arch": [16]}, seed=0,
+                   learning_rate=1e-2)
+    obs, _ = env.reset(seed=0)
+    demo_obs = {k: np.repeat(v[None], 8, axis=0) for k, v in obs.items()}
+    demo_actions = np.tile(np.array([[1.0, -1.0, 0.5]], dtype=np.float32), (8, 1))
+    model.set_demonstrations(demo_obs, demo_actions)
+    model.learn(300)  # fills the buffer and trains
+    before = np.abs(model.predict(obs, deterministic=True)[0] - demo_actions[0]).sum()
+    model.bc_weight = 100.0  # BC dominates: the actor must move to the demonstrated action
+    model.train(gradient_steps=200, batch_size=16)
+    after = np.abs(model.predict(obs, deterministic=True)[0] - demo_actions[0]).sum()
+    assert after < before and after < 0.3
+
+
+def _tiny(config):
+    algorithm_kwargs = dict(config.algorithm_kwargs)
+    algorithm_kwargs.update(learning_starts=100, gradient_steps=2, buffer_size=2000, batch_size=32)
+    if config.algorithm == "ddpg_bc":
+        algorithm_kwargs.update(demo_batch_size=16)
+    return dataclasses.replace(config, total_timesteps=300, eval_every=150, eval_episodes=2,
+                               demonstrations=min(config.demonstrations, 2), algorithm_kwargs=algorithm_kwargs,
+                               policy={"net_arch": [16, 16]})
+
+
+@pytest.mark.parametrize("config_path", CONFIGS, ids=lambda p: p.stem)
+def test_every_configuration_trains_end_to_end(config_path, tmp_path):
+    config = _tiny(load_config(config_path))
+    if config.algorithm not in _algorithms():
+        pytest.skip(f"{config.algorithm} needs sb3-contrib")
+    history = train(config, seed=0, out_dir=tmp_path, progress=False)
+    assert [row["timesteps"] for row in history] == [150, 300]
+    for name in ("progress.csv", "checkpoint.zip", "replay_buffer.pkl", "final_model.zip", "config.toml"):
+        assert (tmp_path / name).is_file(), name
+    if config.demonstrations:
+        demos = load_demonstrations(tmp_path / "demonstrations.npz")
+        assert demos["metadata"]["episodes"] == 2
+
+
+def test_resume_continues_from_the_checkpoint(tmp_path):
+    config = _tiny(load_config(next(p for p in CONFIGS if p.stem == "reach_lnd_ddpg_her")))
+    train(config, seed=0, out_dir=tmp_path, progress=False)
+    history = train(dataclasses.replace(config, total_timesteps=450), seed=0, out_dir=tmp_path, progress=False,
+                    resume=True)
+    assert [row["timesteps"] for row in history] == [150, 300, 450]
+
+
+def test_demonstrations_file_round_trip(tmp_path):
+    data = generate_demonstrations("dvrl_marl/PSMPick-v0", episodes=3, seed=0)
+    path = save_demonstrations(data, tmp_path / "demos.npz")
+    loaded = load_demonstrations(path)
+    assert loaded["metadata"]["episodes"] == 3 and set(np.unique(loaded["episode"])) == {0, 1, 2}
+    np.testing.assert_array_equal(loaded["action"], data["action"])
+    assert loaded["observation"].shape[1] == 7 and loaded["action"].shape[1] == 4
+    with pytest.raises(ValueError):
+        np.savez(tmp_path / "other.npz", metadata=np.array(json.dumps({"format": "x"})))
+        load_demonstrations(tmp_path / "other.npz")
+
+
+@pytest.mark.parametrize("algorithm", ["ddpg", "sac"])
+def test_exported_numpy_policy_matches_the_torch_policy(algorithm, tmp_path):
+    from stable_baselines3 import DDPG, SAC, HerReplayBuffer
+
+    env = gym.make("dvrl_marl/PSMPick-v0")
+    cls = {"ddpg": DDPG, "sac": SAC}[algorithm]
+    model = cls("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs={"net_arch": [32, 24]},
+                seed=1)
+    export_policy(model, tmp_path / "exported", name="test", env_id="dvrl_marl/PSMPick-v0")
+    policy = policies.load(tmp_path / "exported")
+    rng = np.random.default_rng(0)
+    batch = {k: rng.uniform(-1, 1, (64,) + s.shape) for k, s in env.observation_space.spaces.items()}
+    torch_actions, _ = model.predict(batch, deterministic=True)
+    np.testing.assert_allclose(policy(batch), torch_actions, atol=1e-5)
+    single = {k: v[0] for k, v in batch.items()}
+    np.testing.assert_allclose(policy(single), torch_actions[0], atol=1e-5)
+
+
+def test_policies_load_and_run_without_torch():
+    code = (
+        "import sys, gymnasium as gym, dvrl_marl\n"
+        "from dvrl_marl import policies\n"
+        "names = policies.available()\n"
+        "assert names, 'no shipped policies'\n"
+        "for name in names:\n"
+        "    policy = policies.load(name)\n"
+        "    env = gym.make(policy.spec['env_id'])\n"
+        "    obs, _ = env.reset(seed=0)\n"
+        "    env.step(policy(obs))\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n"
+        "assert 'stable_baselines3' not in sys.modules\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_load_rejects_unknown_names():
+    with pytest.raises(FileNotFoundError, match="no policy"):
+        policies.load("does-not-exist")
+
+
+@pytest.mark.parametrize("name", ["reach-lnd", "reach-suction-irrigation", "pick-lnd"])
+def test_shipped_policies_reach_their_stated_success_rate(name):
+    assert name in policies.available()
+    policy = policies.load(name)
+    env_kwargs = {"tool": policy.spec["tool"]} if "tool" in policy.spec else {}
+    result = evaluate_policy(policy, policy.spec["env_id"], 20, seed=2_000_000, env_kwargs=env_kwargs)
+    stated = policy.spec["evaluation"]["success_rate"]
+    assert result["success_rate"] >= stated - 0.1, (result, stated)
