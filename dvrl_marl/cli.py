@@ -70,9 +70,32 @@ def _plot(args) -> int:
     return 0
 
 
+def _demo(args) -> int:
+    import os
+
+    from dvrl_marl.demo import format_summary, run_demo
+
+    if args.surgeon == "keyboard" and not os.environ.get("DISPLAY"):
+        raise ValueError("--surgeon keyboard needs a display (MuJoCo's viewer takes the keys)")
+    metrics = run_demo(surgeon=args.surgeon, out=args.out, seed=args.seed, max_cycles=args.max_cycles,
+                       video=not args.no_video, progress=not args.no_progress, pipeline=args.pipeline)
+    print(format_summary(metrics))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dvrl-marl", description="dVRK reinforcement-learning environments on MuJoCo")
     sub = parser.add_subparsers(dest="command", required=True)
+    demo = sub.add_parser("demo", help="run the collaborative suction + debris episode end to end (MP4 + metrics)")
+    demo.add_argument("--surgeon", choices=["learned", "scripted", "keyboard"], default="learned",
+                      help="who works the LND (default: the learned Reach + Pick pipeline)")
+    demo.add_argument("--out", help="run folder (default runs/demo-<timestamp>)")
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--max-cycles", type=int, help="truncate the episode after this many steps")
+    demo.add_argument("--pipeline", help="pipeline name or TOML file (default: learned_team)")
+    demo.add_argument("--no-video", action="store_true", help="skip rendering")
+    demo.add_argument("--no-progress", action="store_true", help="no progress bar")
+    demo.set_defaults(func=_demo)
     render = sub.add_parser("render", help="render a scene from its endoscope camera and print a summary")
     render.add_argument("--scene", default="collaborative", help="scene name in scenes/ (default: collaborative)")
     render.add_argument("--out", default="collaborative.png", help="PNG file to write")

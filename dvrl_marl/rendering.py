@@ -35,7 +35,13 @@ class SceneRenderer:
             self._viewer.sync()
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.model, self.height, self.width)
+            try:
+                self._renderer = mujoco.Renderer(self.model, self.height, self.width)
+            except Exception as error:  # MuJoCo raises FatalError when no OpenGL context could be made
+                raise RuntimeError(
+                    "could not create an OpenGL context for offscreen rendering; on a machine without a display set "
+                    "MUJOCO_GL=egl before anything imports mujoco (importing dvrl_marl first does this for you)"
+                ) from error
             if self.render_mode == "depth_array":
                 self._renderer.enable_depth_rendering()
         self._renderer.update_scene(self.data, camera=self.camera)

@@ -22,8 +22,7 @@ def write_video(path, frames, fps: int = 50) -> Path:
         imageio.mimsave(path, frames, duration=1.0 / fps)
         return path
     # libx264 wants even dimensions; macro_block_size=1 keeps the frame size as rendered.
-    with imageio.get_writer(path, fps=fps, codec="libx264", quality=7, macro_block_size=1,
-                            ffmpeg_params=["-pix_fmt", "yuv420p"]) as writer:
+    with imageio.get_writer(path, fps=fps, codec="libx264", quality=7, macro_block_size=1) as writer:
         for frame in frames:
             writer.append_data(frame)
     return path

@@ -218,7 +218,8 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=total, initial=model.num_timesteps, desc=config.name, unit="step", dynamic_ncols=True)
+        bar = tqdm(total=total, initial=model.num_timesteps, desc=config.name, unit="step", dynamic_ncols=True,
+                   mininterval=0.5, disable=None)
 
     def evaluate_and_checkpoint():
         result = evaluate_policy(_sb3_policy(model), config.env_id, config.eval_episodes, env_kwargs=config.env)

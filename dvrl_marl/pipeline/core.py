@@ -1,0 +1,420 @@
+"""Stage machinery of :mod:`dvrl_marl.pipeline`.
+
+A pipeline file (TOML) has one table per arm::
+
+    [grasper]
+    for_each = "debris"                # "cavity", "debris" or "none": the items the stages repeat for
+    stages = [                         # run in order for each item
+      { type = "reach", policy = "reach-lnd", target = "above_debris", height = 0.0204 },
+      { type = "pick", policy = "pick-lnd", lift = 0.015 },
+      { type = "reach", policy = "reach-lnd", target = "handoff", carry = true },
+      { type = "release" },
+    ]
+    idle = [ { type = "reach", policy = "reach-lnd", target = "home" } ]   # while no item is ready
+    finally = [ ... ]                                                    # after the last item
+
+Stage types: ``reach`` (a Reach policy to a named target), ``pick`` (a Pick policy: grasp the item's debris and
+lift it), ``suck`` (valve open, following the surface down to the floor, until the item's cavity is clear), ``release`` (open the jaw), and
+``teleop`` (a device drives until its ``until`` condition). ``policy`` is a shipped policy name, an exported
+policy folder, or ``"scripted"`` (the Meta-World-style experts). Targets: ``above_cavity``, ``cavity_floor``,
+``above_debris``, ``handoff``, ``home``, ``park``; ``height`` lifts a target (metres).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from dvrl_marl import policies
+from dvrl_marl.agents.experts import PickExpert, ReachExpert
+from dvrl_marl.task import load_task
+
+__all__ = ["StageSpec", "RecentredFrame", "ArmPipeline", "load_pipeline", "available_pipelines"]
+
+_SPECS = Path(__file__).resolve().parent / "specs"
+_STAGE_TYPES = ("reach", "pick", "suck", "release", "teleop")
+_TARGETS = ("above_cavity", "cavity_floor", "above_debris", "handoff", "home", "park")
+_UNTIL = ("cavity_clear", "delivered", "held", "steps")
+#: Where the arms wait (world offsets from their RCM, metres): out of each other's way, above the phantom.
+_HOME_OFFSET = {"grasper": (-0.015, 0.02, -0.08), "suction": (0.005, 0.0, -0.08)}
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """One stage of a pipeline (see the module documentation)."""
+
+    type: str
+    policy: str = "scripted"
+    target: str | None = None
+    height: float = 0.0
+    lift: float = 0.015
+    carry: bool = False
+    valve: str = "off"  # suction reach stages: "off", "on", or "inside" (open once inside the cavity)
+    jaw: str = "open"  # grasper reach stages: "open" or "closed"
+    until: str = "steps"  # teleop stages
+    steps: int = 50  # teleop "steps" condition
+    device: str | None = None
+    timeout: int = 400  # steps before the stage hands over regardless
+
+    def __post_init__(self):
+        if self.type not in _STAGE_TYPES:
+            raise ValueError(f"stage type must be one of {_STAGE_TYPES}, got {self.type!r}")
+        if self.type == "reach" and self.target not in _TARGETS:
+            raise ValueError(f"reach stage needs a target in {_TARGETS}, got {self.target!r}")
+        if self.valve not in ("off", "on", "inside") or self.jaw not in ("open", "closed"):
+            raise ValueError(f"stage valve/jaw settings invalid: valve={self.valve!r}, jaw={self.jaw!r}")
+        if self.until not in _UNTIL:
+            raise ValueError(f"teleop 'until' must be one of {_UNTIL}, got {self.until!r}")
+        if self.type == "teleop" and not self.device:
+            raise ValueError("a teleop stage needs a device name")
+        if self.timeout < 1:
+            raise ValueError(f"stage timeout must be >= 1, got {self.timeout}")
+
+    @classmethod
+    def from_dict(cls, table: dict) -> "StageSpec":
+        known = {f.name for f in fields(cls)}
+        unknown = set(table) - known
+        if unknown:
+            raise ValueError(f"unknown stage key(s) {sorted(unknown)}; known: {sorted(known)}")
+        return cls(**table)
+
+
+@dataclass(frozen=True)
+class ArmPlan:
+    for_each: str
+    stages: tuple[StageSpec, ...]
+    idle: tuple[StageSpec, ...] = ()
+    final: tuple[StageSpec, ...] = field(default=())
+
+
+class RecentredFrame:
+    """A single-arm policy's normalised frame placed anywhere: x~ = (x - centre) / workspace_range."""
+
+    def __init__(self, centre, workspace_range: float):
+        self.centre = np.asarray(centre, dtype=np.float64)
+        self.workspace_range = float(workspace_range)
+
+    def normalise(self, position) -> np.ndarray:
+        return (np.asarray(position, dtype=np.float64) - self.centre) / self.workspace_range
+
+
+def available_pipelines() -> list[str]:
+    return sorted(p.stem for p in _SPECS.glob("*.toml"))
+
+
+def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
+    """Read a pipeline file (a shipped name such as ``"learned_team"`` or a path) into per-arm plans."""
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        path = _SPECS / f"{name_or_path}.toml"
+    if not path.is_file():
+        raise FileNotFoundError(f"no pipeline {name_or_path!r}; shipped: {available_pipelines()}")
+    table = tomllib.loads(path.read_text())
+    plans = {}
+    for arm, spec in table.items():
+        if arm not in ("suction", "grasper"):
+            raise ValueError(f"{path}: unknown arm {arm!r}; expected 'suction' or 'grasper'")
+        unknown = set(spec) - {"for_each", "stages", "idle", "finally"}
+        if unknown:
+            raise ValueError(f"{path}: unknown key(s) {sorted(unknown)} for arm {arm!r}")
+        for_each = spec.get("for_each", "none")
+        if for_each not in ("cavity", "debris", "none"):
+            raise ValueError(f"{path}: for_each must be 'cavity', 'debris' or 'none', got {for_each!r}")
+        plans[arm] = ArmPlan(
+            for_each=for_each,
+            stages=tuple(StageSpec.from_dict(s) for s in spec.get("stages", [])),
+            idle=tuple(StageSpec.from_dict(s) for s in spec.get("idle", [])),
+            final=tuple(StageSpec.from_dict(s) for s in spec.get("finally", [])),
+        )
+    return plans
+
+
+class _StagePolicy:
+    """A single-arm policy with the frame it was trained in (range rho, step eta)."""
+
+    def __init__(self, kind: str, name: str):
+        task = load_task("psm_reach" if kind == "reach" else "psm_pick")
+        if name == "scripted":
+            self.workspace_range, self.step_size = task.workspace_range, task.step_size
+            gain = self.workspace_range / self.step_size
+            self.act = ReachExpert(gain) if kind == "reach" else PickExpert(gain, 0.001 / self.workspace_range)
+        else:
+            policy = policies.load(name)
+            self.workspace_range = float(policy.spec.get("workspace_range", task.workspace_range))
+            self.step_size = float(policy.spec.get("step_size", task.step_size))
+            self.act = policy
+
+
+class ArmPipeline:
+    """Runs one arm's plan on the collaborative env's observations: ``pipeline(observation) -> action``.
+
+    It can fill the env's surgeon seat (it is a callable) or drive an agent. ``devices`` maps names used by
+    teleop stages to :mod:`dvrl_marl.teleop` devices.
+    """
+
+    def __init__(self, plan: ArmPlan, agent: str, env, devices: dict | None = None):
+        unwrapped = getattr(env, "unwrapped", env)
+        self.plan, self.agent = plan, agent
+        self.layout = unwrapped.layout()
+        self.slices = unwrapped.observation_layout
+        self.scene_centre = np.asarray(unwrapped.workspace_centre, dtype=np.float64)
+        self.scene_range = float(unwrapped.workspace_range)
+        self.scene_step = float(unwrapped.params.step_size)
+        self.delta = float(unwrapped.params.distance_threshold)
+        self.base = self._world(self.layout.base_positions[agent])
+        self.devices = dict(devices or {})
+        self._policies: dict[tuple[str, str], _StagePolicy] = {}
+        for stage in plan.stages + plan.idle + plan.final:
+            if stage.type in ("reach", "pick"):
+                self._policy(stage)
+            if stage.type == "teleop" and stage.device not in self.devices:
+                raise ValueError(f"teleop stage needs device {stage.device!r}; pass devices={{...}}")
+        self.log: list[tuple[int, str]] = []  # (step, "stage started/ended ...") for inspection and tests
+        self.reset()
+
+    @classmethod
+    def from_file(cls, pipeline, agent: str, env, devices: dict | None = None) -> "ArmPipeline":
+        plans = load_pipeline(pipeline)
+        if agent not in plans:
+            raise ValueError(f"pipeline {pipeline!r} has no plan for {agent!r}")
+        return cls(plans[agent], agent, env, devices)
+
+    # --- bookkeeping --------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        self.item: int | None = None
+        self.done_items: set[int] = set()
+        self.sequence: tuple[StageSpec, ...] = ()
+        self.stage_index = 0
+        self.stage_steps = 0
+        self.stage_goal = None
+        self.frame = None
+        self.steps = 0
+        self.mode = "start"  # "item", "idle", "final"
+        self.tool = 1.0 if self.agent == "grasper" else -1.0
+        self.timeouts = 0
+        for device in self.devices.values():
+            device.reset()
+
+    def _policy(self, stage: StageSpec) -> _StagePolicy:
+        key = (stage.type, stage.policy)
+        if key not in self._policies:
+            self._policies[key] = _StagePolicy(stage.type, stage.policy)
+        return self._policies[key]
+
+    def _world(self, normalised) -> np.ndarray:
+        return np.asarray(normalised, dtype=np.float64) * self.scene_range + self.scene_centre
+
+    def _parse(self, observation) -> dict:
+        obs = np.asarray(observation, dtype=np.float64)
+        debris = obs[self.slices["debris"]].reshape(-1, 6)
+        return {
+            "tip": self._world(obs[self.slices["own_tip"]]),
+            "tool": float(obs[self.slices["own_tool"]][0]),
+            "blood": obs[self.slices["blood"]],
+            "debris_position": self._world(debris[:, :3]),
+            "visible": debris[:, 3] > 0.5, "held": debris[:, 4] > 0.5, "delivered": debris[:, 5] > 0.5,
+            "handoff": self._world(obs[self.slices["handoff"]]),
+        }
+
+    # --- items ----------------------------------------------------------------------------------------------
+    def _cavity_clear(self, state, cavity: int) -> bool:
+        return state["blood"][cavity] < self.layout.blood_threshold_fraction[cavity] or state["blood"][cavity] <= 0
+
+    def _cavity_of(self, position) -> int:
+        centres = [self._world((cx, cy, 0.0))[:2] for cx, cy in self.layout.cavity_centres]
+        return int(np.argmin([np.hypot(*(position[:2] - c)) for c in centres]))
+
+    def _item_done(self, state, item: int) -> bool:
+        if self.plan.for_each == "cavity":
+            return self._cavity_clear(state, item)
+        return bool(state["delivered"][item])
+
+    def _next_item(self, state) -> int | None:
+        if self.plan.for_each == "cavity":
+            centres = [self._world((cx, cy, 0.0)) for cx, cy in self.layout.cavity_centres]
+            order = np.argsort([-np.hypot(*(c[:2] - self.base[:2])) for c in centres])  # farthest first
+            for cavity in order:
+                if not self._cavity_clear(state, int(cavity)):
+                    return int(cavity)
+            return None
+        if self.plan.for_each == "debris":
+            held = np.flatnonzero(state["held"])
+            if len(held):
+                return int(held[0])
+            ready = [i for i in range(len(state["visible"]))
+                     if state["visible"][i] and not state["delivered"][i]
+                     and self._cavity_clear(state, self._cavity_of(state["debris_position"][i]))]
+            if not ready:
+                return None
+            return min(ready, key=lambda i: np.linalg.norm(state["debris_position"][i] - state["tip"]))
+        return None
+
+    def _all_items_done(self, state) -> bool:
+        if self.plan.for_each == "cavity":
+            return all(self._cavity_clear(state, c) for c in range(len(state["blood"])))
+        if self.plan.for_each == "debris":
+            return bool(np.all(state["delivered"]))
+        return True
+
+    def _start_sequence(self, mode: str, sequence, state) -> None:
+        self.mode, self.sequence, self.stage_index = mode, tuple(sequence), 0
+        self._start_stage(state)
+
+    def _start_stage(self, state) -> None:
+        self.stage_steps = 0
+        self.stage_goal = None
+        self.frame = None
+        if self.stage_index < len(self.sequence):
+            stage = self.sequence[self.stage_index]
+            self.log.append((self.steps, f"start {self.mode} stage {self.stage_index} {stage.type} item={self.item}"))
+            if stage.type == "reach":
+                self.stage_goal = self._target(stage, state)
+                if stage.carry and self.item is not None and state["held"][self.item]:
+                    # Move the tip so that the carried debris, not the tip, reaches the target.
+                    self.stage_goal = self.stage_goal - (state["debris_position"][self.item] - state["tip"])
+                policy = self._policy(stage)
+                # Re-centre the policy's frame midway between start and goal, so both lie inside its workspace.
+                self.frame = RecentredFrame((state["tip"] + self.stage_goal) / 2, policy.workspace_range)
+            elif stage.type == "pick":
+                policy = self._policy(stage)
+                pin = state["debris_position"][self.item]
+                # Pick was trained with the object 20.4 mm below the workspace centre: re-centre on that.
+                drop = stage.height or 0.0204
+                self.frame = RecentredFrame(pin + (0.0, 0.0, drop), policy.workspace_range)
+                self.stage_goal = pin + (0.0, 0.0, stage.lift)
+
+    def _target(self, stage: StageSpec, state) -> np.ndarray:
+        up = np.array([0.0, 0.0, stage.height])
+        if stage.target in ("above_cavity", "cavity_floor"):
+            cx, cy = self.layout.cavity_centres[self.item]
+            floor = self.layout.cavity_floor[self.item] + self.layout.clearance
+            z = self.layout.phantom_top if stage.target == "above_cavity" else floor
+            return self._world((cx, cy, z)) + up
+        if stage.target == "above_debris":
+            return state["debris_position"][self.item] + up
+        if stage.target == "handoff":
+            return state["handoff"] + up
+        home = self.base + np.array(_HOME_OFFSET[self.agent])
+        if stage.target == "park":
+            home = home + (0.0, 0.0, 0.01)
+        return home + up
+
+    # --- the policy -----------------------------------------------------------------------------------------
+    def __call__(self, observation) -> np.ndarray:
+        state = self._parse(observation)
+        self._observation = observation
+        self._advance(state)
+        action = self._act(state)
+        self.steps += 1
+        self.stage_steps += 1
+        return action
+
+    def _advance(self, state) -> None:
+        """Hand over between stages, items and modes."""
+        for _ in range(len(self.plan.stages) + len(self.plan.idle) + len(self.plan.final) + 3):
+            if self.mode == "item" and self.item is not None and self._item_done(state, self.item):
+                # Finished (or someone else finished it): but let a release stage run if the jaw holds nothing.
+                self.done_items.add(self.item)
+                self.log.append((self.steps, f"item {self.item} done"))
+                self.item = None
+                self.mode = "start"
+            if self.mode in ("start", "idle"):
+                item = self._next_item(state)
+                if item is not None:
+                    self.item = item
+                    self._start_sequence("item", self.plan.stages, state)
+                elif self._all_items_done(state) and self.plan.for_each != "none":
+                    if self.mode != "final":
+                        self._start_sequence("final", self.plan.final, state)
+                elif self.mode != "idle":
+                    self._start_sequence("idle", self.plan.idle, state)
+            if self.stage_index < len(self.sequence) and self._stage_done(state):
+                self.log.append((self.steps, f"end {self.mode} stage {self.stage_index}"))
+                self.stage_index += 1
+                self._start_stage(state)
+                continue
+            if self.stage_index >= len(self.sequence) and self.mode in ("item", "idle") and self.sequence:
+                if self.mode == "idle" and self._next_item(state) is None:
+                    return  # nothing to do yet: hold at the end of the idle stages
+                self.mode = "start"
+                continue
+            return
+
+    def _stage_done(self, state) -> bool:
+        stage = self.sequence[self.stage_index]
+        if self.stage_steps >= stage.timeout:
+            self.timeouts += 1
+            self.log.append((self.steps, f"timeout in stage {self.stage_index} ({stage.type})"))
+            return True
+        if stage.type == "reach":
+            if stage.carry and self.item is not None:
+                return bool(state["delivered"][self.item])
+            return np.linalg.norm(state["tip"] - self.stage_goal) <= self.delta
+        if stage.type == "pick":
+            held = bool(state["held"][self.item])
+            return held and np.linalg.norm(state["debris_position"][self.item] - self.stage_goal) <= self.delta
+        if stage.type == "suck":
+            return self.item is None or self._cavity_clear(state, self.item)
+        if stage.type == "release":
+            return self.stage_steps >= 1
+        return self._until(stage, state)
+
+    def _until(self, stage: StageSpec, state) -> bool:
+        if stage.until == "steps":
+            return self.stage_steps >= stage.steps
+        if stage.until == "cavity_clear":
+            return self.item is not None and self._cavity_clear(state, self.item)
+        if stage.until == "held":
+            return self.item is not None and bool(state["held"][self.item])
+        return self.item is not None and bool(state["delivered"][self.item])
+
+    def _act(self, state) -> np.ndarray:
+        if self.stage_index >= len(self.sequence):
+            return np.array([0.0, 0.0, 0.0, self.tool], dtype=np.float32)
+        stage = self.sequence[self.stage_index]
+        if stage.type == "teleop":
+            action = np.asarray(self.devices[stage.device].action(self._observation), dtype=np.float32)
+            self.tool = float(action[3])
+            return action
+        if stage.type == "suck":
+            # Follow the falling surface down to the cavity floor with the valve open.
+            self.tool = 1.0
+            floor = self._target(StageSpec("reach", target="cavity_floor"), state) if self.item is not None else state["tip"]
+            step = np.clip((floor - state["tip"]) / self.scene_step, -1.0, 1.0)
+            return np.append(step, 1.0).astype(np.float32)
+        if stage.type == "release":
+            self.tool = 1.0
+            return np.array([0.0, 0.0, 0.0, 1.0], dtype=np.float32)
+        policy = self._policy(stage)
+        scale = policy.step_size / self.scene_step  # a policy step of eta_policy in units of the scene's eta
+        if stage.type == "reach":
+            tip = self.frame.normalise(state["tip"])
+            goal = self.frame.normalise(self.stage_goal)
+            delta = np.asarray(policy.act({"observation": tip, "achieved_goal": tip, "desired_goal": goal}))[:3]
+            if self.agent == "suction":
+                inside = self._inside_cavity(state["tip"])
+                self.tool = {"off": -1.0, "on": 1.0, "inside": 1.0 if inside else -1.0}[stage.valve]
+            else:
+                self.tool = 1.0 if stage.jaw == "open" and not stage.carry else -1.0
+            return np.append(np.clip(delta * scale, -1, 1), self.tool).astype(np.float32)
+        # pick
+        tip = self.frame.normalise(state["tip"])
+        obj = self.frame.normalise(state["debris_position"][self.item])
+        goal = self.frame.normalise(self.stage_goal)
+        jaw_observed = state["tool"]
+        action = np.asarray(policy.act({"observation": np.concatenate([tip, [jaw_observed], obj]),
+                                        "achieved_goal": obj, "desired_goal": goal}))
+        self.tool = float(action[3])
+        return np.append(np.clip(action[:3] * scale, -1, 1), action[3]).astype(np.float32)
+
+    def _inside_cavity(self, tip) -> bool:
+        for index, (cx, cy) in enumerate(self.layout.cavity_centres):
+            centre = self._world((cx, cy, self.layout.phantom_top))
+            radius = self.layout.cavity_mouth_radius * self.scene_range
+            if math.hypot(tip[0] - centre[0], tip[1] - centre[1]) < radius and tip[2] < centre[2]:
+                return True
+        return False
