@@ -24,6 +24,16 @@ def _render(args) -> int:
 
 
 def _train(args) -> int:
+    import tomllib
+
+    if "ppo" in tomllib.loads(Path(args.config).read_text()).get("run", {}).get("algorithm", "ppo") and \
+            "env_id" not in tomllib.loads(Path(args.config).read_text()).get("run", {}):
+        from dvrl_marl.training.marl import train_ppo
+
+        out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
+        result = train_ppo(args.config, args.seed, out, total_timesteps=args.steps)
+        print(f"{Path(args.config).stem} seed {args.seed}: {result}; run folder {out}")
+        return 0
     from dvrl_marl.training.runner import load_config, train
 
     config = load_config(args.config)

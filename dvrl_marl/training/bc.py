@@ -1,10 +1,12 @@
 """DDPG + HER + behaviour cloning (Nair et al., arXiv 1709.10089), as a small extension of SB3's DDPG.
 
-The actor loss becomes ``-Q(s, pi(s)) + action_l2 * mean(pi(s)^2) + bc_weight * sum_i ||pi(s_i^d) - a_i^d||^2``
-over a batch of demonstration pairs, where the Q-filter (optional) keeps only the pairs whose demonstrated action
-the critic still rates above the policy's. Demonstrations also seed the replay buffer (see ``runner``). The
-defaults follow the settings reported for the paper's OpenAI-Baselines run (``psm_facts.md``): BC weight 0.0078
-(summed over a 128-pair demo batch), action_l2 1.0, Q-filter off.
+The actor loss becomes ``policy_loss_weight * (-Q(s, pi(s)) + action_l2 * mean(pi(s)^2)) + bc_weight *
+sum_i ||pi(s_i^d) - a_i^d||^2`` over a batch of demonstration pairs, where the Q-filter (optional) keeps only the
+pairs whose demonstrated action the critic still rates above the policy's. Demonstrations also seed the replay
+buffer (see ``runner``). The defaults follow the settings reported for the paper's OpenAI-Baselines run
+(``psm_facts.md``): BC weight 0.0078 (summed over a 128-pair demo batch), action_l2 1.0, Q-filter off; the
+policy-loss weight 0.001 is the demonstration code's ``prm_loss_weight`` (Nair et al.'s lambda_1), which keeps the
+Q term from drowning the cloning term.
 """
 
 from __future__ import annotations
@@ -39,11 +41,13 @@ class DDPGBC(DDPG):
         demo_batch_size: demonstration pairs per gradient step.
         q_filter: apply Nair et al.'s Q-filter.
         action_l2: penalty on the actor's squared actions (Baselines' ``action_l2``).
+        policy_loss_weight: weight of the Q and action_l2 terms (``prm_loss_weight``).
     """
 
     def __init__(self, *args, bc_weight: float = 0.0078, demo_batch_size: int = 128, q_filter: bool = False,
-                 action_l2: float = 1.0, **kwargs):
+                 action_l2: float = 1.0, policy_loss_weight: float = 0.001, **kwargs):
         self.bc_weight = float(bc_weight)
+        self.policy_loss_weight = float(policy_loss_weight)
         self.demo_batch_size = int(demo_batch_size)
         self.q_filter = bool(q_filter)
         self.action_l2 = float(action_l2)
@@ -86,7 +90,7 @@ class DDPGBC(DDPG):
             if self._n_updates % self.policy_delay == 0:
                 policy_actions = self.actor(batch.observations)
                 actor_loss = -self.critic.q1_forward(batch.observations, policy_actions).mean()
-                actor_loss = actor_loss + self.action_l2 * (policy_actions**2).mean()
+                actor_loss = self.policy_loss_weight * (actor_loss + self.action_l2 * (policy_actions**2).mean())
                 if self._demo_actions is not None and self.bc_weight > 0:
                     demo_obs, demo_actions = self._demo_batch()
                     demo_policy_actions = self.actor(demo_obs)

@@ -1,0 +1,132 @@
+"""Multi-agent training on the collaborative env through PettingZoo tooling: SB3 PPO via SuperSuit.
+
+Both arms share one PPO policy (parameter sharing): SuperSuit pads the agents' spaces to a common shape (they are
+already equal here), appends a one-hot agent indicator to each observation, and turns the parallel env into an
+SB3 vector env in which every agent is one slot. With ``surgeon="scripted"`` only the suction arm learns, the
+scripted surgeon being part of the environment.
+
+Configuration (``baselines/configs/suction_debris_ppo*.toml``)::
+
+    [run]
+    total_timesteps = 200000    # agent steps (each parallel step counts once per learning agent)
+    n_envs = 4
+    eval_episodes = 10
+    surgeon = "none"            # or "scripted"
+    [env]                       # suction_debris_v0.parallel_env keyword arguments
+    [algorithm]                 # PPO keyword arguments
+    [policy]                    # policy_kwargs
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from dvrl_marl.envs import suction_debris_v0
+
+__all__ = ["make_vec_env", "train_ppo", "TeamPolicy", "evaluate_team"]
+
+
+def _wrap(env):
+    import supersuit as ss
+
+    env = ss.pad_observations_v0(env)
+    env = ss.pad_action_space_v0(env)
+    if len(env.possible_agents) > 1:
+        env = ss.agent_indicator_v0(env, type_only=False)
+    return env
+
+
+def make_vec_env(n_envs: int = 4, surgeon: str | None = None, **env_kwargs):
+    """An SB3-compatible vector env over the collaborative env's learning agents."""
+    import supersuit as ss
+
+    env = _wrap(suction_debris_v0.parallel_env(surgeon=surgeon, **env_kwargs))
+    vec = ss.pettingzoo_env_to_vec_env_v1(env)
+    vec = ss.concat_vec_envs_v1(vec, n_envs, num_cpus=0, base_class="stable_baselines3")
+    concat = vec.venv
+    if not hasattr(concat, "seed"):  # SB3 seeds vector envs through seed(), which SuperSuit's ConcatVecEnv lacks
+
+        def seed(value=None):
+            concat.reset(seed=value)
+            return [value] * concat.num_envs
+
+        concat.seed = seed
+    return vec
+
+
+class TeamPolicy:
+    """A shared PPO policy acting for every learning agent of a parallel env (adds the agent indicator)."""
+
+    def __init__(self, model, agents):
+        self.model = model
+        self.agents = list(agents)
+        # SuperSuit writes the indicator at the observation space's upper bound rather than 1.
+        self.indicator_value = float(model.observation_space.high[-1])
+
+    def __call__(self, observations: dict) -> dict:
+        actions = {}
+        for index, agent in enumerate(self.agents):
+            obs = observations[agent]
+            if len(self.agents) > 1:
+                indicator = np.zeros(len(self.agents))
+                indicator[index] = self.indicator_value
+                obs = np.concatenate([obs, indicator])
+            actions[agent], _ = self.model.predict(obs, deterministic=True)
+        return actions
+
+
+def evaluate_team(act, episodes: int, seed: int = 5_000_000, surgeon=None, **env_kwargs) -> dict:
+    """Success rate, mean steps, blood removed and instrument contacts; ``act(observations) -> actions dict``."""
+    env = suction_debris_v0.parallel_env(surgeon=surgeon, **env_kwargs)
+    successes, steps, removed, contacts = 0, [], [], []
+    for episode in range(episodes):
+        observations, _ = env.reset(seed=seed + episode)
+        count = touching = 0
+        while env.agents:
+            observations, _, _, _, infos = env.step(act(observations))
+            info = next(iter(infos.values()))
+            count += 1
+            touching += bool(info["collision"])
+        successes += bool(info["is_success"])
+        steps.append(count)
+        removed.append(sum(env.blood.removed_ml))
+        contacts.append(touching)
+    return {"success_rate": successes / episodes, "mean_steps": float(np.mean(steps)),
+            "mean_blood_removed_ml": float(np.mean(removed)), "mean_contacts": float(np.mean(contacts)),
+            "episodes": episodes}
+
+
+def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = None,
+              eval_episodes: int | None = None) -> dict:
+    """Train PPO on the collaborative env from a configuration; writes the model and ``result.json``."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
+
+    config_path = Path(config_path)
+    table = tomllib.loads(config_path.read_text())
+    run = table.get("run", {})
+    surgeon = None if run.get("surgeon", "none") == "none" else run["surgeon"]
+    env_kwargs = table.get("env", {})
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "config.toml").write_text(config_path.read_text())
+    vec = make_vec_env(int(run.get("n_envs", 4)), surgeon=surgeon, **env_kwargs)
+    model = PPO("MlpPolicy", vec, seed=seed, verbose=0, policy_kwargs=table.get("policy", {}),
+                **table.get("algorithm", {}))
+    model.set_logger(configure(str(out_dir / "sb3_log"), ["csv"]))
+    start = time.perf_counter()
+    model.learn(int(total_timesteps or run.get("total_timesteps", 100_000)))
+    model.save(out_dir / "final_model.zip")
+    vec.close()
+    agents = [a for a in suction_debris_v0.AGENTS if surgeon is None or a != "grasper"]
+    episodes = int(eval_episodes or run.get("eval_episodes", 10))
+    result = evaluate_team(TeamPolicy(model, agents), episodes, surgeon=surgeon, **env_kwargs)
+    result.update({"config": config_path.stem, "seed": seed, "timesteps": int(model.num_timesteps),
+                   "wall_seconds": time.perf_counter() - start})
+    (out_dir / "result.json").write_text(json.dumps(result, indent=2) + "\n")
+    return result
