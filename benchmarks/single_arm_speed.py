@@ -33,24 +33,12 @@ def steps_per_second(env_id: str, steps: int, seed: int = 0) -> float:
     return steps / elapsed
 
 
-def plain_rollout_seconds(env_id: str, repeats: int = 50) -> float:
-    """One 100-step rollout of one env (gym.make), no vector wrapper: the paper's 1-env figure."""
-    env = gym.make(env_id)
-    rng = np.random.default_rng(0)
-    times = []
-    for r in range(repeats):
-        env.reset(seed=r)
-        actions = rng.uniform(-1, 1, size=(100,) + env.action_space.shape).astype(np.float32)
-        start = time.perf_counter()
-        for action in actions:
-            env.step(action)
-        times.append(time.perf_counter() - start)
-    env.close()
-    return float(np.median(times))
-
-
-def rollout_seconds(env_id: str, num_envs: int, repeats: int = 20) -> float:
-    envs = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync")
+def rollout_seconds(env_id: str, num_envs: int | None, repeats: int = 20) -> float:
+    """Median seconds of a 100-step rollout: one plain env (num_envs None) or a SyncVectorEnv of num_envs."""
+    if num_envs is None:
+        envs = gym.make(env_id)
+    else:
+        envs = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync")
     rng = np.random.default_rng(0)
     times = []
     for r in range(repeats):
@@ -73,7 +61,7 @@ def main() -> None:
         print(f"  {env_id:28s} {steps_per_second(env_id, args.steps):10,.0f}")
     print("\none 100-step rollout, single env (paper: 2.09 s in V-REP)")
     for env_id in ("dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"):
-        print(f"  {env_id:28s} {1000 * plain_rollout_seconds(env_id):8.2f} ms")
+        print(f"  {env_id:28s} {1000 * rollout_seconds(env_id, None, repeats=50):8.2f} ms")
     print("\nseconds per 100-step rollout in gymnasium's SyncVectorEnv (its own overhead is ~80 us/step; paper Table II: 2.09 s for 1 env ... 3.27 s for 8 envs, V-REP)")
     print(f"  {'envs':>4s}  {'PSM Reach':>10s}  {'PSM Pick':>10s}")
     for n in (1, 2, 4, 6, 8):

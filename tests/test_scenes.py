@@ -111,3 +111,12 @@ def test_generated_models_and_meshes_are_up_to_date_and_deterministic(tmp_path):
         shipped = assets.scenes_dir() / relative
         assert shipped.is_file(), f"{relative} is not shipped; run python -m dvrl_marl.assets"
         assert filecmp.cmp(path, shipped, shallow=False), f"{relative} is stale; run python -m dvrl_marl.assets"
+
+
+def test_environment_docs_are_generated_from_the_docstrings():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).parents[1] / "docs" / "build_docs.py"
+    assert subprocess.run([sys.executable, str(script), "--check"]).returncode == 0

@@ -365,3 +365,29 @@ def test_dense_rewards_reward_progress():
             total[agent] += value
     # Removing ~15 ml, lifting and delivering 3 debris outweighs the distance terms of a good episode.
     assert total["suction"] > 0.0 and total["grasper"] > 0.0
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_action = st.lists(st.floats(-2.0, 2.0, allow_nan=False), min_size=4, max_size=4)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**16), actions=st.lists(st.tuples(_action, _action), min_size=1, max_size=120))
+def test_arbitrary_actions_keep_tips_in_the_box_above_surfaces_and_joints_in_limits(seed, actions):
+    env = suction_debris_v0.parallel_env()
+    env.reset(seed=seed)
+    low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    for suction_action, grasper_action in actions:
+        if not env.agents:
+            break
+        observations, *_ = env.step({"suction": np.array(suction_action), "grasper": np.array(grasper_action)})
+        for agent, arm in env.arms.items():
+            tip = np.array(arm.tip_world())
+            assert np.all(tip >= low - 1e-12) and np.all(tip <= high + 1e-12)
+            assert tip[2] >= env.phantom.surface_height(tip[0], tip[1]) + env.params.tip_clearance - 1e-9
+            q = np.array(arm.q)
+            assert np.all(q >= np.asarray(arm.tool.lower)) and np.all(q <= np.asarray(arm.tool.upper))
+            assert env.observation_space(agent).contains(observations[agent])
+        assert env._instrument_distance() >= -1e-12

@@ -80,12 +80,17 @@ class TeamPolicy:
         return actions
 
 
-def evaluate_team(act, episodes: int, seed: int = 5_000_000, surgeon=None, **env_kwargs) -> dict:
-    """Success rate, mean steps, blood removed and instrument contacts; ``act(observations) -> actions dict``."""
+def evaluate_team(act, episodes: int, seed: int = 5_000_000, surgeon=None, on_reset=None, **env_kwargs) -> dict:
+    """Success rate, mean steps, blood removed and instrument contacts; ``act(observations) -> actions dict``.
+
+    ``on_reset()`` is called at each episode start (e.g. to reset pipelines' stage state).
+    """
     env = suction_debris_v0.parallel_env(surgeon=surgeon, **env_kwargs)
     successes, steps, removed, contacts = 0, [], [], []
     for episode in range(episodes):
         observations, _ = env.reset(seed=seed + episode)
+        if on_reset is not None:
+            on_reset()
         count = touching = 0
         while env.agents:
             observations, _, _, _, infos = env.step(act(observations))

@@ -1,0 +1,59 @@
+"""Success of the collaborative teams (issue target: the learned pipeline team completes >= 90 % of 50 seeds).
+
+Reports success, mean steps, blood removed and instrument contacts for the scripted team, the scripted-stage
+pipeline team, the learned Reach + Pick pipeline team (needs the shipped policies), and a PPO team if a trained
+model is given.
+
+    python benchmarks/collaborative_teams.py [--episodes 50] [--ppo runs/baselines/suction_debris_ppo-seed0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from dvrl_marl import policies
+from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.pipeline import ArmPipeline
+from dvrl_marl.training.marl import TeamPolicy, evaluate_team
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--ppo", help="a suction_debris_ppo run folder (with final_model.zip)")
+    args = parser.parse_args()
+    env = suction_debris_v0.parallel_env()
+    suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
+    teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
+    names = ["scripted_team"]
+    if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
+        names.append("learned_team")
+    results = {}
+    for label, act in teams.items():
+        results[label] = evaluate_team(act, args.episodes)
+    for name in names:
+        env = suction_debris_v0.parallel_env()
+        start = time.perf_counter()
+        pipes = {agent: ArmPipeline.from_file(name, agent, env) for agent in ("suction", "grasper")}
+        result = evaluate_team(lambda o, p=pipes: {agent: p[agent](o[agent]) for agent in p}, args.episodes,
+                               on_reset=lambda p=pipes: [pipe.reset() for pipe in p.values()])
+        result["wall_seconds"] = round(time.perf_counter() - start, 1)
+        results[f"pipeline {name}"] = result
+    if args.ppo:
+        from stable_baselines3 import PPO
+
+        model = PPO.load(Path(args.ppo) / "final_model.zip")
+        results["PPO team"] = evaluate_team(TeamPolicy(model, ["suction", "grasper"]), args.episodes, reward_type="dense")
+    print(f"{'team':32s} {'success':>8s} {'steps':>7s} {'blood ml':>9s} {'contacts':>9s}")
+    for label, r in results.items():
+        print(f"{label:32s} {r['success_rate']:8.0%} {r['mean_steps']:7.0f} {r['mean_blood_removed_ml']:9.2f} "
+              f"{r['mean_contacts']:9.2f}")
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()
