@@ -49,7 +49,9 @@ def ship(name: str, seed: int, episodes: int = 50) -> dict:
     out = RUNS / f"{config_name}-seed{seed}"
     import gymnasium as gym
 
-    model = _algorithms()[config.algorithm].load(out / "final_model.zip", env=gym.make(config.env_id, **config.env))
+    # The evaluation-selected checkpoint (off-policy learners can degrade late in a run).
+    checkpoint = out / "best_model.zip" if (out / "best_model.zip").is_file() else out / "final_model.zip"
+    model = _algorithms()[config.algorithm].load(checkpoint, env=gym.make(config.env_id, **config.env))
     target = HERE / "policies" / name
     export_policy(model, target, name=name, env_id=config.env_id, **eval_kwargs)
     result = evaluate_policy(policies.load(target), config.env_id, episodes, seed=1_000_000, env_kwargs=eval_kwargs)

@@ -356,6 +356,6 @@ def test_vector_envs_and_sb3_her_smoke():
         model = SAC(
             "MultiInputPolicy", make(env_id), replay_buffer_class=HerReplayBuffer,
             replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
-            learning_starts=100, batch_size=32, policy_kwargs={"net_arch": [32, 32]}, seed=0, verbose=0,
+            learning_starts=100, batch_size=32, buffer_size=5000, policy_kwargs={"net_arch": [32, 32]}, seed=0, verbose=0,
         )
         model.learn(300)

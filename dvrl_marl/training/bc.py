@@ -42,10 +42,13 @@ class DDPGBC(DDPG):
         q_filter: apply Nair et al.'s Q-filter.
         action_l2: penalty on the actor's squared actions (Baselines' ``action_l2``).
         policy_loss_weight: weight of the Q and action_l2 terms (``prm_loss_weight``).
+        clip_target: clip critic targets to [-1 / (1 - gamma), 0], the range of the sparse return (Baselines'
+            ``clip_return``); it keeps the critic from diverging.
     """
 
     def __init__(self, *args, bc_weight: float = 0.0078, demo_batch_size: int = 128, q_filter: bool = False,
-                 action_l2: float = 1.0, policy_loss_weight: float = 0.001, **kwargs):
+                 action_l2: float = 1.0, policy_loss_weight: float = 0.001, clip_target: bool = True, **kwargs):
+        self.clip_target = bool(clip_target)
         self.bc_weight = float(bc_weight)
         self.policy_loss_weight = float(policy_loss_weight)
         self.demo_batch_size = int(demo_batch_size)
@@ -81,6 +84,8 @@ class DDPGBC(DDPG):
                 next_q = th.min(th.cat(self.critic_target(batch.next_observations, next_actions), dim=1), dim=1,
                                 keepdim=True)[0]
                 target = batch.rewards + (1 - batch.dones) * self.gamma * next_q
+                if self.clip_target:
+                    target = target.clamp(-1.0 / (1.0 - self.gamma), 0.0)
             critic_loss = sum(F.mse_loss(q, target) for q in self.critic(batch.observations, batch.actions))
             self.critic.optimizer.zero_grad()
             critic_loss.backward()

@@ -18,7 +18,8 @@ rl-baselines3-zoo's hyperparameter files)::
 
 A run folder holds ``config.toml`` (what ran), ``progress.csv`` (one row per evaluation: timesteps, success rate,
 mean final distance, wall time), SB3's ``train_log.csv``, ``checkpoint.zip`` + ``replay_buffer.pkl`` (``resume``
-continues from them) and ``demonstrations.npz`` when demonstrations were used.
+continues from them), ``final_model.zip`` and ``best_model.zip`` (the best evaluation) and ``demonstrations.npz``
+when demonstrations were used.
 """
 
 from __future__ import annotations
@@ -234,6 +235,8 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
             writer.writerow(row)
         model.save(checkpoint)
         model.save_replay_buffer(buffer_path)
+        if result["success_rate"] >= max(r["success_rate"] for r in history):
+            model.save(out_dir / "best_model.zip")  # the evaluation-selected policy (EvalCallback's convention)
         if bar is not None:
             bar.set_postfix(success=f"{result['success_rate']:.2f}")
 
