@@ -53,7 +53,10 @@ def ship(name: str, seed: int, episodes: int = 50) -> dict:
     checkpoint = out / "best_model.zip" if (out / "best_model.zip").is_file() else out / "final_model.zip"
     model = _algorithms()[config.algorithm].load(checkpoint, env=gym.make(config.env_id, **config.env))
     target = HERE / "policies" / name
-    export_policy(model, target, name=name, env_id=config.env_id, **eval_kwargs)
+    unwrapped = gym.make(config.env_id, **config.env).unwrapped
+    # The frame the policy was trained in: pipelines re-centre it but keep its range and step.
+    export_policy(model, target, name=name, env_id=config.env_id, workspace_range=unwrapped.workspace_range,
+                  step_size=unwrapped.step_size, **eval_kwargs)
     result = evaluate_policy(policies.load(target), config.env_id, episodes, seed=1_000_000, env_kwargs=eval_kwargs)
     spec = json.loads((target / "policy.json").read_text())
     spec["evaluation"] = {**result, "seed": 1_000_000,
@@ -80,9 +83,10 @@ def main() -> None:
         print(name, ship(name, args.seeds[0]))
     runs = sorted(str(p) for p in RUNS.glob("*-seed*") if (p / "progress.csv").is_file())
     if runs:
-        from dvrl_marl.training.plots import plot_learning_curves
+        from dvrl_marl.training.plots import plot_learning_curves, summary_table
 
         print(plot_learning_curves(runs, HERE / "results" / "learning_curves"))
+        print(summary_table(runs, HERE / "results" / "summary"))
 
 
 if __name__ == "__main__":

@@ -150,3 +150,18 @@ def test_shipped_policies_reach_their_stated_success_rate(name):
     result = evaluate_policy(policy, policy.spec["env_id"], 20, seed=2_000_000, env_kwargs=env_kwargs)
     stated = policy.spec["evaluation"]["success_rate"]
     assert result["success_rate"] >= stated - 0.1, (result, stated)
+
+
+def test_cli_evaluate_and_plot(tmp_path, capsys):
+    from dvrl_marl.cli import main
+
+    assert main(["evaluate", "reach-lnd", "--episodes", "2", "--tool", "suction_irrigation"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["tool"] == "suction_irrigation" and 0.0 <= result["success_rate"] <= 1.0
+    run = tmp_path / "reach-seed0"
+    run.mkdir()
+    (run / "progress.csv").write_text("timesteps,success_rate,mean_final_distance,wall_seconds\n10,0.5,0.01,1\n20,1.0,0.0,2\n")
+    assert main(["plot", str(run), "--out", str(tmp_path / "curves")]) == 0
+    assert (tmp_path / "curves.png").stat().st_size > 1000
+    assert "reach,10,0.5" in (tmp_path / "curves.csv").read_text()
+    assert main(["evaluate", "no-such-policy"]) == 2

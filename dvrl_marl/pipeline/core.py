@@ -17,7 +17,10 @@ Stage types: ``reach`` (a Reach policy to a named target), ``pick`` (a Pick poli
 lift it), ``suck`` (valve open, following the surface down to the floor, until the item's cavity is clear), ``release`` (open the jaw), and
 ``teleop`` (a device drives until its ``until`` condition). ``policy`` is a shipped policy name, an exported
 policy folder, or ``"scripted"`` (the Meta-World-style experts). Targets: ``above_cavity``, ``cavity_floor``,
-``above_debris``, ``handoff``, ``home``, ``park``; ``height`` lifts a target (metres).
+``above_debris``, ``handoff``, ``home``, ``park``; ``height`` lifts a target (metres); a reach stage hands over
+within ``tolerance`` (metres, 1.5 x the scene's delta by default) of its target; ``precision = k`` runs its policy in
+a frame k times smaller, with k times smaller steps, for positioning finer than the policy's own delta. Reach policies know no obstacles,
+so a reach stage whose path would skim the phantom goes through waypoints: up to a safe height, across, down.
 """
 
 from __future__ import annotations
@@ -27,8 +30,10 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
+import dvrl_marl  # noqa: F401  (registers the single-arm environments)
 from dvrl_marl import policies
 from dvrl_marl.agents.experts import PickExpert, ReachExpert
 from dvrl_marl.task import load_task
@@ -39,6 +44,10 @@ _SPECS = Path(__file__).resolve().parent / "specs"
 _STAGE_TYPES = ("reach", "pick", "suck", "release", "teleop")
 _TARGETS = ("above_cavity", "cavity_floor", "above_debris", "handoff", "home", "park")
 _UNTIL = ("cavity_clear", "delivered", "held", "steps")
+#: Reach stages travel this high above the phantom top (m) when their path would skim it.
+_SAFE_HEIGHT = 0.01
+#: Longest leg a reach stage hands to its policy (m).
+_MAX_LEG = 0.01
 #: Where the arms wait (world offsets from their RCM, metres): out of each other's way, above the phantom.
 _HOME_OFFSET = {"grasper": (-0.015, 0.02, -0.08), "suction": (0.005, 0.0, -0.08)}
 
@@ -58,7 +67,9 @@ class StageSpec:
     until: str = "steps"  # teleop stages
     steps: int = 50  # teleop "steps" condition
     device: str | None = None
-    timeout: int = 400  # steps before the stage hands over regardless
+    timeout: int = 400  # steps before the stage hands over (a pick or carry that lost its debris starts over)
+    tolerance: float | None = None  # reach: hand over within this distance (m); default 1.5 x the scene's delta
+    precision: float = 1.0  # reach: shrink the policy's frame (and its steps) by this factor for finer positioning
 
     def __post_init__(self):
         if self.type not in _STAGE_TYPES:
@@ -71,6 +82,8 @@ class StageSpec:
             raise ValueError(f"teleop 'until' must be one of {_UNTIL}, got {self.until!r}")
         if self.type == "teleop" and not self.device:
             raise ValueError("a teleop stage needs a device name")
+        if not self.precision >= 1.0:
+            raise ValueError(f"stage precision must be >= 1, got {self.precision}")
         if self.timeout < 1:
             raise ValueError(f"stage timeout must be >= 1, got {self.timeout}")
 
@@ -134,10 +147,14 @@ def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
 
 
 class _StagePolicy:
-    """A single-arm policy with the frame it was trained in (range rho, step eta)."""
+    """A single-arm policy with the frame it was trained in (range rho, step eta, the box its states covered)."""
 
     def __init__(self, kind: str, name: str):
         task = load_task("psm_reach" if kind == "reach" else "psm_pick")
+        # The table cuts the training box (Reach: z~ in [-0.21, 1]); legs are centred on what the policy has seen.
+        env = gym.make("dvrl_marl/PSMReach-v0" if kind == "reach" else "dvrl_marl/PSMPick-v0").unwrapped
+        self.trained_box_centre = (env.normalise(env.tip_low) + env.normalise(env.tip_high)) / 2
+        env.close()
         if name == "scripted":
             self.workspace_range, self.step_size = task.workspace_range, task.step_size
             gain = self.workspace_range / self.step_size
@@ -173,7 +190,7 @@ class ArmPipeline:
                 self._policy(stage)
             if stage.type == "teleop" and stage.device not in self.devices:
                 raise ValueError(f"teleop stage needs device {stage.device!r}; pass devices={{...}}")
-        self.log: list[tuple[int, str]] = []  # (step, "stage started/ended ...") for inspection and tests
+        self.log: list[tuple[int, str]] = []  # (step, "stage started/ended ...") of the current episode
         self.reset()
 
     @classmethod
@@ -196,6 +213,7 @@ class ArmPipeline:
         self.mode = "start"  # "item", "idle", "final"
         self.tool = 1.0 if self.agent == "grasper" else -1.0
         self.timeouts = 0
+        self.log.clear()
         for device in self.devices.values():
             device.reset()
 
@@ -276,9 +294,8 @@ class ArmPipeline:
                 if stage.carry and self.item is not None and state["held"][self.item]:
                     # Move the tip so that the carried debris, not the tip, reaches the target.
                     self.stage_goal = self.stage_goal - (state["debris_position"][self.item] - state["tip"])
-                policy = self._policy(stage)
-                # Re-centre the policy's frame midway between start and goal, so both lie inside its workspace.
-                self.frame = RecentredFrame((state["tip"] + self.stage_goal) / 2, policy.workspace_range)
+                self.waypoints = self._waypoints(state["tip"], self.stage_goal, stage)
+                self._start_leg(state["tip"], stage)
             elif stage.type == "pick":
                 policy = self._policy(stage)
                 pin = state["debris_position"][self.item]
@@ -286,6 +303,41 @@ class ArmPipeline:
                 drop = stage.height or 0.0204
                 self.frame = RecentredFrame(pin + (0.0, 0.0, drop), policy.workspace_range)
                 self.stage_goal = pin + (0.0, 0.0, stage.lift)
+
+    def _waypoints(self, tip, goal, stage: StageSpec) -> list[np.ndarray]:
+        """Reach policies know no obstacles: lift to a safe height, travel, then descend onto the goal."""
+        tolerance = self._tolerance(stage)
+        safe_z = self._world((0.0, 0.0, self.layout.phantom_top))[2] + _SAFE_HEIGHT
+        if np.hypot(*(goal[:2] - tip[:2])) <= tolerance or (tip[2] >= safe_z and goal[2] >= safe_z):
+            return self._split(tip, [goal])
+        points = []
+        if tip[2] < safe_z:
+            points.append(np.array([tip[0], tip[1], safe_z]))
+        points.append(np.array([goal[0], goal[1], max(goal[2], safe_z)]))
+        points.append(goal)
+        return self._split(tip, points)
+
+    def _split(self, start, points) -> list[np.ndarray]:
+        """Cut a path into legs of at most ``_MAX_LEG``: on short legs a learned Reach policy moves nearly straight."""
+        legs, previous = [], np.asarray(start, dtype=float)
+        for point in points:
+            count = max(1, int(np.ceil(np.linalg.norm(point - previous) / _MAX_LEG)))
+            legs += [previous + (point - previous) * (k / count) for k in range(1, count + 1)]
+            previous = point
+        return legs
+
+    def _start_leg(self, tip, stage: StageSpec) -> None:
+        policy = self._policy(stage)
+        self.leg_goal = self.waypoints.pop(0)
+        # Re-centre the policy's frame so that the leg's midpoint sits at the centre of the box it was trained in.
+        midpoint = (np.asarray(tip) + self.leg_goal) / 2
+        # A normalised policy is scale-free: in a frame shrunk by `precision` its delta (and steps) shrink alike.
+        frame_range = policy.workspace_range / stage.precision
+        self.frame = RecentredFrame(midpoint - policy.trained_box_centre * frame_range, frame_range)
+
+    def _tolerance(self, stage: StageSpec) -> float:
+        # A policy trained on the sparse reward settles just inside its own delta; allow for the margin.
+        return stage.tolerance if stage.tolerance is not None else 1.5 * self.delta
 
     def _target(self, stage: StageSpec, state) -> np.ndarray:
         up = np.array([0.0, 0.0, stage.height])
@@ -334,7 +386,7 @@ class ArmPipeline:
                     self._start_sequence("idle", self.plan.idle, state)
             if self.stage_index < len(self.sequence) and self._stage_done(state):
                 self.log.append((self.steps, f"end {self.mode} stage {self.stage_index}"))
-                self.stage_index += 1
+                self.stage_index = 0 if self._lost_item(state) else self.stage_index + 1
                 self._start_stage(state)
                 continue
             if self.stage_index >= len(self.sequence) and self.mode in ("item", "idle") and self.sequence:
@@ -344,6 +396,16 @@ class ArmPipeline:
                 continue
             return
 
+    def _lost_item(self, state) -> bool:
+        """A pick that ended without holding its debris (or a carry that dropped it) starts the item over."""
+        stage = self.sequence[self.stage_index]
+        needs_hold = stage.type == "pick" or (stage.type == "reach" and stage.carry)
+        lost = (self.mode == "item" and needs_hold and self.item is not None and not state["held"][self.item]
+                and not state["delivered"][self.item])
+        if lost:
+            self.log.append((self.steps, f"retry item {self.item}: not holding it after stage {self.stage_index}"))
+        return lost
+
     def _stage_done(self, state) -> bool:
         stage = self.sequence[self.stage_index]
         if self.stage_steps >= stage.timeout:
@@ -351,9 +413,11 @@ class ArmPipeline:
             self.log.append((self.steps, f"timeout in stage {self.stage_index} ({stage.type})"))
             return True
         if stage.type == "reach":
+            if np.linalg.norm(state["tip"] - self.leg_goal) <= self._tolerance(stage) and self.waypoints:
+                self._start_leg(state["tip"], stage)
             if stage.carry and self.item is not None:
                 return bool(state["delivered"][self.item])
-            return np.linalg.norm(state["tip"] - self.stage_goal) <= self.delta
+            return not self.waypoints and np.linalg.norm(state["tip"] - self.leg_goal) <= self._tolerance(stage)
         if stage.type == "pick":
             held = bool(state["held"][self.item])
             return held and np.linalg.norm(state["debris_position"][self.item] - self.stage_goal) <= self.delta
@@ -392,8 +456,9 @@ class ArmPipeline:
         policy = self._policy(stage)
         scale = policy.step_size / self.scene_step  # a policy step of eta_policy in units of the scene's eta
         if stage.type == "reach":
+            scale /= stage.precision
             tip = self.frame.normalise(state["tip"])
-            goal = self.frame.normalise(self.stage_goal)
+            goal = self.frame.normalise(self.leg_goal)
             delta = np.asarray(policy.act({"observation": tip, "achieved_goal": tip, "desired_goal": goal}))[:3]
             if self.agent == "suction":
                 inside = self._inside_cavity(state["tip"])

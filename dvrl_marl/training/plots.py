@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_progress", "aggregate", "plot_learning_curves"]
+__all__ = ["read_progress", "aggregate", "plot_learning_curves", "summary_table"]
 
 
 def read_progress(run_dir) -> dict[str, np.ndarray]:
@@ -73,3 +73,23 @@ def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
         writer.writerow(["config", "timesteps", "success_mean", "success_std", "seeds"])
         writer.writerows(rows)
     return png, csv_path
+
+
+def summary_table(run_dirs, out) -> Path:
+    """``<out>.csv``: per configuration, seeds, final and best mean success, first step the mean reached 0.9/0.95."""
+    out = Path(out).with_suffix(".csv")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["config", "seeds", "steps", "final_success_mean", "final_success_std", "best_success_mean",
+                         "first_step_mean_ge_0.90", "first_step_mean_ge_0.95"])
+        for label, curve in aggregate(run_dirs).items():
+            steps, mean, std = curve["timesteps"], curve["mean"], curve["std"]
+
+            def first(threshold):
+                hits = np.flatnonzero(mean >= threshold)
+                return int(steps[hits[0]]) if len(hits) else ""
+
+            writer.writerow([label, int(curve["seeds"]), int(steps[-1]), f"{mean[-1]:.3f}", f"{std[-1]:.3f}",
+                             f"{mean.max():.3f}", first(0.9), first(0.95)])
+    return out
