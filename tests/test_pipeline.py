@@ -31,7 +31,7 @@ def test_shipped_pipelines_parse():
     assert {"learned_team", "scripted_team"} <= set(available_pipelines())
     plans = load_pipeline("learned_team")
     assert plans["suction"].for_each == "cavity" and plans["grasper"].for_each == "debris"
-    assert [s.type for s in plans["grasper"].stages] == ["reach", "pick", "reach", "release"]
+    assert [s.type for s in plans["grasper"].stages] == ["reach", "reach", "pick", "reach", "release"]
 
 
 def test_invalid_pipeline_files_raise(tmp_path):
@@ -144,3 +144,27 @@ def test_demo_command_writes_a_playable_video_and_metrics(tmp_path, capsys):
     frames = [frame for frame in reader]
     assert len(frames) >= 10 and frames[0].shape == (480, 640, 3) and frames[-1].std() > 5
     assert "debris delivered" in capsys.readouterr().out
+
+
+def test_reach_stages_lift_over_the_phantom_and_position_precisely():
+    env = suction_debris_v0.parallel_env()
+    observations, _ = env.reset(seed=0)
+    name = "reach-lnd" if "reach-lnd" in policies.available() else "scripted"
+    plan = ArmPlan("none", (), idle=(StageSpec("reach", policy=name, target="home"),
+                                     StageSpec("reach", policy=name, target="park", precision=4, tolerance=0.001)))
+    pipeline = ArmPipeline(plan, "grasper", env)
+    arm = env.arms["grasper"]
+    cavity = env.phantom.cavities[1]
+    arm.set_tip(*arm.to_base((cavity.centre_x, cavity.centre_y, cavity.floor_z + 0.002)).tolist())  # start deep
+    observations = {"grasper": env._observe("grasper")}
+    first_stage_heights = []
+    while pipeline.stage_index < 2 and pipeline.steps < 800:
+        action = pipeline(observations["grasper"])
+        if pipeline.stage_index == 0:
+            first_stage_heights.append(arm.tip_world()[2])
+        observations, *_ = env.step({"suction": np.zeros(4), "grasper": action})
+    assert pipeline.timeouts == 0 and pipeline.stage_index == 2
+    safe = env.phantom.top_z + 0.01
+    assert max(first_stage_heights) >= safe - 0.0015  # it climbed out of the cavity before travelling
+    park = pipeline._target(StageSpec("reach", target="park"), pipeline._parse(observations["grasper"]))
+    assert np.linalg.norm(np.array(arm.tip_world()) - park) <= 0.001  # finer than the policy's own 3 mm delta
