@@ -50,19 +50,24 @@ def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     curves = aggregate(run_dirs)
-    figure, axis = plt.subplots(figsize=(7, 4.2))
+    # One panel per task (Reach runs are 10x shorter than Pick runs), like the paper's Fig. 4.
+    tasks = sorted({label.split("_")[0] for label in curves}) or ["runs"]
+    figure, axes = plt.subplots(1, len(tasks), figsize=(6.5 * len(tasks), 4.2), squeeze=False)
     rows = []
-    for label, curve in curves.items():
-        steps, mean, std = curve["timesteps"], curve["mean"], curve["std"]
-        axis.plot(steps, mean, label=f"{label} ({int(curve['seeds'])} seeds)")
-        axis.fill_between(steps, np.clip(mean - std, 0, 1), np.clip(mean + std, 0, 1), alpha=0.2)
-        rows += [(label, int(s), float(m), float(d), int(curve["seeds"])) for s, m, d in zip(steps, mean, std)]
-    axis.set_xlabel("environment steps")
-    axis.set_ylabel("success rate (50 evaluation episodes)")
-    axis.set_ylim(-0.02, 1.02)
-    axis.grid(alpha=0.3)
-    axis.legend(fontsize=8, loc="lower right")
-    axis.set_title("dvrl-marl: PSM Reach and Pick")
+    for axis, task in zip(axes[0], tasks):
+        for label, curve in curves.items():
+            if label.split("_")[0] != task:
+                continue
+            steps, mean, std = curve["timesteps"], curve["mean"], curve["std"]
+            axis.plot(steps, mean, label=f"{label} ({int(curve['seeds'])} seeds)")
+            axis.fill_between(steps, np.clip(mean - std, 0, 1), np.clip(mean + std, 0, 1), alpha=0.2)
+            rows += [(label, int(s), float(m), float(d), int(curve["seeds"])) for s, m, d in zip(steps, mean, std)]
+        axis.set_xlabel("environment steps")
+        axis.set_ylabel("success rate (50 evaluation episodes)")
+        axis.set_ylim(-0.02, 1.02)
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8, loc="lower right")
+        axis.set_title(f"dvrl-marl: PSM {task.capitalize()} (mean and spread over seeds)")
     figure.tight_layout()
     png = out.with_suffix(".png")
     figure.savefig(png, dpi=120)
