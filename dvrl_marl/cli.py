@@ -26,8 +26,8 @@ def _render(args) -> int:
 def _train(args) -> int:
     import tomllib
 
-    if "ppo" in tomllib.loads(Path(args.config).read_text()).get("run", {}).get("algorithm", "ppo") and \
-            "env_id" not in tomllib.loads(Path(args.config).read_text()).get("run", {}):
+    # Goal-env configurations name a Gymnasium env_id; the collaborative (PPO) ones do not.
+    if "env_id" not in tomllib.loads(Path(args.config).read_text()).get("run", {}):
         from dvrl_marl.training.marl import train_ppo
 
         out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
