@@ -149,7 +149,10 @@ class PSMPickEnv(PSMGoalEnv):
         mujoco.mj_resetData(self.model, self.data)
         start = self._position_option(options, "start", self.tip_low, self.tip_high)
         goal = self._position_option(options, "goal", self.goal_low, self.tip_high)
-        obj = self._object_option(options)
+        # The object may sit anywhere over the workspace on or above the table (not inside it); it need not be
+        # reachable by the tip.
+        object_low = np.array([self.tip_low[0], self.tip_low[1], self.object_rest_height])
+        obj = self._position_option(options, "object", object_low, self.tip_high, reachable=False)
         if start is None:
             start = self.workspace_centre.copy()
         if goal is None:
@@ -164,24 +167,6 @@ class PSMPickEnv(PSMGoalEnv):
         self._object_at_rest = bool(obj[2] <= self.object_rest_height + 1e-9)
         self._update_object_normalised()
         return self._observation(), self._info(self._reward_and_success(self._object_normalised)[1])
-
-    def _object_option(self, options: dict) -> np.ndarray | None:
-        low = np.array([self.tip_low[0], self.tip_low[1], self.object_rest_height])
-        high = self.tip_high
-        if "object" not in options or options["object"] is None:
-            return None
-        try:
-            value = np.asarray(options["object"], dtype=np.float64)
-        except (TypeError, ValueError) as error:
-            raise ValueError("PSMPickEnv: reset option 'object' must be 3 numbers (m)") from error
-        if value.shape != (3,) or not np.all(np.isfinite(value)):
-            raise ValueError(f"PSMPickEnv: reset option 'object' must be 3 finite numbers (m), got {options['object']!r}")
-        if np.any(value < low - 1e-12) or np.any(value > high + 1e-12):
-            raise ValueError(
-                f"PSMPickEnv: reset option 'object' = {value.tolist()} is outside [{low.tolist()}, {high.tolist()}]"
-                " (base frame, m; the object cannot start inside the table)"
-            )
-        return np.clip(value, low, high)
 
     def step(self, action):
         dx, dy, dz, phi = self._read_action(action)

@@ -141,7 +141,9 @@ class PSMGoalEnv(gym.Env):
                 return candidates[int(np.argmax(ok))]
         raise RuntimeError(f"no reachable position in the box {low} .. {high}")
 
-    def _position_option(self, options: dict, key: str, low, high) -> np.ndarray | None:
+    def _position_option(self, options: dict, key: str, low, high, reachable: bool = True) -> np.ndarray | None:
+        """A position reset option in metres (base frame), checked against [low, high] and, for the tip and goals,
+        the arm's reach."""
         if key not in options or options[key] is None:
             return None
         try:
@@ -157,7 +159,7 @@ class PSMGoalEnv(gym.Env):
                 f"[{np.asarray(low).tolist()}, {np.asarray(high).tolist()}] (base frame, m)"
             )
         value = np.clip(value, low, high)
-        if not kinematics.within_limits(self.tool, value):
+        if reachable and not kinematics.within_limits(self.tool, value):
             raise ValueError(f"{type(self).__name__}: reset option {key!r} = {value.tolist()} is not reachable by the arm")
         return value
 

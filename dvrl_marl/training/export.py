@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch as th
 from torch import nn
 
 from dvrl_marl.policies import POLICY_FORMAT
@@ -71,9 +70,3 @@ def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Pa
     (directory / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
     return directory
 
-
-def torch_actions(model, observation: dict) -> np.ndarray:
-    """The SB3 policy's deterministic actions for a batch of observation dicts (for checking an export)."""
-    with th.no_grad():
-        actions, _ = model.predict(observation, deterministic=True)
-    return actions
