@@ -57,6 +57,27 @@ def test_bc_gradient_pulls_the_actor_towards_the_demonstrations():
     assert after < before and after < 0.3
 
 
+def test_random_action_probability_replaces_exploration_steps_with_uniform_actions():
+    from dvrl_marl.training import DDPGBC
+
+    def sampled_actions(probability):
+        env = gym.make("dvrl_marl/PSMReach-v0")
+        model = DDPGBC("MultiInputPolicy", env, learning_starts=0, buffer_size=100, bc_weight=0.0,
+                       policy_kwargs={"net_arch": [8]}, seed=3, random_action_probability=probability)
+        model._last_obs = {k: v[None] for k, v in env.reset(seed=0)[0].items()}
+        actions = np.array([model._sample_action(learning_starts=0)[0][0] for _ in range(400)])
+        return actions
+
+    policy_only = sampled_actions(0.0)
+    assert np.allclose(policy_only, policy_only[0])  # no noise: the deterministic actor's action every time
+    mixed = sampled_actions(0.3)
+    replaced = ~np.all(np.isclose(mixed, policy_only[0]), axis=1)
+    assert 0.2 < replaced.mean() < 0.4  # about 30 % uniform random actions
+    assert np.all(np.abs(mixed) <= 1.0) and mixed[replaced].std(axis=0).min() > 0.4  # uniform on [-1, 1] has 0.58
+    with pytest.raises(ValueError, match="random_action_probability"):
+        DDPGBC("MultiInputPolicy", gym.make("dvrl_marl/PSMReach-v0"), random_action_probability=1.5)
+
+
 def _tiny(config):
     algorithm_kwargs = dict(config.algorithm_kwargs)
     algorithm_kwargs.update(learning_starts=100, gradient_steps=2, buffer_size=2000, batch_size=32)

@@ -44,10 +44,19 @@ class DDPGBC(DDPG):
         policy_loss_weight: weight of the Q and action_l2 terms (``prm_loss_weight``).
         clip_target: clip critic targets to [-1 / (1 - gamma), 0], the range of the sparse return (Baselines'
             ``clip_return``); it keeps the critic from diverging.
+        random_action_probability: after ``learning_starts``, the chance that an exploration step takes a uniform
+            random action instead of the noisy policy's (Baselines' ``random_eps``).
+
+    With ``bc_weight=0`` and ``policy_loss_weight=1`` this is the paper's plain DDPG (Baselines' HER-DDPG: action
+    penalty, clipped targets, random exploration steps), which SB3's ``DDPG`` lacks.
     """
 
     def __init__(self, *args, bc_weight: float = 0.0078, demo_batch_size: int = 128, q_filter: bool = False,
-                 action_l2: float = 1.0, policy_loss_weight: float = 0.001, clip_target: bool = True, **kwargs):
+                 action_l2: float = 1.0, policy_loss_weight: float = 0.001, clip_target: bool = True,
+                 random_action_probability: float = 0.0, **kwargs):
+        if not 0.0 <= random_action_probability <= 1.0:
+            raise ValueError(f"random_action_probability must lie in [0, 1], got {random_action_probability}")
+        self.random_action_probability = float(random_action_probability)
         self.clip_target = bool(clip_target)
         self.bc_weight = float(bc_weight)
         self.policy_loss_weight = float(policy_loss_weight)
@@ -71,6 +80,18 @@ class DDPGBC(DDPG):
 
     def _excluded_save_params(self) -> list[str]:
         return super()._excluded_save_params() + ["_demo_observations", "_demo_actions"]
+
+    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
+        action, buffer_action = super()._sample_action(learning_starts, action_noise, n_envs)
+        if self.random_action_probability > 0 and self.num_timesteps >= learning_starts:
+            # Seeded by SB3 through the action space, so runs stay reproducible.
+            replace = np.array([self.action_space.np_random.random() < self.random_action_probability
+                                for _ in range(n_envs)])
+            if replace.any():
+                random_actions = np.array([self.action_space.sample() for _ in range(n_envs)])
+                action = np.where(replace[:, None], random_actions, action)
+                buffer_action = np.where(replace[:, None], self.policy.scale_action(random_actions), buffer_action)
+        return action, buffer_action
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
