@@ -6,22 +6,7 @@ not answer within the environment's ``teleop_timeout`` makes the seat hold still
 valve unchanged) with ``infos[agent]["teleop_lost"] = True``; the episode goes on.
 """
 
-from dvrl_marl.teleop.devices import (
-    DEMONSTRATION_FORMAT,
-    Device,
-    KeyboardDevice,
-    Recorder,
-    ReplayDevice,
-    load_demonstration,
-    save_demonstration,
-)
+from dvrl_marl.teleop import devices as _devices
+from dvrl_marl.teleop.devices import *  # noqa: F403 (the public names are devices.__all__)
 
-__all__ = [
-    "Device",
-    "KeyboardDevice",
-    "ReplayDevice",
-    "Recorder",
-    "save_demonstration",
-    "load_demonstration",
-    "DEMONSTRATION_FORMAT",
-]
+__all__ = list(_devices.__all__)
