@@ -31,7 +31,7 @@ def _train(args) -> int:
         from dvrl_marl.training.marl import train_ppo
 
         out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
-        result = train_ppo(args.config, args.seed, out, total_timesteps=args.steps)
+        result = train_ppo(args.config, args.seed, out, total_timesteps=args.steps, tensorboard=args.tensorboard)
         print(f"{Path(args.config).stem} seed {args.seed}: {result}; run folder {out}")
         return 0
     from dvrl_marl.training.runner import load_config, train
@@ -119,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--steps", type=int, help="override total_timesteps")
     train.add_argument("--out", help="run folder (default runs/<config>-seed<seed>)")
     train.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
-    train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs (needs tensorboard)")
+    train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs to <out>/sb3_log")
     train.add_argument("--export", help="folder to export the final policy to (numpy format)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.set_defaults(func=_train)

@@ -103,6 +103,26 @@ def test_every_configuration_trains_end_to_end(config_path, tmp_path):
         assert demos["metadata"]["episodes"] == 2
 
 
+def test_tensorboard_logs_carry_the_evaluations(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    config = _tiny(load_config(next(p for p in CONFIGS if p.stem == "reach_lnd_ddpg_her")))
+    history = train(config, seed=0, out_dir=tmp_path, progress=False, tensorboard=True)
+    events = EventAccumulator(str(next((tmp_path / "sb3_log").glob("events.out.tfevents.*")))).Reload()
+    success = events.Scalars("eval/success_rate")
+    assert [e.step for e in success] == [150, 300]
+    assert [e.value for e in success] == pytest.approx([row["success_rate"] for row in history])
+    assert "train/critic_loss" in events.Tags()["scalars"]
+
+
+def test_tensorboard_without_the_package_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "tensorboard", None)  # makes `import tensorboard` fail
+    config = _tiny(load_config(next(p for p in CONFIGS if p.stem == "reach_lnd_ddpg_her")))
+    with pytest.raises(ImportError, match="pip install 'dvrl-marl\\[train\\]'"):
+        train(config, seed=0, out_dir=tmp_path / "run", progress=False, tensorboard=True)
+    assert not (tmp_path / "run").exists()  # failed before doing any work
+
+
 def test_resume_continues_from_the_checkpoint(tmp_path):
     config = _tiny(load_config(next(p for p in CONFIGS if p.stem == "reach_lnd_ddpg_her")))
     train(config, seed=0, out_dir=tmp_path, progress=False)

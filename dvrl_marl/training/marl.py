@@ -107,11 +107,14 @@ def evaluate_team(act, episodes: int, seed: int = 5_000_000, surgeon=None, on_re
 
 
 def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = None,
-              eval_episodes: int | None = None) -> dict:
+              eval_episodes: int | None = None, tensorboard: bool = False) -> dict:
     """Train PPO on the collaborative env from a configuration; writes the model and ``result.json``."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import configure
 
+    from dvrl_marl.training.runner import log_formats
+
+    formats = log_formats(tensorboard)
     config_path = Path(config_path)
     table = tomllib.loads(config_path.read_text())
     run = table.get("run", {})
@@ -123,7 +126,7 @@ def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = Non
     vec = make_vec_env(int(run.get("n_envs", 4)), surgeon=surgeon, **env_kwargs)
     model = PPO("MlpPolicy", vec, seed=seed, verbose=0, policy_kwargs=table.get("policy", {}),
                 **table.get("algorithm", {}))
-    model.set_logger(configure(str(out_dir / "sb3_log"), ["csv"]))
+    model.set_logger(configure(str(out_dir / "sb3_log"), formats))
     start = time.perf_counter()
     model.learn(int(total_timesteps or run.get("total_timesteps", 100_000)))
     model.save(out_dir / "final_model.zip")

@@ -154,7 +154,7 @@ def _seed_buffer_with_demonstrations(model, demos: dict) -> None:
         )
 
 
-def _build_model(config: RunConfig, env, seed: int, out_dir: Path, tensorboard: bool):
+def _build_model(config: RunConfig, env, seed: int):
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.noise import NormalActionNoise
 
@@ -170,7 +170,7 @@ def _build_model(config: RunConfig, env, seed: int, out_dir: Path, tensorboard: 
     return cls(
         "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, replay_buffer_kwargs=dict(config.her),
         policy_kwargs=dict(config.policy), seed=seed, verbose=0,
-        tensorboard_log=str(out_dir / "tensorboard") if tensorboard else None, **kwargs,
+        **kwargs,
     )
 
 
@@ -181,6 +181,7 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.monitor import Monitor
 
+    formats = log_formats(tensorboard)  # before any work: a missing package fails at once
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     total = int(total_timesteps or config.total_timesteps)
@@ -201,7 +202,7 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
             model.set_demonstrations(observation_batch(demos), demos["action"])
     else:
         (out_dir / "config.toml").write_text(config.source or "")
-        model = _build_model(config, env, seed, out_dir, tensorboard)
+        model = _build_model(config, env, seed)
         if config.demonstrations:
             demos = generate_demonstrations(config.env_id, config.demonstrations, seed=10_000 * (seed + 1),
                                             env_kwargs=config.env)
@@ -211,7 +212,6 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
                 model.set_demonstrations(observation_batch(demos), demos["action"])
         if progress_csv.exists():
             progress_csv.unlink()
-    formats = ["csv"] + (["tensorboard"] if tensorboard and _has_tensorboard() else [])
     model.set_logger(configure(str(out_dir / "sb3_log"), formats))
 
     start = time.perf_counter()
@@ -227,6 +227,10 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
         row = {"timesteps": model.num_timesteps, "success_rate": result["success_rate"],
                "mean_final_distance": result["mean_final_distance"], "wall_seconds": time.perf_counter() - start}
         history.append(row)
+        # Evaluation figures beside SB3's training ones (CSV and TensorBoard), as EvalCallback does.
+        model.logger.record("eval/success_rate", row["success_rate"])
+        model.logger.record("eval/mean_final_distance", row["mean_final_distance"])
+        model.logger.dump(model.num_timesteps)
         new_file = not progress_csv.exists()
         with progress_csv.open("a", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=list(row))
@@ -259,9 +263,12 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
     return history
 
 
-def _has_tensorboard() -> bool:
-    try:
-        import tensorboard  # noqa: F401
-    except ImportError:
-        return False
-    return True
+def log_formats(tensorboard: bool) -> list[str]:
+    """SB3 logger formats: CSV always, TensorBoard on request (a clear error if it is not installed)."""
+    if tensorboard:
+        try:
+            import tensorboard as _  # noqa: F401
+        except ImportError:
+            raise ImportError("TensorBoard logs need the tensorboard package: pip install 'dvrl-marl[train]'") from None
+        return ["csv", "tensorboard"]
+    return ["csv"]
