@@ -54,12 +54,13 @@ def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
     tasks = sorted({label.split("_")[0] for label in curves}) or ["runs"]
     figure, axes = plt.subplots(1, len(tasks), figsize=(6.5 * len(tasks), 4.2), squeeze=False)
     rows = []
+    line_styles = ("-", "--", "-.", ":")  # curves that coincide (the same run on two tools) stay visible
     for axis, task in zip(axes[0], tasks):
-        for label, curve in curves.items():
-            if label.split("_")[0] != task:
-                continue
+        task_curves = [(label, curve) for label, curve in curves.items() if label.split("_")[0] == task]
+        for index, (label, curve) in enumerate(task_curves):
             steps, mean, std = curve["timesteps"], curve["mean"], curve["std"]
-            axis.plot(steps, mean, label=f"{label} ({int(curve['seeds'])} seeds)")
+            axis.plot(steps, mean, line_styles[index % len(line_styles)], linewidth=1.8,
+                      label=f"{label} ({int(curve['seeds'])} seeds)")
             axis.fill_between(steps, np.clip(mean - std, 0, 1), np.clip(mean + std, 0, 1), alpha=0.2)
             rows += [(label, int(s), float(m), float(d), int(curve["seeds"])) for s, m, d in zip(steps, mean, std)]
         axis.set_xlabel("environment steps")
@@ -67,7 +68,7 @@ def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
         axis.set_ylim(-0.02, 1.02)
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8, loc="lower right")
-        axis.set_title(f"dvrl-marl: PSM {task.capitalize()} (mean and spread over seeds)")
+        axis.set_title(f"dvrl-marl: PSM {task.capitalize()} (mean and std over seeds)")
     figure.tight_layout()
     png = out.with_suffix(".png")
     figure.savefig(png, dpi=120)
