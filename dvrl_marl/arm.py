@@ -132,6 +132,14 @@ class Arm:
         world = self.to_world((x, y, z))
         return (float(world[0]), float(world[1]), float(world[2]))
 
+    def base_point(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        """A world point in this arm's base frame (floats, no MuJoCo call): :meth:`to_base` for one point."""
+        if self._axis_aligned:
+            p = self.base_position
+            return (x - p[0], y - p[1], z - p[2])
+        base = self.to_base((x, y, z))
+        return (float(base[0]), float(base[1]), float(base[2]))
+
     def grasp_sensor(self, point_world) -> bool:
         """The proximity sensor between the jaws: is ``point_world`` inside its volume (the grasp_zone site)?"""
         tx, ty, tz = self.tip_world()

@@ -136,3 +136,20 @@ def test_the_package_finds_its_scenes_tasks_and_policies_from_any_directory(tmp_
     )
     result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)
     assert "scenes" in result.stdout and "tasks" in result.stdout
+
+
+def test_arm_frames_agree_for_a_yawed_base():
+    """The float fast paths (tip_world, base_point) must match to_world / to_base when the base is rotated."""
+    from dvrl_marl.arm import Arm
+
+    model = load_model("pick_lnd")
+    rcm = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "psm/rcm")
+    yaw = 0.7
+    model.body_quat[rcm] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+    arm = Arm(model, mujoco.MjData(model), "psm/", "lnd")
+    point = np.array([0.01, -0.02, -0.1])
+    world = arm.to_world(point)
+    assert not np.allclose(world - arm.base_position, point)  # the rotation matters here
+    np.testing.assert_allclose(arm.base_point(*world.tolist()), point, atol=1e-12)
+    arm.set_tip(*point.tolist())
+    np.testing.assert_allclose(arm.tip_world(), world, atol=1e-12)

@@ -113,10 +113,8 @@ class PSMPickEnv(PSMGoalEnv):
         self.data.qvel[self._object_qvel:self._object_qvel + 6] = 0.0
 
     def _update_object_normalised(self) -> None:
-        base = self.arm.base_position
         adr = self._object_qpos
-        x, y, z = self.data.qpos[adr:adr + 3].tolist()
-        self._object_normalised = self._normalised_tuple(x - base[0], y - base[1], z - base[2])
+        self._object_normalised = self._normalised_tuple(*self.arm.base_point(*self.data.qpos[adr:adr + 3].tolist()))
 
     def _carry_object(self) -> None:
         tx, ty, tz = self.arm.tip_world()
