@@ -66,6 +66,16 @@ class Arm:
         self.jaw = 1.0
         self.q = (0.0,) * self.tool.n_joints
 
+    @property
+    def joint_qpos_addresses(self):
+        """Where this arm's joints live in ``qpos`` (a slice or an index array)."""
+        return self._joint_qpos
+
+    @property
+    def jaw_qpos_addresses(self):
+        """Where the two jaw fingers live in ``qpos`` (LND only)."""
+        return self._jaw_qpos
+
     # --- frames -----------------------------------------------------------------------------------------
     def to_world(self, position_base) -> np.ndarray:
         """Base-frame position(s) (..., 3) to world coordinates."""

@@ -20,6 +20,7 @@ form (see :func:`inverse_kinematics`) and batched over any leading axes.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -35,6 +36,7 @@ __all__ = [
     "forward_kinematics",
     "inverse_kinematics",
     "inverse_kinematics_point",
+    "inverse_kinematics_batch",
     "within_limits",
     "wrist_position_point",
     "get_tool",
@@ -312,6 +314,22 @@ def within_limits(tool: Tool | str, position) -> np.ndarray:
     q, radial = _solve_batch(tool, position)
     lower, upper = np.asarray(tool.lower), np.asarray(tool.upper)
     return (radial > 0.0) & np.all((q >= lower) & (q <= upper), axis=-1)
+
+
+def inverse_kinematics_batch(tool: Tool, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unchecked batched IK for the batched core: ``(q, reachable)`` for finite positions ``(..., 3)``.
+
+    The same closed form and limit test as :func:`inverse_kinematics_point`, over arrays; ``q`` of unreachable
+    positions is returned as computed (outside the limits), ``reachable`` says which rows are valid.
+    """
+    q, radial = _solve_batch(tool, position)
+    lower, upper = _limit_arrays(tool)
+    return q, (radial > 0.0) & np.all((q >= lower) & (q <= upper), axis=-1)
+
+
+@functools.lru_cache(maxsize=None)
+def _limit_arrays(tool: Tool) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(tool.lower), np.asarray(tool.upper)
 
 
 def inverse_kinematics(tool: Tool | str, position) -> np.ndarray:

@@ -16,6 +16,12 @@ SINGLE_ARM_ENV_IDS = {
     "dvrl_marl/PSMPickDense-v0": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "dense"}),
 }
 
+#: entry point -> the native batched form (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)
+_VECTOR_ENTRY_POINTS = {
+    "dvrl_marl.envs.psm_reach:PSMReachEnv": "dvrl_marl.envs.vector:make_reach_vector",
+    "dvrl_marl.envs.psm_pick:PSMPickEnv": "dvrl_marl.envs.vector:make_pick_vector",
+}
+
 
 #: PettingZoo ids -> (parallel entry point, AEC entry point)
 MULTI_AGENT_ENV_IDS = {
@@ -31,7 +37,8 @@ def register_envs() -> None:
     for env_id, (entry_point, kwargs) in SINGLE_ARM_ENV_IDS.items():
         if env_id in gym.registry:
             continue
-        gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs, max_episode_steps=_PAPER_EPISODE_STEPS)
+        gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs, max_episode_steps=_PAPER_EPISODE_STEPS,
+                     vector_entry_point=_VECTOR_ENTRY_POINTS[entry_point])
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but registration must never break import

@@ -44,20 +44,17 @@ becomes unstable the episode truncates with ``info["sim_unstable"] = True`` and 
 
 from __future__ import annotations
 
-import math
 
 import mujoco
 import numpy as np
 from gymnasium import spaces
 
 from dvrl_marl.envs.single_arm import PSMGoalEnv
-from dvrl_marl.scene import has_warnings, object_id
+from dvrl_marl.core.pick import simulate_free_object
+from dvrl_marl.scene import object_id
 
 __all__ = ["PSMPickEnv"]
 
-#: The object is considered at rest (and physics stops being stepped for it) below these speeds.
-_REST_LINEAR_SPEED = 1e-4  # m/s
-_REST_ANGULAR_SPEED = 1e-2  # rad/s
 #: Normalised object positions are bounded by this in the observation space (the table is smaller).
 _OBJECT_BOUND = 50.0
 
@@ -75,8 +72,9 @@ class PSMPickEnv(PSMGoalEnv):
         self.initial_jaw = float(self.spec_task.initial_jaw if self.spec_task.initial_jaw is not None else 1.0)
         body = object_id(self.model, "body", "object")
         joint = self.model.body_jntadr[body]
-        self._object_qpos = int(self.model.jnt_qposadr[joint])
-        self._object_qvel = int(self.model.jnt_dofadr[joint])
+        #: Where the object's free joint lives in ``qpos`` / ``qvel``.
+        self.object_qpos_address = self._object_qpos = int(self.model.jnt_qposadr[joint])
+        self.object_qvel_address = self._object_qvel = int(self.model.jnt_dofadr[joint])
         geom = object_id(self.model, "geom", "object")
         #: Height (base frame) of the object's centre when it stands on the table.
         self.object_rest_height = self.table_height + float(self.model.geom_size[geom][1])
@@ -101,6 +99,15 @@ class PSMPickEnv(PSMGoalEnv):
         self._object_at_rest = True
         self._object_normalised = (0.0, 0.0, 0.0)
 
+    def _option_bounds(self, key: str) -> tuple:
+        if key == "goal":
+            return self.goal_low, self.tip_high, True
+        if key == "object":
+            # The object may sit anywhere over the workspace on or above the table (not inside it); it need not be
+            # reachable by the tip.
+            return np.array([self.tip_low[0], self.tip_low[1], self.object_rest_height]), self.tip_high, False
+        return super()._option_bounds(key)
+
     # --- object state -----------------------------------------------------------------------------------
     def object_position(self) -> np.ndarray:
         """The object's centre in the base frame (metres)."""
@@ -124,33 +131,16 @@ class PSMPickEnv(PSMGoalEnv):
 
     def _simulate_object(self) -> bool:
         """Step physics for a free, moving object. Returns False if MuJoCo went unstable (state restored)."""
-        saved_qpos = self.data.qpos.copy()
-        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
-        if has_warnings(self.data) or not np.all(np.isfinite(self.data.qpos)):
-            self.data.qpos[:] = saved_qpos
-            self.data.qvel[:] = 0.0
-            for warning in self.data.warning:
-                warning.number = 0
-            return False
-        velocity = self.data.qvel[self._object_qvel:self._object_qvel + 6]
-        linear = math.sqrt(float(velocity[0] ** 2 + velocity[1] ** 2 + velocity[2] ** 2))
-        angular = math.sqrt(float(velocity[3] ** 2 + velocity[4] ** 2 + velocity[5] ** 2))
-        if linear < _REST_LINEAR_SPEED and angular < _REST_ANGULAR_SPEED and self.data.ncon > 0:
-            self._object_at_rest = True
-            velocity[:] = 0.0
-        return True
+        stable, at_rest = simulate_free_object(self.model, self.data, self.n_substeps, self._object_qvel)
+        self._object_at_rest = self._object_at_rest or at_rest
+        return stable
 
     # --- Gymnasium API ------------------------------------------------------------------------------------
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        options = self._check_options(options)
+        parsed = self.parse_reset_options(options)
         mujoco.mj_resetData(self.model, self.data)
-        start = self._position_option(options, "start", self.tip_low, self.tip_high)
-        goal = self._position_option(options, "goal", self.goal_low, self.tip_high)
-        # The object may sit anywhere over the workspace on or above the table (not inside it); it need not be
-        # reachable by the tip.
-        object_low = np.array([self.tip_low[0], self.tip_low[1], self.object_rest_height])
-        obj = self._position_option(options, "object", object_low, self.tip_high, reachable=False)
+        start, goal, obj = parsed["start"], parsed["goal"], parsed["object"]
         if start is None:
             start = self.workspace_centre.copy()
         if goal is None:
@@ -204,6 +194,15 @@ class PSMPickEnv(PSMGoalEnv):
         if unstable:
             info["sim_unstable"] = True
         return self._observation(), reward, False, unstable, info
+
+    def set_state(self, *, tip, goal, jaw, object_pose, grasped=False) -> None:
+        """Put the arm, goal and object (pose: world position + quaternion) where a batched world has them."""
+        self.arm.set_tip(*np.asarray(tip, dtype=np.float64).tolist())
+        self.arm.set_jaw(float(jaw))
+        self._set_goal(np.asarray(goal, dtype=np.float64))
+        self.data.qpos[self._object_qpos:self._object_qpos + 7] = object_pose
+        self.grasped = bool(grasped)
+        self._update_object_normalised()
 
     def _info(self, success: bool) -> dict:
         return {"is_success": success, "grasped": self.grasped}

@@ -69,9 +69,8 @@ class PSMReachEnv(PSMGoalEnv):
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        options = self._check_options(options)
-        start = self._position_option(options, "start", self.tip_low, self.tip_high)
-        goal = self._position_option(options, "goal", self.tip_low, self.tip_high)
+        parsed = self.parse_reset_options(options)
+        start, goal = parsed["start"], parsed["goal"]
         if start is None:
             start = self._sample_in_box(self.tip_low, self.tip_high)
         if goal is None:
@@ -88,6 +87,11 @@ class PSMReachEnv(PSMGoalEnv):
         tip = self._normalised_tuple(*self.arm.tip)
         reward, success = self._reward_and_success(tip)
         return self._observation(tip), reward, False, False, {"is_success": success}
+
+    def set_state(self, *, tip, goal) -> None:
+        """Put the tip and goal (metres, base frame) where a batched world has them, e.g. to render that world."""
+        self.arm.set_tip(*np.asarray(tip, dtype=np.float64).tolist())
+        self._set_goal(np.asarray(goal, dtype=np.float64))
 
     def _observation(self, tip) -> dict:
         return {

@@ -15,15 +15,12 @@ import numpy as np
 
 from dvrl_marl import kinematics
 from dvrl_marl.arm import Arm
+from dvrl_marl.core.worlds import sample_reachable
 from dvrl_marl.rendering import RENDER_MODES, SceneRenderer
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import TaskSpec, load_task
 
 __all__ = ["PSMGoalEnv"]
-
-#: How many candidate positions to draw at once when sampling the reachable workspace.
-_SAMPLE_BATCH = 16
-
 
 class PSMGoalEnv(gym.Env):
     """Base class of the single-arm goal environments (see :class:`PSMReachEnv` and :class:`PSMPickEnv`)."""
@@ -134,12 +131,7 @@ class PSMGoalEnv(gym.Env):
 
     def _sample_in_box(self, low, high) -> np.ndarray:
         """Uniform sample from the box [low, high] restricted to positions the arm can reach."""
-        for _ in range(1000):
-            candidates = self.np_random.uniform(low, high, size=(_SAMPLE_BATCH, 3))
-            ok = kinematics.within_limits(self.tool, candidates)
-            if ok.any():
-                return candidates[int(np.argmax(ok))]
-        raise RuntimeError(f"no reachable position in the box {low} .. {high}")
+        return sample_reachable(self.np_random, self.tool, low, high)
 
     def _position_option(self, options: dict, key: str, low, high, reachable: bool = True) -> np.ndarray | None:
         """A position reset option in metres (base frame), checked against [low, high] and, for the tip and goals,
@@ -162,6 +154,18 @@ class PSMGoalEnv(gym.Env):
         if reachable and not kinematics.within_limits(self.tool, value):
             raise ValueError(f"{type(self).__name__}: reset option {key!r} = {value.tolist()} is not reachable by the arm")
         return value
+
+    def parse_reset_options(self, options) -> dict:
+        """Validate reset ``options`` and return each position option in metres (base frame), or None if absent.
+
+        The vector environments call this too, so a single and a batched reset accept exactly the same options.
+        """
+        options = self._check_options(options)
+        return {key: self._position_option(options, key, *self._option_bounds(key)) for key in self.reset_option_keys}
+
+    def _option_bounds(self, key: str) -> tuple:
+        """(low, high, reachable) for a position reset option."""
+        return self.tip_low, self.tip_high, True
 
     def _check_options(self, options) -> dict:
         if options is None:

@@ -1,0 +1,86 @@
+"""N kinematic PSMs with one tool each: the batched form of :class:`dvrl_marl.arm.Arm`'s motion.
+
+Each step is the paper's ``p <- p + eta * Delta`` clamped to a box, solved by the closed-form IK, and, where the
+clamped target leaves the joint limits, cut short along the move by bisection, exactly as ``Arm.move`` does for
+one arm (the same floating-point operations in the same order, so world ``i`` matches the single arm).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvrl_marl import kinematics
+
+__all__ = ["ArmBatch"]
+
+#: Bisection steps when a move leaves the joint limits (the same count as ``Arm.move``).
+_PROJECTION_ITERATIONS = 20
+
+
+class ArmBatch:
+    """Tips ``(N, 3)`` (base frame, metres), joints ``q`` ``(N, n_joints)`` and jaw ``(N,)`` of N arms."""
+
+    def __init__(self, tool: kinematics.Tool | str, num_worlds: int, base_position=(0.0, 0.0, 0.0)):
+        self.tool = kinematics.get_tool(tool)
+        self.num_worlds = int(num_worlds)
+        #: The base (RCM) position in the world; bases are axis-aligned in every scene the cores support.
+        self.base_position = np.asarray(base_position, dtype=np.float64)
+        self.tip = np.zeros((self.num_worlds, 3))
+        self.q = np.zeros((self.num_worlds, self.tool.n_joints))
+        self.jaw = np.ones(self.num_worlds)
+
+    def tip_world(self) -> np.ndarray:
+        """Tip positions in world coordinates (a new array)."""
+        return self.tip + self.base_position
+
+    def set_tips(self, worlds, positions) -> None:
+        """Put the tips of ``worlds`` (indices or mask) at ``positions`` (base frame); they must be reachable."""
+        positions = np.asarray(positions, dtype=np.float64)
+        q, reachable = kinematics.inverse_kinematics_batch(self.tool, positions)
+        if not np.all(reachable):
+            raise kinematics.UnreachableError(self.tool.name, positions[np.argmin(reachable)] if positions.ndim > 1
+                                              else positions, "geometry", np.nan, (np.nan, np.nan))
+        self.tip[worlds] = positions
+        self.q[worlds] = q
+
+    def move(self, delta: np.ndarray, low, high) -> np.ndarray:
+        """Move every tip by ``delta`` ``(N, 3)``, clamped to ``[low, high]`` (per axis, ``(3,)`` or ``(N, 3)``).
+
+        Returns the mask of worlds whose move was cut short by the joint limits.
+        """
+        start = self.tip
+        target = np.minimum(np.maximum(start + delta, low), high)
+        q, reachable = kinematics.inverse_kinematics_batch(self.tool, target)
+        blocked = ~reachable
+        if blocked.any():
+            rows = np.flatnonzero(blocked)
+            origin, goal = start[rows], target[rows]
+            span = goal - origin
+            good = np.zeros(len(rows))
+            bad = np.ones(len(rows))
+            for _ in range(_PROJECTION_ITERATIONS):
+                mid = 0.5 * (good + bad)
+                _, ok = kinematics.inverse_kinematics_batch(self.tool, origin + mid[:, None] * span)
+                good = np.where(ok, mid, good)
+                bad = np.where(ok, bad, mid)
+            reached = origin + good[:, None] * span
+            target[rows] = reached
+            q[rows] = kinematics.inverse_kinematics_batch(self.tool, reached)[0]
+        self.tip = target
+        self.q = q
+        return blocked
+
+    def wrist_world(self) -> np.ndarray:
+        """The wrist pitch point (where the straight shaft ends) of every arm, world frame: ``(N, 3)``.
+
+        The batched form of :func:`dvrl_marl.kinematics.wrist_position_point`.
+        """
+        q = self.q
+        s1, c1 = np.sin(q[:, 0]), np.cos(q[:, 0])
+        s2, c2 = np.sin(q[:, 1]), np.cos(q[:, 1])
+        length = q[:, 2] - self.tool.insertion_offset
+        wrist = np.empty((self.num_worlds, 3))
+        wrist[:, 0] = length * s1 * c2
+        wrist[:, 1] = -length * s2
+        wrist[:, 2] = -length * c1 * c2
+        return wrist + self.base_position

@@ -1,0 +1,127 @@
+"""The batched core of PSM Reach: N worlds of :class:`dvrl_marl.envs.psm_reach.PSMReachEnv` as arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvrl_marl.core.arms import ArmBatch
+from dvrl_marl.core.worlds import WorldRandom, check_action_batch, sample_reachable_batch
+
+__all__ = ["ReachCore", "GoalCoreBase"]
+
+
+class GoalCoreBase:
+    """What the Reach and Pick cores share: workspace, normalisation, goals, the paper's reward, episode clocks.
+
+    Built from a single-world environment ``template`` (its validated parameters); ``max_episode_steps`` truncates
+    a world's episode (the single environment's ``TimeLimit``).
+    """
+
+    action_width = 3
+
+    def __init__(self, template, num_worlds: int, max_episode_steps: int | None):
+        if int(num_worlds) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_worlds!r}")
+        self.template = template
+        self.num_worlds = n = int(num_worlds)
+        self.name = type(template).__name__
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.tool = template.tool
+        self.arm = ArmBatch(self.tool, n, template.arm.base_position)
+        self.tip_low, self.tip_high = template.tip_low.copy(), template.tip_high.copy()
+        self.centre = template.workspace_centre.copy()
+        self.workspace_range = template.workspace_range
+        self.inverse_range = 1.0 / template.workspace_range
+        self.step_size = template.step_size
+        self.distance_threshold = template.distance_threshold
+        self.sparse = template.reward_type == "sparse"
+        self.goal = np.zeros((n, 3))
+        self.goal_normalised = np.zeros((n, 3))
+        self.elapsed = np.zeros(n, dtype=np.int64)
+        self.random = WorldRandom(n)
+
+    def normalise(self, position: np.ndarray) -> np.ndarray:
+        """x~ = (x - p_c) / rho for base-frame positions (..., 3) (paper Eq. 2)."""
+        return (position - self.centre) * self.inverse_range
+
+    def reward_and_success(self, achieved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The paper's reward for normalised achieved goals ``(N, 3)`` against each world's goal."""
+        d = achieved - self.goal_normalised
+        # Summed column by column, as the single env does, so the figures match it bit for bit.
+        distance = self.workspace_range * np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+        success = distance <= self.distance_threshold
+        reward = np.where(success, 0.0, -1.0) if self.sparse else -distance
+        return reward, success
+
+    def worlds_of(self, worlds) -> np.ndarray:
+        """Indices of the worlds to reset: all (None), a boolean mask or indices."""
+        if worlds is None:
+            return np.arange(self.num_worlds)
+        worlds = np.asarray(worlds)
+        if worlds.dtype == bool:
+            if worlds.shape != (self.num_worlds,):
+                raise ValueError(f"{self.name}: reset mask must have shape ({self.num_worlds},), got {worlds.shape}")
+            return np.flatnonzero(worlds)
+        return worlds.astype(np.int64).reshape(-1)
+
+    def read_actions(self, actions) -> np.ndarray:
+        return check_action_batch(actions, self.num_worlds, self.action_width, self.name)
+
+    def reset(self, worlds=None, *, seed=None, options=None) -> None:
+        """Reset ``worlds`` (all by default); ``seed`` re-seeds every world's stream first (see WorldRandom)."""
+        if seed is not None:
+            self.random.seed(seed)
+        parsed = self.template.parse_reset_options(options)
+        indices = self.worlds_of(worlds)
+        if len(indices) == 0:
+            return
+        self._reset_worlds(indices, [self.random[i] for i in indices.tolist()], parsed)
+        self.goal_normalised[indices] = self.normalise(self.goal[indices])
+        self.elapsed[indices] = 0
+
+    def _reset_worlds(self, worlds: np.ndarray, generators: list, options: dict) -> None:
+        """Draw new episodes for ``worlds`` (each from its own generator, in the single env's order)."""
+        raise NotImplementedError
+
+    def _position_or_sample(self, value, generators, low, high) -> np.ndarray:
+        if value is not None:
+            return np.broadcast_to(value, (len(generators), 3))
+        return sample_reachable_batch(generators, self.tool, low, high)
+
+    def truncation(self) -> np.ndarray:
+        if self.max_episode_steps is None:
+            return np.zeros(self.num_worlds, dtype=bool)
+        return self.elapsed >= self.max_episode_steps
+
+
+class ReachCore(GoalCoreBase):
+    """N worlds of PSM Reach. ``step`` returns ``(reward, terminated, truncated, success)`` arrays of shape (N,)."""
+
+    def _reset_worlds(self, worlds, generators, options) -> None:
+        start = self._position_or_sample(options["start"], generators, self.tip_low, self.tip_high)
+        self.goal[worlds] = self._position_or_sample(options["goal"], generators, self.tip_low, self.tip_high)
+        self.arm.set_tips(worlds, start)
+
+    def achieved_goal(self) -> np.ndarray:
+        return self.normalise(self.arm.tip)
+
+    def observation(self) -> dict:
+        tip = self.achieved_goal()
+        return {"observation": tip, "achieved_goal": tip.copy(), "desired_goal": self.goal_normalised.copy()}
+
+    def success(self) -> np.ndarray:
+        return self.reward_and_success(self.achieved_goal())[1]
+
+    def step(self, actions):
+        delta = self.read_actions(actions)
+        self.arm.move(self.step_size * delta, self.tip_low, self.tip_high)
+        self.elapsed += 1
+        reward, success = self.reward_and_success(self.achieved_goal())
+        return reward, np.zeros(self.num_worlds, dtype=bool), self.truncation(), success
+
+    def info(self, success: np.ndarray) -> dict:
+        return {"is_success": success}
+
+    def world_state(self, world: int) -> dict:
+        """World ``world``'s state as the single environment's ``set_state`` takes it."""
+        return {"tip": self.arm.tip[world].copy(), "goal": self.goal[world].copy()}
