@@ -92,6 +92,18 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from dvrl_marl import assets, kinematics
 from dvrl_marl.arm import Arm
+from dvrl_marl.core.collaborative import (
+    CONTACT_MARGIN as _CONTACT_MARGIN,
+    PIN_HALF_LENGTH as _PIN_HALF_LENGTH,
+    PIN_RADIUS as _PIN_RADIUS,
+    PIN_SENSOR_RANGE as _PIN_SENSOR_RANGE,
+    PIN_SLOTS as _PIN_SLOTS,
+    SHAFT_RADIUS as _SHAFT_RADIUS,
+    START_JITTER as _START_JITTER,
+    STARTS as _STARTS,
+    WRIST_RADIUS as _WRIST_RADIUS,
+    sample_debris,
+)
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.scene import geom_top, load_model, object_id
@@ -102,20 +114,6 @@ __all__ = ["parallel_env", "env", "raw_env", "SuctionDebrisEnv", "SuctionDebrisP
 AGENTS = ("suction", "grasper")
 _TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
 _PREFIX = {"suction": "suction/", "grasper": "grasper/"}
-#: Radii used for instrument-instrument contact: the 8.5 mm shaft and the wrist/tube segment beyond it.
-_SHAFT_RADIUS = assets.SHAFT_RADIUS
-_WRIST_RADIUS = {"suction": assets.SUCTION_TUBE_RADIUS, "grasper": 0.0025}
-#: Instruments closer than this beyond touching also count as in contact (they touch after a refused move).
-_CONTACT_MARGIN = 5e-4
-#: Pin geometry (spring pins: 3 mm x 28 mm) and the spacing of the slots they lie in on a cavity floor.
-_PIN_RADIUS = 0.0015
-_PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28 mm
-_PIN_SLOTS = (0.0, -0.004, 0.004, -0.008, 0.008)
-#: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
-_PIN_SENSOR_RANGE = _PIN_RADIUS + 0.0015
-#: Tip start positions (world) before the seeded jitter.
-_STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
-_START_JITTER = 0.005
 _OBS_POSITION_BOUND = 10.0
 
 
@@ -628,23 +626,9 @@ class SuctionDebrisEnv(ParallelEnv):
         self.model.geom_pos[geom][2] = self.blood.surface_z[index] - self.model.geom_size[geom][1]
 
     def _place_debris(self, rng) -> None:
-        cavities = self.phantom.cavities
-        slots = [list(rng.permutation(len(_PIN_SLOTS))) for _ in cavities]
-        yaws = [float(rng.uniform(0.0, math.pi)) for _ in cavities]
-        for index, pin in enumerate(self.debris):
-            cavity_index = int(rng.integers(len(cavities)))
-            if not slots[cavity_index]:
-                cavity_index = 1 - cavity_index if len(cavities) == 2 else next(i for i, s in enumerate(slots) if s)
-            cavity = cavities[cavity_index]
-            offset = _PIN_SLOTS[slots[cavity_index].pop()]
-            yaw = yaws[cavity_index] + float(rng.uniform(-0.15, 0.15))
-            # Lying across the bowl: its end caps touch the sphere, so its axis sits this far below the centre.
-            radius = cavity.sphere_radius - _PIN_RADIUS
-            below_centre = math.sqrt(radius**2 - _PIN_HALF_LENGTH**2 - offset**2)
-            sphere_centre_z = cavity.top_z - cavity.depth + cavity.sphere_radius
-            pin.position = [cavity.centre_x - offset * math.sin(yaw), cavity.centre_y + offset * math.cos(yaw),
-                            sphere_centre_z - below_centre]
-            pin.yaw, pin.cavity = yaw, cavity_index
+        for index, (pin, (position, yaw, cavity_index)) in enumerate(
+                zip(self.debris, sample_debris(rng, self.phantom.cavities, len(self.debris)))):
+            pin.position, pin.yaw, pin.cavity = position, yaw, cavity_index
             pin.held = pin.delivered = pin.lifted = False
             pin.visible = pin.position[2] + _PIN_RADIUS > self.blood.surface_z[cavity_index]
             self._sync_debris(index)
