@@ -130,6 +130,12 @@ class BloodState:
         for index in range(len(self.remaining_ml)):
             self._update_surface(index)
 
+    def set_remaining(self, volumes_ml) -> None:
+        """Set the blood left in each cavity (ml), e.g. to mirror a batched world; surfaces follow."""
+        self.remaining_ml = [min(max(float(v), 0.0), c.capacity_ml) for v, c in zip(volumes_ml, self.phantom.cavities)]
+        for index in range(len(self.remaining_ml)):
+            self._update_surface(index)
+
     @property
     def removed_ml(self) -> tuple[float, ...]:
         """Blood removed from each cavity so far (ml)."""

@@ -93,6 +93,8 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from dvrl_marl import assets, kinematics
 from dvrl_marl.arm import Arm
 from dvrl_marl.core.collaborative import (
+    AGENTS,
+    TOOLS,
     CONTACT_MARGIN as _CONTACT_MARGIN,
     PIN_HALF_LENGTH as _PIN_HALF_LENGTH,
     PIN_RADIUS as _PIN_RADIUS,
@@ -109,10 +111,9 @@ from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import load_task_table
 
-__all__ = ["parallel_env", "env", "raw_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS"]
+__all__ = ["parallel_env", "env", "raw_env", "batched_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS"]
 
-AGENTS = ("suction", "grasper")
-_TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
+_TOOLS = TOOLS
 _PREFIX = {"suction": "suction/", "grasper": "grasper/"}
 _OBS_POSITION_BOUND = 10.0
 
@@ -473,6 +474,21 @@ class SuctionDebrisEnv(ParallelEnv):
         if self._surgeon_is_device and hasattr(self._surgeon, "close"):
             self._safe_device_call(self._surgeon.close)
 
+    def set_state(self, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible, delivered) -> None:
+        """Put the scene in a given state (tips in each arm's base frame), e.g. to render a batched world."""
+        for agent in AGENTS:
+            self.arms[agent].set_tip(*np.asarray(tips[agent], dtype=np.float64).tolist())
+        self.arms["grasper"].set_jaw(float(jaw))
+        self.valve_open = bool(valve_open)
+        self.blood.set_remaining(blood_ml)
+        for index in range(len(self._blood_geoms)):
+            self._update_blood_visual(index)
+        for index, pin in enumerate(self.debris):
+            pin.position = [float(v) for v in debris_positions[index]]
+            pin.yaw = float(debris_yaws[index])
+            pin.visible, pin.delivered = bool(visible[index]), bool(delivered[index])
+            self._sync_debris(index)
+
     # --- public helpers -------------------------------------------------------------------------------------
     def layout(self) -> SceneLayout:
         """The scene's fixed facts in normalised coordinates (for scripted agents and pipelines)."""
@@ -761,6 +777,14 @@ def parallel_env(**kwargs) -> SuctionDebrisEnv:
 
 
 raw_env = parallel_env
+
+
+def batched_env(num_envs: int = 1, **kwargs):
+    """N worlds stepped as arrays (see :mod:`dvrl_marl.envs.suction_debris_batched`); the same keyword arguments as
+    :func:`parallel_env`, plus ``num_envs``, ``autoreset_mode`` and ``render_world``."""
+    from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv  # it builds on this module
+
+    return SuctionDebrisBatchedEnv(num_envs, **kwargs)
 
 
 def env(**kwargs):
