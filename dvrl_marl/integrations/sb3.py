@@ -1,0 +1,86 @@
+"""Stable-Baselines3 adapter: a native vector env of Reach or Pick as an SB3 ``VecEnv`` (HER included).
+
+```python
+from stable_baselines3 import SAC, HerReplayBuffer
+from dvrl_marl.integrations.sb3 import make_sb3_vec_env
+venv = make_sb3_vec_env("dvrl_marl/PSMReach-v0", num_envs=64, seed=0)
+model = SAC("MultiInputPolicy", venv, replay_buffer_class=HerReplayBuffer)
+```
+
+SB3 resets finished episodes inside ``step`` and reads the last observation from
+``infos[i]["terminal_observation"]`` (and ``"TimeLimit.truncated"``); the adapter runs the vector env in
+``same_step`` autoreset mode and provides both. ``env_method("compute_reward", ...)`` reaches the batched reward.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+__all__ = ["GoalVecEnvForSB3", "make_sb3_vec_env"]
+
+
+class GoalVecEnvForSB3(VecEnv):
+    """Wraps a :class:`dvrl_marl.envs.vector.GoalVectorEnv` created with ``autoreset_mode="same_step"``."""
+
+    def __init__(self, vector_env):
+        if vector_env.autoreset_mode != "same_step":
+            raise ValueError("GoalVecEnvForSB3 needs a vector env with autoreset_mode='same_step'")
+        self.vector_env = vector_env
+        super().__init__(vector_env.num_envs, vector_env.single_observation_space, vector_env.single_action_space)
+        self._actions = None
+        self.render_mode = vector_env.render_mode
+
+    def reset(self):
+        seed = self._seeds[0] if any(s is not None for s in self._seeds) else None
+        observations, infos = self.vector_env.reset(seed=seed)
+        self._reset_seeds()
+        self.reset_infos = [{"is_success": bool(s)} for s in infos["is_success"]]
+        return observations
+
+    def step_async(self, actions):
+        self._actions = actions
+
+    def step_wait(self):
+        observations, rewards, terminations, truncations, infos = self.vector_env.step(self._actions)
+        dones = terminations | truncations
+        extra = [key for key in infos if not key.startswith("_") and key not in ("final_obs", "final_info")]
+        out = [{key: infos[key][i].item() for key in extra} for i in range(self.num_envs)]
+        if dones.any():
+            final, final_info = infos["final_obs"], infos["final_info"]
+            for i in np.flatnonzero(dones).tolist():
+                out[i]["terminal_observation"] = {key: value[i] for key, value in final.items()}
+                out[i]["is_success"] = bool(final_info["is_success"][i])
+                out[i]["TimeLimit.truncated"] = bool(truncations[i] and not terminations[i])
+        return observations, rewards.astype(np.float32), dones, out
+
+    def close(self):
+        self.vector_env.close()
+
+    def get_attr(self, attr_name, indices=None):
+        return [getattr(self.vector_env, attr_name)] * len(self._get_indices(indices))
+
+    def set_attr(self, attr_name, value, indices=None):
+        setattr(self.vector_env, attr_name, value)
+
+    def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
+        # One batched call answers for every index (HER asks for indices=[0] with whole batches).
+        result = getattr(self.vector_env, method_name)(*method_args, **method_kwargs)
+        return [result] * len(self._get_indices(indices))
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        return [False] * len(self._get_indices(indices))
+
+    def get_images(self):
+        return [self.vector_env.render()]
+
+
+def make_sb3_vec_env(env_id: str, num_envs: int, seed: int | None = None, **kwargs) -> GoalVecEnvForSB3:
+    """``gym.make_vec(env_id, num_envs, vector_entry_point, same_step)`` wrapped for SB3, seeded with ``seed``."""
+    vector_env = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point",
+                              autoreset_mode="same_step", **kwargs)
+    venv = GoalVecEnvForSB3(vector_env)
+    if seed is not None:
+        venv.seed(seed)
+    return venv

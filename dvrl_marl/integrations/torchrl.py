@@ -1,0 +1,104 @@
+"""TorchRL adapter: the batched collaborative env as a TorchRL ``EnvBase`` with ``batch_size=[N]``.
+
+```python
+from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+env = SuctionDebrisTorchRLEnv(num_envs=1024, surgeon="scripted")   # any batched_env keyword
+td = env.rollout(100)                                              # td["agents", "observation"]: (N, T, n, d)
+```
+
+Agents are grouped as TorchRL and BenchMARL expect: ``("agents", "observation")`` ``(N, n_agents, obs_dim)``,
+``("agents", "action")`` ``(N, n_agents, 4)`` in [-1, 1], ``("agents", "reward")`` ``(N, n_agents, 1)``, with
+``state`` ``(N, state_dim)`` beside them for a centralised (MAPPO) critic, and the team's ``done`` /
+``terminated`` / ``truncated`` ``(N, 1)``. Agents are in ``env.agent_names`` order. Tensors are float32 (what
+TorchRL's modules take); the core computes in float64. Worlds are reset by TorchRL's ``"_reset"`` mask (the
+core's autoreset is off), each from its own seed stream. Needs ``pip install torchrl``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:
+    import torch
+    from tensordict import TensorDict
+    from torchrl.data import Bounded, Categorical, Composite, Unbounded
+    from torchrl.envs import EnvBase
+except ImportError as error:  # pragma: no cover - exercised where torchrl is missing
+    raise ImportError("dvrl_marl.integrations.torchrl needs TorchRL: pip install torchrl") from error
+
+from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
+
+__all__ = ["SuctionDebrisTorchRLEnv"]
+
+
+class SuctionDebrisTorchRLEnv(EnvBase):
+    """suction_debris_v0, N worlds, as a TorchRL environment (see the module documentation)."""
+
+    def __init__(self, num_envs: int = 1, device="cpu", seed: int | None = None, **kwargs):
+        if kwargs.get("autoreset_mode", "disabled") != "disabled":
+            raise ValueError("SuctionDebrisTorchRLEnv resets worlds through TorchRL's '_reset' mask; "
+                             "autoreset_mode cannot be set")
+        kwargs["autoreset_mode"] = "disabled"
+        self.batched = SuctionDebrisBatchedEnv(num_envs, **kwargs)
+        super().__init__(device=device, batch_size=torch.Size([self.batched.num_envs]))
+        self.agent_names = list(self.batched.possible_agents)
+        n, agents = self.batched.num_envs, len(self.agent_names)
+        obs_dim = self.batched.observation_space(self.agent_names[0]).shape[0]
+        state_dim = self.batched.state_space.shape[0]
+        self.observation_spec = Composite(
+            agents=Composite(observation=Unbounded(shape=(n, agents, obs_dim), dtype=torch.float32, device=device),
+                             shape=(n, agents)),
+            state=Unbounded(shape=(n, state_dim), dtype=torch.float32, device=device),
+            shape=(n,),
+        )
+        self.action_spec = Composite(
+            agents=Composite(action=Bounded(-1.0, 1.0, shape=(n, agents, 4), dtype=torch.float32, device=device),
+                             shape=(n, agents)),
+            shape=(n,),
+        )
+        self.reward_spec = Composite(
+            agents=Composite(reward=Unbounded(shape=(n, agents, 1), dtype=torch.float32, device=device),
+                             shape=(n, agents)),
+            shape=(n,),
+        )
+        flag = Categorical(2, shape=(n, 1), dtype=torch.bool, device=device)
+        self.done_spec = Composite(done=flag.clone(), terminated=flag.clone(), truncated=flag.clone(), shape=(n,))
+        self._seed = seed
+
+    def _tensor(self, array: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(array, dtype=np.float32), device=self.device)
+
+    def _observation(self) -> dict:
+        stacked = np.stack([self.batched.core.observation(agent) for agent in self.agent_names], axis=1)
+        agents = TensorDict({"observation": self._tensor(stacked)}, batch_size=stacked.shape[:2], device=self.device)
+        return {"agents": agents, "state": self._tensor(self.batched.state())}
+
+    def _reset(self, tensordict=None, **kwargs):
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(self.batch_size).cpu().numpy()
+        seed, self._seed = self._seed, None
+        options = None if mask is None else {"reset_mask": mask}
+        self.batched.reset(seed=seed, options=options)
+        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=self.device)
+        return TensorDict({**self._observation(), "done": flags, "terminated": flags.clone(),
+                           "truncated": flags.clone()}, batch_size=self.batch_size, device=self.device)
+
+    def _step(self, tensordict):
+        action = tensordict.get(("agents", "action")).detach().cpu().numpy().astype(np.float64)
+        actions = {agent: action[:, index] for index, agent in enumerate(self.agent_names)}
+        _, rewards, terminations, truncations, _ = self.batched.step(actions)
+        reward = np.stack([rewards[agent] for agent in self.agent_names], axis=1)[..., None]
+        terminated = torch.as_tensor(terminations[self.agent_names[0]], device=self.device)[:, None]
+        truncated = torch.as_tensor(truncations[self.agent_names[0]], device=self.device)[:, None]
+        out = self._observation()
+        out["agents"].set("reward", self._tensor(reward))
+        return TensorDict({**out, "done": terminated | truncated, "terminated": terminated, "truncated": truncated},
+                          batch_size=self.batch_size, device=self.device)
+
+    def _set_seed(self, seed: int | None):
+        self._seed = seed  # applied at the next reset: world i gets seed + i
+        return seed
+
+    def render(self, world: int | None = None):
+        return self.batched.render(world)
