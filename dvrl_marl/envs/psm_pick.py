@@ -38,6 +38,10 @@ becomes unstable the episode truncates with ``info["sim_unstable"] = True`` and 
 ``reward_type``, ``render_mode``, ``grasp_threshold`` and the paper's parameters as in PSM Reach; defaults in
 ``tasks/psm_pick.toml``.
 
+## Batched form
+``gym.make_vec("dvrl_marl/PSMPick-v0", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
+arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
+
 ## Version History
 - v0: initial release (MuJoCo re-creation of dVRL's PSM Pick).
 """

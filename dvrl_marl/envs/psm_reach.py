@@ -38,6 +38,10 @@ No termination (the paper); ``max_episode_steps=100`` truncates. ``info["is_succ
 paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`` (eta), ``distance_threshold``
 (delta), ``control_dt``, ``tip_clearance``; defaults in ``tasks/psm_reach.toml``.
 
+## Batched form
+``gym.make_vec("dvrl_marl/PSMReach-v0", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
+arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
+
 ## Version History
 - v0: initial release (MuJoCo re-creation of dVRL's PSM Reach).
 """

@@ -73,8 +73,13 @@ Complete (every cavity below ``blood_threshold_ml`` and every debris delivered):
 ``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
 ``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris.toml``.
 
+## Batched form
+``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
+rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s`` is this environment seeded
+``s + i``. ``dvrl_marl.integrations.torchrl.SuctionDebrisTorchRLEnv`` exposes it to TorchRL.
+
 ## Version History
-- v0: initial release.
+- v0: initial release. The batched form (same trajectories) was added without a version change.
 """
 
 from __future__ import annotations
