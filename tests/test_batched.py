@@ -301,3 +301,25 @@ def test_teleop_devices_are_refused_by_the_batched_env():
 
     with pytest.raises(ValueError, match="parallel_env"):
         suction_debris_v0.batched_env(num_envs=2, surgeon=ReplayDevice([np.zeros(4)]))
+
+
+def test_batched_experts_act_as_the_single_experts_on_every_row():
+    # Observations met along noisy team episodes (all phases: suction, reveal, grasp, carry, park).
+    env = suction_debris_v0.batched_env(num_envs=16, reward_type="dense")
+    experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
+    observations, _ = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    compared, lifted, delivered = 0, 0, 0
+    for step in range(1000):
+        actions = {}
+        for agent, expert in experts.items():
+            batch = expert(observations[agent])
+            if step % 10 == 0:
+                rows = np.stack([expert(row) for row in observations[agent]])
+                np.testing.assert_array_equal(batch, rows)
+                compared += len(rows)
+            actions[agent] = batch + rng.normal(0.0, 0.1, batch.shape)
+        observations, _, _, _, _ = env.step(actions)
+        lifted = max(lifted, int(env.core.lifted.sum()))
+        delivered = max(delivered, int(env.core.delivered.sum()))
+    assert compared > 3000 and lifted > 0 and delivered > 0

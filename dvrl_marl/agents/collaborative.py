@@ -19,7 +19,7 @@ _PARK_HEIGHT = 0.030
 
 class _Scripted:
     """Shared by both experts. ``__call__`` takes one observation ``(d,)`` or a batch ``(N, d)`` (the batched
-    environment's worlds); the single case runs the batched code on one row, so both always agree."""
+    environment's worlds)."""
 
     def __init__(self, layout, observation_layout, workspace_range: float):
         self.layout = layout
@@ -41,13 +41,28 @@ class _Scripted:
         """Stateless; present so a scripted expert can stand wherever a device can."""
 
     def __call__(self, observation) -> np.ndarray:
-        obs = np.asarray(observation, dtype=np.float64)
-        if obs.ndim == 1:
-            return self.act(obs[None])[0]
-        return self.act(obs)
+        obs = np.asarray(observation)
+        if obs.ndim == 2:
+            return self.act(obs.astype(np.float64, copy=False))
+        return self.act_one(obs)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions ``(N, 4)`` for observations ``(N, d)``."""
         raise NotImplementedError
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        """The action for one observation: the same plan on plain rows, several times faster than ``act`` on one
+        row (the single env's seat calls it every step); a test holds both to the same actions."""
+        raise NotImplementedError
+
+    def _towards_one(self, tip, target) -> np.ndarray:
+        return np.clip((np.asarray(target) - tip) * self.gain, -1.0, 1.0)
+
+    def _via_safe_height_one(self, tip, target, tolerance) -> np.ndarray:
+        horizontal = np.linalg.norm(np.asarray(target[:2]) - tip[:2])
+        if horizontal > tolerance:
+            return np.array([target[0], target[1], max(self.safe_z, target[2])])
+        return np.asarray(target, dtype=float)
 
     def _towards(self, tip, target) -> np.ndarray:
         return np.clip((target - tip) * self.gain, -1.0, 1.0)
@@ -96,6 +111,18 @@ class ScriptedSuction(_Scripted):
             valve[pending] = np.where(inside[pending], 1.0, -1.0)
         return self._with_tool(self._towards(tip, self._via_safe_height(tip, target, tolerance)), valve)
 
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip = obs[self.slices["own_tip"]]
+        blood = obs[self.slices["blood"]]
+        for cavity in self.order:
+            if blood[cavity] >= self.layout.blood_threshold_fraction[cavity] and blood[cavity] > 0.0:
+                cx, cy = self.layout.cavity_centres[cavity]
+                bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
+                move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
+                inside = np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius and tip[2] < self.layout.phantom_top
+                return np.append(move, 1.0 if inside else -1.0).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.park, 4 * self.near)), -1.0).astype(np.float32)
+
 
 class ScriptedSurgeon(_Scripted):
     """Picks each revealed debris in a cleared cavity, carries it over the phantom to the hand-off point."""
@@ -141,3 +168,29 @@ class ScriptedSurgeon(_Scripted):
             move = self._towards(pin, self._via_safe_height(pin, handoff, 2 * self.near))
             action[carrying] = self._with_tool(move, -1.0)[carrying]
         return action
+
+    def _cavity_of(self, position) -> int:
+        distances = [np.hypot(position[0] - cx, position[1] - cy) for cx, cy in self.layout.cavity_centres]
+        return int(np.argmin(distances))
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip = obs[self.slices["own_tip"]]
+        blood = obs[self.slices["blood"]]
+        debris = obs[self.slices["debris"]].reshape(-1, 6)
+        handoff = obs[self.slices["handoff"]]
+        held = [d for d in debris if d[4] > 0.5]
+        if held:
+            pin = held[0][:3]
+            target_for_pin = self._via_safe_height_one(pin, handoff, 2 * self.near)
+            return np.append(self._towards_one(pin, target_for_pin), -1.0).astype(np.float32)
+        candidates = [
+            d[:3] for d in debris
+            if d[3] > 0.5 and d[5] < 0.5
+            and blood[self._cavity_of(d[:3])] < self.layout.blood_threshold_fraction[self._cavity_of(d[:3])]
+        ]
+        if candidates:
+            pin = min(candidates, key=lambda c: np.linalg.norm(c - tip))
+            if np.linalg.norm(pin - tip) <= self.near:
+                return np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32)
+            return np.append(self._towards_one(tip, self._via_safe_height_one(tip, pin, self.near)), 1.0).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.home, 4 * self.near)), 1.0).astype(np.float32)
