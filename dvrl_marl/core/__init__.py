@@ -8,9 +8,9 @@ for vector environments), then reset without a seed after each episode.
 """
 
 from dvrl_marl.core.arms import ArmBatch
-
+from dvrl_marl.core.collaborative import CollaborativeCore
 from dvrl_marl.core.pick import PickCore
 from dvrl_marl.core.reach import ReachCore
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch
 
-__all__ = ["ArmBatch", "ReachCore", "PickCore", "WorldRandom", "check_action_batch"]
+__all__ = ["ArmBatch", "ReachCore", "PickCore", "CollaborativeCore", "WorldRandom", "check_action_batch"]

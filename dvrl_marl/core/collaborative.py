@@ -17,7 +17,7 @@ import numpy as np
 
 from dvrl_marl import assets, kinematics
 from dvrl_marl.core.arms import ArmBatch
-from dvrl_marl.core.worlds import WorldRandom, check_action_batch
+from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
 
 __all__ = ["CollaborativeCore", "AGENTS", "TOOLS", "sample_debris", "segment_distance"]
 
@@ -207,14 +207,7 @@ class CollaborativeCore:
         return (position - self.centre) * self.inverse_range
 
     def worlds_of(self, worlds) -> np.ndarray:
-        if worlds is None:
-            return np.arange(self.num_worlds)
-        worlds = np.asarray(worlds)
-        if worlds.dtype == bool:
-            if worlds.shape != (self.num_worlds,):
-                raise ValueError(f"suction_debris_v0: reset mask must have shape ({self.num_worlds},), got {worlds.shape}")
-            return np.flatnonzero(worlds)
-        return worlds.astype(np.int64).reshape(-1)
+        return world_indices(worlds, self.num_worlds, "suction_debris_v0")
 
     def _update_surfaces(self, worlds, cavity) -> None:
         self.surface_z[worlds, cavity] = self.cavities.floor_z[cavity] + self.cavities.fill_depth(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from dvrl_marl.core.arms import ArmBatch
-from dvrl_marl.core.worlds import WorldRandom, check_action_batch, sample_reachable_batch
+from dvrl_marl.core.worlds import WorldRandom, check_action_batch, sample_reachable_batch, world_indices
 
 __all__ = ["ReachCore", "GoalCoreBase"]
 
@@ -54,15 +54,7 @@ class GoalCoreBase:
         return reward, success
 
     def worlds_of(self, worlds) -> np.ndarray:
-        """Indices of the worlds to reset: all (None), a boolean mask or indices."""
-        if worlds is None:
-            return np.arange(self.num_worlds)
-        worlds = np.asarray(worlds)
-        if worlds.dtype == bool:
-            if worlds.shape != (self.num_worlds,):
-                raise ValueError(f"{self.name}: reset mask must have shape ({self.num_worlds},), got {worlds.shape}")
-            return np.flatnonzero(worlds)
-        return worlds.astype(np.int64).reshape(-1)
+        return world_indices(worlds, self.num_worlds, self.name)
 
     def read_actions(self, actions) -> np.ndarray:
         return check_action_batch(actions, self.num_worlds, self.action_width, self.name)

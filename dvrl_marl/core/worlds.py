@@ -6,7 +6,7 @@ import numpy as np
 
 from dvrl_marl import kinematics
 
-__all__ = ["WorldRandom", "check_action_batch", "sample_reachable", "sample_reachable_batch"]
+__all__ = ["WorldRandom", "check_action_batch", "world_indices", "sample_reachable", "sample_reachable_batch"]
 
 #: How many candidate positions to draw at once when sampling the reachable workspace.
 _SAMPLE_BATCH = 16
@@ -41,6 +41,18 @@ class WorldRandom:
 
     def __getitem__(self, world: int) -> np.random.Generator:
         return self.generators[world]
+
+
+def world_indices(worlds, num_worlds: int, who: str) -> np.ndarray:
+    """Indices of the worlds to reset: all (None), a boolean mask of shape (num_worlds,), or indices."""
+    if worlds is None:
+        return np.arange(num_worlds)
+    worlds = np.asarray(worlds)
+    if worlds.dtype == bool:
+        if worlds.shape != (num_worlds,):
+            raise ValueError(f"{who}: reset mask must have shape ({num_worlds},), got {worlds.shape}")
+        return np.flatnonzero(worlds)
+    return worlds.astype(np.int64).reshape(-1)
 
 
 def check_action_batch(actions, num_worlds: int, width: int, who: str) -> np.ndarray:
