@@ -94,12 +94,21 @@ class ReachCore(GoalCoreBase):
         self.goal[worlds] = self._position_or_sample(options["goal"], generators, self.tip_low, self.tip_high)
         self.arm.set_tips(worlds, start)
 
+    def __init__(self, template, num_worlds: int, max_episode_steps: int | None):
+        super().__init__(template, num_worlds, max_episode_steps)
+        self.tip_normalised = np.zeros((self.num_worlds, 3))
+
+    def reset(self, worlds=None, *, seed=None, options=None) -> None:
+        super().reset(worlds, seed=seed, options=options)
+        self.tip_normalised = self.normalise(self.arm.tip)
+
     def achieved_goal(self) -> np.ndarray:
-        return self.normalise(self.arm.tip)
+        """p~ of every world, normalised once per step (reward and observation share it)."""
+        return self.tip_normalised
 
     def observation(self) -> dict:
-        tip = self.achieved_goal()
-        return {"observation": tip, "achieved_goal": tip.copy(), "desired_goal": self.goal_normalised.copy()}
+        tip = self.tip_normalised
+        return {"observation": tip.copy(), "achieved_goal": tip.copy(), "desired_goal": self.goal_normalised.copy()}
 
     def success(self) -> np.ndarray:
         return self.reward_and_success(self.achieved_goal())[1]
@@ -108,7 +117,8 @@ class ReachCore(GoalCoreBase):
         delta = self.read_actions(actions)
         self.arm.move(self.step_size * delta, self.tip_low, self.tip_high)
         self.elapsed += 1
-        reward, success = self.reward_and_success(self.achieved_goal())
+        self.tip_normalised = self.normalise(self.arm.tip)
+        reward, success = self.reward_and_success(self.tip_normalised)
         return reward, np.zeros(self.num_worlds, dtype=bool), self.truncation(), success
 
     def info(self, success: np.ndarray) -> dict:

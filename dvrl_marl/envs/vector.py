@@ -81,8 +81,6 @@ class GoalVectorEnv(gym.vector.VectorEnv):
     def reset(self, *, seed=None, options=None):
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
-        if seed is not None:
-            self._np_random_seed = seed if isinstance(seed, int) else None
         self.core.reset(mask, seed=seed, options=options or None)
         worlds = self._all if mask is None else np.asarray(mask, dtype=bool)
         self._needs_reset[worlds] = False
