@@ -26,8 +26,24 @@ def _render(args) -> int:
 def _train(args) -> int:
     import tomllib
 
-    # Goal-env configurations name a Gymnasium env_id; the collaborative (PPO) ones do not.
-    if "env_id" not in tomllib.loads(Path(args.config).read_text()).get("run", {}):
+    run_table = tomllib.loads(Path(args.config).read_text()).get("run", {})
+    if run_table.get("algorithm") in ("mappo", "ippo"):  # multi-agent PPO on TorchRL, fed by the batched env
+        from dvrl_marl.training import mappo
+
+        config = mappo.load_config(args.config)
+        out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
+        final = mappo.train(config, args.seed, out, total_steps=args.steps, resume=args.resume,
+                            progress=not args.no_progress)
+        print(f"{config.name} seed {args.seed}: success {final['success_rate']:.2f} after {final['steps']:,d} steps; "
+              f"policies in {out / 'policies'}; run folder {out}")
+        if args.export:
+            import shutil
+
+            shutil.copytree(out / "policies", args.export, dirs_exist_ok=True)
+            print(f"exported the policies to {args.export}")
+        return 0
+    # Goal-env configurations name a Gymnasium env_id; the collaborative (SB3 PPO) ones do not.
+    if "env_id" not in run_table:
         from dvrl_marl.training.marl import train_ppo
 
         out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
@@ -88,7 +104,8 @@ def _demo(args) -> int:
     if args.surgeon == "keyboard" and not os.environ.get("DISPLAY"):
         raise ValueError("--surgeon keyboard needs a display (MuJoCo's viewer takes the keys)")
     metrics = run_demo(surgeon=args.surgeon, out=args.out, seed=args.seed, max_cycles=args.max_cycles,
-                       video=not args.no_video, progress=not args.no_progress, pipeline=args.pipeline)
+                       video=not args.no_video, progress=not args.no_progress, pipeline=args.pipeline,
+                       team=args.team)
     print(format_summary(metrics))
     return 0
 
@@ -103,6 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--max-cycles", type=int, help="truncate the episode after this many steps")
     demo.add_argument("--pipeline", help="pipeline name or TOML file (default: learned_team)")
+    demo.add_argument("--team", choices=["pipeline", "marl"], default="pipeline",
+                      help="pipeline: composed single-arm policies (default); marl: the team learned by MAPPO")
     demo.add_argument("--no-video", action="store_true", help="skip rendering")
     demo.add_argument("--no-progress", action="store_true", help="no progress bar")
     demo.set_defaults(func=_demo)

@@ -1,8 +1,10 @@
 """The end-to-end demonstration: the collaborative episode with the shipped policies, recorded from the endoscope.
 
-The suction arm runs the learned Reach policy through the ``learned_team`` pipeline; the surgeon seat (the LND)
-is filled by the learned Reach + Pick pipeline, the scripted surgeon, or a keyboard. Writes ``demo.mp4`` and
-``metrics.json`` into a new run folder and returns the metrics.
+``team="pipeline"`` (default): the suction arm runs the learned Reach policy through the ``learned_team``
+pipeline; the surgeon seat (the LND) is filled by the learned Reach + Pick pipeline, the scripted surgeon, or a
+keyboard. ``team="marl"``: the team learned together by multi-agent PPO (the shipped ``marl-suction`` and
+``marl-grasper`` policies; ``surgeon="learned"`` seats ``marl-grasper``). Writes ``demo.mp4`` and ``metrics.json``
+into a new run folder and returns the metrics.
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ from dvrl_marl import policies
 from dvrl_marl.envs import suction_debris_v0
 from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
-__all__ = ["run_demo", "SURGEONS", "format_summary"]
+__all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
 SURGEONS = ("learned", "scripted", "keyboard")
+TEAMS = ("pipeline", "marl")
 _LEARNED_POLICIES = ("reach-lnd", "reach-suction-irrigation", "pick-lnd")
 
 
@@ -29,14 +32,18 @@ def _pipeline_name() -> str:
 
 def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, max_cycles: int | None = None,
              video: bool = True, frame_every: int = 4, width: int = 640, height: int = 480,
-             progress: bool = True, pipeline: str | None = None) -> dict:
+             progress: bool = True, pipeline: str | None = None, team: str = "pipeline") -> dict:
     """Run one collaborative episode; returns the metrics (also written to ``<out>/metrics.json``)."""
     if surgeon not in SURGEONS:
         raise ValueError(f"surgeon must be one of {SURGEONS}, got {surgeon!r}")
+    if team not in TEAMS:
+        raise ValueError(f"team must be one of {TEAMS}, got {team!r}")
+    if team == "marl" and pipeline is not None:
+        raise ValueError("team='marl' runs the learned multi-agent policies; a pipeline applies to team='pipeline'")
     out = Path(out) if out else Path("runs") / f"demo-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
-    pipeline = pipeline or _pipeline_name()
-    plans = load_pipeline(pipeline)
+    pipeline = "marl" if team == "marl" else (pipeline or _pipeline_name())
+    plans = None if team == "marl" else load_pipeline(pipeline)
     render_mode = "human" if surgeon == "keyboard" else ("rgb_array" if video else None)
     kwargs = {"render_mode": render_mode, "width": width, "height": height}
     if max_cycles is not None:
@@ -49,13 +56,15 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
 
         keyboard = KeyboardDevice()
         kwargs["surgeon"] = keyboard
-    if surgeon == "learned":
+    if surgeon == "learned" and team == "marl":
+        kwargs["surgeon"] = policies.load("marl-grasper")
+    elif surgeon == "learned":
         # The pipeline reads the scene layout from an env built with the same parameters.
         layout_env = suction_debris_v0.parallel_env(**{k: v for k, v in kwargs.items() if k != "render_mode"})
         kwargs["surgeon"] = ArmPipeline(plans["grasper"], "grasper", layout_env)
         layout_env.close()
     env = suction_debris_v0.parallel_env(**kwargs)
-    suction = ArmPipeline(plans["suction"], "suction", env)
+    suction = policies.load("marl-suction") if team == "marl" else ArmPipeline(plans["suction"], "suction", env)
     if render_mode == "rgb_array":
         # Shadow maps triple the cost of a software-rendered frame; the demo must finish within a minute.
         env.model.light_castshadow[:] = 0
@@ -93,6 +102,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         "success": bool(info["is_success"]),
         "surgeon": surgeon,
         "pipeline": pipeline,
+        "team": team,
         "seed": seed,
         "steps": steps,
         "max_cycles": env.params.max_cycles,

@@ -262,6 +262,55 @@ class CollaborativeCore:
         for agent in AGENTS:
             self.work_distance[agent][indices] = self._work_distance(agent)[indices]
 
+    # --- start-state curricula ----------------------------------------------------------------------------
+    def place_tips(self, worlds, tips: dict) -> None:
+        """Move the tips of ``worlds`` to ``tips[agent]`` (metres, world frame, one row per world in ``worlds``)
+        at the start of an episode. Each must lie in the workspace box, above the phantom, be reachable and leave
+        the instruments apart; the shaping potential restarts from there."""
+        indices = self.worlds_of(worlds)
+        previous = {agent: (arm.tip[indices].copy(), arm.q[indices].copy()) for agent, arm in self.arms.items()}
+        for agent, positions in tips.items():
+            if agent not in AGENTS:
+                raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
+            positions = np.asarray(positions, dtype=np.float64)
+            if positions.shape != (len(indices), 3) or not np.all(np.isfinite(positions)):
+                raise ValueError(f"suction_debris_v0: tip positions of {agent!r} must be finite, shape "
+                                 f"({len(indices)}, 3), got shape {positions.shape}")
+            outside = np.any((positions < self.low - 1e-12) | (positions > self.high + 1e-12), axis=1)
+            below = positions[:, 2] < self._floor(positions[:, 0], positions[:, 1]) - 1e-12
+            bad = outside | below
+            if bad.any():
+                row = int(np.argmax(bad))
+                raise ValueError(f"suction_debris_v0: tip position {positions[row].tolist()} of {agent!r} (world "
+                                 f"{int(indices[row])}) is {'outside the workspace box' if outside[row] else 'below the surface'}")
+            arm = self.arms[agent]
+            try:
+                arm.set_tips(indices, positions - arm.base_position)
+            except kinematics.UnreachableError as error:
+                raise ValueError(f"suction_debris_v0: a tip position of {agent!r} is unreachable: {error}") from None
+        clearance = self._instrument_distance()[indices]
+        if np.any(clearance < 0.0):
+            for agent, (tip, q) in previous.items():
+                self.arms[agent].tip[indices], self.arms[agent].q[indices] = tip, q
+            row = int(np.argmax(clearance < 0.0))
+            raise ValueError(f"suction_debris_v0: tip positions make the instruments intersect (world {int(indices[row])})")
+        for agent in AGENTS:
+            self.work_distance[agent][indices] = self._work_distance(agent)[indices]
+
+    def limit_debris(self, worlds, count) -> None:
+        """Keep only the first ``count`` debris (per world in ``worlds``) in play this episode: the others start
+        delivered, as if they had never been there."""
+        indices = self.worlds_of(worlds)
+        count = np.broadcast_to(np.asarray(count), (len(indices),))
+        if not np.issubdtype(count.dtype, np.integer) or np.any(count < 0) or np.any(count > self.params.debris_count):
+            raise ValueError(f"suction_debris_v0: debris_count must be integers in 0..{self.params.debris_count}, "
+                             f"got {count.tolist()}")
+        out = np.arange(self.params.debris_count)[None, :] >= count[:, None]
+        self.delivered[indices] |= out
+        self.visible[indices] &= ~out
+        self.complete[indices] = False
+        self.work_distance["grasper"][indices] = self._work_distance("grasper")[indices]
+
     # --- step ---------------------------------------------------------------------------------------------
     def step(self, commands: dict):
         """Advance every world by one control step. ``commands[agent]``: (N, 4) in [-1, 1]; for a held seat the

@@ -22,6 +22,13 @@ observation and state are in ``infos[agent]["final_observation"]`` / ``infos[age
 where ``infos[agent]["_final"]`` is True (what PPO needs to bootstrap a truncated episode). ``"disabled"``: worlds
 are never reset for you; ``reset(options={"reset_mask": mask})`` resets some. Agents never leave ``agents``.
 
+## Start-state options (for curricula)
+Besides ``blood_ml`` ((C,) or one row per world), ``reset(options=...)`` takes ``debris_count`` (an int or
+``(N,)`` ints: only the first k debris are in play, the others start delivered) and ``tip_positions``
+(``{agent: (N, 3)}`` metres in the world frame: each tip must be inside the workspace box, above the surface,
+reachable, and leave the instruments apart). Rows of worlds that are not reset are ignored. A trainer's curriculum
+uses them; the default task is what you get without them.
+
 ## The surgeon seat
 ``surgeon="scripted"`` runs the batched scripted expert in every world; a callable gets the seat's observations
 ``(N, obs_dim)`` and returns ``(N, 4)``. Teleoperation devices drive one world: use ``parallel_env`` for them.
@@ -79,6 +86,7 @@ class SuctionDebrisBatchedEnv:
         self.render_world = int(render_world)
         self.params = self.template.params
         self.observation_layout = self.template.observation_layout
+        self.state_layout = self.template.state_layout
         self.state_space = self.template.state_space
         self.workspace_range = self.template.workspace_range
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
@@ -118,14 +126,33 @@ class SuctionDebrisBatchedEnv:
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         blood_ml = options.pop("blood_ml", None)
+        tips = options.pop("tip_positions", None)
+        debris_count = options.pop("debris_count", None)
         if options:
             raise ValueError(f"suction_debris_v0: unknown reset option(s) {sorted(options)}; "
-                             "known: ['blood_ml', 'reset_mask']")
-        self.core.reset(mask, seed=seed, blood_ml=blood_ml)
+                             "known: ['blood_ml', 'debris_count', 'reset_mask', 'tip_positions']")
+        worlds = self.core.worlds_of(mask)
+        if blood_ml is not None and np.ndim(blood_ml) == 2 and np.shape(blood_ml)[0] == self.num_envs:
+            blood_ml = np.asarray(blood_ml)[worlds]
+        self.core.reset(worlds, seed=seed, blood_ml=blood_ml)
+        if debris_count is not None:
+            count = np.asarray(debris_count)
+            self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
+        if tips is not None:
+            if not isinstance(tips, dict):
+                raise ValueError("suction_debris_v0: tip_positions must be a dict {agent: (num_envs, 3) metres}")
+            self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip_positions[{agent!r}]")
+                                          for agent, value in tips.items()})
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._surgeon.reset()
         info = self.core.info()
         return self._observations(), {agent: dict(info) for agent in self.agents}
+
+    def _rows(self, value, worlds, name):
+        value = np.asarray(value, dtype=np.float64)
+        if value.ndim != 2 or value.shape[0] != self.num_envs:
+            raise ValueError(f"suction_debris_v0: {name} needs one row per world ({self.num_envs}), got shape {value.shape}")
+        return value[worlds]
 
     def step(self, actions):
         core = self.core

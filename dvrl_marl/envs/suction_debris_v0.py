@@ -48,7 +48,7 @@ x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris.toml``
 
 ``state()`` / ``state_space`` give the global state for centralised critics: both tips, jaw, valve, blood
 fractions, every debris with its true position (hidden ones included) and flags, the hand-off point.
-``observation_layout`` names the slices.
+``observation_layout`` and ``state_layout`` name the slices.
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
@@ -300,6 +300,12 @@ class SuctionDebrisEnv(ParallelEnv):
             "own_tip": slice(0, 3), "own_tool": slice(3, 4), "other_tip": slice(4, 7),
             "blood": slice(7, 7 + n_cav), "debris": slice(7 + n_cav, 7 + n_cav + 6 * p.debris_count),
             "handoff": slice(7 + n_cav + 6 * p.debris_count, 10 + n_cav + 6 * p.debris_count),
+        }
+        #: Slices of ``state()``: both tips and tools, blood, every debris (hidden ones too), hand-off point.
+        self.state_layout = {
+            "suction_tip": slice(0, 3), "valve": slice(3, 4), "grasper_tip": slice(4, 7), "jaw": slice(7, 8),
+            "blood": slice(8, 8 + n_cav), "debris": slice(8 + n_cav, 8 + n_cav + 6 * p.debris_count),
+            "handoff": slice(8 + n_cav + 6 * p.debris_count, 11 + n_cav + 6 * p.debris_count),
         }
         obs_dim = 10 + n_cav + 6 * p.debris_count
         self._observation_space = spaces.Box(

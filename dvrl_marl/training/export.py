@@ -10,7 +10,7 @@ from torch import nn
 
 from dvrl_marl.policies import POLICY_FORMAT
 
-__all__ = ["export_policy", "actor_layers"]
+__all__ = ["export_policy", "actor_layers", "write_policy"]
 
 _ACTIVATION_NAMES = {nn.ReLU: "relu", nn.Tanh: "tanh"}
 
@@ -49,7 +49,16 @@ def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Pa
     """Write ``policy.npz`` and ``policy.json`` into ``directory``; returns the folder."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    layers = actor_layers(model)
+    return write_policy(directory, actor_layers(model), name=name, env_id=env_id, algorithm=type(model).__name__,
+                        observation_keys=_observation_keys(model), action_low=model.action_space.low.tolist(),
+                        action_high=model.action_space.high.tolist(), **metadata)
+
+
+def write_policy(directory, layers, *, name: str, env_id: str, algorithm: str, observation_keys, action_low,
+                 action_high, **metadata) -> Path:
+    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
     arrays = {}
     for index, (weight, bias, _) in enumerate(layers):
         arrays[f"W{index}"], arrays[f"b{index}"] = weight, bias
@@ -59,12 +68,12 @@ def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Pa
         "format": POLICY_FORMAT,
         "name": name,
         "env_id": env_id,
-        "algorithm": type(model).__name__,
-        "observation_keys": _observation_keys(model),
+        "algorithm": algorithm,
+        "observation_keys": list(observation_keys),
         "layer_sizes": [int(layers[0][0].shape[1])] + [int(w.shape[0]) for w, _, _ in layers],
         "activations": [activation for _, _, activation in layers],
-        "action_low": model.action_space.low.tolist(),
-        "action_high": model.action_space.high.tolist(),
+        "action_low": list(action_low),
+        "action_high": list(action_high),
         **metadata,
     }
     (directory / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")

@@ -1,0 +1,645 @@
+"""Multi-agent PPO (MAPPO and IPPO) for the collaborative env, on TorchRL, fed by the batched env.
+
+``dvrl-marl train baselines/configs/suction_debris_mappo.toml`` runs it. The pieces:
+
+- **Data**: :func:`suction_debris_v0.batched_env` with ``num_envs`` worlds, stepped ``rollout_steps`` times per
+  iteration (autoreset off: the trainer resets ended worlds itself, through the curriculum). Worlds of training
+  seed ``s`` are seeded from ``TRAIN_SEED_BASE * (s + 1)``; evaluation uses seeds from ``EVAL_SEED`` on, which no
+  training world ever draws.
+- **Models**: one actor per agent (no parameter sharing: the two roles see the same layout but do different
+  jobs) on its own observation, a Gaussian squashed by tanh into the action box (TorchRL's ``TanhNormal``);
+  the critic is centralised on the env's ``state()`` for MAPPO (one value per agent) or one per agent on its own
+  observation for IPPO. Running mean/std normalisation of observations and state is part of each network (and
+  folded into the exported actor's first layer).
+- **Loss**: TorchRL's ``ClipPPOLoss`` and ``GAE`` over the ``("agents", ...)`` keys, rewards scaled by a running
+  standard deviation of the discounted return (per agent), a few epochs on large minibatches (Yu et al. 2022).
+- **What makes the task learnable** (``[curriculum]``; measured in ``baselines/README.md``): the env's dense
+  reward (its potential-based shaping keeps the optimum; success is still the sparse rule) and a curriculum over
+  start states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an
+  easier episode: blood per cavity uniform in ``[0, blood_ml]`` (little or no blood reveals debris at once, so
+  the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, and, with probability
+  ``near_debris``, the grasper's tip starting a few millimetres above a visible pin. ``easy_fraction`` falls
+  linearly from ``easy_start`` to 0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after
+  that every episode is the default task.
+
+A run folder holds ``config.toml``, ``progress.csv`` (one row per evaluation), TensorBoard logs (``tb/``),
+``checkpoint.pt`` (``--resume`` continues from it: networks, optimiser, normalisers, counters, random streams;
+episodes in flight restart) and ``policies/<name>`` (numpy-only actors, see :mod:`dvrl_marl.policies`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+import time
+import tomllib
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from dvrl_marl.envs import suction_debris_v0
+
+__all__ = ["MappoConfig", "load_config", "train", "evaluate_team_batched", "export_actor", "TRAIN_SEED_BASE",
+           "EVAL_SEED"]
+
+TRAIN_SEED_BASE = 1_000_000
+#: Evaluation episodes use seeds EVAL_SEED, EVAL_SEED + 1, ...: far from every training world's seed.
+EVAL_SEED = 900_000_000
+ALGORITHMS = ("mappo", "ippo")
+
+
+@dataclass
+class MappoConfig:
+    """A run's settings (the TOML's tables flattened; see ``baselines/configs/suction_debris_mappo.toml``)."""
+
+    name: str = "suction_debris_mappo"
+    algorithm: str = "mappo"
+    total_steps: int = 20_000_000  # parallel env steps (one per world per step)
+    num_envs: int = 512
+    rollout_steps: int = 64
+    eval_every: int = 2_000_000
+    eval_episodes: int = 100
+    checkpoint_every: int = 2_000_000
+    surgeon: str = "none"  # "none" | "scripted": the scripted expert fills surgeon_seat
+    surgeon_seat: str = "grasper"
+    env: dict = field(default_factory=lambda: {"reward_type": "dense"})
+    # PPO
+    learning_rate: float = 3e-4
+    epochs: int = 5
+    minibatches: int = 2
+    clip_epsilon: float = 0.2
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    entropy_coef: float = 0.0
+    value_coef: float = 1.0
+    max_grad_norm: float = 1.0
+    hidden: list = field(default_factory=lambda: [128, 128])
+    # curriculum
+    easy_start: float = 0.0
+    anneal_begin: float = 0.0
+    anneal_end: float = 0.5
+    near_debris: float = 0.0
+    # trainer-side potential-based shaping (see _GraspPathShaping)
+    grasp_path_shaping: float = 0.0
+    torch_threads: int = 0  # 0: torch's default
+
+    def easy_fraction(self, progress: float) -> float:
+        """Fraction of resets that draw an easy episode, ``progress`` in [0, 1] of the run."""
+        if progress <= self.anneal_begin:
+            return self.easy_start
+        if progress >= self.anneal_end:
+            return 0.0
+        return self.easy_start * (self.anneal_end - progress) / (self.anneal_end - self.anneal_begin)
+
+
+_TABLES = {"run": None, "ppo": None, "model": None, "curriculum": None, "shaping": None}
+
+
+def load_config(path) -> MappoConfig:
+    """Read a configuration TOML; unknown tables or keys raise ``ValueError`` naming the file and the key."""
+    path = Path(path)
+    try:
+        table = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{path}: not valid TOML ({error})") from None
+    known = {f.name for f in fields(MappoConfig)}
+    values = {"name": path.stem}
+    for section, content in table.items():
+        if section == "env":
+            values["env"] = dict(content)
+            continue
+        if section not in _TABLES or not isinstance(content, dict):
+            raise ValueError(f"{path}: unknown table [{section}] (known: env, {', '.join(_TABLES)})")
+        for key, value in content.items():
+            if key not in known or key in ("name", "env"):
+                raise ValueError(f"{path}: unknown key {key!r} in [{section}]")
+            values[key] = value
+    config = MappoConfig(**values)
+    if config.algorithm not in ALGORITHMS:
+        raise ValueError(f"{path}: algorithm must be one of {ALGORITHMS}, got {config.algorithm!r}")
+    if config.surgeon not in ("none", "scripted"):
+        raise ValueError(f"{path}: surgeon must be 'none' or 'scripted', got {config.surgeon!r}")
+    for key in ("total_steps", "num_envs", "rollout_steps", "eval_every", "eval_episodes", "epochs", "minibatches"):
+        if int(getattr(config, key)) < 1:
+            raise ValueError(f"{path}: {key} must be >= 1, got {getattr(config, key)!r}")
+    if not 0.0 <= config.easy_start <= 1.0 or not 0.0 <= config.near_debris <= 1.0:
+        raise ValueError(f"{path}: easy_start and near_debris must lie in [0, 1]")
+    if not 0.0 <= config.anneal_begin < config.anneal_end <= 1.0:
+        raise ValueError(f"{path}: need 0 <= anneal_begin < anneal_end <= 1")
+    return config
+
+
+# --- models ---------------------------------------------------------------------------------------------------
+def _torch():
+    try:
+        import torch  # noqa: F401
+        import torchrl  # noqa: F401
+    except ImportError as error:
+        raise ModuleNotFoundError(f"the MAPPO trainer needs torch and torchrl ({error.name} is missing): "
+                                  'pip install "dvrl-marl[torchrl]"') from None
+    import torch
+
+    return torch
+
+
+def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int):
+    torch = _torch()
+    from tensordict.nn import NormalParamExtractor, TensorDictModule
+    from torch import nn
+    from torchrl.modules import ProbabilisticActor, TanhNormal
+
+    class RunningNorm(nn.Module):
+        """Running mean and variance (Chan et al. parallel update), applied as (x - mean) / std."""
+
+        def __init__(self, shape):
+            super().__init__()
+            self.register_buffer("mean", torch.zeros(shape, dtype=torch.float64))
+            self.register_buffer("var", torch.ones(shape, dtype=torch.float64))
+            self.register_buffer("count", torch.tensor(1e-4, dtype=torch.float64))
+
+        def update(self, x):
+            x = x.reshape(-1, *self.mean.shape).double()
+            batch_mean, batch_var, n = x.mean(0), x.var(0, unbiased=False), x.shape[0]
+            delta, total = batch_mean - self.mean, self.count + n
+            self.mean += delta * n / total
+            self.var.copy_((self.var * self.count + batch_var * n + delta**2 * self.count * n / total) / total)
+            self.count.fill_(total)
+
+        def std(self):
+            return torch.sqrt(self.var + 1e-8)
+
+        def forward(self, x):
+            return ((x - self.mean.float()) / self.std().float())
+
+    def mlp(inputs, outputs):
+        layers, width = [], inputs
+        for size in config.hidden:
+            layers += [nn.Linear(width, int(size)), nn.Tanh()]
+            width = int(size)
+        layers.append(nn.Linear(width, outputs))
+        return nn.Sequential(*layers)
+
+    class PerAgent(nn.Module):
+        """One network per agent: input (..., A, d) -> output (..., A, k)."""
+
+        def __init__(self, inputs, outputs, norm):
+            super().__init__()
+            self.norm = norm
+            self.nets = nn.ModuleList(mlp(inputs, outputs) for _ in agents)
+
+        def forward(self, x):
+            x = self.norm(x)
+            return torch.stack([net(x[..., i, :]) for i, net in enumerate(self.nets)], dim=-2)
+
+    class CentralCritic(nn.Module):
+        """MAPPO's critic: the global state in, one value per agent out (..., A, 1)."""
+
+        def __init__(self, norm):
+            super().__init__()
+            self.norm = norm
+            self.net = mlp(state_dim, len(agents))
+
+        def forward(self, state):
+            return self.net(self.norm(state)).unsqueeze(-1)
+
+    obs_norm = RunningNorm((obs_dim,))
+    actor_net = PerAgent(obs_dim, 2 * action_dim, obs_norm)
+    with torch.no_grad():  # small initial means, moderate exploration noise
+        for net in actor_net.nets:
+            net[-1].weight.mul_(0.01)
+            net[-1].bias.zero_()
+    policy_module = TensorDictModule(nn.Sequential(actor_net, NormalParamExtractor()),
+                                     in_keys=[("agents", "observation")],
+                                     out_keys=[("agents", "loc"), ("agents", "scale")])
+    actor = ProbabilisticActor(policy_module, in_keys=[("agents", "loc"), ("agents", "scale")],
+                               out_keys=[("agents", "action")], distribution_class=TanhNormal,
+                               distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=True,
+                               log_prob_key=("agents", "action_log_prob"))
+    if config.algorithm == "mappo":
+        state_norm = RunningNorm((state_dim,))
+        critic = TensorDictModule(CentralCritic(state_norm), in_keys=["state"], out_keys=[("agents", "state_value")])
+        norms = {"observation": obs_norm, "state": state_norm}
+    else:
+        critic = TensorDictModule(PerAgent(obs_dim, 1, RunningNorm((obs_dim,))), in_keys=[("agents", "observation")],
+                                  out_keys=[("agents", "state_value")])
+        norms = {"observation": obs_norm, "critic_observation": critic.module.norm}
+    return actor, critic, actor_net, norms
+
+
+# --- numpy export ---------------------------------------------------------------------------------------------
+def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict) -> Path:
+    """Write agent ``index``'s deterministic actor (tanh of the Gaussian's mean) as a numpy policy folder, the
+    observation normalisation folded into the first layer."""
+    from dvrl_marl.training.export import write_policy
+
+    norm, net = actor_net.norm, actor_net.nets[index]
+    mean = norm.mean.detach().cpu().numpy()
+    std = norm.std().detach().cpu().numpy()
+    linears = [m for m in net if hasattr(m, "weight")]
+    layers = []
+    for position, linear in enumerate(linears):
+        weight = linear.weight.detach().cpu().numpy().astype(np.float64)
+        bias = linear.bias.detach().cpu().numpy().astype(np.float64)
+        if position == 0:  # W ((x - m) / s) + b = (W / s) x + (b - W (m / s))
+            bias = bias - weight @ (mean / std)
+            weight = weight / std[None, :]
+        last = position == len(linears) - 1
+        if last:  # the head gives [loc, scale]; the deterministic action is tanh(loc)
+            half = weight.shape[0] // 2
+            weight, bias = weight[:half], bias[:half]
+        layers.append((weight.astype(np.float32), bias.astype(np.float32), "tanh"))
+    return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
+                        observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
+                        action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
+
+
+# --- evaluation -----------------------------------------------------------------------------------------------
+def evaluate_team_batched(seats: dict, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> dict:
+    """Play ``episodes`` episodes at once (world j seeded ``seed + j``); ``seats[agent]`` is a callable on
+    observations ``(N, obs_dim)`` returning ``(N, 4)`` (a numpy policy, a scripted expert, ...).
+
+    Returns success rate, blood removed, steps to completion (median over successes) and instrument-contact
+    steps per episode, with per-episode arrays.
+    """
+    env_kwargs = {k: v for k, v in env_kwargs.items() if k != "reward_type"}
+    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
+    missing = set(env.possible_agents) - set(seats)
+    if missing:
+        raise ValueError(f"evaluate_team_batched: no policy for seat(s) {sorted(missing)}")
+    observations, infos = env.reset(seed=seed)
+    initial = infos[env.agents[0]]["blood_remaining"].copy()
+    done = np.zeros(episodes, dtype=bool)
+    success = np.zeros(episodes, dtype=bool)
+    steps = np.zeros(episodes, dtype=np.int64)
+    contacts = np.zeros(episodes, dtype=np.int64)
+    remaining = initial.copy()
+    while not done.all():
+        actions = {agent: np.asarray(seats[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
+        observations, _, terminations, truncations, infos = env.step(actions)
+        info = infos[env.agents[0]]
+        live = ~done
+        steps += live
+        contacts += live & info["collision"]
+        remaining = np.where(live, info["blood_remaining"], remaining)
+        success |= live & info["is_success"]
+        done |= terminations[env.agents[0]] | truncations[env.agents[0]]
+    env.close()
+    return {"episodes": episodes, "seed": seed, "success_rate": float(success.mean()),
+            "mean_blood_removed_ml": float((initial - remaining).mean()),
+            "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
+            "mean_contact_steps": float(contacts.mean()),
+            "success": success.tolist(), "steps": steps.tolist()}
+
+
+# --- training -------------------------------------------------------------------------------------------------
+class _Curriculum:
+    """Draws reset options for the worlds that ended (see the module documentation)."""
+
+    def __init__(self, config: MappoConfig, env, rng: np.random.Generator):
+        self.config = config
+        self.env = env
+        self.rng = rng
+        self.blood = np.asarray(env.params.blood_ml, dtype=np.float64)
+        self.debris = env.params.debris_count
+        self.range = env.workspace_range
+        self.centre = np.asarray(env.params.workspace_centre)
+
+    def reset(self, worlds: np.ndarray, easy_fraction: float):
+        n = self.env.num_envs
+        easy = worlds & (self.rng.random(n) < easy_fraction)
+        hard = worlds & ~easy
+        if hard.any():
+            self.env.reset(options={"reset_mask": hard})
+        if not easy.any():
+            return
+        blood = self.rng.random((n, len(self.blood))) * self.blood
+        count = self.rng.integers(1, self.debris + 1, n)
+        self.env.reset(options={"reset_mask": easy, "blood_ml": blood, "debris_count": count})
+        if "grasper" not in self.env.agents or self.config.near_debris <= 0:
+            return
+        near = easy & (self.rng.random(n) < self.config.near_debris)
+        state = self.env.state()
+        debris = self.env.state_layout["debris"].start
+        worlds_near = np.flatnonzero(near)
+        targets, chosen = [], []
+        for world in worlds_near.tolist():
+            pins = [k for k in range(self.debris)
+                    if state[world, debris + 6 * k + 3] > 0.5 and state[world, debris + 6 * k + 5] < 0.5]
+            if not pins:
+                continue
+            k = pins[int(self.rng.integers(len(pins)))]
+            start = debris + 6 * k
+            pin = state[world, start:start + 3] * self.range + self.centre
+            targets.append(pin + np.array([0.0, 0.0, 0.003]) + self.rng.uniform(-0.003, 0.003, 3) * [1, 1, 0.3])
+            chosen.append(world)
+        if chosen:
+            mask = np.zeros(n, dtype=bool)
+            mask[chosen] = True
+            tips = np.zeros((n, 3))
+            tips[chosen] = targets
+            try:
+                self.env.reset(options={"reset_mask": mask, "blood_ml": blood, "debris_count": count,
+                                        "tip_positions": {"grasper": tips}})
+            except ValueError:  # a start that collides or is unreachable: keep those worlds' ordinary easy start
+                self.env.reset(options={"reset_mask": mask, "blood_ml": blood, "debris_count": count})
+
+
+class _GraspPathShaping:
+    """Potential-based shaping for the grasper, added by the trainer (Ng et al. 1999: F = Phi(s') - Phi(s) leaves the
+    optimal policy unchanged; the env's own shaping has the same form).
+
+    The env's dense reward pays the grasper for closing on the nearest pin (potential -10 x tip-to-pin distance) and,
+    once it holds one, for bringing it to the hand-off point (-10 x pin-to-hand-off distance). At the grasp the second
+    distance replaces the first, so closing the jaw costs about 0.8 at once and a grasp looks worse than no grasp to
+    a young value function (measured: the grasper learnt to reach pins, grasp rarely and never carry). This potential,
+    -w x (distance from the pin the grasper is going for to the hand-off point) while it holds nothing, makes the
+    sum of both a path length, continuous through the grasp.
+    """
+
+    def __init__(self, env, weight: float, agents):
+        self.weight = float(weight)
+        self.index = agents.index("grasper") if "grasper" in agents else None
+        layout = env.state_layout
+        self.tip = layout["grasper_tip"]
+        self.debris = layout["debris"].start
+        self.count = env.params.debris_count
+        self.handoff = layout["handoff"]
+        self.range = env.workspace_range
+
+    @property
+    def active(self) -> bool:
+        return self.weight > 0.0 and self.index is not None
+
+    def potential(self, state: np.ndarray) -> np.ndarray:
+        debris = state[:, self.debris:self.debris + 6 * self.count].reshape(len(state), self.count, 6)
+        tip = state[:, None, self.tip]
+        handoff = state[:, None, self.handoff]
+        visible, held, delivered = debris[..., 3] > 0.5, debris[..., 4] > 0.5, debris[..., 5] > 0.5
+        pending = visible & ~delivered & ~held
+        to_pin = np.where(pending, np.linalg.norm(debris[..., :3] - tip, axis=-1), np.inf)
+        nearest = np.argmin(to_pin, axis=1)
+        rows = np.arange(len(state))
+        to_handoff = np.linalg.norm(debris[rows, nearest, :3] - handoff[:, 0], axis=-1) * self.range
+        live = pending.any(axis=1) & ~held.any(axis=1)
+        return np.where(live, -self.weight * to_handoff, 0.0)
+
+
+def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = None, resume: bool = False,
+          progress: bool = True, tensorboard: bool = True, log=print) -> dict:
+    """Train (or resume) a run; returns the last evaluation row. Exports the actors to ``out_dir/policies``."""
+    torch = _torch()
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+    if config.torch_threads:
+        torch.set_num_threads(int(config.torch_threads))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    total = int(total_steps or config.total_steps)
+    surgeon = None if config.surgeon == "none" else config.surgeon
+    env = suction_debris_v0.batched_env(num_envs=config.num_envs, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
+                                        autoreset_mode="disabled", **config.env)
+    agents = list(env.possible_agents)
+    n, horizon, count = config.num_envs, config.rollout_steps, len(agents)
+    obs_dim = env.observation_space(agents[0]).shape[0]
+    state_dim = env.state_space.shape[0]
+    torch.manual_seed(seed)
+    actor, critic, actor_net, norms = _build_models(config, agents, obs_dim, state_dim, 4)
+    loss_module = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=config.clip_epsilon,
+                              entropy_coeff=config.entropy_coef, critic_coeff=config.value_coef,
+                              normalize_advantage=True, normalize_advantage_exclude_dims=(-2,),
+                              loss_critic_type="smooth_l1")
+    loss_module.set_keys(reward=("agents", "reward"), action=("agents", "action"),
+                         sample_log_prob=("agents", "action_log_prob"), value=("agents", "state_value"),
+                         done=("agents", "done"), terminated=("agents", "terminated"))
+    loss_module.make_value_estimator(ValueEstimators.GAE, gamma=config.gamma, lmbda=config.gae_lambda)
+    optimiser = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate)
+    return_std = np.ones(count)  # running std of the discounted return, per agent (reward scaling)
+    return_var_state = {"mean": np.zeros(count), "var": np.ones(count), "count": 1e-4}
+    steps_done, iteration, rng = 0, 0, np.random.default_rng(seed)
+    checkpoint = out / "checkpoint.pt"
+    if resume and checkpoint.is_file():
+        saved = torch.load(checkpoint, weights_only=False)
+        loss_module.load_state_dict(saved["loss_module"])
+        optimiser.load_state_dict(saved["optimiser"])
+        return_var_state = saved["return_var"]
+        steps_done, iteration = saved["steps"], saved["iteration"]
+        rng.bit_generator.state = saved["rng"]
+        torch.set_rng_state(saved["torch_rng"])
+        log(f"resumed {out} at {steps_done} steps")
+    (out / "config.toml").write_text(_config_toml(config))
+    writer = None
+    if tensorboard:
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+
+            writer = SummaryWriter(str(out / "tb"))
+        except ImportError:
+            log("tensorboard is not installed: no TensorBoard logs")
+    curriculum = _Curriculum(config, env, rng)
+    shaping = _GraspPathShaping(env, config.grasp_path_shaping, agents)
+    observations, _ = env.reset(seed=TRAIN_SEED_BASE * (seed + 1) + steps_done)
+    curriculum.reset(np.ones(n, dtype=bool), config.easy_fraction(steps_done / total))
+    observations = {agent: env.core.observation(agent) for agent in agents}
+    discounted = np.zeros((n, count))
+    obs_buf = np.zeros((horizon, n, count, obs_dim), dtype=np.float32)
+    next_obs_buf = np.zeros_like(obs_buf)
+    state_buf = np.zeros((horizon, n, state_dim), dtype=np.float32)
+    next_state_buf = np.zeros_like(state_buf)
+    action_buf = np.zeros((horizon, n, count, 4), dtype=np.float32)
+    logp_buf = np.zeros((horizon, n, count), dtype=np.float32)
+    reward_buf = np.zeros((horizon, n, count), dtype=np.float32)
+    done_buf = np.zeros((horizon, n), dtype=bool)
+    term_buf = np.zeros((horizon, n), dtype=bool)
+    progress_file = out / "progress.csv"
+    if not (resume and progress_file.is_file()):
+        progress_file.write_text("steps,success_rate,blood_removed_ml,median_steps,contact_steps,easy_fraction,"
+                                 "episode_success,wall_seconds\n")
+    start = time.perf_counter()
+    next_eval = (steps_done // config.eval_every + 1) * config.eval_every
+    next_checkpoint = (steps_done // config.checkpoint_every + 1) * config.checkpoint_every
+    episodes_ended = successes = 0
+    last = {}
+    state = env.state()
+    while steps_done < total:
+        easy = config.easy_fraction(steps_done / total)
+        # --- collect (sampling from the policy: TorchRL's actors act deterministically unless told otherwise) ---
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+            for t in range(horizon):
+                obs = np.stack([observations[a] for a in agents], axis=1)
+                obs_buf[t] = obs
+                state_buf[t] = state
+                potential_before = shaping.potential(state) if shaping.active else None
+                td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(obs_buf[t])},
+                                                      batch_size=[n, count])}, batch_size=[n])
+                actor(td)
+                action = td["agents", "action"].numpy()
+                action_buf[t] = action
+                logp_buf[t] = td["agents", "action_log_prob"].numpy()
+                observations, rewards, terminations, truncations, infos = env.step(
+                    {a: action[:, i].astype(np.float64) for i, a in enumerate(agents)})
+                state = env.state()
+                next_obs_buf[t] = np.stack([observations[a] for a in agents], axis=1)
+                next_state_buf[t] = state
+                reward = np.stack([rewards[a] for a in agents], axis=1)
+                if shaping.active:
+                    reward[:, shaping.index] += shaping.potential(state) - potential_before
+                terminated, truncated = terminations[agents[0]], truncations[agents[0]]
+                done = terminated | truncated
+                discounted = discounted * config.gamma + reward
+                _update_running(return_var_state, discounted)
+                discounted[done] = 0.0
+                reward_buf[t] = reward
+                done_buf[t], term_buf[t] = done, terminated
+                if done.any():
+                    info = infos[agents[0]]
+                    episodes_ended += int(done.sum())
+                    successes += int((done & info["is_success"]).sum())
+                    curriculum.reset(done, easy)
+                    observations = {a: env.core.observation(a) for a in agents}
+                    state = env.state()
+        steps_done += n * horizon
+        iteration += 1
+        # --- learn ---
+        scale = np.sqrt(return_var_state["var"] + 1e-8).astype(np.float32)
+
+        def swap(x):  # (T, N, ...) -> (N, T, ...)
+            return torch.from_numpy(np.ascontiguousarray(np.swapaxes(x, 0, 1)))
+
+        done_t = swap(done_buf)[..., None, None].expand(n, horizon, count, 1)
+        term_t = swap(term_buf)[..., None, None].expand(n, horizon, count, 1)
+        data = TensorDict({
+            "agents": TensorDict({"observation": swap(obs_buf), "action": swap(action_buf),
+                                  "action_log_prob": swap(logp_buf)}, batch_size=[n, horizon, count]),
+            "state": swap(state_buf),
+            "next": TensorDict({
+                "agents": TensorDict({"observation": swap(next_obs_buf),
+                                      "reward": swap(reward_buf / scale)[..., None],
+                                      "done": done_t.clone(), "terminated": term_t.clone()},
+                                     batch_size=[n, horizon, count]),
+                "state": swap(next_state_buf)}, batch_size=[n, horizon]),
+        }, batch_size=[n, horizon])
+        with torch.no_grad():
+            loss_module.value_estimator(data, params=loss_module.critic_network_params,
+                                        target_params=loss_module.target_critic_network_params)
+        flat = data.reshape(-1)
+        size = flat.shape[0] // config.minibatches
+        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0}
+        for _ in range(config.epochs):
+            order = torch.randperm(flat.shape[0])
+            for m in range(config.minibatches):
+                batch = flat[order[m * size:(m + 1) * size]]
+                losses = loss_module(batch)
+                total_loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
+                optimiser.zero_grad()
+                total_loss.backward()
+                torch.nn.utils.clip_grad_norm_(loss_module.parameters(), config.max_grad_norm)
+                optimiser.step()
+                for key in sums:
+                    if key in losses.keys():
+                        sums[key] += float(losses[key].detach())
+        # Normalisers move after the update, so the update sees the statistics the rollout was collected with.
+        norms["observation"].update(torch.from_numpy(obs_buf))
+        if "state" in norms:
+            norms["state"].update(torch.from_numpy(state_buf))
+        else:
+            norms["critic_observation"].update(torch.from_numpy(obs_buf))
+        if writer is not None:
+            updates = config.epochs * config.minibatches
+            for key, value in sums.items():
+                writer.add_scalar(f"train/{key}", value / updates, steps_done)
+            writer.add_scalar("train/reward_mean", float(reward_buf.mean()), steps_done)
+            writer.add_scalar("train/easy_fraction", easy, steps_done)
+            if episodes_ended:
+                writer.add_scalar("train/episode_success", successes / episodes_ended, steps_done)
+        if progress:
+            rate = (steps_done) / max(time.perf_counter() - start, 1e-9)
+            print(f"\r{config.name} seed {seed}: {steps_done:>11,d}/{total:,d} steps "
+                  f"({100 * steps_done / total:5.1f} %), {rate:,.0f} steps/s, easy {easy:.2f}, "
+                  f"train success {successes / max(episodes_ended, 1):.2f}", end="", file=sys.stderr, flush=True)
+        final = steps_done >= total
+        if steps_done >= next_eval or final:
+            next_eval += config.eval_every
+            seats = _learned_seats(actor_net, agents, out, config, seed, steps_done)
+            if surgeon is not None:
+                seats[config.surgeon_seat] = _scripted(config.surgeon_seat, env)
+            result = evaluate_team_batched(seats, config.eval_episodes, **_eval_kwargs(config))
+            last = {"steps": steps_done, "success_rate": result["success_rate"],
+                    "blood_removed_ml": result["mean_blood_removed_ml"],
+                    "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],
+                    "easy_fraction": easy, "episode_success": successes / max(episodes_ended, 1),
+                    "wall_seconds": time.perf_counter() - start}
+            episodes_ended = successes = 0
+            with progress_file.open("a", newline="") as handle:
+                csv.writer(handle).writerow([last[k] for k in ("steps", "success_rate", "blood_removed_ml",
+                                                               "median_steps", "contact_steps", "easy_fraction",
+                                                               "episode_success", "wall_seconds")])
+            if writer is not None:
+                writer.add_scalar("eval/success_rate", result["success_rate"], steps_done)
+                writer.add_scalar("eval/blood_removed_ml", result["mean_blood_removed_ml"], steps_done)
+                writer.add_scalar("eval/contact_steps", result["mean_contact_steps"], steps_done)
+            if progress:
+                print(file=sys.stderr)
+            log(f"{config.name} seed {seed} @ {steps_done:,d} steps: success {result['success_rate']:.2f}, "
+                f"blood removed {result['mean_blood_removed_ml']:.1f} ml, contacts {result['mean_contact_steps']:.1f}, "
+                f"{time.perf_counter() - start:.0f} s")
+        if steps_done >= next_checkpoint or final:
+            next_checkpoint += config.checkpoint_every
+            tmp = checkpoint.with_suffix(".tmp")
+            torch.save({"loss_module": loss_module.state_dict(), "optimiser": optimiser.state_dict(),
+                        "return_var": return_var_state, "steps": steps_done, "iteration": iteration,
+                        "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+                        "config": asdict(config)}, tmp)
+            tmp.replace(checkpoint)  # atomic: an interruption never leaves a half-written checkpoint
+    if writer is not None:
+        writer.close()
+    env.close()
+    (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, **last}, indent=2) + "\n")
+    return last
+
+
+def _update_running(stats: dict, x: np.ndarray) -> None:
+    batch_mean, batch_var, count = x.mean(axis=0), x.var(axis=0), x.shape[0]
+    delta, total = batch_mean - stats["mean"], stats["count"] + count
+    stats["mean"] = stats["mean"] + delta * count / total
+    stats["var"] = (stats["var"] * stats["count"] + batch_var * count + delta**2 * stats["count"] * count / total) / total
+    stats["count"] = total
+
+
+def _eval_kwargs(config: MappoConfig) -> dict:
+    return {k: v for k, v in config.env.items() if k != "reward_type"}
+
+
+def _scripted(seat: str, env):
+    from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
+
+    return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(env)
+
+
+def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int, steps: int) -> dict:
+    """Export the current actors and load them back as numpy policies (what users get is what is evaluated)."""
+    from dvrl_marl import policies
+
+    seats = {}
+    for index, agent in enumerate(agents):
+        folder = out / "policies" / f"marl-{agent}"
+        export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent,
+                     metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
+                                            "steps": steps}})
+        seats[agent] = policies.load(folder)
+    return seats
+
+
+def _config_toml(config: MappoConfig) -> str:
+    lines = ["[run]"]
+    for f in fields(MappoConfig):
+        value = getattr(config, f.name)
+        if f.name in ("env", "name"):
+            continue
+        lines.append(f"{f.name} = {json.dumps(value)}")
+    lines.append("[env]")
+    lines += [f"{k} = {json.dumps(v)}" for k, v in config.env.items()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,228 @@
+"""The multi-agent PPO trainer on a tiny budget: it runs, logs, checkpoints, resumes and exports numpy policies;
+and the start-state options its curriculum uses."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dvrl_marl.envs import suction_debris_v0
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("torchrl")
+
+from dvrl_marl import policies  # noqa: E402
+from dvrl_marl.training import mappo  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY = """
+[run]
+algorithm = "{algorithm}"
+total_steps = 2048
+num_envs = 32
+rollout_steps = 16
+eval_every = 1024
+eval_episodes = 4
+checkpoint_every = 1024
+surgeon = "{surgeon}"
+surgeon_seat = "{seat}"
+[env]
+reward_type = "dense"
+max_cycles = 40
+[ppo]
+epochs = 2
+minibatches = 2
+[model]
+hidden = [16, 16]
+[curriculum]
+easy_start = 1.0
+anneal_end = 0.5
+near_debris = 0.5
+[shaping]
+grasp_path_shaping = 10.0
+"""
+
+
+def _config(tmp_path, algorithm="mappo", surgeon="none", seat="grasper"):
+    path = tmp_path / f"tiny_{algorithm}_{surgeon}_{seat}.toml"
+    path.write_text(TINY.format(algorithm=algorithm, surgeon=surgeon, seat=seat))
+    return path
+
+
+def _rows(run):
+    with (run / "progress.csv").open() as handle:
+        return list(csv.DictReader(handle))
+
+
+@pytest.mark.parametrize("algorithm", ["mappo", "ippo"])
+def test_trainer_runs_logs_checkpoints_and_exports(tmp_path, algorithm):
+    run = tmp_path / "run"
+    final = mappo.train(mappo.load_config(_config(tmp_path, algorithm)), 0, run, progress=False, log=lambda *_: None)
+    assert final["steps"] == 2048
+    rows = _rows(run)
+    assert [int(r["steps"]) for r in rows] == [1024, 2048]
+    assert all(0.0 <= float(r["success_rate"]) <= 1.0 for r in rows)
+    assert (run / "checkpoint.pt").is_file() and (run / "config.toml").is_file()
+    assert any((run / "tb").iterdir()), "no TensorBoard events written"
+    assert json.loads((run / "result.json").read_text())["steps"] == 2048
+    for agent in ("suction", "grasper"):
+        policy = policies.load(run / "policies" / f"marl-{agent}")
+        assert policy.spec["agent"] == agent and policy.spec["training"]["algorithm"] == algorithm
+        observation = np.zeros(suction_debris_v0.parallel_env().observation_space(agent).shape)
+        action = policy(observation)
+        assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_exported_policy_is_numpy_only(tmp_path):
+    run = tmp_path / "run"
+    mappo.train(mappo.load_config(_config(tmp_path)), 0, run, progress=False, log=lambda *_: None)
+    code = ("import sys, numpy as np\n"
+            "sys.modules['torch'] = None; sys.modules['torchrl'] = None\n"
+            "from dvrl_marl import policies\n"
+            f"p = policies.load({str(run / 'policies' / 'marl-grasper')!r})\n"
+            "print(p(np.zeros(30)).shape)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "(4,)"
+
+
+def test_export_matches_the_torch_actor(tmp_path):
+    """The numpy policy (normalisation folded into the first layer) acts as tanh of the actor's mean."""
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    config = mappo.load_config(_config(tmp_path))
+    actor, _, actor_net, norms = mappo._build_models(config, ["suction", "grasper"], 30, 31, 4)
+    rng = np.random.default_rng(0)
+    norms["observation"].update(torch.from_numpy(rng.normal(0.3, 2.0, (500, 2, 30))))
+    for net in actor_net.nets:  # make the head matter
+        torch.nn.init.normal_(net[-1].weight, std=0.5)
+    observations = rng.normal(0.3, 2.0, (20, 2, 30))
+    td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(observations).float()},
+                                          batch_size=[20, 2])}, batch_size=[20])
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        expected = actor(td)["agents", "action"].numpy()
+    for index, agent in enumerate(["suction", "grasper"]):
+        folder = mappo.export_actor(actor_net, index, tmp_path / agent, name=agent, agent=agent, metadata={})
+        np.testing.assert_allclose(policies.load(folder)(observations[:, index]), expected[:, index], atol=2e-5)
+
+
+def test_resume_continues_from_the_checkpoint(tmp_path):
+    config = mappo.load_config(_config(tmp_path))
+    run = tmp_path / "run"
+    mappo.train(config, 0, run, total_steps=1024, progress=False, log=lambda *_: None)
+    first = torch.load(run / "checkpoint.pt", weights_only=False)
+    assert first["steps"] == 1024
+    messages = []
+    final = mappo.train(config, 0, run, total_steps=2048, resume=True, progress=False, log=messages.append)
+    assert any("resumed" in m and "1024" in m for m in messages)
+    assert final["steps"] == 2048
+    assert [int(r["steps"]) for r in _rows(run)] == [1024, 2048]  # the log continues, nothing repeated
+    second = torch.load(run / "checkpoint.pt", weights_only=False)
+    changed = [not torch.equal(first["loss_module"][k], second["loss_module"][k]) for k in first["loss_module"]]
+    assert any(changed), "resumed training did not update the networks"
+
+
+def test_partner_seat_runs(tmp_path):
+    """Suction learns beside the scripted surgeon; the grasper beside the scripted suction."""
+    for seat, learner in (("grasper", "suction"), ("suction", "grasper")):
+        run = tmp_path / seat
+        mappo.train(mappo.load_config(_config(tmp_path, surgeon="scripted", seat=seat)), 0, run, total_steps=1024,
+                    progress=False, log=lambda *_: None)
+        assert sorted(p.name for p in (run / "policies").iterdir()) == [f"marl-{learner}"]
+
+
+def test_cli_train_mappo(tmp_path):
+    config = _config(tmp_path)
+    result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "train", str(config), "--out", str(tmp_path / "r"),
+                             "--steps", "1024", "--no-progress", "--export", str(tmp_path / "exported")],
+                            capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert result.returncode == 0, result.stderr
+    assert "success" in result.stdout
+    assert (tmp_path / "exported" / "marl-suction" / "policy.npz").is_file()
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[run]\nalgorithm = 'mappo'\nbogus = 1\n", "unknown key 'bogus'"),
+    ("[run]\nalgorithm = 'sarsa'\n", "algorithm must be one of"),
+    ("[nonsense]\nx = 1\n", "unknown table [nonsense]"),
+    ("[run]\nalgorithm = 'mappo'\nnum_envs = 0\n", "num_envs must be >= 1"),
+    ("[run\n", "not valid TOML"),
+])
+def test_bad_configuration_names_file_and_key(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError) as error:
+        mappo.load_config(path)
+    assert str(path) in str(error.value) and message in str(error.value)
+
+
+def test_curriculum_anneals_to_the_default_task():
+    config = mappo.MappoConfig(easy_start=1.0, anneal_begin=0.2, anneal_end=0.6)
+    assert config.easy_fraction(0.0) == 1.0 and config.easy_fraction(0.2) == 1.0
+    assert config.easy_fraction(0.4) == pytest.approx(0.5)
+    assert config.easy_fraction(0.6) == 0.0 and config.easy_fraction(1.0) == 0.0
+
+
+def test_grasp_path_shaping_is_continuous_through_the_grasp():
+    """Env potential + trainer potential changes by less than the sensor range x weight when the jaw closes on a pin."""
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env.reset(seed=3)
+    core = env.core
+    pin = core.debris_position[0, 0] + np.array([0.0, 0.0, 0.002])
+    env.reset(seed=3, options={"tip_positions": {"grasper": pin[None]}})  # same seed: same pins
+    shaping = mappo._GraspPathShaping(env, 10.0, ["suction", "grasper"])
+    before = shaping.potential(env.state())
+    _, rewards, *_ = env.step({"suction": np.zeros((1, 4)), "grasper": np.array([[0.0, 0.0, 0.0, -1.0]])})
+    assert core.holding[0] == 0
+    total = rewards["grasper"][0] + shaping.potential(env.state())[0] - before[0]
+    # +2 for the first lift; the shaping terms move by at most 10 x (3 mm + 2 mm).
+    assert abs(total - 2.0) < 0.06
+    assert rewards["grasper"][0] < 1.3  # the env alone charges the grasp (what the trainer's term repairs)
+
+
+# --- start-state options of the batched env ------------------------------------------------------------------
+def test_tip_positions_and_debris_count_options():
+    env = suction_debris_v0.batched_env(num_envs=3, autoreset_mode="disabled")
+    env.reset(seed=0)
+    tips = np.array([[0.02, 0.0, 0.05], [0.03, 0.005, 0.06], [0.04, -0.005, 0.055]])
+    mask = np.array([True, False, True])
+    before = env.core.arms["grasper"].tip_world()[1].copy()
+    env.reset(options={"reset_mask": mask, "tip_positions": {"grasper": tips}, "debris_count": [1, 3, 2]})
+    grasper = env.core.arms["grasper"].tip_world()
+    np.testing.assert_allclose(grasper[[0, 2]], tips[[0, 2]], atol=1e-12)
+    np.testing.assert_allclose(grasper[1], before)  # not reset, untouched
+    layout = env.state_layout["debris"]
+    delivered = env.state()[:, layout][:, 5::6]
+    np.testing.assert_array_equal(delivered, [[0, 1, 1], [0, 0, 0], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"tip_positions": {"grasper": np.full((2, 3), 5.0)}}, "outside the workspace box"),
+    ({"tip_positions": {"grasper": np.array([[0.03, 0.0, 0.0]] * 2)}}, "below the surface"),
+    ({"tip_positions": {"surgeon": np.zeros((2, 3))}}, "unknown agent 'surgeon'"),
+    ({"tip_positions": {"grasper": np.zeros((3, 3))}}, "one row per world"),
+    ({"tip_positions": {"grasper": np.full((2, 3), np.nan)}}, "must be finite"),
+    ({"debris_count": [4, 1]}, "debris_count must be integers in 0..3"),
+    ({"debris_count": [1.5, 1]}, "debris_count must be integers"),
+])
+def test_start_state_options_reject_bad_values(options, message):
+    env = suction_debris_v0.batched_env(num_envs=2, autoreset_mode="disabled")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        env.reset(options=options)
+
+
+def test_colliding_tip_positions_are_refused():
+    env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
+    env.reset(seed=0)
+    suction_tip = env.core.arms["suction"].tip_world()
+    with pytest.raises(ValueError, match="intersect"):
+        env.reset(options={"tip_positions": {"grasper": suction_tip}})
