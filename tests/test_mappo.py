@@ -94,7 +94,7 @@ def test_exported_policy_is_numpy_only(tmp_path):
 
 
 def test_export_matches_the_torch_actor(tmp_path):
-    """The numpy policy (normalisation folded into the first layer) acts as tanh of the actor's mean."""
+    """The numpy policy (normalisation folded into the first layer) acts as the actor's mean, clipped."""
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -108,7 +108,7 @@ def test_export_matches_the_torch_actor(tmp_path):
     td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(observations).float()},
                                           batch_size=[20, 2])}, batch_size=[20])
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        expected = actor(td)["agents", "action"].numpy()
+        expected = np.clip(actor(td)["agents", "action"].numpy(), -1.0, 1.0)
     for index, agent in enumerate(["suction", "grasper"]):
         folder = mappo.export_actor(actor_net, index, tmp_path / agent, name=agent, agent=agent, metadata={})
         np.testing.assert_allclose(policies.load(folder)(observations[:, index]), expected[:, index], atol=2e-5)
@@ -226,3 +226,30 @@ def test_colliding_tip_positions_are_refused():
     suction_tip = env.core.arms["suction"].tip_world()
     with pytest.raises(ValueError, match="intersect"):
         env.reset(options={"tip_positions": {"grasper": suction_tip}})
+
+
+def test_set_tip_positions_keeps_the_drawn_episode():
+    env = suction_debris_v0.batched_env(num_envs=2, autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env.reset(seed=4)
+    pins = env.core.debris_position.copy()
+    blood = env.core.remaining_ml.copy()
+    target = pins[:, 0] + np.array([0.0, 0.0, 0.0015])
+    env.set_tip_positions({"grasper": target}, worlds=[1])
+    np.testing.assert_allclose(env.core.arms["grasper"].tip_world()[1], target[1], atol=1e-12)
+    np.testing.assert_array_equal(env.core.debris_position, pins)
+    np.testing.assert_array_equal(env.core.remaining_ml, blood)
+    with pytest.raises(ValueError, match="one row per world"):
+        env.set_tip_positions({"grasper": target[:1]}, worlds=[1])
+
+
+def test_hold_bonus_charges_a_drop():
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env.reset(seed=3)
+    env.set_tip_positions({"grasper": env.core.debris_position[:1, 0] + np.array([0.0, 0.0, 0.0015])})
+    shaping = mappo._GraspPathShaping(env, 0.0, ["suction", "grasper"], hold_bonus=1.0)
+    still = np.zeros((1, 4))
+    values = [shaping.potential(env.state())[0]]
+    for jaw in (-1.0, -1.0, 1.0):  # grasp, hold, release
+        env.step({"suction": still, "grasper": np.array([[0.0, 0.0, 0.0, jaw]])})
+        values.append(shaping.potential(env.state())[0])
+    assert values == [0.0, 1.0, 1.0, 0.0]

@@ -26,8 +26,9 @@ are never reset for you; ``reset(options={"reset_mask": mask})`` resets some. Ag
 Besides ``blood_ml`` ((C,) or one row per world), ``reset(options=...)`` takes ``debris_count`` (an int or
 ``(N,)`` ints: only the first k debris are in play, the others start delivered) and ``tip_positions``
 (``{agent: (N, 3)}`` metres in the world frame: each tip must be inside the workspace box, above the surface,
-reachable, and leave the instruments apart). Rows of worlds that are not reset are ignored. A trainer's curriculum
-uses them; the default task is what you get without them.
+reachable, and leave the instruments apart). Rows of worlds that are not reset are ignored.
+``set_tip_positions(tips, worlds)`` moves tips of episodes just drawn (to start near what the draw placed). A
+trainer's curriculum uses them; the default task is what you get without them.
 
 ## The surgeon seat
 ``surgeon="scripted"`` runs the batched scripted expert in every world; a callable gets the seat's observations
@@ -147,6 +148,16 @@ class SuctionDebrisBatchedEnv:
             self._surgeon.reset()
         info = self.core.info()
         return self._observations(), {agent: dict(info) for agent in self.agents}
+
+    def set_tip_positions(self, tips: dict, worlds=None) -> None:
+        """Move tips at the start of an episode, keeping everything else of it (for curricula that start an arm
+        near what the episode drew, e.g. a pin): ``tips`` is ``{agent: (N, 3)}`` metres, world frame; ``worlds``
+        a mask or indices (default all). The same checks as the ``tip_positions`` reset option."""
+        worlds = self.core.worlds_of(worlds)
+        if not isinstance(tips, dict):
+            raise ValueError("suction_debris_v0: tip positions must be a dict {agent: (num_envs, 3) metres}")
+        self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip positions of {agent!r}")
+                                      for agent, value in tips.items()})
 
     def _rows(self, value, worlds, name):
         value = np.asarray(value, dtype=np.float64)

@@ -25,6 +25,7 @@ _ACTIVATIONS = {
     "relu": lambda x: np.maximum(x, 0.0),
     "tanh": np.tanh,
     "identity": lambda x: x,
+    "clip": lambda x: np.clip(x, -1.0, 1.0),  # a Gaussian policy's mean, clipped to the action box
 }
 
 

@@ -7,7 +7,8 @@
   seed ``s`` are seeded from ``TRAIN_SEED_BASE * (s + 1)``; evaluation uses seeds from ``EVAL_SEED`` on, which no
   training world ever draws.
 - **Models**: one actor per agent (no parameter sharing: the two roles see the same layout but do different
-  jobs) on its own observation, a Gaussian squashed by tanh into the action box (TorchRL's ``TanhNormal``);
+  jobs) on its own observation, a Gaussian with a learnt state-independent standard deviation (the env clips to
+  the action box; a tanh-squashed Gaussian saturated early and stalled in our runs);
   the critic is centralised on the env's ``state()`` for MAPPO (one value per agent) or one per agent on its own
   observation for IPPO. Running mean/std normalisation of observations and state is part of each network (and
   folded into the exported actor's first layer).
@@ -17,8 +18,9 @@
   reward (its potential-based shaping keeps the optimum; success is still the sparse rule) and a curriculum over
   start states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an
   easier episode: blood per cavity uniform in ``[0, blood_ml]`` (little or no blood reveals debris at once, so
-  the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, and, with probability
-  ``near_debris``, the grasper's tip starting a few millimetres above a visible pin. ``easy_fraction`` falls
+  the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, with probability
+  ``random_start`` the learning arms' tips scattered over the phantom (approaches from everywhere), and, with
+  probability ``near_debris``, the grasper's tip starting a few millimetres above a visible pin. ``easy_fraction`` falls
   linearly from ``easy_start`` to 0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after
   that every episode is the default task.
 
@@ -34,6 +36,7 @@ import json
 import sys
 import time
 import tomllib
+import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -76,13 +79,17 @@ class MappoConfig:
     value_coef: float = 1.0
     max_grad_norm: float = 1.0
     hidden: list = field(default_factory=lambda: [128, 128])
+    initial_std: float = 0.6
     # curriculum
     easy_start: float = 0.0
     anneal_begin: float = 0.0
     anneal_end: float = 0.5
     near_debris: float = 0.0
+    random_start: float = 0.0
     # trainer-side potential-based shaping (see _GraspPathShaping)
     grasp_path_shaping: float = 0.0
+    hold_bonus: float = 0.0
+    contact_penalty: float | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
     torch_threads: int = 0  # 0: torch's default
 
     def easy_fraction(self, progress: float) -> float:
@@ -146,9 +153,9 @@ def _torch():
 
 def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int):
     torch = _torch()
-    from tensordict.nn import NormalParamExtractor, TensorDictModule
+    from tensordict.nn import TensorDictModule
     from torch import nn
-    from torchrl.modules import ProbabilisticActor, TanhNormal
+    from torchrl.modules import IndependentNormal, ProbabilisticActor
 
     class RunningNorm(nn.Module):
         """Running mean and variance (Chan et al. parallel update), applied as (x - mean) / std."""
@@ -168,7 +175,7 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
             self.count.fill_(total)
 
         def std(self):
-            return torch.sqrt(self.var + 1e-8)
+            return torch.sqrt(self.var).clamp_min(1e-2)  # constant features (the hand-off point) stay finite
 
         def forward(self, x):
             return ((x - self.mean.float()) / self.std().float())
@@ -204,19 +211,30 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
         def forward(self, state):
             return self.net(self.norm(state)).unsqueeze(-1)
 
+    class GaussianHead(nn.Module):
+        """Mean from the network, a learnt state-independent standard deviation per agent and action dimension
+        (the usual PPO parameterisation; the env clips actions to [-1, 1])."""
+
+        def __init__(self, net):
+            super().__init__()
+            self.net = net
+            self.log_std = nn.Parameter(torch.full((len(agents), action_dim), math.log(config.initial_std)))
+
+        def forward(self, x):
+            loc = self.net(x)
+            return loc, self.log_std.exp().expand_as(loc)
+
     obs_norm = RunningNorm((obs_dim,))
-    actor_net = PerAgent(obs_dim, 2 * action_dim, obs_norm)
-    with torch.no_grad():  # small initial means, moderate exploration noise
+    actor_net = PerAgent(obs_dim, action_dim, obs_norm)
+    with torch.no_grad():  # small initial means: exploration starts from the standard deviation alone
         for net in actor_net.nets:
             net[-1].weight.mul_(0.01)
             net[-1].bias.zero_()
-    policy_module = TensorDictModule(nn.Sequential(actor_net, NormalParamExtractor()),
-                                     in_keys=[("agents", "observation")],
+    policy_module = TensorDictModule(GaussianHead(actor_net), in_keys=[("agents", "observation")],
                                      out_keys=[("agents", "loc"), ("agents", "scale")])
     actor = ProbabilisticActor(policy_module, in_keys=[("agents", "loc"), ("agents", "scale")],
-                               out_keys=[("agents", "action")], distribution_class=TanhNormal,
-                               distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=True,
-                               log_prob_key=("agents", "action_log_prob"))
+                               out_keys=[("agents", "action")], distribution_class=IndependentNormal,
+                               return_log_prob=True, log_prob_key=("agents", "action_log_prob"))
     if config.algorithm == "mappo":
         state_norm = RunningNorm((state_dim,))
         critic = TensorDictModule(CentralCritic(state_norm), in_keys=["state"], out_keys=[("agents", "state_value")])
@@ -230,8 +248,8 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
 
 # --- numpy export ---------------------------------------------------------------------------------------------
 def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict) -> Path:
-    """Write agent ``index``'s deterministic actor (tanh of the Gaussian's mean) as a numpy policy folder, the
-    observation normalisation folded into the first layer."""
+    """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box) as a numpy
+    policy folder, the observation normalisation folded into the first layer."""
     from dvrl_marl.training.export import write_policy
 
     norm, net = actor_net.norm, actor_net.nets[index]
@@ -246,10 +264,7 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
         last = position == len(linears) - 1
-        if last:  # the head gives [loc, scale]; the deterministic action is tanh(loc)
-            half = weight.shape[0] // 2
-            weight, bias = weight[:half], bias[:half]
-        layers.append((weight.astype(np.float32), bias.astype(np.float32), "tanh"))
+        layers.append((weight.astype(np.float32), bias.astype(np.float32), "clip" if last else "tanh"))
     return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
@@ -275,6 +290,7 @@ def evaluate_team_batched(seats: dict, episodes: int = 100, seed: int = EVAL_SEE
     steps = np.zeros(episodes, dtype=np.int64)
     contacts = np.zeros(episodes, dtype=np.int64)
     remaining = initial.copy()
+    delivered = np.zeros(episodes)
     while not done.all():
         actions = {agent: np.asarray(seats[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
         observations, _, terminations, truncations, infos = env.step(actions)
@@ -283,6 +299,7 @@ def evaluate_team_batched(seats: dict, episodes: int = 100, seed: int = EVAL_SEE
         steps += live
         contacts += live & info["collision"]
         remaining = np.where(live, info["blood_remaining"], remaining)
+        delivered = np.where(live, info["debris_delivered"], delivered)
         success |= live & info["is_success"]
         done |= terminations[env.agents[0]] | truncations[env.agents[0]]
     env.close()
@@ -290,10 +307,16 @@ def evaluate_team_batched(seats: dict, episodes: int = 100, seed: int = EVAL_SEE
             "mean_blood_removed_ml": float((initial - remaining).mean()),
             "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
             "mean_contact_steps": float(contacts.mean()),
+            "mean_debris_delivered": float(delivered.mean()),
             "success": success.tolist(), "steps": steps.tolist()}
 
 
 # --- training -------------------------------------------------------------------------------------------------
+#: Box (metres, world frame) of scattered starts: over both cavities and up to the hand-off height.
+_SCATTER_LOW = (-0.05, -0.02, 0.035)
+_SCATTER_HIGH = (0.075, 0.025, 0.075)
+
+
 class _Curriculum:
     """Draws reset options for the worlds that ended (see the module documentation)."""
 
@@ -317,6 +340,11 @@ class _Curriculum:
         blood = self.rng.random((n, len(self.blood))) * self.blood
         count = self.rng.integers(1, self.debris + 1, n)
         self.env.reset(options={"reset_mask": easy, "blood_ml": blood, "debris_count": count})
+        if self.config.random_start > 0:  # learning agents' tips anywhere over the phantom
+            scattered = easy & (self.rng.random(n) < self.config.random_start)
+            if scattered.any():
+                tips = {agent: self.rng.uniform(_SCATTER_LOW, _SCATTER_HIGH, (n, 3)) for agent in self.env.agents}
+                self._place(tips, np.flatnonzero(scattered))
         if "grasper" not in self.env.agents or self.config.near_debris <= 0:
             return
         near = easy & (self.rng.random(n) < self.config.near_debris)
@@ -332,18 +360,23 @@ class _Curriculum:
             k = pins[int(self.rng.integers(len(pins)))]
             start = debris + 6 * k
             pin = state[world, start:start + 3] * self.range + self.centre
-            targets.append(pin + np.array([0.0, 0.0, 0.003]) + self.rng.uniform(-0.003, 0.003, 3) * [1, 1, 0.3])
+            # within the jaw's sensor range of the pin's axis: 1-2 mm above it, up to 2 mm aside
+            targets.append(pin + np.array([0.0, 0.0, 0.0015]) + self.rng.uniform(-0.002, 0.002, 3) * [1, 1, 0.25])
             chosen.append(world)
         if chosen:
-            mask = np.zeros(n, dtype=bool)
-            mask[chosen] = True
             tips = np.zeros((n, 3))
             tips[chosen] = targets
-            try:
-                self.env.reset(options={"reset_mask": mask, "blood_ml": blood, "debris_count": count,
-                                        "tip_positions": {"grasper": tips}})
-            except ValueError:  # a start that collides or is unreachable: keep those worlds' ordinary easy start
-                self.env.reset(options={"reset_mask": mask, "blood_ml": blood, "debris_count": count})
+            self._place({"grasper": tips}, chosen)
+
+    def _place(self, tips: dict, worlds) -> None:
+        try:
+            self.env.set_tip_positions(tips, worlds)
+        except ValueError:  # one start collides or is unreachable: place the others one by one
+            for world in worlds:
+                try:
+                    self.env.set_tip_positions(tips, [world])
+                except ValueError:
+                    pass  # that world keeps its ordinary start
 
 
 class _GraspPathShaping:
@@ -353,13 +386,16 @@ class _GraspPathShaping:
     The env's dense reward pays the grasper for closing on the nearest pin (potential -10 x tip-to-pin distance) and,
     once it holds one, for bringing it to the hand-off point (-10 x pin-to-hand-off distance). At the grasp the second
     distance replaces the first, so closing the jaw costs about 0.8 at once and a grasp looks worse than no grasp to
-    a young value function (measured: the grasper learnt to reach pins, grasp rarely and never carry). This potential,
-    -w x (distance from the pin the grasper is going for to the hand-off point) while it holds nothing, makes the
-    sum of both a path length, continuous through the grasp.
+    a young value function (measured: the grasper learnt to reach pins, grasp rarely and never carry). With ``weight``
+    10 this potential turns the sum into the shortest path tip -> pin -> hand-off over the pending pins while the
+    grasper holds nothing (continuous in the state, through the grasp too). ``hold_bonus`` adds that much potential while a pin is
+    held: a drop then costs what the grasp earned, the only signal that says "keep the jaw closed" before the first
+    delivery is ever seen.
     """
 
-    def __init__(self, env, weight: float, agents):
+    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0):
         self.weight = float(weight)
+        self.hold_bonus = float(hold_bonus)
         self.index = agents.index("grasper") if "grasper" in agents else None
         layout = env.state_layout
         self.tip = layout["grasper_tip"]
@@ -370,7 +406,7 @@ class _GraspPathShaping:
 
     @property
     def active(self) -> bool:
-        return self.weight > 0.0 and self.index is not None
+        return (self.weight > 0.0 or self.hold_bonus > 0.0) and self.index is not None
 
     def potential(self, state: np.ndarray) -> np.ndarray:
         debris = state[:, self.debris:self.debris + 6 * self.count].reshape(len(state), self.count, 6)
@@ -378,12 +414,16 @@ class _GraspPathShaping:
         handoff = state[:, None, self.handoff]
         visible, held, delivered = debris[..., 3] > 0.5, debris[..., 4] > 0.5, debris[..., 5] > 0.5
         pending = visible & ~delivered & ~held
-        to_pin = np.where(pending, np.linalg.norm(debris[..., :3] - tip, axis=-1), np.inf)
-        nearest = np.argmin(to_pin, axis=1)
-        rows = np.arange(len(state))
-        to_handoff = np.linalg.norm(debris[rows, nearest, :3] - handoff[:, 0], axis=-1) * self.range
-        live = pending.any(axis=1) & ~held.any(axis=1)
-        return np.where(live, -self.weight * to_handoff, 0.0)
+        to_pin = np.linalg.norm(debris[..., :3] - tip, axis=-1) * self.range
+        to_handoff = np.linalg.norm(debris[..., :3] - handoff, axis=-1) * self.range
+        # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
+        # tip -> pin -> hand-off over the pending pins, a continuous function of the state.
+        env_term = np.where(pending, to_pin, np.inf).min(axis=1)
+        path = np.where(pending, to_pin + to_handoff, np.inf).min(axis=1)
+        holding = held.any(axis=1)
+        live = pending.any(axis=1) & ~holding
+        shaped = np.where(live, -self.weight * path + self.weight * np.where(live, env_term, 0.0), 0.0)
+        return shaped + self.hold_bonus * holding
 
 
 def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = None, resume: bool = False,
@@ -400,8 +440,11 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     out.mkdir(parents=True, exist_ok=True)
     total = int(total_steps or config.total_steps)
     surgeon = None if config.surgeon == "none" else config.surgeon
+    train_env = dict(config.env)
+    if config.contact_penalty is not None:
+        train_env["contact_penalty"] = config.contact_penalty
     env = suction_debris_v0.batched_env(num_envs=config.num_envs, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
-                                        autoreset_mode="disabled", **config.env)
+                                        autoreset_mode="disabled", **train_env)
     agents = list(env.possible_agents)
     n, horizon, count = config.num_envs, config.rollout_steps, len(agents)
     obs_dim = env.observation_space(agents[0]).shape[0]
@@ -440,7 +483,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         except ImportError:
             log("tensorboard is not installed: no TensorBoard logs")
     curriculum = _Curriculum(config, env, rng)
-    shaping = _GraspPathShaping(env, config.grasp_path_shaping, agents)
+    shaping = _GraspPathShaping(env, config.grasp_path_shaping, agents, config.hold_bonus)
     observations, _ = env.reset(seed=TRAIN_SEED_BASE * (seed + 1) + steps_done)
     curriculum.reset(np.ones(n, dtype=bool), config.easy_fraction(steps_done / total))
     observations = {agent: env.core.observation(agent) for agent in agents}
@@ -462,6 +505,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     next_eval = (steps_done // config.eval_every + 1) * config.eval_every
     next_checkpoint = (steps_done // config.checkpoint_every + 1) * config.checkpoint_every
     episodes_ended = successes = 0
+    delivered_sum = blood_left_sum = 0.0
     last = {}
     state = env.state()
     while steps_done < total:
@@ -498,6 +542,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     info = infos[agents[0]]
                     episodes_ended += int(done.sum())
                     successes += int((done & info["is_success"]).sum())
+                    delivered_sum += float(info["debris_delivered"][done].sum())
+                    blood_left_sum += float(info["blood_remaining"][done].sum())
                     curriculum.reset(done, easy)
                     observations = {a: env.core.observation(a) for a in agents}
                     state = env.state()
@@ -527,7 +573,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                                         target_params=loss_module.target_critic_network_params)
         flat = data.reshape(-1)
         size = flat.shape[0] // config.minibatches
-        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0}
+        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "clip_fraction": 0.0,
+                "kl_approx": 0.0, "explained_variance": 0.0, "entropy": 0.0}
         for _ in range(config.epochs):
             order = torch.randperm(flat.shape[0])
             for m in range(config.minibatches):
@@ -553,8 +600,12 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                 writer.add_scalar(f"train/{key}", value / updates, steps_done)
             writer.add_scalar("train/reward_mean", float(reward_buf.mean()), steps_done)
             writer.add_scalar("train/easy_fraction", easy, steps_done)
+            for i, agent in enumerate(agents):
+                writer.add_scalar(f"train/reward_{agent}", float(reward_buf[..., i].mean()), steps_done)
             if episodes_ended:
                 writer.add_scalar("train/episode_success", successes / episodes_ended, steps_done)
+                writer.add_scalar("train/debris_delivered", delivered_sum / episodes_ended, steps_done)
+                writer.add_scalar("train/blood_left_ml", blood_left_sum / episodes_ended, steps_done)
         if progress:
             rate = (steps_done) / max(time.perf_counter() - start, 1e-9)
             print(f"\r{config.name} seed {seed}: {steps_done:>11,d}/{total:,d} steps "
@@ -573,6 +624,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     "easy_fraction": easy, "episode_success": successes / max(episodes_ended, 1),
                     "wall_seconds": time.perf_counter() - start}
             episodes_ended = successes = 0
+            delivered_sum = blood_left_sum = 0.0
             with progress_file.open("a", newline="") as handle:
                 csv.writer(handle).writerow([last[k] for k in ("steps", "success_rate", "blood_removed_ml",
                                                                "median_steps", "contact_steps", "easy_fraction",
@@ -584,7 +636,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             if progress:
                 print(file=sys.stderr)
             log(f"{config.name} seed {seed} @ {steps_done:,d} steps: success {result['success_rate']:.2f}, "
-                f"blood removed {result['mean_blood_removed_ml']:.1f} ml, contacts {result['mean_contact_steps']:.1f}, "
+                f"blood removed {result['mean_blood_removed_ml']:.1f} ml, "
+                f"debris delivered {result['mean_debris_delivered']:.2f}, contacts {result['mean_contact_steps']:.1f}, "
                 f"{time.perf_counter() - start:.0f} s")
         if steps_done >= next_checkpoint or final:
             next_checkpoint += config.checkpoint_every
