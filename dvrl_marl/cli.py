@@ -88,6 +88,26 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _evaluate_team(args) -> int:
+    import json
+
+    from dvrl_marl.training import teams
+
+    seed = teams.EVAL_SEED if args.seed is None else args.seed
+    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed)
+    print(f"{'suction':<24} {'grasper':<24} {'success':>8} {'blood ml':>9} {'debris':>7} {'median steps':>13} "
+          f"{'contacts':>9}")
+    for row in rows:
+        median = "-" if row["median_steps_to_completion"] is None else f"{row['median_steps_to_completion']:.0f}"
+        print(f"{row['suction']:<24} {row['grasper']:<24} {row['success_rate']:>8.2f} "
+              f"{row['mean_blood_removed_ml']:>9.2f} {row['mean_debris_delivered']:>7.2f} {median:>13} "
+              f"{row['mean_contact_steps']:>9.1f}")
+    print(f"({args.episodes} episodes each, seeds {seed}..{seed + args.episodes - 1})")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
 def _plot(args) -> int:
     from dvrl_marl.training.plots import plot_learning_curves
 
@@ -151,6 +171,16 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=1_000_000)
     evaluate.add_argument("--video", help="write the first episodes to this MP4")
     evaluate.set_defaults(func=_evaluate)
+
+    team = sub.add_parser("evaluate-team", help="success of a collaborative team (or a cross-play matrix) on "
+                                                 "held-out seeds")
+    team.add_argument("--suction", nargs="+", default=["marl-suction"],
+                      help="suction seat(s): scripted, pipeline, a shipped policy name or a folder")
+    team.add_argument("--grasper", nargs="+", default=["marl-grasper"], help="grasper seat(s), the same choices")
+    team.add_argument("--episodes", type=int, default=100)
+    team.add_argument("--seed", type=int, help="first evaluation seed (default: the held-out range)")
+    team.add_argument("--json", help="also write the rows to this JSON file")
+    team.set_defaults(func=_evaluate_team)
 
     plot = sub.add_parser("plot", help="success rate against training steps (paper Fig. 4 style)")
     plot.add_argument("runs", nargs="+", help="run folders (each with progress.csv)")

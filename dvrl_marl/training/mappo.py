@@ -43,13 +43,14 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.training import teams
+from dvrl_marl.training.teams import evaluate_team_batched
 
-__all__ = ["MappoConfig", "load_config", "train", "evaluate_team_batched", "export_actor", "TRAIN_SEED_BASE",
-           "EVAL_SEED"]
+__all__ = ["MappoConfig", "load_config", "train", "export_actor", "TRAIN_SEED_BASE"]
 
+#: Training worlds of seed s draw from TRAIN_SEED_BASE * (s + 1) + i; evaluation seeds (teams.EVAL_SEED on) lie
+#: far beyond them.
 TRAIN_SEED_BASE = 1_000_000
-#: Evaluation episodes use seeds EVAL_SEED, EVAL_SEED + 1, ...: far from every training world's seed.
-EVAL_SEED = 900_000_000
 ALGORITHMS = ("mappo", "ippo")
 
 
@@ -268,47 +269,6 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
     return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
-
-
-# --- evaluation -----------------------------------------------------------------------------------------------
-def evaluate_team_batched(seats: dict, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> dict:
-    """Play ``episodes`` episodes at once (world j seeded ``seed + j``); ``seats[agent]`` is a callable on
-    observations ``(N, obs_dim)`` returning ``(N, 4)`` (a numpy policy, a scripted expert, ...).
-
-    Returns success rate, blood removed, steps to completion (median over successes) and instrument-contact
-    steps per episode, with per-episode arrays.
-    """
-    env_kwargs = {k: v for k, v in env_kwargs.items() if k != "reward_type"}
-    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
-    missing = set(env.possible_agents) - set(seats)
-    if missing:
-        raise ValueError(f"evaluate_team_batched: no policy for seat(s) {sorted(missing)}")
-    observations, infos = env.reset(seed=seed)
-    initial = infos[env.agents[0]]["blood_remaining"].copy()
-    done = np.zeros(episodes, dtype=bool)
-    success = np.zeros(episodes, dtype=bool)
-    steps = np.zeros(episodes, dtype=np.int64)
-    contacts = np.zeros(episodes, dtype=np.int64)
-    remaining = initial.copy()
-    delivered = np.zeros(episodes)
-    while not done.all():
-        actions = {agent: np.asarray(seats[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
-        observations, _, terminations, truncations, infos = env.step(actions)
-        info = infos[env.agents[0]]
-        live = ~done
-        steps += live
-        contacts += live & info["collision"]
-        remaining = np.where(live, info["blood_remaining"], remaining)
-        delivered = np.where(live, info["debris_delivered"], delivered)
-        success |= live & info["is_success"]
-        done |= terminations[env.agents[0]] | truncations[env.agents[0]]
-    env.close()
-    return {"episodes": episodes, "seed": seed, "success_rate": float(success.mean()),
-            "mean_blood_removed_ml": float((initial - remaining).mean()),
-            "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
-            "mean_contact_steps": float(contacts.mean()),
-            "mean_debris_delivered": float(delivered.mean()),
-            "success": success.tolist(), "steps": steps.tolist()}
 
 
 # --- training -------------------------------------------------------------------------------------------------
@@ -587,7 +547,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                 optimiser.step()
                 for key in sums:
                     if key in losses.keys():
-                        sums[key] += float(losses[key].detach())
+                        sums[key] += float(losses[key].detach().float().mean())
         # Normalisers move after the update, so the update sees the statistics the rollout was collected with.
         norms["observation"].update(torch.from_numpy(obs_buf))
         if "state" in norms:
@@ -616,7 +576,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             next_eval += config.eval_every
             seats = _learned_seats(actor_net, agents, out, config, seed, steps_done)
             if surgeon is not None:
-                seats[config.surgeon_seat] = _scripted(config.surgeon_seat, env)
+                seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
             result = evaluate_team_batched(seats, config.eval_episodes, **_eval_kwargs(config))
             last = {"steps": steps_done, "success_rate": result["success_rate"],
                     "blood_removed_ml": result["mean_blood_removed_ml"],
@@ -664,12 +624,6 @@ def _update_running(stats: dict, x: np.ndarray) -> None:
 
 def _eval_kwargs(config: MappoConfig) -> dict:
     return {k: v for k, v in config.env.items() if k != "reward_type"}
-
-
-def _scripted(seat: str, env):
-    from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
-
-    return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(env)
 
 
 def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int, steps: int) -> dict:

@@ -1,0 +1,118 @@
+"""Teams on the collaborative env: fill each seat with a learned, scripted or composed policy and measure them.
+
+Numpy only (no torch): the shipped multi-agent policies are evaluated as users get them.
+
+```python
+from dvrl_marl.training import teams
+result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper"), episodes=100)
+matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "scripted", "pipeline"])
+```
+
+A seat is named by ``"scripted"`` (the built-in expert), ``"pipeline"`` (the ``learned_team`` pipeline: the
+single-arm Reach and Pick policies composed, one pipeline per world), a shipped policy name
+(:func:`dvrl_marl.policies.available`) or a policy folder.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvrl_marl.envs import suction_debris_v0
+
+__all__ = ["evaluate_team_batched", "seat", "seats", "cross_play", "EVAL_SEED"]
+
+#: Evaluation episodes use seeds EVAL_SEED, EVAL_SEED + 1, ...: no training world ever draws them.
+EVAL_SEED = 900_000_000
+
+
+class _PerWorld:
+    """One stateful single-env policy (a pipeline) per world of a batch."""
+
+    def __init__(self, make):
+        self.make, self.policies = make, None
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        if self.policies is None or len(self.policies) != len(observations):
+            self.policies = [self.make() for _ in range(len(observations))]
+        return np.stack([np.asarray(p(o), dtype=np.float64) for p, o in zip(self.policies, observations)])
+
+
+def seat(name, agent: str, env=None):
+    """A callable on observations ``(N, obs_dim)`` -> ``(N, 4)`` for ``agent`` (see the module documentation)."""
+    from dvrl_marl import policies
+    from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
+
+    if agent not in suction_debris_v0.AGENTS:
+        raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris_v0.AGENTS)}")
+    if callable(name):
+        return name
+    env = env or suction_debris_v0.parallel_env()
+    if name == "scripted":
+        return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
+    if name == "pipeline":
+        from dvrl_marl.pipeline import ArmPipeline, load_pipeline
+
+        plan = load_pipeline("learned_team")[agent]
+        single = suction_debris_v0.parallel_env()
+        return _PerWorld(lambda: ArmPipeline(plan, agent, single))
+    policy = policies.load(name)
+    trained_for = policy.spec.get("agent")
+    if trained_for is not None and trained_for != agent:
+        raise ValueError(f"policy {name!r} was trained for the {trained_for!r} seat, not {agent!r}")
+    return policy
+
+
+def seats(suction, grasper) -> dict:
+    return {"suction": seat(suction, "suction"), "grasper": seat(grasper, "grasper")}
+
+
+def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> dict:
+    """Play ``episodes`` episodes at once (world j seeded ``seed + j``) with ``team[agent]`` callables on
+    observations ``(N, obs_dim)`` returning ``(N, 4)``.
+
+    Returns success rate, blood removed, debris delivered, median steps to completion (over successes) and
+    instrument-contact steps per episode, with the per-episode outcomes.
+    """
+    env_kwargs = {k: v for k, v in env_kwargs.items() if k != "reward_type"}
+    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
+    missing = set(env.possible_agents) - set(team)
+    if missing:
+        raise ValueError(f"evaluate_team_batched: no policy for seat(s) {sorted(missing)}")
+    observations, infos = env.reset(seed=seed)
+    first = env.agents[0]
+    initial = infos[first]["blood_remaining"].copy()
+    done = np.zeros(episodes, dtype=bool)
+    success = np.zeros(episodes, dtype=bool)
+    steps = np.zeros(episodes, dtype=np.int64)
+    contacts = np.zeros(episodes, dtype=np.int64)
+    remaining = initial.copy()
+    delivered = np.zeros(episodes)
+    while not done.all():
+        actions = {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
+        observations, _, terminations, truncations, infos = env.step(actions)
+        info = infos[first]
+        live = ~done
+        steps += live
+        contacts += live & info["collision"]
+        remaining = np.where(live, info["blood_remaining"], remaining)
+        delivered = np.where(live, info["debris_delivered"], delivered)
+        success |= live & info["is_success"]
+        done |= terminations[first] | truncations[first]
+    env.close()
+    return {"episodes": episodes, "seed": seed, "success_rate": float(success.mean()),
+            "mean_blood_removed_ml": float((initial - remaining).mean()),
+            "mean_debris_delivered": float(delivered.mean()),
+            "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
+            "mean_contact_steps": float(contacts.mean()),
+            "success": success.tolist(), "steps": steps.tolist()}
+
+
+def cross_play(suctions, graspers, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> list[dict]:
+    """Every suction with every grasper: one row per pair (names as given, figures of evaluate_team_batched)."""
+    rows = []
+    for suction in suctions:
+        for grasper in graspers:
+            result = evaluate_team_batched(seats(suction, grasper), episodes, seed, **env_kwargs)
+            rows.append({"suction": str(suction), "grasper": str(grasper),
+                         **{k: v for k, v in result.items() if k not in ("success", "steps")}})
+    return rows
