@@ -72,6 +72,7 @@ def test_trainer_runs_logs_checkpoints_and_exports(tmp_path, algorithm):
     assert (run / "checkpoint.pt").is_file() and (run / "config.toml").is_file()
     assert any((run / "tb").iterdir()), "no TensorBoard events written"
     assert json.loads((run / "result.json").read_text())["steps"] == 2048
+    assert (run / "policies_best" / "marl-grasper" / "policy.npz").is_file()
     for agent in ("suction", "grasper"):
         policy = policies.load(run / "policies" / f"marl-{agent}")
         assert policy.spec["agent"] == agent and policy.spec["training"]["algorithm"] == algorithm

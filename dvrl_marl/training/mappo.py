@@ -4,8 +4,9 @@
 
 - **Data**: :func:`suction_debris_v0.batched_env` with ``num_envs`` worlds, stepped ``rollout_steps`` times per
   iteration (autoreset off: the trainer resets ended worlds itself, through the curriculum). Worlds of training
-  seed ``s`` are seeded from ``TRAIN_SEED_BASE * (s + 1)``; evaluation uses seeds from ``EVAL_SEED`` on, which no
-  training world ever draws.
+  seed ``s`` are seeded from ``TRAIN_SEED_BASE * (s + 1)``; periodic evaluation (and the choice of the best
+  checkpoint) uses the validation seeds ``teams.VALIDATION_SEED`` on, and reported figures the test seeds
+  ``teams.EVAL_SEED`` on (``dvrl-marl evaluate-team``): three disjoint ranges.
 - **Models**: one actor per agent (no parameter sharing: the two roles see the same layout but do different
   jobs) on its own observation, a Gaussian with a learnt state-independent standard deviation (the env clips to
   the action box; a tanh-squashed Gaussian saturated early and stalled in our runs);
@@ -26,17 +27,19 @@
 
 A run folder holds ``config.toml``, ``progress.csv`` (one row per evaluation), TensorBoard logs (``tb/``),
 ``checkpoint.pt`` (``--resume`` continues from it: networks, optimiser, normalisers, counters, random streams;
-episodes in flight restart) and ``policies/<name>`` (numpy-only actors, see :mod:`dvrl_marl.policies`).
+episodes in flight restart), ``policies/<name>`` (the latest numpy-only actors, see :mod:`dvrl_marl.policies`) and
+``policies_best/<name>`` (those of the best validation evaluation).
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import math
+import shutil
 import sys
 import time
 import tomllib
-import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -288,11 +291,13 @@ class _Curriculum:
         self.debris = env.params.debris_count
         self.range = env.workspace_range
         self.centre = np.asarray(env.params.workspace_centre)
+        self.out_of_play = np.zeros(env.num_envs, dtype=np.int64)  # debris each episode left out (count < D)
 
     def reset(self, worlds: np.ndarray, easy_fraction: float):
         n = self.env.num_envs
         easy = worlds & (self.rng.random(n) < easy_fraction)
         hard = worlds & ~easy
+        self.out_of_play[worlds] = 0
         if hard.any():
             self.env.reset(options={"reset_mask": hard})
         if not easy.any():
@@ -300,6 +305,7 @@ class _Curriculum:
         blood = self.rng.random((n, len(self.blood))) * self.blood
         count = self.rng.integers(1, self.debris + 1, n)
         self.env.reset(options={"reset_mask": easy, "blood_ml": blood, "debris_count": count})
+        self.out_of_play[easy] = self.debris - count[easy]
         if self.config.random_start > 0:  # learning agents' tips anywhere over the phantom
             scattered = easy & (self.rng.random(n) < self.config.random_start)
             if scattered.any():
@@ -466,6 +472,9 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     next_checkpoint = (steps_done // config.checkpoint_every + 1) * config.checkpoint_every
     episodes_ended = successes = 0
     delivered_sum = blood_left_sum = 0.0
+    best_success, best_blood = -1.0, -1.0
+    if resume and (out / "best.json").is_file():
+        best_success, best_blood = json.loads((out / "best.json").read_text())
     last = {}
     state = env.state()
     while steps_done < total:
@@ -502,7 +511,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     info = infos[agents[0]]
                     episodes_ended += int(done.sum())
                     successes += int((done & info["is_success"]).sum())
-                    delivered_sum += float(info["debris_delivered"][done].sum())
+                    delivered_sum += float((info["debris_delivered"] - curriculum.out_of_play)[done].sum())
                     blood_left_sum += float(info["blood_remaining"][done].sum())
                     curriculum.reset(done, easy)
                     observations = {a: env.core.observation(a) for a in agents}
@@ -577,7 +586,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             seats = _learned_seats(actor_net, agents, out, config, seed, steps_done)
             if surgeon is not None:
                 seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
-            result = evaluate_team_batched(seats, config.eval_episodes, **_eval_kwargs(config))
+            result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
+                                           **_eval_kwargs(config))
+            if result["success_rate"] > best_success or (result["success_rate"] == best_success and
+                                                         result["mean_blood_removed_ml"] > best_blood):
+                best_success, best_blood = result["success_rate"], result["mean_blood_removed_ml"]
+                shutil.copytree(out / "policies", out / "policies_best", dirs_exist_ok=True)
+                (out / "best.json").write_text(json.dumps([best_success, best_blood]))
             last = {"steps": steps_done, "success_rate": result["success_rate"],
                     "blood_removed_ml": result["mean_blood_removed_ml"],
                     "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],

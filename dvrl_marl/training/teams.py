@@ -19,10 +19,13 @@ import numpy as np
 
 from dvrl_marl.envs import suction_debris_v0
 
-__all__ = ["evaluate_team_batched", "seat", "seats", "cross_play", "EVAL_SEED"]
+__all__ = ["evaluate_team_batched", "seat", "seats", "cross_play", "EVAL_SEED", "VALIDATION_SEED"]
 
-#: Evaluation episodes use seeds EVAL_SEED, EVAL_SEED + 1, ...: no training world ever draws them.
+#: Reported evaluations use seeds EVAL_SEED, EVAL_SEED + 1, ...: no training world ever draws them.
 EVAL_SEED = 900_000_000
+#: Trainers evaluate during training (and pick their best checkpoint) on seeds from here: a validation range kept
+#: apart from EVAL_SEED's, so a reported figure never comes from the seeds a checkpoint was selected on.
+VALIDATION_SEED = 800_000_000
 
 
 class _PerWorld:
