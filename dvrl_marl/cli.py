@@ -195,9 +195,20 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
+    except ModuleNotFoundError as error:
+        if (error.name or "").split(".")[0] not in _EXTRA_MODULES:
+            raise
+        print(f"dvrl-marl: {args.command} needs the training extra ({error.name} is not installed): "
+              'pip install "dvrl-marl[train]"', file=sys.stderr)
+        return 2
     except (FileNotFoundError, ValueError) as error:
         print(f"dvrl-marl: error: {error}", file=sys.stderr)
         return 2
+
+
+#: What the [train] extra brings; a command missing one of them ends with the install hint, not a traceback.
+_EXTRA_MODULES = {"torch", "torchrl", "tensordict", "stable_baselines3", "sb3_contrib", "supersuit", "matplotlib",
+                  "tensorboard"}
 
 
 if __name__ == "__main__":

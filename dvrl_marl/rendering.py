@@ -2,12 +2,29 @@
 
 from __future__ import annotations
 
+import os
+import sys
+
 import mujoco
 import numpy as np
 
-__all__ = ["SceneRenderer", "RENDER_MODES"]
+__all__ = ["SceneRenderer", "RENDER_MODES", "DisplayUnavailableError", "require_display"]
 
 RENDER_MODES = ("human", "rgb_array", "depth_array")
+
+
+class DisplayUnavailableError(RuntimeError):
+    """``render_mode="human"`` was asked for where no window can open."""
+
+
+def require_display() -> None:
+    """Raise :class:`DisplayUnavailableError` where MuJoCo's viewer cannot open a window (it would end the Python
+    process from C, leaving ``MUJOCO_LOG.TXT`` behind)."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise DisplayUnavailableError(
+            'render_mode="human" needs a display (no DISPLAY or WAYLAND_DISPLAY is set). On a headless machine use '
+            'render_mode="rgb_array" (MUJOCO_GL=egl, which importing dvrl_marl sets for you), or run under a display '
+            "(e.g. xvfb-run).")
 
 
 class SceneRenderer:
@@ -17,6 +34,8 @@ class SceneRenderer:
                  height: int = 480, key_callback=None):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+        if render_mode == "human":
+            require_display()  # fail here, in Python, not later in GLFW
         self.model, self.data, self.render_mode = model, data, render_mode
         self.camera, self.width, self.height = camera, width, height
         self.key_callback = key_callback  # keys pressed in the "human" viewer (e.g. a KeyboardDevice)
@@ -46,6 +65,13 @@ class SceneRenderer:
                 self._renderer.enable_depth_rendering()
         self._renderer.update_scene(self.data, camera=self.camera)
         return self._renderer.render()
+
+    def __getstate__(self):
+        # OpenGL contexts and viewer windows do not travel (pickle, deepcopy, Ray): drop them, rebuild on render().
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        state["_viewer"] = None
+        return state
 
     @property
     def viewer(self):

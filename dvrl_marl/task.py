@@ -38,7 +38,8 @@ class TaskSpec:
         known = {f.name for f in fields(self)}
         unknown = set(overrides) - known
         if unknown:
-            raise ValueError(f"unknown task parameter(s) {sorted(unknown)} for task {self.name!r}")
+            # TypeError, as Python raises for an unexpected keyword (clients such as TorchRL's GymEnv probe with it).
+            raise TypeError(f"{self.name}() got an unexpected keyword argument {sorted(unknown)[0]!r}")
         return replace(self, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> "TaskSpec":

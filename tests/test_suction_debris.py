@@ -305,9 +305,11 @@ def test_out_of_range_actions_are_clipped_and_invalid_arguments_raise():
     np.testing.assert_allclose(np.array(env.arms["suction"].tip) - before, [env.params.step_size, 0, 0], atol=1e-12)
     for kwargs, message in [({"reward_type": "shaped"}, "reward_type"), ({"debris_count": 0}, "debris_count"),
                             ({"blood_ml": [50.0, 1.0]}, "capacity"), ({"render_mode": "ascii"}, "render_mode"),
-                            ({"suction_rate_ml_s": -1.0}, "suction_rate_ml_s"), ({"colour": "red"}, "unknown argument")]:
+                            ({"suction_rate_ml_s": -1.0}, "suction_rate_ml_s")]:
         with pytest.raises(ValueError, match=message):
             suction_debris_v0.parallel_env(**kwargs)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):  # a bad name, not a bad value
+        suction_debris_v0.parallel_env(colour="red")
     with pytest.warns(UserWarning, match="reset option"):
         env.reset(options={"blood": 3})
     with pytest.raises(ValueError, match="capacity"):

@@ -148,7 +148,7 @@ class SuctionDebrisParams:
         names = {f.name for f in fields(cls)}
         unknown = set(overrides) - names
         if unknown:
-            raise ValueError(f"suction_debris_v0: unknown argument(s) {sorted(unknown)}")
+            raise TypeError(f"suction_debris_v0() got an unexpected keyword argument {sorted(unknown)[0]!r}")
         values = {k: v for k, v in table.items() if k in names}
         values.update({k: v for k, v in overrides.items() if v is not None})
         values["workspace_centre"] = tuple(float(v) for v in values["workspace_centre"])

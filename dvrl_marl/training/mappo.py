@@ -74,6 +74,7 @@ class MappoConfig:
     env: dict = field(default_factory=lambda: {"reward_type": "dense"})
     # PPO
     learning_rate: float = 3e-4
+    anneal_lr: bool = True  # linear decay to 0 over the run (PPO's usual schedule; the last policies are steadier)
     epochs: int = 5
     minibatches: int = 2
     clip_epsilon: float = 0.2
@@ -149,7 +150,7 @@ def _torch():
         import torchrl  # noqa: F401
     except ImportError as error:
         raise ModuleNotFoundError(f"the MAPPO trainer needs torch and torchrl ({error.name} is missing): "
-                                  'pip install "dvrl-marl[torchrl]"') from None
+                                  'pip install "dvrl-marl[train]"', name=error.name) from None
     import torch
 
     return torch
@@ -454,6 +455,10 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     curriculum.reset(np.ones(n, dtype=bool), config.easy_fraction(steps_done / total))
     observations = {agent: env.core.observation(agent) for agent in agents}
     discounted = np.zeros((n, count))
+    # Worlds that start together stay in step for a whole episode (1,500 steps, ~50 rollouts of the same phase);
+    # the first episode of each world is cut at a random length (a time limit, bootstrapped like the env's own).
+    episode_step = np.zeros(n, dtype=np.int64)
+    first_cut = rng.integers(1, env.params.max_cycles + 1, n)
     obs_buf = np.zeros((horizon, n, count, obs_dim), dtype=np.float32)
     next_obs_buf = np.zeros_like(obs_buf)
     state_buf = np.zeros((horizon, n, state_dim), dtype=np.float32)
@@ -501,7 +506,11 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                 if shaping.active:
                     reward[:, shaping.index] += shaping.potential(state) - potential_before
                 terminated, truncated = terminations[agents[0]], truncations[agents[0]]
+                episode_step += 1
+                truncated = truncated | (episode_step == first_cut)  # see first_cut
+                first_cut[episode_step >= first_cut] = 0
                 done = terminated | truncated
+                episode_step[done] = 0
                 discounted = discounted * config.gamma + reward
                 _update_running(return_var_state, discounted)
                 discounted[done] = 0.0
@@ -519,6 +528,9 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         steps_done += n * horizon
         iteration += 1
         # --- learn ---
+        if config.anneal_lr:
+            for group in optimiser.param_groups:
+                group["lr"] = config.learning_rate * max(1.0 - (steps_done - n * horizon) / total, 0.0)
         scale = np.sqrt(return_var_state["var"] + 1e-8).astype(np.float32)
 
         def swap(x):  # (T, N, ...) -> (N, T, ...)

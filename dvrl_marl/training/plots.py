@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_progress", "aggregate", "plot_learning_curves", "summary_table"]
+__all__ = ["read_progress", "aggregate", "plot_learning_curves", "plot_team_curves", "summary_table"]
 
 
 def read_progress(run_dir) -> dict[str, np.ndarray]:
@@ -99,3 +99,50 @@ def summary_table(run_dirs, out) -> Path:
             writer.writerow([label, int(curve["seeds"]), int(steps[-1]), f"{mean[-1]:.3f}", f"{std[-1]:.3f}",
                              f"{mean.max():.3f}", first(0.9), first(0.95)])
     return out
+
+
+def plot_team_curves(run_dirs, out) -> tuple[Path, Path]:
+    """The collaborative runs of :mod:`dvrl_marl.training.mappo`: success and blood removed against environment
+    steps (validation episodes), one line per configuration, mean and spread over seeds. Writes ``<out>.png`` and
+    ``<out>.csv``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    groups: dict[str, list] = defaultdict(list)
+    for run in map(Path, run_dirs):
+        progress = read_progress(run)
+        if progress:
+            groups[_label(run)].append(progress)
+    figure, axes = plt.subplots(1, 2, figsize=(13, 4.2))
+    rows = []
+    for label, runs in sorted(groups.items()):
+        length = min(len(r["steps"]) for r in runs)
+        steps = runs[0]["steps"][:length]
+        for axis, key, title in ((axes[0], "success_rate", "success rate"),
+                                 (axes[1], "blood_removed_ml", "blood removed (ml of 16)")):
+            values = np.stack([r[key][:length] for r in runs])
+            mean, std = values.mean(0), values.std(0)
+            axis.plot(steps, mean, label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
+            axis.fill_between(steps, mean - std, mean + std, alpha=0.2)
+            axis.set_xlabel("environment steps (parallel)")
+            axis.set_ylabel(title)
+            axis.grid(alpha=0.3)
+            for step, m, s in zip(steps, mean, std):
+                rows.append((label, key, int(step), float(m), float(s), len(runs)))
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].legend(fontsize=8)
+    figure.suptitle("suction_debris_v0: multi-agent PPO (validation episodes)")
+    figure.tight_layout()
+    png = out.with_suffix(".png")
+    figure.savefig(png, dpi=110)
+    plt.close(figure)
+    csv_path = out.with_suffix(".csv")
+    with csv_path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["configuration", "metric", "steps", "mean", "std", "seeds"])
+        writer.writerows(rows)
+    return png, csv_path

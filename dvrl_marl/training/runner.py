@@ -35,7 +35,6 @@ import gymnasium as gym
 import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the environments)
-from dvrl_marl.training.bc import DDPGBC
 from dvrl_marl.training.demonstrations import (
     generate_demonstrations,
     observation_batch,
@@ -47,6 +46,8 @@ __all__ = ["RunConfig", "load_config", "train", "evaluate_policy", "ALGORITHMS"]
 
 def _algorithms() -> dict:
     from stable_baselines3 import DDPG, SAC, TD3
+
+    from dvrl_marl.training.bc import DDPGBC
 
     table = {"ddpg": DDPG, "ddpg_bc": DDPGBC, "td3": TD3, "sac": SAC}
     try:
@@ -177,6 +178,8 @@ def _build_model(config: RunConfig, env, seed: int):
 def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None = None, progress: bool = True,
           resume: bool = False, tensorboard: bool = False) -> list[dict]:
     """Train ``config`` with ``seed`` into ``out_dir``; returns the evaluation history."""
+    from dvrl_marl.training.bc import DDPGBC
+
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.monitor import Monitor

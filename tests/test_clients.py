@@ -1,0 +1,127 @@
+"""The envs as the libraries researchers already use meet them: checkers with their default arguments on a machine
+without a display, TorchRL's GymEnv, copies after rendering, Python's conventions for bad arguments, and the CLI
+without the training extra."""
+
+from __future__ import annotations
+
+import copy
+import os
+import pickle
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dvrl_marl  # noqa: F401
+from dvrl_marl.envs import suction_debris_v0
+
+ROOT = Path(__file__).resolve().parents[1]
+SINGLE_IDS = ["dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"]
+
+
+def _headless(code: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=300,
+                          cwd=cwd, env=env)
+
+
+@pytest.mark.parametrize("checker", ["gymnasium", "pettingzoo"])
+def test_checkers_with_default_arguments_end_in_a_clear_error_headless(tmp_path, checker):
+    code = {
+        "gymnasium": """
+            import gymnasium as gym, dvrl_marl
+            from gymnasium.utils.env_checker import check_env
+            check_env(gym.make("dvrl_marl/PSMReach-v0").unwrapped)
+        """,
+        "pettingzoo": """
+            from pettingzoo.test import render_test
+            from dvrl_marl.envs import suction_debris_v0
+            render_test(suction_debris_v0.parallel_env)
+        """,
+    }[checker]
+    result = _headless(code, tmp_path)
+    assert result.returncode == 1, result.stderr  # a Python exception, not a process killed from C
+    assert "DisplayUnavailableError" in result.stderr and 'render_mode="rgb_array"' in result.stderr
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+@pytest.mark.parametrize("make", [lambda: gym.make("dvrl_marl/PSMReach-v0", render_mode="human"),
+                                  lambda: suction_debris_v0.parallel_env(render_mode="human")])
+def test_human_mode_without_display_raises_in_python(monkeypatch, make):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    from dvrl_marl.rendering import DisplayUnavailableError
+
+    with pytest.raises(DisplayUnavailableError, match="needs a display"):
+        make()
+
+
+@pytest.mark.parametrize("env_id", SINGLE_IDS)
+def test_unknown_keyword_is_a_type_error_and_bad_value_a_value_error(env_id):
+    with pytest.raises(TypeError, match="frameskip"):
+        gym.make(env_id, frameskip=4)
+    with pytest.raises(ValueError):
+        gym.make(env_id, step_size=-1.0)
+    with pytest.raises(TypeError, match="frameskip"):
+        suction_debris_v0.parallel_env(frameskip=4)
+
+
+def _collaborative():
+    env = suction_debris_v0.parallel_env(render_mode="rgb_array")
+    return env
+
+
+@pytest.mark.parametrize("make", [lambda: gym.make(SINGLE_IDS[0], render_mode="rgb_array"),
+                                  lambda: gym.make(SINGLE_IDS[1], render_mode="rgb_array"),
+                                  _collaborative,
+                                  lambda: suction_debris_v0.batched_env(num_envs=2, render_mode="rgb_array")],
+                         ids=["reach", "pick", "collaborative", "batched"])
+@pytest.mark.parametrize("copier", [lambda e: pickle.loads(pickle.dumps(e)), copy.deepcopy], ids=["pickle", "deepcopy"])
+def test_envs_copy_after_rendering(make, copier):
+    env = make()
+    env.reset(seed=3)
+    frame = env.render()
+    twin = copier(env)
+    np.testing.assert_array_equal(twin.render(), frame)  # the copy rebuilds its renderer and draws the same world
+    if hasattr(env, "action_space") and not callable(env.action_space):
+        action = env.action_space.sample()
+        a, b = env.step(action), twin.step(action)
+        np.testing.assert_array_equal(a[0]["observation"], b[0]["observation"])
+    env.close()
+    twin.close()
+
+
+@pytest.mark.parametrize("env_id", SINGLE_IDS)
+def test_torchrl_gym_env_specs_and_rollout(env_id):
+    pytest.importorskip("torchrl")
+    from torchrl.envs import DoubleToFloat, GymEnv, TransformedEnv
+    from torchrl.envs.utils import check_env_specs
+
+    env = TransformedEnv(GymEnv(env_id), DoubleToFloat())
+    check_env_specs(env)
+    env.set_seed(0)
+    rollout = env.rollout(40)
+    assert rollout.batch_size[0] >= 1
+    assert rollout["next", "observation"].dtype.is_floating_point
+
+
+def test_train_without_the_extra_prints_one_line_and_exits_2(tmp_path):
+    code = f"""
+        import sys
+        class Block:
+            def find_spec(self, name, path=None, target=None):
+                if name.split(".")[0] in ("torch", "torchrl", "tensordict", "stable_baselines3"):
+                    raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+        sys.meta_path.insert(0, Block())
+        from dvrl_marl.cli import main
+        sys.exit(main(["train", {str(ROOT / 'baselines/configs/suction_debris_mappo.toml')!r}, "--steps", "10",
+                       "--out", {str(tmp_path / 'run')!r}]))
+    """
+    result = _headless(code, tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'pip install "dvrl-marl[train]"' in lines[0] and "Traceback" not in result.stderr
