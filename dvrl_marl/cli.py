@@ -95,11 +95,12 @@ def _evaluate_team(args) -> int:
 
     seed = teams.EVAL_SEED if args.seed is None else args.seed
     rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed)
-    print(f"{'suction':<24} {'grasper':<24} {'success':>8} {'blood ml':>9} {'debris':>7} {'median steps':>13} "
-          f"{'contacts':>9}")
+    width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
+    print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
+          f"{'median steps':>13} {'contacts':>9}")
     for row in rows:
         median = "-" if row["median_steps_to_completion"] is None else f"{row['median_steps_to_completion']:.0f}"
-        print(f"{row['suction']:<24} {row['grasper']:<24} {row['success_rate']:>8.2f} "
+        print(f"{row['suction']:<{width}} {row['grasper']:<{width}} {row['success_rate']:>8.2f} "
               f"{row['mean_blood_removed_ml']:>9.2f} {row['mean_debris_delivered']:>7.2f} {median:>13} "
               f"{row['mean_contact_steps']:>9.1f}")
     print(f"({args.episodes} episodes each, seeds {seed}..{seed + args.episodes - 1})")

@@ -254,3 +254,25 @@ def test_hold_bonus_charges_a_drop():
         env.step({"suction": still, "grasper": np.array([[0.0, 0.0, 0.0, jaw]])})
         values.append(shaping.potential(env.state())[0])
     assert values == [0.0, 1.0, 1.0, 0.0]
+
+
+def test_demo_runs_the_marl_team(tmp_path, monkeypatch):
+    """``dvrl-marl demo --team marl`` seats the exported multi-agent policies (here from a tiny run)."""
+    from dvrl_marl import demo
+
+    run = tmp_path / "run"
+    mappo.train(mappo.load_config(_config(tmp_path)), 0, run, total_steps=1024, progress=False, log=lambda *_: None)
+    monkeypatch.setattr(policies, "shipped_dir", lambda: run / "policies")
+    assert {"marl-suction", "marl-grasper"} <= set(policies.available())
+    metrics = demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=30, video=False, progress=False)
+    assert metrics["team"] == "marl" and metrics["pipeline"] == "marl" and metrics["steps"] == 30
+    with pytest.raises(ValueError, match="pipeline applies"):
+        demo.run_demo(team="marl", pipeline="learned_team", out=tmp_path / "d2", video=False, progress=False)
+
+
+def test_demo_without_shipped_marl_policies_names_them(tmp_path, monkeypatch):
+    from dvrl_marl import demo
+
+    monkeypatch.setattr(policies, "shipped_dir", lambda: tmp_path)
+    with pytest.raises(FileNotFoundError, match="marl-grasper"):
+        demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=10, video=False, progress=False)

@@ -18,7 +18,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-__all__ = ["GoalVecEnvForSB3", "make_sb3_vec_env"]
+__all__ = ["GoalVecEnvForSB3", "make_sb3_vec_env", "make_collaborative_vec_env"]
 
 
 class GoalVecEnvForSB3(VecEnv):
@@ -84,3 +84,37 @@ def make_sb3_vec_env(env_id: str, num_envs: int, seed: int | None = None, **kwar
     if seed is not None:
         venv.seed(seed)
     return venv
+
+
+def make_collaborative_vec_env(n_envs: int = 4, seed: int | None = None, surgeon=None, **env_kwargs):
+    """The collaborative env's learning agents as one seeded SB3 ``VecEnv`` (each agent of each copy is a slot,
+    through SuperSuit: padded spaces, a one-hot agent indicator when both arms learn).
+
+    SuperSuit's ``ConcatVecEnv`` has no ``seed()``, which SB3 calls when a model is given ``seed=``; this adds it
+    (reset with that seed). ``seed`` here seeds the first reset.
+
+    >>> venv = make_collaborative_vec_env(n_envs=2, seed=0, reward_type="dense")  # doctest: +SKIP
+    >>> PPO("MlpPolicy", venv, seed=0).learn(10_000)                               # doctest: +SKIP
+    """
+    import supersuit as ss
+
+    from dvrl_marl.envs import suction_debris_v0
+
+    env = suction_debris_v0.parallel_env(surgeon=surgeon, **env_kwargs)
+    env = ss.pad_observations_v0(env)
+    env = ss.pad_action_space_v0(env)
+    if len(env.possible_agents) > 1:
+        env = ss.agent_indicator_v0(env, type_only=False)
+    vec = ss.pettingzoo_env_to_vec_env_v1(env)
+    vec = ss.concat_vec_envs_v1(vec, int(n_envs), num_cpus=0, base_class="stable_baselines3")
+    concat = vec.venv
+    if not hasattr(concat, "seed"):
+
+        def seed_all(value=None):
+            concat.reset(seed=value)
+            return [value] * concat.num_envs
+
+        concat.seed = seed_all
+    if seed is not None:
+        vec.seed(seed)
+    return vec

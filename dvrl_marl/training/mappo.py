@@ -18,10 +18,12 @@
 - **What makes the task learnable** (``[curriculum]``; measured in ``baselines/README.md``): the env's dense
   reward (its potential-based shaping keeps the optimum; success is still the sparse rule) and a curriculum over
   start states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an
-  easier episode: blood per cavity uniform in ``[0, blood_ml]`` (little or no blood reveals debris at once, so
-  the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, with probability
+  easier episode: each cavity empty half of the time, otherwise uniform in ``[0, blood_ml]`` (no blood reveals
+  debris at once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, with probability
   ``random_start`` the learning arms' tips scattered over the phantom (approaches from everywhere), and, with
-  probability ``near_debris``, the grasper's tip starting a few millimetres above a visible pin. ``easy_fraction`` falls
+  probability ``near_debris``, the grasper's tip starting a few millimetres above a visible pin; with
+  ``easy_episode_steps`` easy episodes end (bootstrapped, as a time limit) after that many steps, so that starts,
+  and what follows them, are a larger share of the data. ``easy_fraction`` falls
   linearly from ``easy_start`` to 0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after
   that every episode is the default task.
 
@@ -91,6 +93,7 @@ class MappoConfig:
     anneal_end: float = 0.5
     near_debris: float = 0.0
     random_start: float = 0.0
+    easy_episode_steps: int = 0  # > 0: easy episodes are cut (bootstrapped) after this many steps
     # trainer-side potential-based shaping (see _GraspPathShaping)
     grasp_path_shaping: float = 0.0
     hold_bonus: float = 0.0
@@ -293,20 +296,26 @@ class _Curriculum:
         self.range = env.workspace_range
         self.centre = np.asarray(env.params.workspace_centre)
         self.out_of_play = np.zeros(env.num_envs, dtype=np.int64)  # debris each episode left out (count < D)
+        self.cut = np.zeros(env.num_envs, dtype=np.int64)  # episode length the trainer imposes (0: the env's)
 
     def reset(self, worlds: np.ndarray, easy_fraction: float):
         n = self.env.num_envs
         easy = worlds & (self.rng.random(n) < easy_fraction)
         hard = worlds & ~easy
         self.out_of_play[worlds] = 0
+        self.cut[worlds] = 0
         if hard.any():
             self.env.reset(options={"reset_mask": hard})
         if not easy.any():
             return
+        # Each cavity empty half of the time (its debris in view from the start: the grasper's lessons need visible
+        # pins, and a pin shows only once the level is a few millimetres deep), otherwise uniform up to the default.
         blood = self.rng.random((n, len(self.blood))) * self.blood
+        blood[self.rng.random(blood.shape) < 0.5] = 0.0
         count = self.rng.integers(1, self.debris + 1, n)
         self.env.reset(options={"reset_mask": easy, "blood_ml": blood, "debris_count": count})
         self.out_of_play[easy] = self.debris - count[easy]
+        self.cut[easy] = self.config.easy_episode_steps
         if self.config.random_start > 0:  # learning agents' tips anywhere over the phantom
             scattered = easy & (self.rng.random(n) < self.config.random_start)
             if scattered.any():
@@ -507,8 +516,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     reward[:, shaping.index] += shaping.potential(state) - potential_before
                 terminated, truncated = terminations[agents[0]], truncations[agents[0]]
                 episode_step += 1
-                truncated = truncated | (episode_step == first_cut)  # see first_cut
-                first_cut[episode_step >= first_cut] = 0
+                truncated = truncated | (episode_step == first_cut) | (episode_step == curriculum.cut)
+                first_cut[episode_step >= first_cut] = 0  # see first_cut
                 done = terminated | truncated
                 episode_step[done] = 0
                 discounted = discounted * config.gamma + reward

@@ -31,32 +31,12 @@ from dvrl_marl.envs import suction_debris_v0
 __all__ = ["make_vec_env", "train_ppo", "TeamPolicy", "evaluate_team"]
 
 
-def _wrap(env):
-    import supersuit as ss
-
-    env = ss.pad_observations_v0(env)
-    env = ss.pad_action_space_v0(env)
-    if len(env.possible_agents) > 1:
-        env = ss.agent_indicator_v0(env, type_only=False)
-    return env
-
-
 def make_vec_env(n_envs: int = 4, surgeon: str | None = None, **env_kwargs):
-    """An SB3-compatible vector env over the collaborative env's learning agents."""
-    import supersuit as ss
+    """An SB3-compatible vector env over the collaborative env's learning agents (see
+    :func:`dvrl_marl.integrations.sb3.make_collaborative_vec_env`)."""
+    from dvrl_marl.integrations.sb3 import make_collaborative_vec_env
 
-    env = _wrap(suction_debris_v0.parallel_env(surgeon=surgeon, **env_kwargs))
-    vec = ss.pettingzoo_env_to_vec_env_v1(env)
-    vec = ss.concat_vec_envs_v1(vec, n_envs, num_cpus=0, base_class="stable_baselines3")
-    concat = vec.venv
-    if not hasattr(concat, "seed"):  # SB3 seeds vector envs through seed(), which SuperSuit's ConcatVecEnv lacks
-
-        def seed(value=None):
-            concat.reset(seed=value)
-            return [value] * concat.num_envs
-
-        concat.seed = seed
-    return vec
+    return make_collaborative_vec_env(n_envs, surgeon=surgeon, **env_kwargs)
 
 
 class TeamPolicy:
