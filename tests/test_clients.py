@@ -68,6 +68,10 @@ def test_unknown_keyword_is_a_type_error_and_bad_value_a_value_error(env_id):
         gym.make(env_id, step_size=-1.0)
     with pytest.raises(TypeError, match="frameskip"):
         suction_debris_v0.parallel_env(frameskip=4)
+    with pytest.raises(TypeError, match="frameskip"):
+        suction_debris_v0.batched_env(num_envs=2, frameskip=4)
+    with pytest.raises(TypeError, match="frameskip"):
+        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", frameskip=4)
 
 
 def _collaborative():
@@ -78,8 +82,10 @@ def _collaborative():
 @pytest.mark.parametrize("make", [lambda: gym.make(SINGLE_IDS[0], render_mode="rgb_array"),
                                   lambda: gym.make(SINGLE_IDS[1], render_mode="rgb_array"),
                                   _collaborative,
-                                  lambda: suction_debris_v0.batched_env(num_envs=2, render_mode="rgb_array")],
-                         ids=["reach", "pick", "collaborative", "batched"])
+                                  lambda: suction_debris_v0.batched_env(num_envs=2, render_mode="rgb_array"),
+                                  lambda: gym.make_vec(SINGLE_IDS[1], num_envs=2, render_mode="rgb_array",
+                                                       vectorization_mode="vector_entry_point")],
+                         ids=["reach", "pick", "collaborative", "batched", "vector"])
 @pytest.mark.parametrize("copier", [lambda e: pickle.loads(pickle.dumps(e)), copy.deepcopy], ids=["pickle", "deepcopy"])
 def test_envs_copy_after_rendering(make, copier):
     env = make()
@@ -87,7 +93,7 @@ def test_envs_copy_after_rendering(make, copier):
     frame = env.render()
     twin = copier(env)
     np.testing.assert_array_equal(twin.render(), frame)  # the copy rebuilds its renderer and draws the same world
-    if hasattr(env, "action_space") and not callable(env.action_space):
+    if hasattr(env, "action_space") and not callable(env.action_space) and not hasattr(env, "num_envs"):
         action = env.action_space.sample()
         a, b = env.step(action), twin.step(action)
         np.testing.assert_array_equal(a[0]["observation"], b[0]["observation"])

@@ -147,7 +147,7 @@ class SuctionDebrisBatchedEnv:
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._surgeon.reset()
         info = self.core.info()
-        return self._observations(), {agent: dict(info) for agent in self.agents}
+        return self.observations(), {agent: dict(info) for agent in self.agents}
 
     def set_tip_positions(self, tips: dict, worlds=None) -> None:
         """Move tips at the start of an episode, keeping everything else of it (for curricula that start an arm
@@ -173,7 +173,7 @@ class SuctionDebrisBatchedEnv:
             commands[seat] = check_action_batch(self._surgeon(core.observation(seat)), self.num_envs, 4,
                                                 f"suction_debris_v0: surgeon in seat {seat!r}")
         rewards, terminated, truncated = core.step(commands)
-        observations = self._observations()
+        observations = self.observations()
         info = core.info()
         infos = {agent: dict(info) for agent in self.agents}
         done = terminated | truncated
@@ -182,13 +182,16 @@ class SuctionDebrisBatchedEnv:
             for agent in self.agents:
                 infos[agent].update(final_observation=observations[agent], final_state=final_state, _final=done)
             core.reset(done)
-            observations = self._observations()
+            observations = self.observations()
         terminations = {agent: terminated.copy() for agent in self.agents}
         truncations = {agent: truncated.copy() for agent in self.agents}
         return observations, rewards, terminations, truncations, infos
 
-    def _observations(self) -> dict:
+    def observations(self) -> dict:
+        """The current observations of every world, ``{agent: (N, obs_dim)}`` (after ``set_tip_positions``, or
+        several masked resets in a row)."""
         return {agent: self.core.observation(agent) for agent in self.agents}
+
 
     def state(self) -> np.ndarray:
         """(N, state_dim): the global state of every world, for centralised critics."""

@@ -364,9 +364,9 @@ class _GraspPathShaping:
     distance replaces the first, so closing the jaw costs about 0.8 at once and a grasp looks worse than no grasp to
     a young value function (measured: the grasper learnt to reach pins, grasp rarely and never carry). With ``weight``
     10 this potential turns the sum into the shortest path tip -> pin -> hand-off over the pending pins while the
-    grasper holds nothing (continuous in the state, through the grasp too). ``hold_bonus`` adds that much potential while a pin is
-    held: a drop then costs what the grasp earned, the only signal that says "keep the jaw closed" before the first
-    delivery is ever seen.
+    grasper holds nothing (continuous in the state, through the grasp too). ``hold_bonus`` adds that much potential
+    while a pin is held: a drop then costs what the grasp earned, the only signal that says "keep the jaw closed"
+    before the first delivery is ever seen.
     """
 
     def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0):
@@ -436,7 +436,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                          done=("agents", "done"), terminated=("agents", "terminated"))
     loss_module.make_value_estimator(ValueEstimators.GAE, gamma=config.gamma, lmbda=config.gae_lambda)
     optimiser = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate)
-    return_std = np.ones(count)  # running std of the discounted return, per agent (reward scaling)
+    # running variance of the discounted return, per agent: rewards are divided by its square root (reward scaling)
     return_var_state = {"mean": np.zeros(count), "var": np.ones(count), "count": 1e-4}
     steps_done, iteration, rng = 0, 0, np.random.default_rng(seed)
     checkpoint = out / "checkpoint.pt"
@@ -462,7 +462,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     shaping = _GraspPathShaping(env, config.grasp_path_shaping, agents, config.hold_bonus)
     observations, _ = env.reset(seed=TRAIN_SEED_BASE * (seed + 1) + steps_done)
     curriculum.reset(np.ones(n, dtype=bool), config.easy_fraction(steps_done / total))
-    observations = {agent: env.core.observation(agent) for agent in agents}
+    observations = env.observations()
     discounted = np.zeros((n, count))
     # Worlds that start together stay in step for a whole episode (1,500 steps, ~50 rollouts of the same phase);
     # the first episode of each world is cut at a random length (a time limit, bootstrapped like the env's own).
@@ -532,7 +532,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     delivered_sum += float((info["debris_delivered"] - curriculum.out_of_play)[done].sum())
                     blood_left_sum += float(info["blood_remaining"][done].sum())
                     curriculum.reset(done, easy)
-                    observations = {a: env.core.observation(a) for a in agents}
+                    observations = env.observations()
                     state = env.state()
         steps_done += n * horizon
         iteration += 1
