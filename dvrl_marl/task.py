@@ -6,7 +6,6 @@ value can be overridden by keyword. Adding a task is adding a file.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
@@ -69,8 +68,9 @@ def load_task_table(name: str | Path) -> tuple[str, dict]:
         path = tasks_dir() / f"{name}.toml"
     if not path.is_file():
         raise FileNotFoundError(f"no task file {path}; available tasks: {available_tasks()}")
-    with path.open("rb") as handle:
-        return path.stem, tomllib.load(handle)["task"]
+    from dvrl_marl.files import field, read_toml
+
+    return path.stem, field(read_toml(path), "task", path, dict)
 
 
 def load_task(name: str | Path) -> TaskSpec:

@@ -26,7 +26,6 @@ so a reach stage whose path would skim the phantom goes through waypoints: up to
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -126,7 +125,9 @@ def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
         path = _SPECS / f"{name_or_path}.toml"
     if not path.is_file():
         raise FileNotFoundError(f"no pipeline {name_or_path!r}; shipped: {available_pipelines()}")
-    table = tomllib.loads(path.read_text())
+    from dvrl_marl.files import read_toml
+
+    table = read_toml(path)
     plans = {}
     for arm, spec in table.items():
         if arm not in ("suction", "grasper"):

@@ -13,7 +13,6 @@ and the evaluation figures with the command that produced them).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -95,8 +94,45 @@ def load(name_or_path) -> NumpyPolicy:
             path = shipped_dir() / str(name_or_path)
         else:
             raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
-    spec = json.loads((path / "policy.json").read_text())
-    with np.load(path / "policy.npz", allow_pickle=False) as archive:
-        count = len(spec["activations"])
-        weights = [(archive[f"W{i}"], archive[f"b{i}"]) for i in range(count)]
+    spec, weights = _read_policy_folder(path)
     return NumpyPolicy(weights, spec)
+
+
+def _read_policy_folder(path: Path):
+    """Read and check ``policy.json`` + ``policy.npz``: every failure names the file and the field."""
+    from dvrl_marl.files import field, read_json, read_npz
+
+    json_path, npz_path = path / "policy.json", path / "policy.npz"
+    spec = read_json(json_path)
+    fmt = field(spec, "format", json_path, str)
+    if fmt != POLICY_FORMAT:
+        raise ValueError(f"{json_path}: field 'format' is {fmt!r}, this library reads {POLICY_FORMAT!r}")
+    activations = field(spec, "activations", json_path, list)
+    sizes = field(spec, "layer_sizes", json_path, list)
+    field(spec, "observation_keys", json_path, list)
+    if not activations or len(sizes) != len(activations) + 1 or not all(isinstance(v, int) and v > 0 for v in sizes):
+        raise ValueError(f"{json_path}: field 'layer_sizes' must list {len(activations) + 1} positive sizes (one per "
+                         f"layer boundary for {len(activations)} activations), got {sizes!r}")
+    for index, name in enumerate(activations):
+        if name not in _ACTIVATIONS:
+            raise ValueError(f"{json_path}: field 'activations[{index}]' is {name!r}; known: {sorted(_ACTIVATIONS)}")
+    for bound in ("action_low", "action_high"):
+        values = field(spec, bound, json_path, list)
+        if len(values) != sizes[-1] or not np.all(np.isfinite(np.asarray(values, dtype=np.float64))):
+            raise ValueError(f"{json_path}: field {bound!r} needs {sizes[-1]} finite values, got {values!r}")
+    arrays = read_npz(npz_path)
+    weights = []
+    for index in range(len(activations)):
+        layer = []
+        for name, shape in ((f"W{index}", (sizes[index + 1], sizes[index])), (f"b{index}", (sizes[index + 1],))):
+            if name not in arrays:
+                raise ValueError(f"{npz_path}: missing array {name!r} (policy.json declares {len(activations)} layers)")
+            array = arrays[name]
+            if array.shape != shape:
+                raise ValueError(f"{npz_path}: array {name!r} has shape {array.shape}, policy.json's layer_sizes "
+                                 f"say {shape}")
+            if not np.issubdtype(array.dtype, np.floating) or not np.all(np.isfinite(array)):
+                raise ValueError(f"{npz_path}: array {name!r} must hold finite floats")
+            layer.append(array)
+        weights.append(tuple(layer))
+    return spec, weights

@@ -51,11 +51,20 @@ def save_demonstration(path, observations, actions, **metadata) -> Path:
 
 def load_demonstration(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read a demonstration file: (observations, actions, metadata)."""
-    with np.load(Path(path), allow_pickle=False) as archive:
-        metadata = json.loads(str(archive["metadata"]))
-        if metadata.get("format") != DEMONSTRATION_FORMAT:
-            raise ValueError(f"{path} is not a {DEMONSTRATION_FORMAT} file (format {metadata.get('format')!r})")
-        return archive["observations"], archive["actions"], metadata
+    from dvrl_marl.files import read_metadata, read_npz
+
+    data = read_npz(path)
+    metadata = read_metadata(data, path, DEMONSTRATION_FORMAT)
+    for key in ("observations", "actions"):
+        if key not in data:
+            raise ValueError(f"{path}: missing array {key!r}")
+    observations, actions = data["observations"], data["actions"]
+    if len(observations) != len(actions) or actions.ndim != 2 or actions.shape[1] != 4:
+        raise ValueError(f"{path}: arrays 'observations' {observations.shape} and 'actions' {actions.shape} do not "
+                         "form a recording (one 4-vector action per observation)")
+    if not (np.all(np.isfinite(observations)) and np.all(np.isfinite(actions))):
+        raise ValueError(f"{path}: arrays 'observations' / 'actions' hold NaN or inf")
+    return observations, actions, metadata
 
 
 class KeyboardDevice:

@@ -80,11 +80,16 @@ def save_demonstrations(data: dict, path) -> Path:
 
 
 def load_demonstrations(path) -> dict:
-    with np.load(Path(path), allow_pickle=False) as archive:
-        data = {key: archive[key] for key in archive.files if key != "metadata"}
-        data["metadata"] = json.loads(str(archive["metadata"]))
-    if data["metadata"].get("format") != DEMONSTRATION_FILE_FORMAT:
-        raise ValueError(f"{path} is not a {DEMONSTRATION_FILE_FORMAT} file")
+    from dvrl_marl.files import read_metadata, read_npz
+
+    data = read_npz(path)
+    data["metadata"] = read_metadata(data, path, DEMONSTRATION_FILE_FORMAT)
+    lengths = {key: len(value) for key, value in data.items() if key != "metadata"}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"{path}: arrays of different lengths {lengths} (a truncated or edited file)")
+    for key, value in data.items():
+        if key != "metadata" and np.issubdtype(value.dtype, np.floating) and not np.all(np.isfinite(value)):
+            raise ValueError(f"{path}: array {key!r} holds NaN or inf")
     return data
 
 

@@ -41,7 +41,6 @@ import math
 import shutil
 import sys
 import time
-import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -114,11 +113,10 @@ _TABLES = {"run": None, "ppo": None, "model": None, "curriculum": None, "shaping
 
 def load_config(path) -> MappoConfig:
     """Read a configuration TOML; unknown tables or keys raise ``ValueError`` naming the file and the key."""
+    from dvrl_marl.files import read_toml
+
     path = Path(path)
-    try:
-        table = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"{path}: not valid TOML ({error})") from None
+    table = read_toml(path)
     known = {f.name for f in fields(MappoConfig)}
     values = {"name": path.stem}
     for section, content in table.items():

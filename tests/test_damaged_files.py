@@ -1,0 +1,98 @@
+"""Damaged or hand-edited data files give a ValueError naming the file and the field, never a bare decoder error
+and never a silently wrong policy."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from dvrl_marl import policies
+from dvrl_marl.pipeline import load_pipeline
+from dvrl_marl.task import load_task
+
+
+@pytest.fixture
+def reach_copy(tmp_path):
+    folder = tmp_path / "reach"
+    shutil.copytree(policies.shipped_dir() / "reach-lnd", folder)
+    return folder
+
+
+def _edit_npz(folder, change):
+    with np.load(folder / "policy.npz") as archive:
+        arrays = {k: archive[k] for k in archive.files}
+    change(arrays)
+    with (folder / "policy.npz").open("wb") as handle:
+        np.savez(handle, **arrays)
+
+
+def _edit_json(folder, change):
+    spec = json.loads((folder / "policy.json").read_text())
+    change(spec)
+    (folder / "policy.json").write_text(json.dumps(spec))
+
+
+@pytest.mark.parametrize("damage, file, message", [
+    (lambda f: _edit_npz(f, lambda a: a.update(b3=a["b3"][:1])), "policy.npz", "array 'b3' has shape (1,)"),
+    (lambda f: _edit_npz(f, lambda a: a.update(W1=a["W1"][:, :10])), "policy.npz", "array 'W1' has shape"),
+    (lambda f: _edit_npz(f, lambda a: a.pop("W2")), "policy.npz", "missing array 'W2'"),
+    (lambda f: _edit_npz(f, lambda a: a["W0"].__setitem__((0, 0), np.nan)), "policy.npz", "array 'W0' must hold finite"),
+    (lambda f: (f / "policy.npz").write_bytes((f / "policy.npz").read_bytes()[:500]), "policy.npz", "not a readable .npz"),
+    (lambda f: (f / "policy.json").write_text((f / "policy.json").read_text()[:40]), "policy.json", "not valid JSON"),
+    (lambda f: (f / "policy.json").write_text("{}"), "policy.json", "missing field 'format'"),
+    (lambda f: _edit_json(f, lambda s: s.pop("activations")), "policy.json", "missing field 'activations'"),
+    (lambda f: _edit_json(f, lambda s: s.update(format="v0")), "policy.json", "field 'format' is 'v0'"),
+    (lambda f: _edit_json(f, lambda s: s.update(activations=["relu", "relu", "gelu", "tanh"])), "policy.json",
+     "activations[2]"),
+    (lambda f: _edit_json(f, lambda s: s.update(layer_sizes=[9, 256, 3])), "policy.json", "layer_sizes"),
+    (lambda f: _edit_json(f, lambda s: s.update(action_low=[-1.0])), "policy.json", "field 'action_low'"),
+])
+def test_damaged_policy_names_file_and_field(reach_copy, damage, file, message):
+    damage(reach_copy)
+    with pytest.raises(ValueError) as error:
+        policies.load(reach_copy)
+    assert str(reach_copy / file) in str(error.value)
+    assert message in str(error.value)
+
+
+def test_intact_copy_still_loads_and_acts(reach_copy):
+    policy = policies.load(reach_copy)
+    observation = {"observation": np.zeros(3), "achieved_goal": np.zeros(3), "desired_goal": np.full(3, 0.5)}
+    assert policy(observation).shape == (3,)
+
+
+def test_damaged_task_and_pipeline_files(tmp_path):
+    task = tmp_path / "broken_task.toml"
+    task.write_text("[task\nworkspace_range = 0.05\n")
+    with pytest.raises(ValueError, match="broken_task.toml: not valid TOML"):
+        load_task(task)
+    task.write_text("[other]\nx = 1\n")
+    with pytest.raises(ValueError, match="broken_task.toml: missing field 'task'"):
+        load_task(task)
+    pipeline = tmp_path / "broken_pipeline.toml"
+    pipeline.write_text("[suction\nstages = []\n")
+    with pytest.raises(ValueError, match="broken_pipeline.toml: not valid TOML"):
+        load_pipeline(pipeline)
+
+
+def test_damaged_demonstration_files(tmp_path):
+    from dvrl_marl.teleop import load_demonstration
+    from dvrl_marl.training.demonstrations import load_demonstrations
+
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(b"PK\x03\x04 not really a zip")
+    for loader in (load_demonstration, load_demonstrations):
+        with pytest.raises(ValueError, match="truncated.npz: not a readable .npz"):
+            loader(truncated)
+    wrong = tmp_path / "wrong.npz"
+    np.savez(wrong, observations=np.zeros((3, 30)), actions=np.zeros((2, 4)),
+             metadata=np.array(json.dumps({"format": "x"})))
+    with pytest.raises(ValueError, match="wrong.npz: field 'metadata.format' is 'x'"):
+        load_demonstration(wrong)
+    no_meta = tmp_path / "no_meta.npz"
+    np.savez(no_meta, observations=np.zeros((3, 30)))
+    with pytest.raises(ValueError, match="no_meta.npz: missing array 'metadata'"):
+        load_demonstrations(no_meta)
