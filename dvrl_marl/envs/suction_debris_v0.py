@@ -769,9 +769,11 @@ class SuctionDebrisEnv(ParallelEnv):
 def _model_with_more_debris(scene: str, count: int) -> mujoco.MjModel:
     """The scene with extra pins (copies of debris_0) when ``debris_count`` exceeds the pins in the file."""
     spec = mujoco.MjSpec.from_file(str(assets.scene_path(scene)))
-    template = spec.geom("debris_0")
+    # Lookups through the lists (MjSpec.geom/.body by name are newer than the mujoco floor, 3.2).
+    template = next(geom for geom in spec.geoms if geom.name == "debris_0")
+    bodies = {body.name for body in spec.bodies}
     index = 0
-    while spec.body(f"debris_{index}") is not None:
+    while f"debris_{index}" in bodies:
         index += 1
     while index < count:
         body = spec.worldbody.add_body(name=f"debris_{index}", pos=[0.0, 0.0, -1.0])
