@@ -15,7 +15,7 @@ __all__ = ["read_progress", "aggregate", "plot_learning_curves", "plot_team_curv
 def read_progress(run_dir) -> dict[str, np.ndarray]:
     with (Path(run_dir) / "progress.csv").open() as handle:
         rows = list(csv.DictReader(handle))
-    return {key: np.array([float(r[key]) for r in rows]) for key in rows[0]} if rows else {}
+    return {key: np.array([float(r[key]) if r[key] != "" else np.nan for r in rows]) for key in rows[0]} if rows else {}
 
 
 def _label(run_dir: Path) -> str:
