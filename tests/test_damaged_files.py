@@ -96,3 +96,20 @@ def test_damaged_demonstration_files(tmp_path):
     np.savez(no_meta, observations=np.zeros((3, 30)))
     with pytest.raises(ValueError, match="no_meta.npz: missing array 'metadata'"):
         load_demonstrations(no_meta)
+
+
+def test_policy_meeting_the_wrong_env_names_itself():
+    policy = policies.load("reach-lnd")
+    with pytest.raises(ValueError, match="'reach-lnd'.*reads 9 observation features, got 13"):
+        policy(np.zeros(13))
+    with pytest.raises(ValueError, match="absent from this env's observation"):
+        policy({"observation": np.zeros(3)})
+
+
+def test_damaged_run_configuration(tmp_path):
+    from dvrl_marl.training.runner import load_config
+
+    path = tmp_path / "run.toml"
+    path.write_text("[run\nenv_id = 'x'\n")
+    with pytest.raises(ValueError, match="run.toml: not valid TOML"):
+        load_config(path)

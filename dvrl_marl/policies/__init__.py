@@ -62,9 +62,19 @@ class NumpyPolicy:
 
     def features(self, observation) -> np.ndarray:
         if isinstance(observation, dict):
+            missing = [key for key in self.observation_keys if key not in observation]
+            if missing:
+                raise ValueError(f"policy {self.name!r} reads observation key(s) {missing}, absent from this env's "
+                                 f"observation ({sorted(observation)})")
             parts = [np.asarray(observation[key], dtype=np.float64) for key in self.observation_keys]
-            return np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
-        return np.asarray(observation, dtype=np.float64)
+            x = np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
+        else:
+            x = np.asarray(observation, dtype=np.float64)
+        expected = self.weights[0][0].shape[1]
+        if x.shape[-1] != expected:  # a policy meeting an env it was not made for (or a hand-edited file)
+            raise ValueError(f"policy {self.name!r} ({self.spec.get('env_id', 'unknown env')}) reads {expected} "
+                             f"observation features, got {x.shape[-1]}")
+        return x
 
     def __call__(self, observation) -> np.ndarray:
         x = self.features(observation)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import time
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +95,9 @@ def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = Non
 
     formats = log_formats(tensorboard)
     config_path = Path(config_path)
-    table = tomllib.loads(config_path.read_text())
+    from dvrl_marl.files import read_toml
+
+    table = read_toml(config_path)
     run = table.get("run", {})
     surgeon = None if run.get("surgeon", "none") == "none" else run["surgeon"]
     env_kwargs = table.get("env", {})

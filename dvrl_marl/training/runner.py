@@ -27,7 +27,6 @@ from __future__ import annotations
 import csv
 import shutil
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,8 +93,10 @@ def load_config(path) -> RunConfig:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no configuration file {path}")
+    from dvrl_marl.files import read_toml
+
     text = path.read_text()
-    table = tomllib.loads(text)
+    table = read_toml(path)
     run = dict(table.get("run", {}))
     unknown = set(run) - {"env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations",
                           "action_noise"}
