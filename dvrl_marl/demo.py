@@ -42,6 +42,11 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         raise ValueError("team='marl' runs the learned multi-agent policies; a pipeline applies to team='pipeline'")
     out = Path(out) if out else Path("runs") / f"demo-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
+    missing = [name for name in ("marl-suction", "marl-grasper") if name not in policies.available()]
+    if team == "marl" and missing:
+        raise FileNotFoundError(f"team='marl' seats the multi-agent policies marl-suction and marl-grasper; "
+                                f"{' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not shipped with this "
+                                "release (train them: dvrl-marl train baselines/configs/suction_debris_mappo.toml)")
     pipeline = "marl" if team == "marl" else (pipeline or _pipeline_name())
     plans = None if team == "marl" else load_pipeline(pipeline)
     render_mode = "human" if surgeon == "keyboard" else ("rgb_array" if video else None)
