@@ -59,3 +59,21 @@ def test_evaluate_team_cli():
     assert result.returncode == 0, result.stderr
     line = next(l for l in result.stdout.splitlines() if l.startswith("scripted"))
     assert line.split()[2] == "1.00"
+
+
+def test_team_learning_curves_figure_and_numbers(tmp_path):
+    pytest.importorskip("matplotlib")
+    from dvrl_marl.training.plots import plot_team_curves
+
+    header = "steps,success_rate,blood_removed_ml,median_steps,contact_steps,easy_fraction,episode_success,wall_seconds\n"
+    for seed, success in ((0, (0.0, 0.5)), (1, (0.2, 0.7))):
+        run = tmp_path / f"mappo-seed{seed}"
+        run.mkdir()
+        run.joinpath("progress.csv").write_text(header + "".join(
+            f"{1000 * (i + 1)},{s},{10 + i},,0.0,0.5,0.1,1.0\n" for i, s in enumerate(success)))
+    png, csv_path = plot_team_curves(sorted(tmp_path.glob("mappo-seed*")), tmp_path / "curves")
+    assert png.stat().st_size > 1000
+    rows = csv_path.read_text().splitlines()
+    assert rows[0] == "configuration,metric,steps,mean,std,seeds"
+    assert "mappo,success_rate,2000,0.6,0.09999999999999998,2" in rows or any(
+        r.startswith("mappo,success_rate,2000,0.6") and r.endswith(",2") for r in rows)

@@ -69,14 +69,21 @@ def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8, loc="lower right")
         axis.set_title(f"dvrl-marl: PSM {task.capitalize()} (mean and std over seeds)")
+    return _save(figure, out, ["config", "timesteps", "success_mean", "success_std", "seeds"], rows, dpi=120)
+
+
+def _save(figure, out: Path, header: list, rows: list, dpi: int) -> tuple[Path, Path]:
+    """Write the figure as ``<out>.png`` and the numbers behind it as ``<out>.csv``."""
+    import matplotlib.pyplot as plt
+
     figure.tight_layout()
     png = out.with_suffix(".png")
-    figure.savefig(png, dpi=120)
+    figure.savefig(png, dpi=dpi)
     plt.close(figure)
     csv_path = out.with_suffix(".csv")
     with csv_path.open("w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["config", "timesteps", "success_mean", "success_std", "seeds"])
+        writer.writerow(header)
         writer.writerows(rows)
     return png, csv_path
 
@@ -136,13 +143,4 @@ def plot_team_curves(run_dirs, out) -> tuple[Path, Path]:
     axes[0].set_ylim(-0.02, 1.02)
     axes[0].legend(fontsize=8)
     figure.suptitle("suction_debris_v0: multi-agent PPO (validation episodes)")
-    figure.tight_layout()
-    png = out.with_suffix(".png")
-    figure.savefig(png, dpi=110)
-    plt.close(figure)
-    csv_path = out.with_suffix(".csv")
-    with csv_path.open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["configuration", "metric", "steps", "mean", "std", "seeds"])
-        writer.writerows(rows)
-    return png, csv_path
+    return _save(figure, out, ["configuration", "metric", "steps", "mean", "std", "seeds"], rows, dpi=110)
