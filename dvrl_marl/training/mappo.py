@@ -15,17 +15,18 @@
   folded into the exported actor's first layer).
 - **Loss**: TorchRL's ``ClipPPOLoss`` and ``GAE`` over the ``("agents", ...)`` keys, rewards scaled by a running
   standard deviation of the discounted return (per agent), a few epochs on large minibatches (Yu et al. 2022).
-- **What makes the task learnable** (``[curriculum]``; measured in ``baselines/README.md``): the env's dense
-  reward (its potential-based shaping keeps the optimum; success is still the sparse rule) and a curriculum over
-  start states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an
-  easier episode: each cavity empty half of the time, otherwise uniform in ``[0, blood_ml]`` (no blood reveals
-  debris at once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, with probability
-  ``random_start`` the learning arms' tips scattered over the phantom (approaches from everywhere), and, with
-  probability ``near_debris``, the grasper's tip starting a few millimetres above a visible pin; with
+- **What is meant to make the task learnable** (``[curriculum]``, ``[shaping]``; measured in
+  ``baselines/README.md``, where the targets are not met yet): the env's dense reward (potential-based shaping
+  keeps the optimum; success is still the sparse rule), :class:`_GraspPathShaping` and a curriculum over start
+  states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an easier
+  episode: each cavity empty half of the time, otherwise uniform in ``[0, blood_ml]`` (no blood reveals debris at
+  once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, with probability
+  ``random_start`` the learning arms' tips scattered over the phantom (approaches from everywhere), and with
+  probability ``near_debris`` the grasper's tip starting a few millimetres above a visible pin. With
   ``easy_episode_steps`` easy episodes end (bootstrapped, as a time limit) after that many steps, so that starts,
-  and what follows them, are a larger share of the data. ``easy_fraction`` falls
-  linearly from ``easy_start`` to 0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after
-  that every episode is the default task.
+  and what follows them, are a larger share of the data. ``easy_fraction`` falls linearly from ``easy_start`` to
+  0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after that every episode is the default
+  task. ``contact_penalty`` replaces the env's in the training reward only (evaluation counts contacts).
 
 A run folder holds ``config.toml``, ``progress.csv`` (one row per evaluation), TensorBoard logs (``tb/``),
 ``checkpoint.pt`` (``--resume`` continues from it: networks, optimiser, normalisers, counters, random streams;
