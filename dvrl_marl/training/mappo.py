@@ -19,8 +19,9 @@
   ``baselines/README.md``, where the targets are not met yet): the env's dense reward (potential-based shaping
   keeps the optimum; success is still the sparse rule), :class:`_GraspPathShaping` and a curriculum over start
   states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an easier
-  episode: each cavity empty half of the time, otherwise uniform in ``[0, blood_ml]`` (no blood reveals debris at
-  once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris, with probability
+  episode: each cavity empty with ``empty_cavity_probability``, otherwise uniform in ``[0, blood_ml]`` (no blood
+  reveals debris at once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris,
+  with probability
   ``random_start`` the learning arms' tips scattered over the phantom (approaches from everywhere), and with
   probability ``near_debris`` the grasper's tip starting a few millimetres above a visible pin. With
   ``easy_episode_steps`` easy episodes end (bootstrapped, as a time limit) after that many steps, so that starts,
@@ -94,6 +95,7 @@ class MappoConfig:
     near_debris: float = 0.0
     random_start: float = 0.0
     easy_episode_steps: int = 0  # > 0: easy episodes are cut (bootstrapped) after this many steps
+    empty_cavity_probability: float = 0.5  # each cavity of an easy episode starts empty this often
     # trainer-side potential-based shaping (see _GraspPathShaping)
     grasp_path_shaping: float = 0.0
     hold_bonus: float = 0.0
@@ -310,7 +312,8 @@ class _Curriculum:
         # Each cavity empty half of the time (its debris in view from the start: the grasper's lessons need visible
         # pins, and a pin shows only once the level is a few millimetres deep), otherwise uniform up to the default.
         blood = self.rng.random((n, len(self.blood))) * self.blood
-        blood[self.rng.random(blood.shape) < 0.5] = 0.0
+        if self.config.empty_cavity_probability > 0:
+            blood[self.rng.random(blood.shape) < self.config.empty_cavity_probability] = 0.0
         count = self.rng.integers(1, self.debris + 1, n)
         self.env.reset(options={"reset_mask": easy, "blood_ml": blood, "debris_count": count})
         self.out_of_play[easy] = self.debris - count[easy]
