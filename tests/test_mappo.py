@@ -276,3 +276,23 @@ def test_demo_without_shipped_marl_policies_names_them(tmp_path, monkeypatch):
     monkeypatch.setattr(policies, "shipped_dir", lambda: tmp_path)
     with pytest.raises(FileNotFoundError, match="marl-grasper"):
         demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=10, video=False, progress=False)
+
+
+def test_run_folder_configuration_reads_back(tmp_path):
+    """The config.toml a run writes is a configuration the trainer accepts, defaults (None) included."""
+    config = mappo.load_config(_config(tmp_path))
+    assert config.contact_penalty is None
+    path = tmp_path / "written.toml"
+    path.write_text(mappo._config_toml(config))
+    again = mappo.load_config(path)
+    assert {k: v for k, v in vars(again).items() if k != "name"} == {k: v for k, v in vars(config).items() if k != "name"}
+
+
+def test_refused_placement_moves_no_tip():
+    env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
+    env.reset(seed=0)
+    before = {agent: env.core.arms[agent].tip_world().copy() for agent in ("suction", "grasper")}
+    with pytest.raises(ValueError, match="outside the workspace box"):
+        env.set_tip_positions({"suction": np.array([[-0.03, 0.0, 0.05]]), "grasper": np.full((1, 3), 5.0)})
+    for agent, tip in before.items():
+        np.testing.assert_array_equal(env.core.arms[agent].tip_world(), tip)

@@ -269,33 +269,40 @@ class CollaborativeCore:
         the instruments apart; the shaping potential restarts from there."""
         indices = self.worlds_of(worlds)
         previous = {agent: (arm.tip[indices].copy(), arm.q[indices].copy()) for agent, arm in self.arms.items()}
-        for agent, positions in tips.items():
-            if agent not in AGENTS:
-                raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
-            positions = np.asarray(positions, dtype=np.float64)
-            if positions.shape != (len(indices), 3) or not np.all(np.isfinite(positions)):
-                raise ValueError(f"suction_debris_v0: tip positions of {agent!r} must be finite, shape "
-                                 f"({len(indices)}, 3), got shape {positions.shape}")
-            outside = np.any((positions < self.low - 1e-12) | (positions > self.high + 1e-12), axis=1)
-            below = positions[:, 2] < self._floor(positions[:, 0], positions[:, 1]) - 1e-12
-            bad = outside | below
-            if bad.any():
-                row = int(np.argmax(bad))
-                raise ValueError(f"suction_debris_v0: tip position {positions[row].tolist()} of {agent!r} (world "
-                                 f"{int(indices[row])}) is {'outside the workspace box' if outside[row] else 'below the surface'}")
-            arm = self.arms[agent]
-            try:
-                arm.set_tips(indices, positions - arm.base_position)
-            except kinematics.UnreachableError as error:
-                raise ValueError(f"suction_debris_v0: a tip position of {agent!r} is unreachable: {error}") from None
-        clearance = self._instrument_distance()[indices]
-        if np.any(clearance < 0.0):
+        try:
+            for agent, positions in tips.items():
+                self._place_one(agent, indices, positions)
+            clearance = self._instrument_distance()[indices]
+            if np.any(clearance < 0.0):
+                row = int(np.argmax(clearance < 0.0))
+                raise ValueError(f"suction_debris_v0: tip positions make the instruments intersect "
+                                 f"(world {int(indices[row])})")
+        except ValueError:  # a refused placement leaves every tip where it was, whichever agent failed
             for agent, (tip, q) in previous.items():
                 self.arms[agent].tip[indices], self.arms[agent].q[indices] = tip, q
-            row = int(np.argmax(clearance < 0.0))
-            raise ValueError(f"suction_debris_v0: tip positions make the instruments intersect (world {int(indices[row])})")
+            raise
         for agent in AGENTS:
             self.work_distance[agent][indices] = self._work_distance(agent)[indices]
+
+    def _place_one(self, agent: str, indices: np.ndarray, positions) -> None:
+        if agent not in AGENTS:
+            raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.shape != (len(indices), 3) or not np.all(np.isfinite(positions)):
+            raise ValueError(f"suction_debris_v0: tip positions of {agent!r} must be finite, shape "
+                             f"({len(indices)}, 3), got shape {positions.shape}")
+        outside = np.any((positions < self.low - 1e-12) | (positions > self.high + 1e-12), axis=1)
+        below = positions[:, 2] < self._floor(positions[:, 0], positions[:, 1]) - 1e-12
+        bad = outside | below
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise ValueError(f"suction_debris_v0: tip position {positions[row].tolist()} of {agent!r} (world "
+                             f"{int(indices[row])}) is {'outside the workspace box' if outside[row] else 'below the surface'}")
+        arm = self.arms[agent]
+        try:
+            arm.set_tips(indices, positions - arm.base_position)
+        except kinematics.UnreachableError as error:
+            raise ValueError(f"suction_debris_v0: a tip position of {agent!r} is unreachable: {error}") from None
 
     def limit_debris(self, worlds, count) -> None:
         """Keep only the first ``count`` debris (per world in ``worlds``) in play this episode: the others start

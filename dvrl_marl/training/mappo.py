@@ -400,8 +400,8 @@ class _GraspPathShaping:
         path = np.where(pending, to_pin + to_handoff, np.inf).min(axis=1)
         holding = held.any(axis=1)
         live = pending.any(axis=1) & ~holding
-        shaped = np.where(live, -self.weight * path + self.weight * np.where(live, env_term, 0.0), 0.0)
-        return shaped + self.hold_bonus * holding
+        detour = np.where(live, path - np.where(live, env_term, 0.0), 0.0)  # pin -> hand-off of the best pin
+        return -self.weight * detour + self.hold_bonus * holding
 
 
 def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = None, resume: bool = False,
@@ -682,7 +682,7 @@ def _config_toml(config: MappoConfig) -> str:
     lines = ["[run]"]
     for f in fields(MappoConfig):
         value = getattr(config, f.name)
-        if f.name in ("env", "name"):
+        if f.name in ("env", "name") or value is None:  # TOML has no null: an absent key is the default (None)
             continue
         lines.append(f"{f.name} = {json.dumps(value)}")
     lines.append("[env]")
