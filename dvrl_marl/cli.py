@@ -123,10 +123,11 @@ def _demo(args) -> int:
     from dvrl_marl.demo import format_summary, run_demo
 
     if args.surgeon == "keyboard" and not os.environ.get("DISPLAY"):
-        raise ValueError("--surgeon keyboard needs a display (MuJoCo's viewer takes the keys)")
+        raise ValueError("--surgeon keyboard needs a display (the scene's window takes the keys); on a headless "
+                         "machine run it under xvfb-run")
     metrics = run_demo(surgeon=args.surgeon, out=args.out, seed=args.seed, max_cycles=args.max_cycles,
                        video=not args.no_video, progress=not args.no_progress, pipeline=args.pipeline,
-                       team=args.team)
+                       team=args.team, record=args.record)
     print(format_summary(metrics))
     return 0
 
@@ -143,6 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--pipeline", help="pipeline name or TOML file (default: learned_team)")
     demo.add_argument("--team", choices=["pipeline", "marl"], default="pipeline",
                       help="pipeline: composed single-arm policies (default); marl: the team learned by MAPPO")
+    demo.add_argument("--record", metavar="FILE", help="save what the surgeon seat did as a demonstration (.npz) "
+                      "that ReplayDevice plays back and behaviour cloning learns from")
     demo.add_argument("--no-video", action="store_true", help="skip rendering")
     demo.add_argument("--no-progress", action="store_true", help="no progress bar")
     demo.set_defaults(func=_demo)

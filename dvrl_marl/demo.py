@@ -5,6 +5,12 @@ pipeline; the surgeon seat (the LND) is filled by the learned Reach + Pick pipel
 keyboard. ``team="marl"``: the team learned together by multi-agent PPO (the shipped ``marl-suction`` and
 ``marl-grasper`` policies; ``surgeon="learned"`` seats ``marl-grasper``). Writes ``demo.mp4`` and ``metrics.json``
 into a new run folder and returns the metrics.
+
+``surgeon="keyboard"``: a person works the LND in the scene's window (held keys move, see
+:class:`~dvrl_marl.teleop.KeyboardDevice`); the episode starts when they press ENTER and runs in real time at the
+50 Hz control rate; the metrics add how well it kept time (steps late, worst lag). Closing the window ends the
+episode and still writes the metrics. ``record``: save what the surgeon seat did (any surgeon) as a demonstration
+file that :class:`~dvrl_marl.teleop.ReplayDevice` plays back and behaviour cloning learns from.
 """
 
 from __future__ import annotations
@@ -32,7 +38,8 @@ def _pipeline_name() -> str:
 
 def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, max_cycles: int | None = None,
              video: bool = True, frame_every: int = 4, width: int = 640, height: int = 480,
-             progress: bool = True, pipeline: str | None = None, team: str = "pipeline") -> dict:
+             progress: bool = True, pipeline: str | None = None, team: str = "pipeline",
+             record: Path | str | None = None) -> dict:
     """Run one collaborative episode; returns the metrics (also written to ``<out>/metrics.json``)."""
     if surgeon not in SURGEONS:
         raise ValueError(f"surgeon must be one of {SURGEONS}, got {surgeon!r}")
@@ -63,11 +70,24 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         kwargs["surgeon"] = keyboard
     if surgeon == "learned" and team == "marl":
         kwargs["surgeon"] = policies.load("marl-grasper")
-    elif surgeon == "learned":
-        # The pipeline reads the scene layout from an env built with the same parameters.
+    elif surgeon == "learned" or (surgeon == "scripted" and record):
+        # The pipeline (or the expert, bound here so that it can be recorded) reads the scene layout from an env
+        # built with the same parameters.
         layout_env = suction_debris_v0.parallel_env(**{k: v for k, v in kwargs.items() if k != "render_mode"})
-        kwargs["surgeon"] = ArmPipeline(plans["grasper"], "grasper", layout_env)
+        if surgeon == "learned":
+            kwargs["surgeon"] = ArmPipeline(plans["grasper"], "grasper", layout_env)
+        else:
+            from dvrl_marl.agents.collaborative import ScriptedSurgeon
+
+            kwargs["surgeon"] = ScriptedSurgeon.for_env(layout_env)
         layout_env.close()
+    recorder = None
+    if record:
+        from dvrl_marl.teleop import Recorder
+
+        recorder = Recorder(kwargs["surgeon"], seat="grasper", surgeon=surgeon, team=team, pipeline=pipeline,
+                            seed=seed, env="suction_debris_v0", max_cycles=kwargs.get("max_cycles"))
+        kwargs["surgeon"] = recorder
     env = suction_debris_v0.parallel_env(**kwargs)
     suction = policies.load("marl-suction") if team == "marl" else ArmPipeline(plans["suction"], "suction", env)
     if render_mode == "rgb_array":
@@ -75,7 +95,10 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         env.model.light_castshadow[:] = 0
 
     frames = []
-    observations, infos = env.reset(seed=seed)
+    if render_mode == "human" and progress:
+        print("The window shows the scene: press ENTER in it to start, hold A/D, S/W, F/R to move the LND, SPACE "
+              "for the jaw; ESC or closing the window ends the episode.", flush=True)
+    observations, infos = env.reset(seed=seed)  # with a person in the seat: returns when they press ENTER
     contacts, steps, teleop_lost = 0, 0, 0
     start = time.perf_counter()
     bar = None
@@ -91,9 +114,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         contacts += bool(info["collision"])
         teleop_lost += bool(info.get("teleop_lost"))
         if render_mode == "rgb_array" and steps % frame_every == 0:
-            frames.append(env.render())
-        elif render_mode == "human":
-            env.render()
+            frames.append(env.render())  # ("human": the env draws its window inside step())
         if bar is not None:
             bar.update(1)
             bar.set_postfix(blood=f"{info['blood_remaining']:.1f}ml", debris=info["debris_delivered"])
@@ -119,7 +140,15 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         "teleop_lost_steps": teleop_lost,
         "sim_seconds": round(steps * env.params.control_dt, 2),
         "wall_seconds": round(wall, 2),
+        "viewer_closed": bool(info.get("viewer_closed", False)),
     }
+    if render_mode == "human":
+        metrics["realtime"] = env.realtime_stats()
+    if recorder is not None:
+        if recorder.actions:
+            metrics["recording"] = str(recorder.save(record))
+        else:
+            metrics["recording"] = None  # the window was closed before the first step: nothing to save
     if render_mode == "rgb_array" and frames:
         from dvrl_marl.video import write_video
 
@@ -141,8 +170,16 @@ def format_summary(metrics: dict) -> str:
         ("debris delivered", f"{metrics['debris_delivered']} / {metrics['debris_total']}"),
         ("instrument contacts", str(metrics["instrument_contacts"])),
         ("wall time", f"{metrics['wall_seconds']} s"),
-        ("run folder", metrics["out"]),
     ]
+    if metrics.get("realtime"):
+        paced = metrics["realtime"]
+        rows.append(("real time", f"{paced['steps_late']} of {paced['paced_steps']} steps late (worst by "
+                                  f"{paced['worst_lag_ms']} ms), {paced['frames_dropped']} frames dropped"))
+    if metrics.get("viewer_closed"):
+        rows.append(("ended", "the window was closed"))
+    if "recording" in metrics:
+        rows.append(("recording", metrics["recording"] or "nothing recorded (no step was taken)"))
+    rows.append(("run folder", metrics["out"]))
     width = max(len(k) for k, _ in rows)
     line = "-" * (width + 40)
     return "\n".join([line] + [f"{k:<{width}}  {v}" for k, v in rows] + [line])

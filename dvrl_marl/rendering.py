@@ -1,4 +1,4 @@
-"""Rendering a scene from its endoscope camera: RGB, depth, or a MuJoCo viewer window."""
+"""Rendering a scene from its endoscope camera: RGB, depth, or a desktop window (:mod:`dvrl_marl.viewer`)."""
 
 from __future__ import annotations
 
@@ -31,14 +31,17 @@ class SceneRenderer:
     """Lazily creates MuJoCo's offscreen renderer (or a passive viewer for ``"human"``)."""
 
     def __init__(self, model, data, render_mode: str | None, camera: str = "endoscope", width: int = 640,
-                 height: int = 480, key_callback=None):
+                 height: int = 480, key_listener=None, overlay=None, title: str = "dvrl-marl",
+                 frame_budget: float | None = None):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
         if render_mode == "human":
             require_display()  # fail here, in Python, not later in GLFW
         self.model, self.data, self.render_mode = model, data, render_mode
         self.camera, self.width, self.height = camera, width, height
-        self.key_callback = key_callback  # keys pressed in the "human" viewer (e.g. a KeyboardDevice)
+        # "human" only: key events in the window go to key_listener (e.g. a KeyboardDevice); overlay() returns
+        # the text drawn over the scene; frame_budget lets the window drop shadows when frames cost more.
+        self.key_listener, self.overlay, self.title, self.frame_budget = key_listener, overlay, title, frame_budget
         self._renderer = None
         self._viewer = None
 
@@ -47,11 +50,7 @@ class SceneRenderer:
             return None
         mujoco.mj_forward(self.model, self.data)  # only when drawing: the step path keeps kinematics lazy
         if self.render_mode == "human":
-            if self._viewer is None:
-                from mujoco import viewer
-
-                self._viewer = viewer.launch_passive(self.model, self.data, key_callback=self.key_callback)
-            self._viewer.sync()
+            self.viewer.draw(self.overlay() if self.overlay is not None else ())
             return None
         if self._renderer is None:
             try:
@@ -75,8 +74,22 @@ class SceneRenderer:
 
     @property
     def viewer(self):
-        """The passive viewer in ``"human"`` mode (None until the first render)."""
+        """The window in ``"human"`` mode (a :class:`dvrl_marl.viewer.ViewerWindow`, opened on first use)."""
+        if self.render_mode != "human":
+            return None
+        if self._viewer is None:
+            from dvrl_marl.viewer import ViewerWindow
+
+            self._viewer = ViewerWindow(self.model, self.data, title=self.title, camera=self.camera, width=self.width,
+                                        height=self.height, frame_budget=self.frame_budget)
+            if self.key_listener is not None:
+                self._viewer.add_key_listener(self.key_listener)
         return self._viewer
+
+    @property
+    def window_closed(self) -> bool:
+        """``"human"``: True once the window that was opened has been closed (by the person, or ESC)."""
+        return self._viewer is not None and self._viewer.closed
 
     def close(self) -> None:
         if self._renderer is not None:

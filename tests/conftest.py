@@ -1,3 +1,26 @@
 import os
+import shutil
+import subprocess
+
+import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering in CI
+
+
+@pytest.fixture(scope="session")
+def x_display():
+    """A real X display (a virtual screen from Debian's ``xvfb``) for tests of windows a person uses; its name."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (Debian: apt-get install xvfb xdotool); .ci/run installs it")
+    read_end, write_end = os.pipe()
+    server = subprocess.Popen(["Xvfb", "-displayfd", str(write_end), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                              pass_fds=(write_end,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write_end)
+    with os.fdopen(read_end) as announced:
+        number = announced.readline().strip()  # Xvfb writes its display number once it accepts clients
+    if not number:
+        server.kill()
+        pytest.skip("Xvfb did not start")
+    yield f":{number}"
+    server.terminate()
+    server.wait(timeout=10)

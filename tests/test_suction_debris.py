@@ -1,7 +1,6 @@
 """The collaborative PettingZoo environment: API checkers, determinism, world rules, surgeon seat, bad input."""
 
 import math
-import os
 
 import numpy as np
 import pettingzoo
@@ -51,10 +50,10 @@ def test_rgb_rendering_from_the_endoscope():
     env.close()
 
 
-@pytest.mark.skipif(not os.environ.get("DISPLAY"), reason="'human' rendering needs a display")
-def test_pettingzoo_render_test_with_a_display():  # pragma: no cover - CI is headless
+def test_pettingzoo_render_test_with_a_display(x_display, monkeypatch):
     from pettingzoo.test import render_test
 
+    monkeypatch.setenv("DISPLAY", x_display)
     render_test(suction_debris_v0.env)
 
 

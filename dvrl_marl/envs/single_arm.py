@@ -209,5 +209,10 @@ class PSMGoalEnv(gym.Env):
     def render(self):
         return self._renderer.render()
 
+    @property
+    def window(self):
+        """``render_mode="human"``: the scene's window (:class:`dvrl_marl.viewer.ViewerWindow`); None otherwise."""
+        return self._renderer.viewer
+
     def close(self):
         self._renderer.close()

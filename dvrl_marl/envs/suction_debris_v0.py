@@ -22,6 +22,13 @@ built-in expert in ``surgeon_seat`` (``"grasper"`` by default, as in the paper w
 ``step()``. A device that raises, returns an unusable action or misses ``teleop_timeout`` holds its seat still
 that step (zero Delta, jaw or valve unchanged) and every agent's info gets ``teleop_lost=True``.
 
+**A person in the seat** (``render_mode="human"`` with a ``human_operated`` device such as
+:class:`~dvrl_marl.teleop.KeyboardDevice`): ``reset()`` opens the scene's window (:mod:`dvrl_marl.viewer`), shows
+the first frame and waits until the person presses ENTER; steps then run in real time, one per 20 ms control
+period (frames are dropped before steps are; ``realtime_stats()`` gives steps late and the worst lag). The window's
+overlay shows the blood left per cavity, debris found and delivered, elapsed time and the key map. Closing the
+window (or ESC) ends the episode at that step: every agent truncates with ``infos[agent]["viewer_closed"] = True``.
+
 ## Agents and Action Spaces
 | agent | tool | action ``Box(-1, 1, (4,), float32)`` |
 |---|---|---|
@@ -64,11 +71,13 @@ the ones after it); other keys are ignored with a warning.
 
 ## Episode End
 Complete (every cavity below ``blood_threshold_ml`` and every debris delivered): all agents terminate.
-``max_cycles`` steps: all agents truncate. ``infos[agent]``: ``blood_remaining`` (ml, total),
+``max_cycles`` steps: all agents truncate. The person closed the window (``render_mode="human"``): all agents
+truncate, with ``viewer_closed``. ``infos[agent]``: ``blood_remaining`` (ml, total),
 ``blood_remaining_per_cavity``, ``debris_delivered``, ``collision``, ``is_success``.
 
 ## Arguments
-``surgeon``, ``surgeon_seat``, ``reward_type``, ``render_mode`` ("rgb_array" | "human"), ``max_cycles``,
+``surgeon``, ``surgeon_seat``, ``reward_type``, ``render_mode`` ("rgb_array" | "human": a window, stepped in
+real time at 50 Hz), ``max_cycles``,
 ``blood_ml``, ``blood_threshold_ml``, ``suction_rate_ml_s``, ``debris_count``, ``contact_penalty``,
 ``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
 ``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris.toml``.
@@ -80,6 +89,8 @@ rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s``
 
 ## Version History
 - v0: initial release. The batched form (same trajectories) was added without a version change.
+  ``render_mode="human"`` became a window of the project's own, drawn in ``step()`` and paced to 50 Hz, with ENTER
+  to start for a person's device (frames and timing only: trajectories are unchanged).
 """
 
 from __future__ import annotations
@@ -113,6 +124,7 @@ from dvrl_marl.core.collaborative import (
 )
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.rendering import SceneRenderer
+from dvrl_marl.teleop.pacing import PacedDisplay
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import load_task_table
 
@@ -321,8 +333,13 @@ class SuctionDebrisEnv(ParallelEnv):
         self._surgeon, self._surgeon_is_device = self._bind_surgeon(surgeon, surgeon_seat)
         self.possible_agents = [a for a in AGENTS if a != self.surgeon_seat]
         self.agents = []
+        device = self._surgeon if self._surgeon_is_device else None
+        #: A person works the seat (their device says so): episodes start on ENTER and run in real time.
+        self.human_seat = bool(getattr(device, "human_operated", False))
         self._renderer = SceneRenderer(self.model, self.data, render_mode, width=width, height=height,
-                                       key_callback=getattr(self._surgeon, "key_callback", None))
+                                       key_listener=getattr(device, "key_event", None), overlay=self.overlay,
+                                       title="dvrl-marl: suction & debris", frame_budget=0.5 * p.control_dt)
+        self._display = PacedDisplay(self._renderer, p.control_dt) if render_mode == "human" else None
         self._executor = None
         self._pending_teleop = None
         self._rng = np.random.default_rng()
@@ -422,6 +439,8 @@ class SuctionDebrisEnv(ParallelEnv):
         self._work_distances = {agent: self._work_distance(agent) for agent in AGENTS}
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
+        if self._display is not None:
+            self._display.start_episode(wait_for_enter=self.human_seat)
         observations = {agent: self._observe(agent) for agent in self.agents}
         infos = {agent: self._info(False, False) for agent in self.agents}
         return observations, infos
@@ -430,6 +449,8 @@ class SuctionDebrisEnv(ParallelEnv):
         if not self.agents:
             raise ValueError("suction_debris_v0: step() called after the episode ended; call reset()")
         commands = self._read_actions(actions)
+        if self._display is not None:
+            self._display.before_step()  # the key events since the last step reach the seat's device now
         teleop_lost = False
         if self._surgeon is not None:
             command, teleop_lost = self._seat_command()
@@ -460,9 +481,32 @@ class SuctionDebrisEnv(ParallelEnv):
                 info["teleop_lost"] = True
         terminations = {agent: complete for agent in self.agents}
         truncations = {agent: truncated for agent in self.agents}
-        if complete or truncated:
+        if self._display is not None:
+            self._display.after_step()  # draw if there is time, then wait for the end of the 20 ms period
+            if self._display.closed and not complete:  # the person closed the window: the episode ends here
+                truncations = {agent: True for agent in self.agents}
+                for info in infos.values():
+                    info["viewer_closed"] = True
+        if complete or any(truncations.values()):
             self.agents = []
         return observations, rewards, terminations, truncations, infos
+
+    @property
+    def surgeon_label(self) -> str | None:
+        """Who fills the surgeon seat, in a word (a device's ``label``, else its type); None when it is empty."""
+        if self._surgeon is None:
+            return None
+        return str(getattr(self._surgeon, "label", None) or type(self._surgeon).__name__)
+
+    @property
+    def window(self):
+        """``render_mode="human"``: the scene's window (:class:`dvrl_marl.viewer.ViewerWindow`), e.g. for a
+        screenshot; None in the other modes."""
+        return self._renderer.viewer
+
+    def realtime_stats(self) -> dict | None:
+        """``render_mode="human"``: how well the episode kept real time (steps late, worst lag, frames dropped)."""
+        return self._display.stats() if self._display is not None else None
 
     def state(self) -> np.ndarray:
         """The global state: tips, jaw, valve, blood, every debris (hidden included), hand-off point."""
@@ -484,6 +528,25 @@ class SuctionDebrisEnv(ParallelEnv):
             self._executor = None
         if self._surgeon_is_device and hasattr(self._surgeon, "close"):
             self._safe_device_call(self._surgeon.close)
+
+    def overlay(self) -> list[tuple[str, str, str]]:
+        """What the window draws over the scene (``render_mode="human"``): ``(position, labels, values)`` panels."""
+        blood = " + ".join(f"{v:.1f}" for v in self.blood.remaining_ml)
+        found = sum(pin.visible or pin.delivered for pin in self.debris)
+        delivered = sum(pin.delivered for pin in self.debris)
+        seat = f"{self.surgeon_seat} ({self.surgeon_label})" if self.surgeon_seat else "none"
+        overlays = [("top left",
+                     "Blood left (ml)\nDebris found\nDebris delivered\nTime\nSurgeon seat",
+                     f"{blood}\n{found} / {len(self.debris)}\n{delivered} / {len(self.debris)}\n"
+                     f"{self._step_count * self.params.control_dt:.1f} s\n{seat}")]
+        help_rows = getattr(self._surgeon, "KEY_HELP", None) if self._surgeon_is_device else None
+        if help_rows:
+            overlays.append(("bottom right", "\n".join(k for k, _ in help_rows), "\n".join(v for _, v in help_rows)))
+        if self._display is not None and self._display.waiting:
+            overlays.append(("top", "Press ENTER to start", ""))
+        elif self.agents == [] and self._step_count > 0:
+            overlays.append(("top", "SUCCESS: the field is clear" if self._complete() else "Episode over", ""))
+        return overlays
 
     def set_state(self, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible, delivered) -> None:
         """Put the scene in a given state (tips in each arm's base frame), e.g. to render a batched world."""

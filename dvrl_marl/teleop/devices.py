@@ -1,4 +1,5 @@
-"""Teleoperation devices: the protocol, a keyboard through MuJoCo's viewer, replay of recordings, a recorder."""
+"""Teleoperation devices: the protocol, a keyboard (held keys, in the scene's window), replay of recordings, a
+recorder."""
 
 from __future__ import annotations
 
@@ -68,28 +69,64 @@ def load_demonstration(path) -> tuple[np.ndarray, np.ndarray, dict]:
 
 
 class KeyboardDevice:
-    """Keys pressed in MuJoCo's viewer drive the seat: each press moves the tip for ``repeat`` steps.
+    """A person at the keyboard: a held key moves the tip, releasing it stops it.
 
-    ``A``/``D``: -x/+x, ``S``/``W``: -y/+y, ``F``/``R``: down/up, ``SPACE``: toggle the jaw (LND) or the suction valve.
-    Pass :meth:`key_callback` to ``mujoco.viewer.launch_passive`` (the environment does this for ``render_mode="human"``).
+    ``A``/``D``: -x/+x, ``S``/``W``: -y/+y, ``F``/``R``: down/up (keys held together combine; opposite keys cancel),
+    ``SPACE``: toggle the jaw (LND: open <-> closed) or the suction valve, ``SHIFT`` held: move at
+    ``precision_speed`` for fine work near a pin. The seat moves ``eta * speed`` per 20 ms step along each held axis
+    (50 mm/s at full speed with eta = 1 mm). The jaw (or valve) starts at +1: open.
+
+    In ``render_mode="human"`` the environment opens its window (:mod:`dvrl_marl.viewer`) and feeds
+    :meth:`key_event` every key down, repeat and up; because the device is ``human_operated`` the environment waits
+    for ENTER before each episode and paces steps to the 50 Hz control rate. Outside that window, call
+    :meth:`key_event` with GLFW's codes yourself. :meth:`key_callback` takes MuJoCo's passive viewer, which reports
+    presses only: there each press moves the tip for ``repeat`` steps.
     """
 
+    human_operated = True  # a person drives it: real time, and the episode starts when they say so
+    label = "keyboard"
     KEYS = {65: (0, -1.0), 68: (0, 1.0), 83: (1, -1.0), 87: (1, 1.0), 70: (2, -1.0), 82: (2, 1.0)}
     TOGGLE = 32
+    SHIFT_KEYS = (340, 344)  # GLFW's left and right SHIFT
+    _PRESS, _RELEASE, _REPEAT = 1, 0, 2
+    #: The key map as the window's overlay shows it.
+    KEY_HELP = (("A / D", "-x / +x"), ("S / W", "-y / +y"), ("F / R", "down / up"), ("SPACE", "jaw / valve"),
+                ("SHIFT", "slow, precise"), ("TAB", "free camera"), ("ESC", "quit"))
 
-    def __init__(self, repeat: int = 5, action_dim: int = 4):
+    def __init__(self, repeat: int = 5, action_dim: int = 4, speed: float = 1.0, precision_speed: float = 0.25):
+        for name, value in (("speed", speed), ("precision_speed", precision_speed)):
+            if not 0.0 < value <= 1.0:
+                raise ValueError(f"KeyboardDevice: {name} must be in (0, 1] (a fraction of the action range), "
+                                 f"got {value!r}")
         self.repeat = int(repeat)
         self.action_dim = int(action_dim)
+        self.speed, self.precision_speed = float(speed), float(precision_speed)
         self._lock = threading.Lock()
         self.reset()
 
     def reset(self) -> None:
         with self._lock:
+            self._held: set[int] = set()
+            self._precise = False
             self._pending = np.zeros(3)
             self._remaining = 0
-            self._last = 1.0  # jaw open / valve ... set by the first toggle
+            self._last = 1.0
+
+    def key_event(self, key: int, action: int, mods: int = 0) -> None:
+        """One key event in GLFW's terms: ``action`` 1 press, 2 auto-repeat, 0 release; ``mods`` bit 1 = SHIFT."""
+        with self._lock:
+            if key in self.SHIFT_KEYS:
+                self._precise = action != self._RELEASE
+            elif key in self.KEYS:
+                if action == self._RELEASE:
+                    self._held.discard(key)
+                else:
+                    self._held.add(key)
+            elif key == self.TOGGLE and action == self._PRESS:
+                self._last = -self._last
 
     def key_callback(self, keycode: int) -> None:
+        """A key press from MuJoCo's passive viewer (no releases there): a move key moves for ``repeat`` steps."""
         with self._lock:
             if keycode in self.KEYS:
                 axis, sign = self.KEYS[keycode]
@@ -99,10 +136,23 @@ class KeyboardDevice:
             elif keycode == self.TOGGLE:
                 self._last = -self._last
 
+    @property
+    def moving(self) -> bool:
+        """True while a move key is held."""
+        with self._lock:
+            return bool(self._held)
+
     def action(self, observation) -> np.ndarray:
         with self._lock:
-            move = self._pending.copy() if self._remaining > 0 else np.zeros(3)
-            self._remaining = max(self._remaining - 1, 0)
+            move = np.zeros(3)
+            for key in self._held:
+                axis, sign = self.KEYS[key]
+                move[axis] += sign
+            move *= self.precision_speed if self._precise else self.speed
+            if self._remaining > 0:
+                move += self._pending
+                self._remaining -= 1
+            np.clip(move, -1.0, 1.0, out=move)
             return np.append(move, self._last)[: self.action_dim].astype(np.float32)
 
     def close(self) -> None:
@@ -111,6 +161,8 @@ class KeyboardDevice:
 
 class ReplayDevice:
     """Plays back recorded actions (an array, or a demonstration file); then holds still with the last jaw/valve."""
+
+    label = "replay"
 
     def __init__(self, actions_or_path):
         if isinstance(actions_or_path, (str, Path)):
@@ -169,3 +221,10 @@ class Recorder:
     def close(self) -> None:
         if hasattr(self.device, "close"):
             self.device.close()
+
+    def __getattr__(self, name):
+        # The rest is the wrapped device's (key_event, human_operated, KEY_HELP...): a recorded keyboard still
+        # gets its keys and its pacing.
+        if name.startswith("__") or name in ("device", "metadata", "observations", "actions"):
+            raise AttributeError(name)
+        return getattr(self.device, name)

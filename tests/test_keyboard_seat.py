@@ -1,0 +1,285 @@
+"""The human seat at the desktop: held keys, real-time pacing, ENTER to start, closing the window, recording.
+
+The window tests run the real thing as a person meets it: ``dvrl-marl demo --surgeon keyboard`` in a window on a
+virtual X screen (Xvfb), keys sent by xdotool; they skip where Xvfb or xdotool is missing (.ci/run installs them).
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dvrl_marl  # noqa: F401  (registration)
+from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.teleop import KeyboardDevice, RealTimePacer, Recorder, load_demonstration
+
+PRESS, RELEASE, REPEAT = 1, 0, 2
+KEY_D, KEY_W, KEY_A, KEY_R, SPACE, LEFT_SHIFT = 68, 87, 65, 82, 32, 340
+
+
+# --- the keyboard device: held keys -----------------------------------------------------------------------------
+def test_a_held_key_moves_until_it_is_released():
+    keyboard = KeyboardDevice()
+    assert keyboard.action(None).tolist() == [0.0, 0.0, 0.0, 1.0]
+    keyboard.key_event(KEY_D, PRESS)
+    for _ in range(20):  # held: every step moves, however many steps pass
+        assert keyboard.action(None).tolist() == [1.0, 0.0, 0.0, 1.0]
+    keyboard.key_event(KEY_D, REPEAT)  # the system's auto-repeat changes nothing
+    assert keyboard.action(None).tolist() == [1.0, 0.0, 0.0, 1.0]
+    keyboard.key_event(KEY_D, RELEASE)
+    assert keyboard.action(None).tolist() == [0.0, 0.0, 0.0, 1.0]
+    assert not keyboard.moving
+
+
+def test_keys_combine_cancel_slow_down_and_toggle():
+    keyboard = KeyboardDevice(precision_speed=0.25)
+    keyboard.key_event(KEY_D, PRESS)
+    keyboard.key_event(KEY_W, PRESS)
+    keyboard.key_event(KEY_R, PRESS)
+    assert keyboard.action(None).tolist() == [1.0, 1.0, 1.0, 1.0]
+    keyboard.key_event(KEY_A, PRESS)  # A against D: x cancels
+    assert keyboard.action(None).tolist() == [0.0, 1.0, 1.0, 1.0]
+    keyboard.key_event(LEFT_SHIFT, PRESS, 1)
+    assert keyboard.action(None).tolist() == [0.0, 0.25, 0.25, 1.0]
+    keyboard.key_event(LEFT_SHIFT, RELEASE)
+    keyboard.key_event(SPACE, PRESS)
+    keyboard.key_event(SPACE, REPEAT)  # holding SPACE toggles once
+    keyboard.key_event(SPACE, RELEASE)
+    assert keyboard.action(None)[3] == -1.0
+    keyboard.reset()
+    assert keyboard.action(None).tolist() == [0.0, 0.0, 0.0, 1.0]
+
+
+def test_press_only_viewers_still_get_a_pulse():
+    keyboard = KeyboardDevice(repeat=3)
+    keyboard.key_callback(KEY_D)
+    moves = [keyboard.action(None)[0] for _ in range(5)]
+    assert moves == [1.0, 1.0, 1.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("bad", [{"speed": 0.0}, {"precision_speed": 1.5}, {"speed": float("nan")}])
+def test_keyboard_speeds_are_checked(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        KeyboardDevice(**bad)
+
+
+def test_a_recorded_keyboard_keeps_its_keys_and_its_person():
+    keyboard = KeyboardDevice()
+    recorder = Recorder(keyboard, seat="grasper")
+    assert recorder.human_operated and recorder.KEY_HELP == KeyboardDevice.KEY_HELP
+    recorder.key_event(KEY_D, PRESS)
+    assert recorder.action(np.zeros(3))[0] == 1.0 and len(recorder.actions) == 1
+    with pytest.raises(AttributeError):
+        Recorder(lambda observation: observation).key_event  # noqa: B018
+
+
+def test_the_held_keyboard_drives_the_seat_without_a_window():
+    keyboard = KeyboardDevice()
+    env = suction_debris_v0.parallel_env(surgeon=keyboard)
+    env.reset(seed=3)
+    start = np.array(env.arms["grasper"].tip)
+    keyboard.key_event(KEY_W, PRESS)
+    for _ in range(4):
+        env.step({"suction": np.zeros(4)})
+    keyboard.key_event(KEY_W, RELEASE)
+    for _ in range(3):
+        env.step({"suction": np.zeros(4)})
+    np.testing.assert_allclose(np.array(env.arms["grasper"].tip) - start, [0.0, 0.004, 0.0], atol=1e-12)
+    assert env.realtime_stats() is None  # no window: not paced
+
+
+# --- the pacer ----------------------------------------------------------------------------------------------------
+class _FakeClock:
+    """Time that passes only when the code sleeps or a step does work."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+    def sleep(self, seconds):
+        assert seconds >= 0
+        self.now += seconds
+
+
+def test_paced_steps_never_run_ahead_of_the_clock():
+    clock = _FakeClock()
+    pacer = RealTimePacer(0.02, clock=clock, sleep=clock.sleep)
+    began = clock.now
+    for step in range(1, 201):
+        clock.now += 0.003  # the step's own work
+        assert pacer.wait() == 0.0
+        assert clock.now >= began + step * 0.02 - 1e-12
+    stats = pacer.stats()
+    assert stats["paced_steps"] == 200 and stats["steps_late"] == 0 and stats["worst_lag_ms"] == 0.0
+    assert stats["paced_wall_seconds"] == pytest.approx(4.0) and stats["paced_sim_seconds"] == 4.0
+
+
+def test_late_steps_are_counted_and_do_not_rush_the_next_ones():
+    clock = _FakeClock()
+    pacer = RealTimePacer(0.02, clock=clock, sleep=clock.sleep)
+    clock.now += 0.025  # step 1 overruns by 5 ms: late, the next deadline stays on the schedule
+    assert pacer.wait() == pytest.approx(0.005)
+    clock.now += 0.001
+    pacer.wait()
+    assert clock.now == pytest.approx(100.04)
+    clock.now += 0.100  # step 3 stalls 80 ms: the schedule restarts from now instead of bursting to catch up
+    assert pacer.wait() == pytest.approx(0.08)
+    before = clock.now
+    clock.now += 0.001
+    pacer.wait()
+    assert clock.now == pytest.approx(before + 0.02)  # a full period later, not at once
+    stats = pacer.stats()
+    assert stats["steps_late"] == 2 and stats["worst_lag_ms"] == pytest.approx(80.0) and stats["resyncs"] == 1
+    with pytest.raises(ValueError, match="period"):
+        RealTimePacer(0.0)
+
+
+def test_the_real_clock_is_never_beaten():
+    pacer = RealTimePacer(0.01)
+    began = time.monotonic()
+    for _ in range(20):
+        pacer.wait()
+    assert time.monotonic() - began >= 0.2
+
+
+# --- real windows on a virtual screen -----------------------------------------------------------------------------
+def _xdotool(display, *arguments):
+    return subprocess.run(["xdotool", *arguments], env={**os.environ, "DISPLAY": display}, check=True,
+                          capture_output=True, text=True, timeout=30).stdout
+
+
+@pytest.fixture
+def desktop(x_display):
+    if shutil.which("xdotool") is None:
+        pytest.skip("xdotool is not installed (Debian: apt-get install xdotool); .ci/run installs it")
+    return x_display
+
+
+def _start_demo(display, tmp_path, max_cycles):
+    environment = {**os.environ, "DISPLAY": display}
+    environment.pop("MUJOCO_GL", None)  # as a desktop user runs it
+    command = [sys.executable, "-m", "dvrl_marl.cli", "demo", "--surgeon", "keyboard", "--max-cycles", str(max_cycles),
+               "--record", str(tmp_path / "seat.npz"), "--out", str(tmp_path / "run"), "--no-progress"]
+    process = subprocess.Popen(command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    window = _xdotool(display, "search", "--sync", "--name", "dvrl-marl").split()[0]  # waits for the window
+    for _ in range(100):  # keys go where the focus is, as at a desktop (no window manager here to give it)
+        subprocess.run(["xdotool", "windowfocus", window], env=environment, capture_output=True, timeout=30)
+        if subprocess.run(["xdotool", "getwindowfocus"], env=environment, capture_output=True, text=True,
+                          timeout=30).stdout.strip() == window:
+            break
+        time.sleep(0.1)
+    else:
+        raise AssertionError("the demo's window never took the keyboard focus")
+    return process, window
+
+
+def _finish(process, tmp_path):
+    """Wait for the demo to end on its own; its output and metrics."""
+    try:
+        output, _ = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 0, output
+    return output, json.loads((tmp_path / "run" / "metrics.json").read_text())
+
+
+def test_a_person_drives_the_surgeon_in_real_time(desktop, tmp_path):
+    process, window = _start_demo(desktop, tmp_path, max_cycles=150)
+    time.sleep(2.0)  # unpaced, 150 steps take a fraction of a second: the episode must wait for ENTER
+    assert process.poll() is None, process.communicate()[0]
+    _xdotool(desktop, "key", "Return")
+    time.sleep(0.3)
+    _xdotool(desktop, "keydown", "d")
+    time.sleep(1.0)
+    _xdotool(desktop, "keyup", "d")
+    _, metrics = _finish(process, tmp_path)
+    assert metrics["steps"] == 150 and metrics["surgeon"] == "keyboard"
+    assert metrics["wall_seconds"] >= metrics["sim_seconds"] == 3.0
+    realtime = metrics["realtime"]
+    assert realtime["paced_steps"] == 150 and realtime["paced_wall_seconds"] >= realtime["paced_sim_seconds"]
+    assert {"steps_late", "worst_lag_ms", "frames_dropped"} <= set(realtime)
+
+    observations, actions, metadata = load_demonstration(tmp_path / "seat.npz")
+    assert metadata["surgeon"] == "keyboard" and actions.shape == (150, 4)
+    moving = np.flatnonzero(np.any(actions[:, :3] != 0, axis=1))
+    assert 40 <= len(moving) <= 60, f"D held for 1 s moved the tip for {len(moving)} steps (about 50 expected)"
+    assert np.all(actions[moving, 0] == 1.0) and np.all(actions[moving, 1:3] == 0.0)  # +x only
+    assert np.all(np.diff(moving) == 1)  # one continuous hold, no pulses
+    assert actions[0, :3].tolist() == [0.0, 0.0, 0.0]  # ENTER started it; D came after
+    tip = suction_debris_v0.parallel_env().observation_layout["own_tip"]
+    assert observations[-1, tip][0] > observations[0, tip][0] + 0.1  # the LND went +x...
+    np.testing.assert_allclose(observations[-1, tip][1:], observations[0, tip][1:], atol=1e-9)  # ...and only +x
+
+
+def _close_like_a_window_manager(display, window):
+    """Send WM_DELETE_WINDOW, what a window manager sends when a person clicks the close button."""
+    from Xlib import X, display as xdisplay, protocol
+
+    connection = xdisplay.Display(display)
+    target = connection.create_resource_object("window", int(window))
+    message = protocol.event.ClientMessage(
+        window=target, client_type=connection.intern_atom("WM_PROTOCOLS"),
+        data=(32, [connection.intern_atom("WM_DELETE_WINDOW"), X.CurrentTime, 0, 0, 0]))
+    target.send_event(message, event_mask=X.NoEventMask)
+    connection.flush()
+    connection.close()
+
+
+def test_closing_the_window_ends_the_episode_and_keeps_the_metrics(desktop, tmp_path):
+    pytest.importorskip("Xlib", reason="python-xlib (the test extra) sends the window manager's close message")
+    process, window = _start_demo(desktop, tmp_path, max_cycles=1500)
+    _xdotool(desktop, "key", "Return")
+    _xdotool(desktop, "keydown", "w")
+    time.sleep(1.0)
+    _close_like_a_window_manager(desktop, window)
+    output, metrics = _finish(process, tmp_path)
+    _xdotool(desktop, "keyup", "w")  # the virtual screen's keyboard is shared with the next test
+    assert "the window was closed" in output
+    assert metrics["viewer_closed"] and 10 < metrics["steps"] < 1500 and not metrics["success"]
+    _, actions, _ = load_demonstration(tmp_path / "seat.npz")
+    assert len(actions) == metrics["steps"] and actions[:, 1].max() == 1.0
+
+
+def test_escape_before_enter_ends_without_an_episode(desktop, tmp_path):
+    process, window = _start_demo(desktop, tmp_path, max_cycles=1500)
+    _xdotool(desktop, "key", "Escape")
+    _, metrics = _finish(process, tmp_path)
+    assert metrics["viewer_closed"] and metrics["steps"] <= 1
+
+
+def test_single_arm_envs_draw_in_a_window(x_display, monkeypatch):
+    monkeypatch.setenv("DISPLAY", x_display)
+    for env_id in ("dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"):
+        env = gym.make(env_id, render_mode="human")
+        env.reset(seed=0)
+        for _ in range(3):
+            env.step(env.action_space.sample())
+            assert env.render() is None
+        frame = env.unwrapped.window.screenshot()
+        assert frame.shape == (480, 640, 3) and frame.std() > 5
+        env.close()
+
+
+def test_the_window_overlay_tells_a_person_what_to_do(x_display, monkeypatch):
+    monkeypatch.setenv("DISPLAY", x_display)
+    env = suction_debris_v0.parallel_env(surgeon=KeyboardDevice(), render_mode="human", max_cycles=5)
+    assert env.surgeon_label == "keyboard" and env.human_seat
+    texts = {position: left + "|" + right for position, left, right in env.overlay()}
+    assert "Blood left" in texts["top left"] and "8.0 + 8.0" in texts["top left"]
+    assert "grasper (keyboard)" in texts["top left"] and "0 / 3" in texts["top left"]
+    assert "SPACE" in texts["bottom right"] and "jaw" in texts["bottom right"]
+    env.window.draw(env.overlay())
+    with_overlay = env.window.screenshot()
+    env.window.draw(())
+    without = env.window.screenshot()
+    changed = np.any(with_overlay != without, axis=2)
+    assert changed[:120, :300].mean() > 0.05 and changed[-200:, -200:].mean() > 0.05  # both panels are drawn
+    env.close()
