@@ -140,7 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="who works the LND (default: the learned Reach + Pick pipeline)")
     demo.add_argument("--out", help="run folder (default runs/demo-<timestamp>)")
     demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--max-cycles", type=int, help="truncate the episode after this many steps")
+    demo.add_argument("--max-cycles", type=int, help="truncate the episode after this many steps (default: the "
+                      "task's 1500; 6000, two minutes, for --surgeon keyboard)")
     demo.add_argument("--pipeline", help="pipeline name or TOML file (default: learned_team)")
     demo.add_argument("--team", choices=["pipeline", "marl"], default="pipeline",
                       help="pipeline: composed single-arm policies (default); marl: the team learned by MAPPO")

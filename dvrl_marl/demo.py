@@ -27,6 +27,9 @@ from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 __all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
 SURGEONS = ("learned", "scripted", "keyboard")
+#: A person at the keyboard gets 2 minutes (6,000 steps) unless ``max_cycles`` says otherwise: the task's 1,500
+#: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.
+KEYBOARD_MAX_CYCLES = 6000
 TEAMS = ("pipeline", "marl")
 _LEARNED_POLICIES = ("reach-lnd", "reach-suction-irrigation", "pick-lnd")
 
@@ -58,6 +61,8 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
     plans = None if team == "marl" else load_pipeline(pipeline)
     render_mode = "human" if surgeon == "keyboard" else ("rgb_array" if video else None)
     kwargs = {"render_mode": render_mode, "width": width, "height": height}
+    if max_cycles is None and surgeon == "keyboard":
+        max_cycles = KEYBOARD_MAX_CYCLES
     if max_cycles is not None:
         kwargs["max_cycles"] = max_cycles
     keyboard = None

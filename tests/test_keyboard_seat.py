@@ -94,6 +94,56 @@ def test_the_held_keyboard_drives_the_seat_without_a_window():
     assert env.realtime_stats() is None  # no window: not paced
 
 
+class _KeyPresser:
+    """A stand-in for a person: holds the keys that point where the scripted surgeon would move (SHIFT for small
+    moves) and taps SPACE when it would open or close the jaw. The arm sees only the keyboard's actions."""
+
+    AXES = ((KEY_A, KEY_D), (83, KEY_W), (70, KEY_R))  # (minus, plus) keys of x, y, z
+
+    def __init__(self, keyboard, expert):
+        self.keyboard, self.expert = keyboard, expert
+        self.held, self.precise, self.jaw = set(), False, 1.0
+
+    def reset(self):
+        self.keyboard.reset()
+        self.expert.reset()
+        self.held, self.precise, self.jaw = set(), False, 1.0
+
+    def action(self, observation):
+        wanted = self.expert(observation)
+        keys = {plus if wanted[axis] > 0 else minus
+                for axis, (minus, plus) in enumerate(self.AXES) if abs(wanted[axis]) >= 0.12}
+        for key in self.held - keys:
+            self.keyboard.key_event(key, RELEASE)
+        for key in keys - self.held:
+            self.keyboard.key_event(key, PRESS)
+        self.held = keys
+        precise = any(0.12 <= abs(value) < 0.6 for value in wanted[:3])
+        if precise != self.precise:
+            self.keyboard.key_event(LEFT_SHIFT, PRESS if precise else RELEASE)
+            self.precise = precise
+        if wanted[3] * self.jaw < 0:
+            self.keyboard.key_event(SPACE, PRESS)
+            self.keyboard.key_event(SPACE, RELEASE)
+            self.jaw = -self.jaw
+        return self.keyboard.action(observation)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_keys_alone_can_finish_the_episode(seed):
+    from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
+
+    layout = suction_debris_v0.parallel_env()
+    env = suction_debris_v0.parallel_env(surgeon=_KeyPresser(KeyboardDevice(), ScriptedSurgeon.for_env(layout)),
+                                         max_cycles=3000)
+    suction = ScriptedSuction.for_env(env)
+    observations, _ = env.reset(seed=seed)
+    while env.agents:
+        observations, _, _, _, infos = env.step({"suction": suction(observations["suction"])})
+    assert infos["suction"]["is_success"] and "teleop_lost" not in infos["suction"]
+    assert env.realtime_stats() is None
+
+
 # --- the pacer ----------------------------------------------------------------------------------------------------
 class _FakeClock:
     """Time that passes only when the code sleeps or a step does work."""
