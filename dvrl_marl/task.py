@@ -6,10 +6,12 @@ value can be overridden by keyword. Adding a task is adding a file.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from dvrl_marl.assets import tasks_dir
+from dvrl_marl.validation import check_integer, check_number, check_vector
 
 __all__ = ["TaskSpec", "load_task", "load_task_table", "available_tasks"]
 
@@ -42,18 +44,20 @@ class TaskSpec:
         return replace(self, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> "TaskSpec":
-        positive = ("workspace_range", "step_size", "distance_threshold", "control_dt", "max_episode_steps")
-        for key in positive:
-            value = getattr(self, key)
-            if not value > 0:
-                raise ValueError(f"task {self.name!r}: {key} must be positive, got {value!r}")
-        if self.tip_clearance < 0:
-            raise ValueError(f"task {self.name!r}: tip_clearance must be >= 0, got {self.tip_clearance!r}")
-        if self.grasp_threshold is not None and not 0.0 < self.grasp_threshold <= 1.0:
-            raise ValueError(f"task {self.name!r}: grasp_threshold must be in (0, 1], got {self.grasp_threshold!r}")
-        if len(self.workspace_centre) != 3:
-            raise ValueError(f"task {self.name!r}: workspace_centre needs 3 values, got {self.workspace_centre!r}")
-        return self
+        """Check every parameter (finite numbers in range); returns a copy with the numbers as Python numbers."""
+        owner = f"task {self.name!r}"
+        number = functools.partial(check_number, owner)
+        values = {key: number(key, getattr(self, key), low=0.0, low_open=True)
+                  for key in ("workspace_range", "step_size", "distance_threshold", "control_dt")}
+        values["max_episode_steps"] = check_integer(owner, "max_episode_steps", self.max_episode_steps, low=1)
+        values["tip_clearance"] = number("tip_clearance", self.tip_clearance, low=0.0)
+        values["workspace_centre"] = check_vector(owner, "workspace_centre", self.workspace_centre, 3)
+        if self.grasp_threshold is not None:
+            values["grasp_threshold"] = number("grasp_threshold", self.grasp_threshold, low=0.0, low_open=True,
+                                               high=1.0)
+        if self.initial_jaw is not None:
+            values["initial_jaw"] = number("initial_jaw", self.initial_jaw, low=0.0, high=1.0)
+        return replace(self, **values)
 
 
 def available_tasks() -> list[str]:

@@ -127,6 +127,7 @@ from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.teleop.pacing import PacedDisplay
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import load_task_table
+from dvrl_marl.validation import check_integer, check_number, check_vector
 
 __all__ = ["parallel_env", "env", "raw_env", "batched_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS"]
 
@@ -163,23 +164,23 @@ class SuctionDebrisParams:
             raise TypeError(f"suction_debris_v0() got an unexpected keyword argument {sorted(unknown)[0]!r}")
         values = {k: v for k, v in table.items() if k in names}
         values.update({k: v for k, v in overrides.items() if v is not None})
-        values["workspace_centre"] = tuple(float(v) for v in values["workspace_centre"])
-        values["blood_ml"] = tuple(float(v) for v in values["blood_ml"])
         return cls(**values).validated()
 
     def validated(self) -> "SuctionDebrisParams":
-        for key in ("workspace_range", "step_size", "distance_threshold", "control_dt", "suction_rate_ml_s"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"suction_debris_v0: {key} must be positive, got {getattr(self, key)!r}")
-        if not 0.0 < self.grasp_threshold <= 1.0:
-            raise ValueError(f"suction_debris_v0: grasp_threshold must be in (0, 1], got {self.grasp_threshold!r}")
-        if not 1 <= int(self.debris_count) <= 2 * len(_PIN_SLOTS):
-            raise ValueError(f"suction_debris_v0: debris_count must be in 1..{2 * len(_PIN_SLOTS)}, got {self.debris_count!r}")
-        if int(self.max_cycles) < 1:
-            raise ValueError(f"suction_debris_v0: max_cycles must be >= 1, got {self.max_cycles!r}")
-        if self.blood_threshold_ml < 0 or self.contact_penalty < 0 or self.tip_clearance < 0:
-            raise ValueError("suction_debris_v0: blood_threshold_ml, contact_penalty and tip_clearance must be >= 0")
-        return replace(self, debris_count=int(self.debris_count), max_cycles=int(self.max_cycles))
+        """Check every parameter (finite numbers in range); returns a copy with the numbers as Python numbers."""
+        owner = "suction_debris_v0"
+        values = {key: check_number(owner, key, getattr(self, key), low=0.0, low_open=True)
+                  for key in ("workspace_range", "step_size", "distance_threshold", "control_dt", "suction_rate_ml_s")}
+        values.update({key: check_number(owner, key, getattr(self, key), low=0.0)
+                       for key in ("blood_threshold_ml", "contact_penalty", "tip_clearance")})
+        values["grasp_threshold"] = check_number(owner, "grasp_threshold", self.grasp_threshold, low=0.0,
+                                                 low_open=True, high=1.0)
+        values["workspace_centre"] = check_vector(owner, "workspace_centre", self.workspace_centre, 3)
+        # (each cavity's capacity is checked by BloodState, which knows the cavities)
+        values["blood_ml"] = check_vector(owner, "blood_ml", self.blood_ml, len(assets.CAVITY_CENTRES), low=0.0)
+        values["debris_count"] = check_integer(owner, "debris_count", self.debris_count, low=1, high=2 * len(_PIN_SLOTS))
+        values["max_cycles"] = check_integer(owner, "max_cycles", self.max_cycles, low=1)
+        return replace(self, **values)
 
 
 @dataclass(frozen=True)
