@@ -24,6 +24,10 @@ SHIPPED = {
     "reach-lnd": ("reach_lnd_ddpg_her", {}),
     "reach-suction-irrigation": ("reach_suction_irrigation_ddpg_her", {"tool": "suction_irrigation"}),
     "pick-lnd": ("pick_lnd_ddpg_her_bc", {}),
+    # v1 environments: p is the dVRK's measured_cp frame
+    "reach-lnd-v1": ("reach_lnd_ddpg_her_v1", {}),
+    "reach-suction-irrigation-v1": ("reach_suction_irrigation_ddpg_her_v1", {"tool": "suction_irrigation"}),
+    "pick-lnd-v1": ("pick_lnd_ddpg_her_bc_v1", {}),
 }
 
 

@@ -32,16 +32,26 @@ def _as_slice(addresses):
 class Arm:
     """A PSM with ``tool`` whose bodies carry ``prefix`` (e.g. ``"psm/"``) in ``model``.
 
+    ``tip_frame`` says which point of the tool :attr:`tip` is (see :mod:`dvrl_marl.kinematics`):
+    ``"tool_point"`` (the jaw control point / tube tip) or ``"measured_cp"`` (the dVRK's frame, 10.2 mm behind it).
+
     Attributes:
         tool: the :class:`~dvrl_marl.kinematics.Tool`.
-        tip: current tip position (base frame, metres) as a list of 3 floats; read it, move it with
+        tip: current tip position p (base frame, metres) as a list of 3 floats; read it, move it with
             :meth:`set_tip` or :meth:`move`.
+        q: the joint vector that puts it there.
         jaw: current jaw value j in [0, 1] (LND only; 0 closed, 1 open).
         base_position, base_rotation: the base (RCM) frame in world coordinates.
     """
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, prefix: str, tool: kinematics.Tool | str):
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, prefix: str, tool: kinematics.Tool | str,
+                 tip_frame: str = "tool_point"):
         self.tool = kinematics.get_tool(tool)
+        if tip_frame not in kinematics.TIP_FRAMES:
+            raise ValueError(f"tip_frame must be one of {kinematics.TIP_FRAMES}, got {tip_frame!r}")
+        self.tip_frame = tip_frame
+        #: How far the tool point lies below :attr:`tip` (the tool points down): 0 when tip is the tool point.
+        self.tool_point_drop = self.tool.measured_cp_to_tool_point if tip_frame == "measured_cp" else 0.0
         self.model = model
         self.data = data
         self.prefix = prefix
@@ -88,7 +98,7 @@ class Arm:
     # --- motion -----------------------------------------------------------------------------------------
     def set_tip(self, x: float, y: float, z: float) -> None:
         """Put the tip at (x, y, z) (base frame); raises :class:`~dvrl_marl.kinematics.UnreachableError`."""
-        q = kinematics.inverse_kinematics_point(self.tool, x, y, z)
+        q = kinematics.inverse_kinematics_point(self.tool, x, y, z - self.tool_point_drop)
         self.data.qpos[self._joint_qpos] = q
         self.q = q
         self.tip[0], self.tip[1], self.tip[2] = x, y, z
@@ -96,7 +106,7 @@ class Arm:
     def reachable(self, x: float, y: float, z: float) -> bool:
         """Whether IK can reach (x, y, z) within the joint limits."""
         try:
-            kinematics.inverse_kinematics_point(self.tool, x, y, z)
+            kinematics.inverse_kinematics_point(self.tool, x, y, z - self.tool_point_drop)
         except kinematics.UnreachableError:
             return False
         return True
@@ -142,6 +152,15 @@ class Arm:
         world = self.to_world((x, y, z))
         return (float(world[0]), float(world[1]), float(world[2]))
 
+    def tool_point_world(self) -> tuple[float, float, float]:
+        """Where the tool acts (jaw control point / tube tip), world coordinates: :attr:`tool_point_drop` below the
+        tip."""
+        x, y, z = self.tip_world()
+        if self._axis_aligned:
+            return (x, y, z - self.tool_point_drop)
+        world = np.array((x, y, z)) - self.tool_point_drop * self.base_rotation[:, 2]
+        return (float(world[0]), float(world[1]), float(world[2]))
+
     def base_point(self, x: float, y: float, z: float) -> tuple[float, float, float]:
         """A world point in this arm's base frame (floats, no MuJoCo call): :meth:`to_base` for one point."""
         if self._axis_aligned:
@@ -152,7 +171,7 @@ class Arm:
 
     def grasp_sensor(self, point_world) -> bool:
         """The proximity sensor between the jaws: is ``point_world`` inside its volume (the grasp_zone site)?"""
-        tx, ty, tz = self.tip_world()
+        tx, ty, tz = self.tool_point_world()
         hx, hy, hz = self.grasp_zone_half_extents_base
         if self._axis_aligned:
             rx, ry, rz = point_world[0] - tx, point_world[1] - ty, point_world[2] - tz

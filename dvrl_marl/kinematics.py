@@ -13,6 +13,13 @@ Forward kinematics uses the modified Denavit-Hartenberg convention (Craig): each
   lengths; the values chosen are :data:`SUCTION_IRRIGATION_PITCH_OFFSET` and
   :data:`SUCTION_IRRIGATION_TUBE_LENGTH` below, the only place they are set.
 
+**Two points on the tool.** The *tool point* is where the tool acts: the LND's jaw control point (row 7 above) or
+the S&I's tube tip. The dVRK itself reports (``measured_cp``) and commands (``servo_cp``) the origin of the last
+frame of its tool file, the wrist-yaw frame, :attr:`Tool.measured_cp_to_tool_point` (10.2 mm for both tools) behind
+the tool point along the tool's axis; the original dVRL code's end-effector p (and so its p_c) is that frame too.
+Version 0 of the single-arm environments moves the tool point; version 1 moves the dVRK's frame
+(:func:`measured_cp_from_tool_point`, and :mod:`dvrl_marl.frames` for a dVRK arm's base frame).
+
 Inverse kinematics solves for a tool-tip position with the fixed orientation the environments use (tool
 pointing straight down, -z of the base frame, with the home roll). For both tools the solution is closed
 form (see :func:`inverse_kinematics`) and batched over any leading axes.
@@ -40,6 +47,10 @@ __all__ = [
     "within_limits",
     "wrist_position_point",
     "get_tool",
+    "measured_cp_forward_kinematics",
+    "measured_cp_from_tool_point",
+    "tool_point_from_measured_cp",
+    "TIP_FRAMES",
 ]
 
 # --- Link lengths (metres) --------------------------------------------------------------------------------
@@ -57,6 +68,13 @@ SUCTION_IRRIGATION_PITCH_OFFSET = L_RCC - 0.447
 #: S&I: the paper's l_5 (frame 6 ``a = l_5``), pitch axis to the tube tip. Chosen from CRESSim-Neo: 6 mm pitch
 #: to yaw plus 10.2 mm yaw to tip, collapsed onto one tube because the paper's S&I table ends at frame 6.
 SUCTION_IRRIGATION_TUBE_LENGTH = 0.006 + 0.0102
+#: S&I: its wrist-yaw frame origin (the dVRK's measured_cp by the LND's rule: the last frame of the tool's chain)
+#: lies 10.2 mm behind the tube tip (CRESSim-Neo's yaw-to-tip length, the same 10.2 mm as the LND's).
+SUCTION_IRRIGATION_YAW2TIP = 0.0102
+
+#: The points a single-arm environment can move (its p): ``"tool_point"`` (v0: jaw control point / tube tip) or
+#: ``"measured_cp"`` (v1: the dVRK's reported and commanded frame).
+TIP_FRAMES = ("tool_point", "measured_cp")
 
 _HALF_PI = math.pi / 2
 
@@ -114,6 +132,9 @@ class Tool:
     wrist_link: float
     tip_drop: float
     has_jaw: bool
+    #: Distance from the dVRK's measured_cp origin (the wrist-yaw frame) forward along the tool axis to the tool
+    #: point (LND: l_yaw2ctrlpnt; S&I: :data:`SUCTION_IRRIGATION_YAW2TIP`).
+    measured_cp_to_tool_point: float = 0.0
 
     @property
     def n_joints(self) -> int:
@@ -155,6 +176,7 @@ LND = Tool(
     wrist_link=L_PITCH2YAW,
     tip_drop=L_YAW2CTRLPNT,
     has_jaw=True,
+    measured_cp_to_tool_point=L_YAW2CTRLPNT,
 )
 
 #: Suction & Irrigation: the LND's frames without the roll joint (paper Table I); 5 joints.
@@ -176,6 +198,7 @@ SUCTION_IRRIGATION = Tool(
     wrist_link=SUCTION_IRRIGATION_TUBE_LENGTH,
     tip_drop=0.0,
     has_jaw=False,
+    measured_cp_to_tool_point=SUCTION_IRRIGATION_YAW2TIP,
 )
 
 TOOLS = {LND.name: LND, SUCTION_IRRIGATION.name: SUCTION_IRRIGATION}
@@ -183,6 +206,33 @@ TOOLS = {LND.name: LND, SUCTION_IRRIGATION.name: SUCTION_IRRIGATION}
 #: The fixed tip orientation used by the environments (columns: tip x, y, z axes in the base frame). It is the
 #: LND's home orientation: tool pointing down (-z), jaws opening about the base y axis.
 TIP_ROTATION_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+def measured_cp_from_tool_point(tool: Tool | str, position) -> np.ndarray:
+    """The dVRK's measured_cp position(s) for tool point position(s) ``(..., 3)`` with the tool pointing down
+    (base frame, metres): ``measured_cp_to_tool_point`` straight above."""
+    tool = get_tool(tool)
+    result = np.array(position, dtype=np.float64)
+    result[..., 2] += tool.measured_cp_to_tool_point
+    return result
+
+
+def tool_point_from_measured_cp(tool: Tool | str, position) -> np.ndarray:
+    """Inverse of :func:`measured_cp_from_tool_point`."""
+    tool = get_tool(tool)
+    result = np.array(position, dtype=np.float64)
+    result[..., 2] -= tool.measured_cp_to_tool_point
+    return result
+
+
+def measured_cp_forward_kinematics(tool: Tool | str, q) -> np.ndarray:
+    """The dVRK's measured_cp pose(s) ``(..., 4, 4)``: the tool point's frame moved back along its z axis (the tool
+    axis) by ``measured_cp_to_tool_point``. For the LND this is the origin of DH row 6, the end of
+    ``LARGE_NEEDLE_DRIVER_400006.json``."""
+    tool = get_tool(tool)
+    pose = forward_kinematics(tool, q)
+    pose[..., :3, 3] -= tool.measured_cp_to_tool_point * pose[..., :3, 2]
+    return pose
 
 
 def get_tool(tool: Tool | str) -> Tool:

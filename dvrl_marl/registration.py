@@ -14,6 +14,11 @@ SINGLE_ARM_ENV_IDS = {
     "dvrl_marl/PSMReachDense-v0": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "dense"}),
     "dvrl_marl/PSMPick-v0": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "sparse"}),
     "dvrl_marl/PSMPickDense-v0": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "dense"}),
+    # v1: p is the dVRK's measured_cp (wrist-yaw origin), as on the robot and in the original dVRL code.
+    "dvrl_marl/PSMReach-v1": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "sparse", "tip_frame": "measured_cp"}),
+    "dvrl_marl/PSMReachDense-v1": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "dense", "tip_frame": "measured_cp"}),
+    "dvrl_marl/PSMPick-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "sparse", "tip_frame": "measured_cp"}),
+    "dvrl_marl/PSMPickDense-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "dense", "tip_frame": "measured_cp"}),
 }
 
 #: entry point -> the native batched form (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)

@@ -38,21 +38,27 @@ class PickExpert:
 
     Args:
         gain: rho / eta of the environment.
-        grasp_tolerance: normalised distance from tip to object under which the jaw closes (1 mm at rho = 2.5 cm).
+        grasp_tolerance: normalised distance from the jaws to the object under which the jaw closes (1 mm at
+            rho = 2.5 cm).
+        tool_point_drop: normalised distance from the observed p down to the jaws (0 in v0, where p is the jaw
+            control point; 10.2 mm / rho in v1, where p is the dVRK's measured_cp).
     """
 
-    def __init__(self, gain: float = 25.0, grasp_tolerance: float = 0.04):
+    def __init__(self, gain: float = 25.0, grasp_tolerance: float = 0.04, tool_point_drop: float = 0.0):
         self.gain = float(gain)
         self.grasp_tolerance = float(grasp_tolerance)
+        self.tool_point_drop = float(tool_point_drop)
 
     @classmethod
     def for_env(cls, env) -> "PickExpert":
         unwrapped = env.unwrapped
-        return cls(gain=_gain_of(env), grasp_tolerance=0.001 / unwrapped.workspace_range)
+        return cls(gain=_gain_of(env), grasp_tolerance=0.001 / unwrapped.workspace_range,
+                   tool_point_drop=unwrapped.arm.tool_point_drop / unwrapped.workspace_range)
 
     def __call__(self, observation: dict) -> np.ndarray:
         state = np.asarray(observation["observation"])
-        tip, jaw, obj = state[:3], state[3], state[4:7]
+        tip, jaw, obj = state[:3].copy(), state[3], state[4:7]
+        tip[2] -= self.tool_point_drop  # where the jaws are
         goal = np.asarray(observation["desired_goal"])
         to_object = obj - tip
         holding = jaw < 0.0 and np.linalg.norm(to_object) < 3 * self.grasp_tolerance + 0.2

@@ -20,8 +20,12 @@ _PROJECTION_ITERATIONS = 20
 class ArmBatch:
     """Tips ``(N, 3)`` (base frame, metres), joints ``q`` ``(N, n_joints)`` and jaw ``(N,)`` of N arms."""
 
-    def __init__(self, tool: kinematics.Tool | str, num_worlds: int, base_position=(0.0, 0.0, 0.0)):
+    def __init__(self, tool: kinematics.Tool | str, num_worlds: int, base_position=(0.0, 0.0, 0.0),
+                 tool_point_drop: float = 0.0):
         self.tool = kinematics.get_tool(tool)
+        #: How far the tool point lies below the tip (``Arm.tool_point_drop``: 0, or 10.2 mm for measured_cp tips).
+        self.tool_point_drop = float(tool_point_drop)
+        self._to_tool_point = np.array([0.0, 0.0, self.tool_point_drop])
         self.num_worlds = int(num_worlds)
         #: The base (RCM) position in the world; bases are axis-aligned in every scene the cores support.
         self.base_position = np.asarray(base_position, dtype=np.float64)
@@ -36,7 +40,7 @@ class ArmBatch:
     def set_tips(self, worlds, positions) -> None:
         """Put the tips of ``worlds`` (indices or mask) at ``positions`` (base frame); they must be reachable."""
         positions = np.asarray(positions, dtype=np.float64)
-        q, reachable = kinematics.inverse_kinematics_batch(self.tool, positions)
+        q, reachable = kinematics.inverse_kinematics_batch(self.tool, positions - self._to_tool_point)
         if not np.all(reachable):
             raise kinematics.UnreachableError(self.tool.name, positions[np.argmin(reachable)] if positions.ndim > 1
                                               else positions, "geometry", np.nan, (np.nan, np.nan))
@@ -50,7 +54,7 @@ class ArmBatch:
         """
         start = self.tip
         target = np.minimum(np.maximum(start + delta, low), high)
-        q, reachable = kinematics.inverse_kinematics_batch(self.tool, target)
+        q, reachable = kinematics.inverse_kinematics_batch(self.tool, target - self._to_tool_point)
         blocked = ~reachable
         if blocked.any():
             rows = np.flatnonzero(blocked)
@@ -60,15 +64,19 @@ class ArmBatch:
             bad = np.ones(len(rows))
             for _ in range(_PROJECTION_ITERATIONS):
                 mid = 0.5 * (good + bad)
-                _, ok = kinematics.inverse_kinematics_batch(self.tool, origin + mid[:, None] * span)
+                _, ok = kinematics.inverse_kinematics_batch(self.tool, origin + mid[:, None] * span - self._to_tool_point)
                 good = np.where(ok, mid, good)
                 bad = np.where(ok, bad, mid)
             reached = origin + good[:, None] * span
             target[rows] = reached
-            q[rows] = kinematics.inverse_kinematics_batch(self.tool, reached)[0]
+            q[rows] = kinematics.inverse_kinematics_batch(self.tool, reached - self._to_tool_point)[0]
         self.tip = target
         self.q = q
         return blocked
+
+    def tool_point_world(self) -> np.ndarray:
+        """Where each tool acts (jaw control point / tube tip), world coordinates (a new array)."""
+        return self.tip + self.base_position - self._to_tool_point
 
     def wrist_world(self) -> np.ndarray:
         """The wrist pitch point (where the straight shaft ends) of every arm, world frame: ``(N, 3)``.

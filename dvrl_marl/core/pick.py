@@ -64,6 +64,7 @@ class PickCore(GoalCoreBase):
         self.initial_jaw = template.initial_jaw
         self.object_rest_height = template.object_rest_height
         self.goal_low = template.goal_low.copy()
+        self.goal_high = template.goal_high.copy()
         self.grasp_half_extents = np.asarray(template.arm.grasp_zone_half_extents_base)
         self._joints = template.arm.joint_qpos_addresses
         self._jaws = template.arm.jaw_qpos_addresses
@@ -90,7 +91,8 @@ class PickCore(GoalCoreBase):
         count = len(worlds)
         start = self.centre if options["start"] is None else options["start"]
         start = np.broadcast_to(start, (count, 3))
-        self.goal[worlds] = self._position_or_sample(options["goal"], generators, self.goal_low, self.tip_high)
+        self.goal[worlds] = self._position_or_sample(options["goal"], generators, self.goal_low, self.goal_high,
+                                                     tool_point_drop=0.0)
         if options["object"] is None:
             obj = np.empty((count, 3))
             obj[:, :2] = start[:, :2]
@@ -146,7 +148,7 @@ class PickCore(GoalCoreBase):
         obj = self.qpos[:, self._object]
         closed = jaw < self.grasp_threshold
         release = self.grasped & ~closed
-        sensed = np.all(np.abs(obj - tip_world) <= self.grasp_half_extents, axis=1)
+        sensed = np.all(np.abs(obj - arm.tool_point_world()) <= self.grasp_half_extents, axis=1)
         grab = ~self.grasped & closed & sensed
         if release.any() or grab.any():
             self.at_rest[release] = False

@@ -27,7 +27,7 @@ class GoalCoreBase:
         self.name = type(template).__name__
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.tool = template.tool
-        self.arm = ArmBatch(self.tool, n, template.arm.base_position)
+        self.arm = ArmBatch(self.tool, n, template.arm.base_position, template.arm.tool_point_drop)
         self.tip_low, self.tip_high = template.tip_low.copy(), template.tip_high.copy()
         self.centre = template.workspace_centre.copy()
         self.workspace_range = template.workspace_range
@@ -75,10 +75,12 @@ class GoalCoreBase:
         """Draw new episodes for ``worlds`` (each from its own generator, in the single env's order)."""
         raise NotImplementedError
 
-    def _position_or_sample(self, value, generators, low, high) -> np.ndarray:
+    def _position_or_sample(self, value, generators, low, high, tool_point_drop: float | None = None) -> np.ndarray:
+        """A reset option's value, or a reachable sample: tips (default), or tool points with ``tool_point_drop=0``."""
         if value is not None:
             return np.broadcast_to(value, (len(generators), 3))
-        return sample_reachable_batch(generators, self.tool, low, high)
+        drop = self.arm.tool_point_drop if tool_point_drop is None else tool_point_drop
+        return sample_reachable_batch(generators, self.tool, low, high, drop)
 
     def truncation(self) -> np.ndarray:
         if self.max_episode_steps is None:

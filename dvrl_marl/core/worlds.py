@@ -73,12 +73,13 @@ def check_action_batch(actions, num_worlds: int, width: int, who: str) -> np.nda
     return np.clip(array, -1.0, 1.0)
 
 
-def sample_reachable(rng: np.random.Generator, tool, low, high) -> np.ndarray:
-    """Uniform sample from the box [low, high] restricted to positions ``tool`` can reach (rejection sampling)."""
-    return sample_reachable_batch([rng], tool, low, high)[0]
+def sample_reachable(rng: np.random.Generator, tool, low, high, tool_point_drop: float = 0.0) -> np.ndarray:
+    """Uniform sample from the box [low, high] restricted to positions ``tool`` can reach (rejection sampling);
+    positions are tips whose tool point lies ``tool_point_drop`` below them (see ``Arm.tool_point_drop``)."""
+    return sample_reachable_batch([rng], tool, low, high, tool_point_drop)[0]
 
 
-def sample_reachable_batch(generators, tool, low, high) -> np.ndarray:
+def sample_reachable_batch(generators, tool, low, high, tool_point_drop: float = 0.0) -> np.ndarray:
     """One :func:`sample_reachable` draw per generator, ``(len(generators), 3)``, the reachability test batched.
 
     Each generator draws exactly what it would alone (16 candidates at a time, the first reachable one kept;
@@ -91,7 +92,7 @@ def sample_reachable_batch(generators, tool, low, high) -> np.ndarray:
     pending = list(range(len(generators)))
     for _ in range(1000):
         candidates = low + span * np.stack([generators[i].random((_SAMPLE_BATCH, 3)) for i in pending])
-        ok = kinematics.inverse_kinematics_batch(tool, candidates)[1]
+        ok = kinematics.inverse_kinematics_batch(tool, candidates - np.array([0.0, 0.0, tool_point_drop]))[1]
         found = ok.any(axis=1)
         rows = np.flatnonzero(found)
         result[np.asarray(pending)[rows]] = candidates[rows, np.argmax(ok[rows], axis=1)]

@@ -27,7 +27,10 @@ Sparse (``PSMPick-v0``): ``-1`` while ``rho * ||o~ - g~|| > delta`` (3 mm), else
 
 ## Starting State
 p_0 = p_c = (0, 0, -0.10) m, jaw open, the object on the table directly below the gripper, g uniform in the
-workspace (rho = 2.5 cm) at heights the object can reach (not below its resting height). ``reset(options=...)``
+box the jaws cover (p_c +/- rho, rho = 2.5 cm, 10.2 mm lower in v1) at heights the object can reach (not below its
+resting height). In v1 p is the dVRK's measured_cp (as in the original code), so the jaws start 13.2 mm above the
+table and descend 10.2 mm to the object's centre; in v0 p is the jaw control point, 23.4 mm above the table
+(20.4 mm of descent). ``reset(options=...)``
 accepts ``start``, ``goal`` and ``object`` positions in metres (base frame); an object above the table falls.
 
 ## Episode End
@@ -35,7 +38,8 @@ No termination; ``max_episode_steps=100`` truncates. ``info`` has ``is_success``
 becomes unstable the episode truncates with ``info["sim_unstable"] = True`` and the last finite observation.
 
 ## Arguments
-``reward_type``, ``render_mode``, ``grasp_threshold`` and the paper's parameters as in PSM Reach; defaults in
+``reward_type``, ``render_mode``, ``tip_frame``, ``grasp_threshold`` and the paper's parameters as in PSM Reach;
+defaults in
 ``tasks/psm_pick.toml``.
 
 ## Batched form
@@ -43,7 +47,10 @@ becomes unstable the episode truncates with ``info["sim_unstable"] = True`` and 
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
 
 ## Version History
-- v0: initial release (MuJoCo re-creation of dVRL's PSM Pick).
+- v1: p is the dVRK's measured_cp frame (see PSM Reach v1); the grasp rule still senses at the jaws. Policy:
+  ``pick-lnd-v1``.
+- v0: initial release (MuJoCo re-creation of dVRL's PSM Pick); p is the jaw control point. Kept registered
+  unchanged.
 """
 
 from __future__ import annotations
@@ -82,8 +89,11 @@ class PSMPickEnv(PSMGoalEnv):
         geom = object_id(self.model, "geom", "object")
         #: Height (base frame) of the object's centre when it stands on the table.
         self.object_rest_height = self.table_height + float(self.model.geom_size[geom][1])
-        self.goal_low = self.tip_low.copy()
+        # Goals are for the object, which the jaws carry: the box the tool point covers, on or above the table.
+        drop = np.array([0.0, 0.0, self.arm.tool_point_drop])
+        self.goal_low = self.tip_low - drop
         self.goal_low[2] = max(self.goal_low[2], self.object_rest_height)
+        self.goal_high = self.tip_high - drop
 
         bound = np.full(3, _OBJECT_BOUND)
         tip_bound = np.full(3, 1.0 + 1e-9)
@@ -105,11 +115,11 @@ class PSMPickEnv(PSMGoalEnv):
 
     def _option_bounds(self, key: str) -> tuple:
         if key == "goal":
-            return self.goal_low, self.tip_high, True
+            return self.goal_low, self.goal_high, 0.0
         if key == "object":
             # The object may sit anywhere over the workspace on or above the table (not inside it); it need not be
-            # reachable by the tip.
-            return np.array([self.tip_low[0], self.tip_low[1], self.object_rest_height]), self.tip_high, False
+            # reachable by the tool.
+            return np.array([self.goal_low[0], self.goal_low[1], self.object_rest_height]), self.goal_high, None
         return super()._option_bounds(key)
 
     # --- object state -----------------------------------------------------------------------------------
@@ -148,7 +158,7 @@ class PSMPickEnv(PSMGoalEnv):
         if start is None:
             start = self.workspace_centre.copy()
         if goal is None:
-            goal = self._sample_in_box(self.goal_low, self.tip_high)
+            goal = self._sample_in_box(self.goal_low, self.goal_high, tool_point_drop=0.0)
         if obj is None:
             obj = np.array([start[0], start[1], self.object_rest_height])
         self.arm.set_tip(*start.tolist())

@@ -1,8 +1,11 @@
 """PSM Reach: move the tool tip of a dVRK PSM to a goal position (paper Sec. III-B).
 
 ## Description
-A single Patient Side Manipulator holds an EndoWrist pointing down. The agent moves the tool tip, position
-p in the PSM base (remote centre of motion) frame, towards a goal g. As in the paper the arm is kinematic: every
+A single Patient Side Manipulator holds an EndoWrist pointing down. The agent moves the end effector, position
+p in the PSM base (remote centre of motion) frame, towards a goal g. In ``PSMReach-v1`` p is the frame the dVRK
+itself reports and commands (``measured_cp`` / ``servo_cp``: the wrist-yaw frame origin, 10.2 mm behind the jaw
+control point), as in the original dVRL code whose p_c the task uses, so targets go to the robot unconverted
+(:mod:`dvrl_marl.frames`); in ``PSMReach-v0`` p is the tool point itself (jaw control point / tube tip). As in the paper the arm is kinematic: every
 step sets new joint values by inverse kinematics, the way the dVRK takes new set points at 50 Hz. The policy
 uses only the tip position, so it runs on any EndoWrist: ``tool="lnd"`` (Large Needle Driver) or
 ``tool="suction_irrigation"``.
@@ -27,14 +30,17 @@ Sparse (``PSMReach-v0``): ``-1`` while ``rho * ||p~ - g~|| > delta`` (delta = 3 
 
 ## Starting State
 p_0 and g uniform in the reachable workspace: the box p_c +/- rho (p_c = (0, 0, -0.11) m, rho = 5 cm) above the
-table (the tip stays 3 mm above it) and within the joint limits. ``reset(options={"start": ..., "goal": ...})``
+table (the tool point stays 3 mm above it: in v1 the start box's floor is 13.2 mm above the table top, and p = p_c
+puts the tool point 3.2 mm above it, as in the original code; in v0 p_c puts it 13.4 mm above) and within the
+joint limits. ``reset(options={"start": ..., "goal": ...})``
 sets either in metres (base frame).
 
 ## Episode End
 No termination (the paper); ``max_episode_steps=100`` truncates. ``info["is_success"]`` reports the goal.
 
 ## Arguments
-``tool``, ``reward_type`` ("sparse" | "dense"), ``render_mode`` ("rgb_array" | "depth_array" | "human"), and the
+``tool``, ``reward_type`` ("sparse" | "dense"), ``tip_frame`` ("measured_cp" in v1, "tool_point" in v0),
+``render_mode`` ("rgb_array" | "depth_array" | "human"), and the
 paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`` (eta), ``distance_threshold``
 (delta), ``control_dt``, ``tip_clearance``; defaults in ``tasks/psm_reach.toml``.
 
@@ -43,7 +49,10 @@ paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
 
 ## Version History
-- v0: initial release (MuJoCo re-creation of dVRL's PSM Reach).
+- v1: p is the dVRK's measured_cp frame (wrist-yaw origin), not the jaw control point: the scene sits 10.2 mm
+  lower relative to p_c, as on the robot and in the original code. Policies: ``reach-lnd-v1``,
+  ``reach-suction-irrigation-v1``.
+- v0: initial release (MuJoCo re-creation of dVRL's PSM Reach); p is the tool point. Kept registered unchanged.
 """
 
 from __future__ import annotations

@@ -44,6 +44,7 @@ class PSMGoalEnv(gym.Env):
         tip_clearance: float | None = None,
         control_dt: float | None = None,
         task: str | None = None,
+        tip_frame: str = "tool_point",
         width: int = 640,
         height: int = 480,
         **task_overrides,
@@ -78,22 +79,24 @@ class PSMGoalEnv(gym.Env):
 
         self.model = load_model(spec.scenes[tool])
         self.data = mujoco.MjData(self.model)
-        self.arm = Arm(self.model, self.data, "psm/", self.tool)
+        #: Which point of the tool p is: "tool_point" (v0) or the dVRK's "measured_cp" (v1); see dvrl_marl.kinematics.
+        self.tip_frame = tip_frame
+        self.arm = Arm(self.model, self.data, "psm/", self.tool, tip_frame=tip_frame)
         if not np.allclose(self.arm.base_rotation[:, 2], (0.0, 0.0, 1.0)):
             raise ValueError("single-arm scenes need an upright PSM base (the table is a floor in its frame)")
         self.dt = float(spec.control_dt)
         self.n_substeps = max(1, round(self.dt / self.model.opt.timestep))
-        #: Table top height in the base frame; the tip stays ``tip_clearance`` above it.
+        #: Table top height in the base frame; the tool point stays ``tip_clearance`` above it.
         self.table_height = geom_top(self.model, "table") - float(self.arm.base_position[2])
         low = self.workspace_centre - self.workspace_range
         high = self.workspace_centre + self.workspace_range
-        low[2] = max(low[2], self.table_height + spec.tip_clearance)
+        low[2] = max(low[2], self.table_height + spec.tip_clearance + self.arm.tool_point_drop)
         if low[2] >= high[2]:
             raise ValueError(f"the workspace lies entirely below the table (tip floor {low[2]:.4f} m)")
         #: The tip's allowed box (base frame): the paper's p_c +/- rho, floored above the table.
         self.tip_low, self.tip_high = low, high
         self._tip_low, self._tip_high = tuple(low.tolist()), tuple(high.tolist())
-        if not kinematics.within_limits(self.tool, self.workspace_centre):
+        if not self.arm.reachable(*self.workspace_centre.tolist()):
             raise ValueError(f"the workspace centre {spec.workspace_centre} is outside the {tool} joint limits")
         self._goal_mocap = self.model.body_mocapid[object_id(self.model, "body", "goal")]
         self.goal = np.zeros(3)
@@ -129,13 +132,15 @@ class PSMGoalEnv(gym.Env):
                 raise ValueError(f"{type(self).__name__}: action {values} contains NaN or inf")
         return [-1.0 if v < -1.0 else 1.0 if v > 1.0 else v for v in values]
 
-    def _sample_in_box(self, low, high) -> np.ndarray:
-        """Uniform sample from the box [low, high] restricted to positions the arm can reach."""
-        return sample_reachable(self.np_random, self.tool, low, high)
+    def _sample_in_box(self, low, high, tool_point_drop: float | None = None) -> np.ndarray:
+        """Uniform sample from the box [low, high] restricted to positions the arm can reach: tips (default), or
+        tool points with ``tool_point_drop=0``."""
+        drop = self.arm.tool_point_drop if tool_point_drop is None else tool_point_drop
+        return sample_reachable(self.np_random, self.tool, low, high, drop)
 
-    def _position_option(self, options: dict, key: str, low, high, reachable: bool = True) -> np.ndarray | None:
-        """A position reset option in metres (base frame), checked against [low, high] and, for the tip and goals,
-        the arm's reach."""
+    def _position_option(self, options: dict, key: str, low, high, reach_drop: float | None) -> np.ndarray | None:
+        """A position reset option in metres (base frame), checked against [low, high] and, unless ``reach_drop``
+        is None, the arm's reach (a point ``reach_drop`` above the tool point must be reachable as the tip)."""
         if key not in options or options[key] is None:
             return None
         try:
@@ -151,7 +156,7 @@ class PSMGoalEnv(gym.Env):
                 f"[{np.asarray(low).tolist()}, {np.asarray(high).tolist()}] (base frame, m)"
             )
         value = np.clip(value, low, high)
-        if reachable and not kinematics.within_limits(self.tool, value):
+        if reach_drop is not None and not kinematics.within_limits(self.tool, value - (0.0, 0.0, reach_drop)):
             raise ValueError(f"{type(self).__name__}: reset option {key!r} = {value.tolist()} is not reachable by the arm")
         return value
 
@@ -164,8 +169,8 @@ class PSMGoalEnv(gym.Env):
         return {key: self._position_option(options, key, *self._option_bounds(key)) for key in self.reset_option_keys}
 
     def _option_bounds(self, key: str) -> tuple:
-        """(low, high, reachable) for a position reset option."""
-        return self.tip_low, self.tip_high, True
+        """(low, high, reach_drop) for a position reset option (see :meth:`_position_option`)."""
+        return self.tip_low, self.tip_high, self.arm.tool_point_drop
 
     def _check_options(self, options) -> dict:
         if options is None:

@@ -88,6 +88,9 @@ class RunConfig:
         return self
 
 
+_RUN_KEYS = ("env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations", "action_noise")
+
+
 def load_config(path) -> RunConfig:
     """Read a run configuration from a TOML file."""
     path = Path(path)
@@ -98,8 +101,21 @@ def load_config(path) -> RunConfig:
     text = path.read_text()
     table = read_toml(path)
     run = dict(table.get("run", {}))
-    unknown = set(run) - {"env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations",
-                          "action_noise"}
+    if "extends" in run:
+        # A variant of another configuration (e.g. the same run on a newer env version): its tables, key by key
+        # overridden by this file's.
+        base_path = path.parent / str(run.pop("extends"))
+        if base_path.resolve() == path.resolve():
+            raise ValueError(f"config {path}: extends itself")
+        base = load_config(base_path)
+        merged = {"run": {key: getattr(base, key) for key in _RUN_KEYS if getattr(base, key) is not None},
+                  "env": dict(base.env), "her": dict(base.her), "algorithm": dict(base.algorithm_kwargs),
+                  "policy": dict(base.policy)}
+        merged["run"].update(run)
+        for key in ("env", "her", "algorithm", "policy"):
+            merged[key].update(table.get(key, {}))
+        table, run, text = merged, merged["run"], base.source + "\n# --- " + path.name + " ---\n" + text
+    unknown = set(run) - set(_RUN_KEYS)
     if unknown:
         raise ValueError(f"config {path}: unknown [run] key(s) {sorted(unknown)}")
     return RunConfig(
