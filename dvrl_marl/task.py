@@ -13,7 +13,10 @@ from pathlib import Path
 from dvrl_marl.assets import tasks_dir
 from dvrl_marl.validation import check_integer, check_number, check_vector
 
-__all__ = ["TaskSpec", "load_task", "load_task_table", "available_tasks"]
+__all__ = ["TaskSpec", "load_task", "load_task_table", "available_tasks", "DISTRIBUTIONS"]
+
+#: Start and goal distributions: the paper's ("uniform" in the workspace) or the original dVRL code's.
+DISTRIBUTIONS = ("uniform", "original")
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,12 @@ class TaskSpec:
     tip_clearance: float
     grasp_threshold: float | None = None
     initial_jaw: float | None = None
+    #: Where this library departs from the original dVRL code, the original behaviour on request (docs/deviations.md):
+    dense_scale: float = 1.0  # dense reward -dense_scale * d (original: 100)
+    workspace_margin: float = 0.0  # p is clipped to p_c +/- (rho + margin) (original: 0.01 m)
+    start_distribution: str = "uniform"  # Reach p_0: "uniform" in the workspace (paper) or "original" (p_c)
+    goal_distribution: str = "uniform"  # "uniform" in the workspace (paper) or "original" (the original's box)
+    original_goal_floor: float | None = None  # "original" goals start this far above the table (original code)
     extra: dict = field(default_factory=dict)
 
     def with_overrides(self, **overrides) -> "TaskSpec":
@@ -57,6 +66,15 @@ class TaskSpec:
                                                high=1.0)
         if self.initial_jaw is not None:
             values["initial_jaw"] = number("initial_jaw", self.initial_jaw, low=0.0, high=1.0)
+        values["dense_scale"] = number("dense_scale", self.dense_scale, low=0.0, low_open=True)
+        values["workspace_margin"] = number("workspace_margin", self.workspace_margin, low=0.0)
+        for key in ("start_distribution", "goal_distribution"):
+            if getattr(self, key) not in DISTRIBUTIONS:
+                raise ValueError(f"{owner}: {key} must be one of {DISTRIBUTIONS}, got {getattr(self, key)!r}")
+        if self.original_goal_floor is not None:
+            values["original_goal_floor"] = number("original_goal_floor", self.original_goal_floor, low=0.0)
+        elif self.goal_distribution == "original":
+            raise ValueError(f"{owner}: goal_distribution='original' needs original_goal_floor in the task file")
         return replace(self, **values)
 
 

@@ -35,6 +35,7 @@ class GoalCoreBase:
         self.step_size = template.step_size
         self.distance_threshold = template.distance_threshold
         self.sparse = template.reward_type == "sparse"
+        self.dense_scale = template.dense_scale
         self.goal = np.zeros((n, 3))
         self.goal_normalised = np.zeros((n, 3))
         self.elapsed = np.zeros(n, dtype=np.int64)
@@ -50,7 +51,7 @@ class GoalCoreBase:
         # Summed column by column, as the single env does, so the figures match it bit for bit.
         distance = self.workspace_range * np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
         success = distance <= self.distance_threshold
-        reward = np.where(success, 0.0, -1.0) if self.sparse else -distance
+        reward = np.where(success, 0.0, -1.0) if self.sparse else -self.dense_scale * distance
         return reward, success
 
     def worlds_of(self, worlds) -> np.ndarray:
@@ -92,8 +93,9 @@ class ReachCore(GoalCoreBase):
     """N worlds of PSM Reach. ``step`` returns ``(reward, terminated, truncated, success)`` arrays of shape (N,)."""
 
     def _reset_worlds(self, worlds, generators, options) -> None:
-        start = self._position_or_sample(options["start"], generators, self.tip_low, self.tip_high)
-        self.goal[worlds] = self._position_or_sample(options["goal"], generators, self.tip_low, self.tip_high)
+        template = self.template
+        start = self._position_or_sample(options["start"], generators, template.start_low, template.start_high)
+        self.goal[worlds] = self._position_or_sample(options["goal"], generators, template.goal_low, template.goal_high)
         self.arm.set_tips(worlds, start)
 
     def __init__(self, template, num_worlds: int, max_episode_steps: int | None):

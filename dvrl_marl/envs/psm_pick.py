@@ -91,12 +91,14 @@ class PSMPickEnv(PSMGoalEnv):
         self.object_rest_height = self.table_height + float(self.model.geom_size[geom][1])
         # Goals are for the object, which the jaws carry: the box the tool point covers, on or above the table.
         drop = np.array([0.0, 0.0, self.arm.tool_point_drop])
-        self.goal_low = self.tip_low - drop
+        self.goal_low = self.workspace_low - drop
         self.goal_low[2] = max(self.goal_low[2], self.object_rest_height)
-        self.goal_high = self.tip_high - drop
+        self.goal_high = self.workspace_high - drop
+        if self.spec_task.goal_distribution == "original":
+            self.goal_low, self.goal_high = self._original_goal_box(tool_point=True)
 
         bound = np.full(3, _OBJECT_BOUND)
-        tip_bound = np.full(3, 1.0 + 1e-9)
+        tip_bound = np.full(3, self.position_bound)
         self.observation_space = spaces.Dict(
             {
                 "observation": spaces.Box(

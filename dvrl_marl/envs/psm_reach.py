@@ -73,7 +73,17 @@ class PSMReachEnv(PSMGoalEnv):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        bound = np.full(3, 1.0 + 1e-9)  # the tip and goals never leave the workspace box
+        spec = self.spec_task
+        #: Where p_0 and g are drawn (uniformly, reachable ones only): the workspace (the paper), or the original
+        #: code's p_0 = p_c and goal box (``start_distribution`` / ``goal_distribution="original"``).
+        self.start_low, self.start_high = self.workspace_low, self.workspace_high
+        if spec.start_distribution == "original":
+            self.start_low = self.start_high = self.workspace_centre.copy()
+        self.goal_low, self.goal_high = self.workspace_low, self.workspace_high
+        if spec.goal_distribution == "original":
+            self.goal_low, self.goal_high = self._original_goal_box(tool_point=False)
+        bound = np.full(3, max(self.position_bound, float(np.max(np.abs(self.normalise(self.goal_low)))),
+                               float(np.max(np.abs(self.normalise(self.goal_high))))))
         position = spaces.Box(-bound, bound, dtype=np.float64)
         self.observation_space = spaces.Dict(
             {"observation": position, "achieved_goal": position, "desired_goal": position}
@@ -85,9 +95,9 @@ class PSMReachEnv(PSMGoalEnv):
         parsed = self.parse_reset_options(options)
         start, goal = parsed["start"], parsed["goal"]
         if start is None:
-            start = self._sample_in_box(self.tip_low, self.tip_high)
+            start = self._sample_in_box(self.start_low, self.start_high)
         if goal is None:
-            goal = self._sample_in_box(self.tip_low, self.tip_high)
+            goal = self._sample_in_box(self.goal_low, self.goal_high)
         self.arm.set_tip(*start.tolist())
         self._set_goal(goal)
         tip = self._normalised_tuple(*self.arm.tip)

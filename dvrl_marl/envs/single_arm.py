@@ -88,14 +88,21 @@ class PSMGoalEnv(gym.Env):
         self.n_substeps = max(1, round(self.dt / self.model.opt.timestep))
         #: Table top height in the base frame; the tool point stays ``tip_clearance`` above it.
         self.table_height = geom_top(self.model, "table") - float(self.arm.base_position[2])
-        low = self.workspace_centre - self.workspace_range
-        high = self.workspace_centre + self.workspace_range
+        reach = self.workspace_range + spec.workspace_margin
+        low = self.workspace_centre - reach
+        high = self.workspace_centre + reach
         low[2] = max(low[2], self.table_height + spec.tip_clearance + self.arm.tool_point_drop)
         if low[2] >= high[2]:
             raise ValueError(f"the workspace lies entirely below the table (tip floor {low[2]:.4f} m)")
-        #: The tip's allowed box (base frame): the paper's p_c +/- rho, floored above the table.
+        #: The tip's allowed box (base frame): the paper's p_c +/- rho (+ ``workspace_margin``), floored above the
+        #: table; ``workspace_low``/``workspace_high``: the same without the margin (where starts and goals lie).
         self.tip_low, self.tip_high = low, high
+        margin = np.full(3, spec.workspace_margin)
+        self.workspace_low, self.workspace_high = np.maximum(low, self.workspace_centre - self.workspace_range), high - margin
         self._tip_low, self._tip_high = tuple(low.tolist()), tuple(high.tolist())
+        self.dense_scale = float(spec.dense_scale)
+        #: Observed positions stay within this many rho of p_c (1 unless ``workspace_margin`` widens the box).
+        self.position_bound = 1.0 + spec.workspace_margin / self.workspace_range + 1e-9
         if not self.arm.reachable(*self.workspace_centre.tolist()):
             raise ValueError(f"the workspace centre {spec.workspace_centre} is outside the {tool} joint limits")
         self._goal_mocap = self.model.body_mocapid[object_id(self.model, "body", "goal")]
@@ -131,6 +138,18 @@ class PSMGoalEnv(gym.Env):
             if not math.isfinite(value):
                 raise ValueError(f"{type(self).__name__}: action {values} contains NaN or inf")
         return [-1.0 if v < -1.0 else 1.0 if v > 1.0 else v for v in values]
+
+    def _original_goal_box(self, tool_point: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The original code's goal box: x, y within p_c +/- rho, z from ``original_goal_floor`` above the table up
+        rho more; for the end effector it measured (``tool_point=False``: the dVRK's measured_cp, converted to this
+        env's p), or for an object (``tool_point=True``)."""
+        floor = self.table_height + self.spec_task.original_goal_floor
+        if not tool_point:
+            floor -= self.tool.measured_cp_to_tool_point - self.arm.tool_point_drop
+        low = self.workspace_centre - self.workspace_range
+        high = self.workspace_centre + self.workspace_range
+        low[2], high[2] = floor, floor + self.workspace_range
+        return low, high
 
     def _sample_in_box(self, low, high, tool_point_drop: float | None = None) -> np.ndarray:
         """Uniform sample from the box [low, high] restricted to positions the arm can reach: tips (default), or
@@ -197,7 +216,7 @@ class PSMGoalEnv(gym.Env):
         success = distance <= self.distance_threshold
         if self.reward_type == "sparse":
             return (0.0 if success else -1.0), success
-        return -distance, success
+        return -self.dense_scale * distance, success
 
     # --- Gymnasium API ------------------------------------------------------------------------------------
     def compute_reward(self, achieved_goal, desired_goal, info) -> np.ndarray:
@@ -209,7 +228,7 @@ class PSMGoalEnv(gym.Env):
         distance = self.workspace_range * np.sqrt(np.sum(difference * difference, axis=-1))
         if self.reward_type == "sparse":
             return -(distance > self.distance_threshold).astype(np.float64)
-        return -distance
+        return -self.dense_scale * distance
 
     def render(self):
         return self._renderer.render()

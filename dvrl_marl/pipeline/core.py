@@ -26,6 +26,7 @@ so a reach stage whose path would skim the phantom goes through waypoints: up to
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -148,20 +149,26 @@ def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
 
 
 class _StagePolicy:
-    """A single-arm policy with the frame it was trained in (range rho, step eta, the box its states covered)."""
+    """A single-arm policy with the frame it was trained in (range rho, step eta, the box its states covered, and
+    which point of the tool its p is: ``tool_point_drop`` above the scene's tool point, 10.2 mm for v1 policies)."""
 
     def __init__(self, kind: str, name: str):
         task = load_task("psm_reach" if kind == "reach" else "psm_pick")
+        policy = None if name == "scripted" else policies.load(name)
+        default_id = "dvrl_marl/PSMReach-v0" if kind == "reach" else "dvrl_marl/PSMPick-v0"
+        env_id = policy.spec.get("env_id", default_id) if policy is not None else default_id
+        with warnings.catch_warnings():  # a v0 policy needs its v0 env, whatever Gymnasium thinks of v0
+            warnings.simplefilter("ignore", DeprecationWarning)
+            env = gym.make(env_id).unwrapped
         # The table cuts the training box (Reach: z~ in [-0.21, 1]); legs are centred on what the policy has seen.
-        env = gym.make("dvrl_marl/PSMReach-v0" if kind == "reach" else "dvrl_marl/PSMPick-v0").unwrapped
         self.trained_box_centre = (env.normalise(env.tip_low) + env.normalise(env.tip_high)) / 2
+        self.tool_point_drop = env.arm.tool_point_drop
         env.close()
-        if name == "scripted":
+        if policy is None:
             self.workspace_range, self.step_size = task.workspace_range, task.step_size
             gain = self.workspace_range / self.step_size
             self.act = ReachExpert(gain) if kind == "reach" else PickExpert(gain, 0.001 / self.workspace_range)
         else:
-            policy = policies.load(name)
             self.workspace_range = float(policy.spec.get("workspace_range", task.workspace_range))
             self.step_size = float(policy.spec.get("step_size", task.step_size))
             self.act = policy
@@ -467,8 +474,9 @@ class ArmPipeline:
             else:
                 self.tool = 1.0 if stage.jaw == "open" and not stage.carry else -1.0
             return np.append(np.clip(delta * scale, -1, 1), self.tool).astype(np.float32)
-        # pick
-        tip = self.frame.normalise(state["tip"])
+        # pick (a v1 policy's p is the dVRK's measured_cp, above the scene's tool point; reach legs need no such
+        # shift: their frames are re-centred on each leg, so a translation cancels)
+        tip = self.frame.normalise(state["tip"] + (0.0, 0.0, policy.tool_point_drop))
         obj = self.frame.normalise(state["debris_position"][self.item])
         goal = self.frame.normalise(self.stage_goal)
         jaw_observed = state["tool"]
