@@ -17,8 +17,11 @@ SINGLE_ARM_ENV_IDS = {
     # v1: p is the dVRK's measured_cp (wrist-yaw origin), as on the robot and in the original dVRL code.
     "dvrl_marl/PSMReach-v1": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "sparse", "tip_frame": "measured_cp"}),
     "dvrl_marl/PSMReachDense-v1": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "dense", "tip_frame": "measured_cp"}),
-    "dvrl_marl/PSMPick-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "sparse", "tip_frame": "measured_cp"}),
-    "dvrl_marl/PSMPickDense-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "dense", "tip_frame": "measured_cp"}),
+    # Pick v1 also lands its object without sinking into the table (scenes/pick_lnd_v1.xml).
+    "dvrl_marl/PSMPick-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv",
+                             {"reward_type": "sparse", "tip_frame": "measured_cp", "scenes": {"lnd": "pick_lnd_v1"}}),
+    "dvrl_marl/PSMPickDense-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv",
+                                  {"reward_type": "dense", "tip_frame": "measured_cp", "scenes": {"lnd": "pick_lnd_v1"}}),
 }
 
 #: entry point -> the native batched form (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)
