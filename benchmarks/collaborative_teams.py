@@ -1,7 +1,7 @@
 """Success of the collaborative teams (issue target: the learned pipeline team completes >= 90 % of 50 seeds).
 
 Reports success, mean steps, blood removed and instrument contacts for the scripted team, the scripted-stage
-pipeline team, the learned Reach + Pick pipeline team (needs the shipped policies), and a PPO team if a trained
+pipeline team, the learned Reach + Pick pipeline teams (v1 and v0 policies, shipped), and a PPO team if a trained
 model is given.
 
     python benchmarks/collaborative_teams.py [--episodes 50] [--ppo runs/baselines/suction_debris_ppo-seed0]
@@ -30,8 +30,10 @@ def main() -> None:
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
     names = ["scripted_team"]
+    if {"reach-lnd-v1", "reach-suction-irrigation-v1", "pick-lnd-v1"} <= set(policies.available()):
+        names.append("learned_team")  # the v1 policies
     if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
-        names.append("learned_team")
+        names.append("learned_team_v0")  # the first release's v0 policies
     results = {}
     for label, act in teams.items():
         results[label] = evaluate_team(act, args.episodes)

@@ -31,7 +31,7 @@ SURGEONS = ("learned", "scripted", "keyboard")
 #: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.
 KEYBOARD_MAX_CYCLES = 6000
 TEAMS = ("pipeline", "marl")
-_LEARNED_POLICIES = ("reach-lnd", "reach-suction-irrigation", "pick-lnd")
+_LEARNED_POLICIES = ("reach-lnd-v1", "reach-suction-irrigation-v1", "pick-lnd-v1")  # learned_team.toml's
 
 
 def _pipeline_name() -> str:
