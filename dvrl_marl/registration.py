@@ -37,6 +37,10 @@ MULTI_AGENT_ENV_IDS = {
         "dvrl_marl.envs.suction_debris_v0:parallel_env",
         "dvrl_marl.envs.suction_debris_v0:env",
     ),
+    "dvrl_marl/suction_debris-v1": (
+        "dvrl_marl.envs.suction_debris_v1:parallel_env",
+        "dvrl_marl.envs.suction_debris_v1:env",
+    ),
 }
 
 

@@ -92,7 +92,14 @@ def load_task_table(name: str | Path) -> tuple[str, dict]:
         raise FileNotFoundError(f"no task file {path}; available tasks: {available_tasks()}")
     from dvrl_marl.files import field, read_toml
 
-    return path.stem, field(read_toml(path), "task", path, dict)
+    table = dict(field(read_toml(path), "task", path, dict))
+    if "extends" in table:
+        # A new version of a task: the task it extends, key by key overridden by this file's.
+        base = str(table.pop("extends"))
+        if base == path.stem:
+            raise ValueError(f"{path}: a task cannot extend itself")
+        table = {**load_task_table(base)[1], **table}
+    return path.stem, table
 
 
 def load_task(name: str | Path) -> TaskSpec:

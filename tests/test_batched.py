@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v0, suction_debris_v1
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -181,9 +181,10 @@ def test_vector_env_renders_the_chosen_world():
 # --- the collaborative scene ------------------------------------------------------------------------------------
 
 
-def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, surgeon=None, scripted=False, **kwargs):
-    env = suction_debris_v0.batched_env(num_envs=num_envs, surgeon=surgeon, **kwargs)
-    singles = [suction_debris_v0.parallel_env(surgeon=surgeon, **kwargs) for _ in range(num_envs)]
+def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, surgeon=None, scripted=False,
+                                        module=suction_debris_v0, drop_probability=0.0, **kwargs):
+    env = module.batched_env(num_envs=num_envs, surgeon=surgeon, **kwargs)
+    singles = [module.parallel_env(surgeon=surgeon, **kwargs) for _ in range(num_envs)]
     observations, _ = env.reset(seed=seed)
     for world, single in enumerate(singles):
         expected, _ = single.reset(seed=seed + world)
@@ -197,6 +198,8 @@ def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, sur
             actions = {a: experts[a](observations[a]) + rng.normal(0.0, 0.3, (num_envs, 4)) for a in env.agents}
         else:
             actions = {a: rng.uniform(-1.3, 1.3, (num_envs, 4)) for a in env.agents}
+        if drop_probability and "grasper" in actions:  # open the jaw now and then: held pins drop mid-air
+            actions["grasper"][rng.random(num_envs) < drop_probability, 3] = 1.0
         observations, rewards, terminations, truncations, infos = env.step(actions)
         for world, single in enumerate(singles):
             expected, reward, terminated, truncated, info = single.step({a: actions[a][world] for a in single.agents})
@@ -230,6 +233,19 @@ def test_batched_collaborative_equals_single_env_noisy_experts_dense():
 def test_batched_collaborative_equals_single_env_with_scripted_surgeon():
     assert_batched_collaborative_matches(2, seed=1, steps=1000, action_seed=2, surgeon="scripted", scripted=True,
                                          max_cycles=450, debris_count=4)
+
+
+def test_batched_v1_equals_single_env_falling_pins_and_graded_suction():
+    # Noisy experts suck near the surface (graded flow) and now and then open the jaw on a carried pin, which falls
+    # (about 30 pin-steps of falling in this run): v1's new branches, world by world.
+    assert_batched_collaborative_matches(3, seed=21, steps=1250, action_seed=5, scripted=True, reward_type="dense",
+                                         max_cycles=600, module=suction_debris_v1, drop_probability=0.03)
+
+
+def test_batched_v1_equals_single_env_while_cavities_bleed():
+    assert_batched_collaborative_matches(3, seed=22, steps=1000, action_seed=6, scripted=True, reward_type="dense",
+                                         max_cycles=300, module=suction_debris_v1, bleeding_ml_s=0.4,
+                                         bleeding_onset_s=2.0)
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -28,6 +28,8 @@ SHAFT_RADIUS = assets.SHAFT_RADIUS
 WRIST_RADIUS = {"suction": assets.SUCTION_TUBE_RADIUS, "grasper": 0.0025}
 #: Instruments closer than this beyond touching also count as in contact (they touch after a refused move).
 CONTACT_MARGIN = 5e-4
+#: Released pins fall at g (m/s^2) when the task's ``pins_fall`` is set (suction_debris_v1).
+GRAVITY = 9.81
 #: Pin geometry (spring pins: 3 mm x 28 mm) and the spacing of the slots they lie in on a cavity floor.
 PIN_RADIUS = 0.0015
 PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28 mm
@@ -193,6 +195,10 @@ class CollaborativeCore:
         self.held = np.zeros((n, d), dtype=bool)
         self.delivered = np.zeros((n, d), dtype=bool)
         self.lifted = np.zeros((n, d), dtype=bool)
+        self.fall_speed = np.full((n, d), np.nan)  # m/s while a released pin falls, NaN at rest
+        self.added_ml = np.zeros((n, c))
+        self.bleed_onset = np.full((n, c), np.inf)  # s; inf: no bleeding
+        self.bleed_rate = np.zeros((n, c))  # ml/s
         self.holding = np.full(n, -1, dtype=np.int64)  # index of the held pin, -1 for none
         self.hold_offset = np.zeros((n, 3))
         self.elapsed = np.zeros(n, dtype=np.int64)
@@ -244,11 +250,17 @@ class CollaborativeCore:
                 self.debris_position[world, pin] = position
                 self.debris_yaw[world, pin] = yaw
                 self.debris_cavity[world, pin] = cavity
+            if self.params.bleeding_ml_s > 0.0:  # the single env's draws, in its order
+                for cavity in range(self.cavities.count):
+                    self.bleed_onset[world, cavity] = float(rng.uniform(0.0, self.params.bleeding_onset_s))
+                    self.bleed_rate[world, cavity] = float(rng.uniform(0.5, 1.0)) * self.params.bleeding_ml_s
         for agent, arm in self.arms.items():
             arm.set_tips(indices, tips[agent] - arm.base_position)
         self.arms["grasper"].jaw[indices] = 1.0
         self.valve_open[indices] = False
         self.remaining_ml[indices] = self.initial_ml[indices]
+        self.added_ml[indices] = 0.0
+        self.fall_speed[indices] = np.nan
         for cavity in range(self.cavities.count):
             self._update_surfaces(indices, np.full(len(indices), cavity))
         surface = np.take_along_axis(self.surface_z[indices], self.debris_cavity[indices], axis=1)
@@ -335,7 +347,9 @@ class CollaborativeCore:
                 arm = self.arms["grasper"]
                 arm.jaw = np.where(given, (tool + 1.0) * 0.5, arm.jaw)
         removed = self._suction()
+        self._bleed()
         lifted, delivered = self._grasping()
+        self._fall()
         self.elapsed += 1
         self.contact = contact
         self.complete = self._complete()
@@ -389,12 +403,18 @@ class CollaborativeCore:
         cavity = self.cavities.cavity_at(tip[:, 0], tip[:, 1])
         safe = np.maximum(cavity, 0)
         remaining = self.remaining_ml[self._rows, safe]
-        sucking = (self.valve_open & (cavity >= 0) & (remaining > 0.0)
-                   & (tip[:, 2] < self.surface_z[self._rows, safe]))
+        height = tip[:, 2] - self.surface_z[self._rows, safe]
+        reach = self.params.suction_reach
+        if reach <= 0.0:  # v0: full flow under the surface, none at or above it
+            flow = np.where(height < 0.0, 1.0, 0.0)
+        else:  # the single env's arithmetic: 1 at or below the surface, falling linearly to 0 at reach above it
+            flow = np.where(height <= 0.0, 1.0, np.where(height < reach, 1.0 - height / reach, 0.0))
+        sucking = self.valve_open & (cavity >= 0) & (remaining > 0.0) & (flow > 0.0)
         if not sucking.any():
             return removed
         worlds, cavity = np.flatnonzero(sucking), safe[sucking]
-        amount = np.minimum(self.params.suction_rate_ml_s * self.params.control_dt, remaining[sucking])
+        amount = np.minimum(flow[sucking] * self.params.suction_rate_ml_s * self.params.control_dt,
+                            remaining[sucking])
         self.remaining_ml[worlds, cavity] = np.maximum(remaining[sucking] - amount, 0.0)
         self._update_surfaces(worlds, cavity)
         removed[worlds] = amount
@@ -416,8 +436,11 @@ class CollaborativeCore:
         if release.any():  # released away from the assistant: it drops onto the surface below it
             worlds = np.flatnonzero(release)
             pins = self.holding[worlds]
-            position = self.debris_position[worlds, pins]
-            self.debris_position[worlds, pins, 2] = self._surface(position[:, 0], position[:, 1]) + PIN_RADIUS
+            if self.params.pins_fall:  # it falls (see _fall)
+                self.fall_speed[worlds, pins] = 0.0
+            else:  # v0: it appears on the surface below it at once
+                position = self.debris_position[worlds, pins]
+                self.debris_position[worlds, pins, 2] = self._surface(position[:, 0], position[:, 1]) + PIN_RADIUS
             self.held[worlds, pins] = False
             self.holding[worlds] = -1
         grab = ~holding & closed
@@ -434,6 +457,7 @@ class CollaborativeCore:
             worlds, pins = worlds[found], np.argmax(seen[found], axis=1)
             self.holding[worlds] = pins
             self.held[worlds, pins] = True
+            self.fall_speed[worlds, pins] = np.nan  # caught
             self.hold_offset[worlds] = self.debris_position[worlds, pins] - tip[worlds]
             first = ~self.lifted[worlds, pins]
             self.lifted[worlds, pins] = True
@@ -451,6 +475,38 @@ class CollaborativeCore:
             self.holding[worlds] = -1
             delivered[worlds] = 1.0
         return lifted, delivered
+
+    def _bleed(self) -> None:
+        """Each bleeding cavity gains rate x dt of blood (up to its capacity) once its onset has passed."""
+        if self.params.bleeding_ml_s <= 0.0:
+            return
+        dt = self.params.control_dt
+        now = self.elapsed * dt
+        bleeding = (now[:, None] >= self.bleed_onset)
+        if not bleeding.any():
+            return
+        worlds, cavity = np.nonzero(bleeding)
+        room = self.cavities.capacity_ml[cavity] - self.remaining_ml[worlds, cavity]
+        added = np.minimum(self.bleed_rate[worlds, cavity] * dt, room)
+        grew = added > 0.0
+        worlds, cavity, added = worlds[grew], cavity[grew], added[grew]
+        self.remaining_ml[worlds, cavity] += added
+        self.added_ml[worlds, cavity] += added
+        self._update_surfaces(worlds, cavity)
+
+    def _fall(self) -> None:
+        """Released pins fall under gravity onto the surface below them (the single env's arithmetic)."""
+        falling = ~np.isnan(self.fall_speed)
+        if not falling.any():
+            return
+        dt = self.params.control_dt
+        worlds, pins = np.nonzero(falling)
+        speed = self.fall_speed[worlds, pins] + GRAVITY * dt
+        position = self.debris_position[worlds, pins]
+        floor = self._surface(position[:, 0], position[:, 1]) + PIN_RADIUS
+        z = np.maximum(position[:, 2] - speed * dt, floor)
+        self.debris_position[worlds, pins, 2] = z
+        self.fall_speed[worlds, pins] = np.where(z <= floor, np.nan, speed)
 
     def _surface(self, x, y):
         return self.cavities.surface_height(x, y)
@@ -503,7 +559,8 @@ class CollaborativeCore:
     # --- observations -------------------------------------------------------------------------------------
     def _blood_fraction(self) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.initial_ml > 0.0, self.remaining_ml / self.initial_ml, 0.0)
+            return np.where(self.initial_ml > 0.0, self.remaining_ml / self.initial_ml,
+                            self.remaining_ml / self.cavities.capacity_ml)
 
     def observation(self, agent: str) -> np.ndarray:
         """(N, obs_dim): the agent's observation in every world (layout: the env's ``observation_layout``)."""

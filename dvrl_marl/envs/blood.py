@@ -2,9 +2,11 @@
 
 Each cavity is a spherical cap (mouth radius ``a``, depth ``D``, sphere radius ``R = (a^2 + D^2) / (2 D)``). Blood of
 volume V fills it to the depth h with ``V = pi h^2 (3R - h) / 3``; its surface is a disc of radius
-``sqrt(h (2R - h))``. Suction removes blood at a fixed rate while the valve is open and the tube tip is inside the
-cavity below the surface. Volumes are kept in millilitres; removed + remaining == initial, exactly, by
-construction (removed is derived from remaining, which is clamped at zero).
+``sqrt(h (2R - h))``. Suction removes blood while the valve is open and the tube tip is inside the cavity's mouth:
+at the full rate with the tip under the surface, and (``reach > 0``) at a rate falling linearly to nothing
+``reach`` above it, as a suction tip draws air instead of fluid once it leaves the surface. A bleeding source adds
+blood (:meth:`BloodState.bleed`). Volumes are kept in millilitres; removed + remaining == initial + added, exactly,
+by construction (removed is derived from the others, remaining is clamped to [0, capacity]).
 """
 
 from __future__ import annotations
@@ -121,12 +123,14 @@ class BloodState:
         self.initial_ml = tuple(float(v) for v in initial_ml)
         self.suction_rate_ml_s = float(suction_rate_ml_s)
         self.remaining_ml = list(self.initial_ml)
+        self.added_ml = [0.0] * len(self.initial_ml)
         self.surface_z = [0.0] * len(self.initial_ml)
         self.surface_radius = [0.0] * len(self.initial_ml)
         self.reset()
 
     def reset(self) -> None:
         self.remaining_ml = list(self.initial_ml)
+        self.added_ml = [0.0] * len(self.initial_ml)
         for index in range(len(self.remaining_ml)):
             self._update_surface(index)
 
@@ -139,12 +143,16 @@ class BloodState:
     @property
     def removed_ml(self) -> tuple[float, ...]:
         """Blood removed from each cavity so far (ml)."""
-        return tuple(initial - remaining for initial, remaining in zip(self.initial_ml, self.remaining_ml))
+        return tuple(initial + added - remaining
+                     for initial, added, remaining in zip(self.initial_ml, self.added_ml, self.remaining_ml))
 
     def fraction(self, index: int) -> float:
-        """Fraction of the cavity's initial blood still in it (1 if it started empty)."""
+        """Fraction of the cavity's initial blood still in it (above 1 when a bleed added more); a cavity that
+        started empty reports its blood as a fraction of its capacity."""
         initial = self.initial_ml[index]
-        return self.remaining_ml[index] / initial if initial > 0.0 else 0.0
+        if initial > 0.0:
+            return self.remaining_ml[index] / initial
+        return self.remaining_ml[index] / self.phantom.cavities[index].capacity_ml
 
     def _update_surface(self, index: int) -> None:
         cavity = self.phantom.cavities[index]
@@ -152,12 +160,35 @@ class BloodState:
         self.surface_z[index] = cavity.floor_z + depth
         self.surface_radius[index] = cavity.surface_radius(depth)
 
-    def suck(self, x: float, y: float, z: float, dt: float) -> tuple[int, float]:
-        """Suction at tip (x, y, z) for dt seconds. Returns (cavity index or -1, ml removed)."""
+    def suck(self, x: float, y: float, z: float, dt: float, reach: float = 0.0) -> tuple[int, float]:
+        """Suction at tip (x, y, z) for dt seconds. Returns (cavity index or -1, ml removed).
+
+        ``reach`` 0: full flow below the surface, none at or above it. ``reach`` > 0: full flow at or below the
+        surface, falling linearly to none ``reach`` above it."""
         index = self.phantom.cavity_at(x, y)
-        if index < 0 or self.remaining_ml[index] <= 0.0 or z >= self.surface_z[index]:
+        if index < 0 or self.remaining_ml[index] <= 0.0:
             return index, 0.0
-        removed = min(self.suction_rate_ml_s * dt, self.remaining_ml[index])
+        height = z - self.surface_z[index]
+        if reach <= 0.0:
+            if height >= 0.0:
+                return index, 0.0
+            flow = 1.0
+        elif height >= reach:
+            return index, 0.0
+        else:
+            flow = 1.0 if height <= 0.0 else 1.0 - height / reach
+        removed = min(flow * self.suction_rate_ml_s * dt, self.remaining_ml[index])
         self.remaining_ml[index] = max(self.remaining_ml[index] - removed, 0.0)
         self._update_surface(index)
         return index, removed
+
+    def bleed(self, index: int, volume_ml: float) -> float:
+        """Add up to ``volume_ml`` of blood to cavity ``index`` (no more than it holds); returns what was added."""
+        capacity = self.phantom.cavities[index].capacity_ml
+        added = min(volume_ml, capacity - self.remaining_ml[index])
+        if added <= 0.0:
+            return 0.0
+        self.remaining_ml[index] += added
+        self.added_ml[index] += added
+        self._update_surface(index)
+        return added

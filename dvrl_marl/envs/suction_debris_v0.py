@@ -112,6 +112,7 @@ from dvrl_marl.core.collaborative import (
     AGENTS,
     TOOLS,
     CONTACT_MARGIN as _CONTACT_MARGIN,
+    GRAVITY,
     PIN_HALF_LENGTH as _PIN_HALF_LENGTH,
     PIN_RADIUS as _PIN_RADIUS,
     PIN_SENSOR_RANGE as _PIN_SENSOR_RANGE,
@@ -154,6 +155,11 @@ class SuctionDebrisParams:
     debris_count: int
     contact_penalty: float
     max_cycles: int
+    # Added with suction_debris_v1 (the defaults are v0's behaviour; tasks/suction_debris_v1.toml sets v1's):
+    pins_fall: bool = False  # a released pin falls under gravity (v0: it appears on the surface below at once)
+    suction_reach: float = 0.0  # flow falls linearly to none this far above the surface (m; 0: v0's on/off)
+    bleeding_ml_s: float = 0.0  # largest bleeding rate per cavity (0: no bleeding)
+    bleeding_onset_s: float = 0.0  # each cavity starts bleeding at a seeded time in [0, this] (s)
 
     @classmethod
     def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
@@ -180,6 +186,10 @@ class SuctionDebrisParams:
         values["blood_ml"] = check_vector(owner, "blood_ml", self.blood_ml, len(assets.CAVITY_CENTRES), low=0.0)
         values["debris_count"] = check_integer(owner, "debris_count", self.debris_count, low=1, high=2 * len(_PIN_SLOTS))
         values["max_cycles"] = check_integer(owner, "max_cycles", self.max_cycles, low=1)
+        if not isinstance(self.pins_fall, bool):
+            raise ValueError(f"{owner}: pins_fall must be true or false, got {self.pins_fall!r}")
+        values.update({key: check_number(owner, key, getattr(self, key), low=0.0)
+                       for key in ("suction_reach", "bleeding_ml_s", "bleeding_onset_s")})
         return replace(self, **values)
 
 
@@ -232,7 +242,7 @@ def _point_segment_distance(point, start, end) -> float:
 class _Debris:
     """One spring pin: plain state; the env mirrors it into the MuJoCo body."""
 
-    __slots__ = ("position", "yaw", "cavity", "visible", "held", "delivered", "lifted")
+    __slots__ = ("position", "yaw", "cavity", "visible", "held", "delivered", "lifted", "fall_speed")
 
     def __init__(self):
         self.position = [0.0, 0.0, 0.0]
@@ -242,6 +252,7 @@ class _Debris:
         self.held = False
         self.delivered = False
         self.lifted = False
+        self.fall_speed = None  # m/s while falling (pins_fall), None at rest
 
     def axis_ends(self):
         dx, dy = _PIN_HALF_LENGTH * math.cos(self.yaw), _PIN_HALF_LENGTH * math.sin(self.yaw)
@@ -346,6 +357,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._rng = np.random.default_rng()
         self._step_count = 0
         self.valve_open = False
+        self.bleeding = []
 
     # --- construction helpers -----------------------------------------------------------------------------
     def _hide_unused_debris(self) -> None:
@@ -432,6 +444,8 @@ class SuctionDebrisEnv(ParallelEnv):
         for index in range(len(self._blood_geoms)):
             self._update_blood_visual(index)
         self._place_debris(rng)
+        #: (onset s, rate ml/s) of each cavity's bleeding this episode (v1's bleeding field; empty without it).
+        self.bleeding = self._draw_bleeding(rng)
         self._held = None
         self._hold_offset = (0.0, 0.0, 0.0)
         self._step_count = 0
@@ -468,7 +482,9 @@ class SuctionDebrisEnv(ParallelEnv):
             elif tool_value is not None:
                 self.arms["grasper"].set_jaw((tool_value + 1.0) * 0.5)
         removed = self._suction()
+        self._bleed()
         lifted, delivered = self._grasping()
+        self._fall()
         self._step_count += 1
         self._contact = contact
 
@@ -697,7 +713,7 @@ class SuctionDebrisEnv(ParallelEnv):
         if not self.valve_open:
             return 0.0
         x, y, z = self.arms["suction"].tip_world()
-        cavity, removed = self.blood.suck(x, y, z, self.params.control_dt)
+        cavity, removed = self.blood.suck(x, y, z, self.params.control_dt, self.params.suction_reach)
         if removed > 0.0:
             self._update_blood_visual(cavity)
             surface = self.blood.surface_z[cavity]
@@ -705,6 +721,34 @@ class SuctionDebrisEnv(ParallelEnv):
                 if pin.cavity == cavity and not pin.visible and pin.position[2] + _PIN_RADIUS > surface:
                     pin.visible = True
         return removed
+
+    def _draw_bleeding(self, rng) -> list[tuple[float, float]]:
+        """(onset in s, rate in ml/s) per cavity for this episode: onset uniform in [0, bleeding_onset_s], rate
+        uniform in [0.5, 1] x bleeding_ml_s. Nothing is drawn without bleeding (v0's random stream is unchanged)."""
+        p = self.params
+        if p.bleeding_ml_s <= 0.0:
+            return []
+        return [(float(rng.uniform(0.0, p.bleeding_onset_s)), float(rng.uniform(0.5, 1.0)) * p.bleeding_ml_s)
+                for _ in self.phantom.cavities]
+
+    def _bleed(self) -> None:
+        now, dt = self._step_count * self.params.control_dt, self.params.control_dt
+        for index, (onset, rate) in enumerate(self.bleeding):
+            if now >= onset and self.blood.bleed(index, rate * dt) > 0.0:
+                self._update_blood_visual(index)
+
+    def _fall(self) -> None:
+        """Released pins fall under gravity onto the surface below them (never into it)."""
+        dt = self.params.control_dt
+        for index, pin in enumerate(self.debris):
+            if pin.fall_speed is None:
+                continue
+            pin.fall_speed += GRAVITY * dt
+            floor = self.phantom.surface_height(pin.position[0], pin.position[1]) + _PIN_RADIUS
+            pin.position[2] = max(pin.position[2] - pin.fall_speed * dt, floor)
+            if pin.position[2] <= floor:
+                pin.fall_speed = None
+            self._sync_debris(index)
 
     def _update_blood_visual(self, index: int) -> None:
         geom = self._blood_geoms[index]
@@ -721,6 +765,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 zip(self.debris, sample_debris(rng, self.phantom.cavities, len(self.debris)))):
             pin.position, pin.yaw, pin.cavity = position, yaw, cavity_index
             pin.held = pin.delivered = pin.lifted = False
+            pin.fall_speed = None
             pin.visible = pin.position[2] + _PIN_RADIUS > self.blood.surface_z[cavity_index]
             self._sync_debris(index)
 
@@ -745,8 +790,10 @@ class SuctionDebrisEnv(ParallelEnv):
         if self._held is not None and not closed:
             pin = self.debris[self._held]
             pin.held = False
-            # Released away from the assistant: it drops onto the surface below it.
-            pin.position[2] = self.phantom.surface_height(pin.position[0], pin.position[1]) + _PIN_RADIUS
+            if self.params.pins_fall:  # released away from the assistant: it falls (see _fall)
+                pin.fall_speed = 0.0
+            else:  # v0: it appears on the surface below it at once
+                pin.position[2] = self.phantom.surface_height(pin.position[0], pin.position[1]) + _PIN_RADIUS
             self._sync_debris(self._held)
             self._held = None
         elif self._held is None and closed:
@@ -756,6 +803,7 @@ class SuctionDebrisEnv(ParallelEnv):
                     if _point_segment_distance(tip, start, end) <= _PIN_SENSOR_RANGE:
                         self._held = index
                         pin.held = True
+                        pin.fall_speed = None  # caught
                         self._hold_offset = tuple(pin.position[i] - tip[i] for i in range(3))
                         if not pin.lifted:
                             pin.lifted = True
