@@ -103,7 +103,8 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
         done |= terminations[first] | truncations[first]
     env.close()
     return {"episodes": episodes, "seed": seed, "success_rate": float(success.mean()),
-            "mean_blood_removed_ml": float((initial - remaining).mean()),
+            "mean_blood_removed_ml": float((initial - remaining).mean()),  # net of any bleeding
+            "mean_blood_left_ml": float(remaining.mean()),
             "mean_debris_delivered": float(delivered.mean()),
             "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
             "mean_contact_steps": float(contacts.mean()),
