@@ -1,4 +1,5 @@
-"""The end-to-end demonstration: the collaborative episode with the shipped policies, recorded from the endoscope.
+"""The end-to-end demonstration: the collaborative episode (suction_debris_v1) with the shipped policies, recorded
+from the endoscope.
 
 ``team="pipeline"`` (default): the suction arm runs the learned Reach policy through the ``learned_team``
 pipeline; the surgeon seat (the LND) is filled by the learned Reach + Pick pipeline, the scripted surgeon, or a
@@ -21,12 +22,14 @@ from datetime import datetime
 from pathlib import Path
 
 from dvrl_marl import policies
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v1 as scene_env  # the newest version of the scene
 from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
 __all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
 SURGEONS = ("learned", "scripted", "keyboard")
+#: The scene the demo runs: suction_debris_v1 (pins that fall, suction that needs the surface; no bleeding).
+ENV_NAME = "suction_debris_v1"
 #: A person at the keyboard gets 2 minutes (6,000 steps) unless ``max_cycles`` says otherwise: the task's 1,500
 #: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.
 KEYBOARD_MAX_CYCLES = 6000
@@ -78,7 +81,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
     elif surgeon == "learned" or (surgeon == "scripted" and record):
         # The pipeline (or the expert, bound here so that it can be recorded) reads the scene layout from an env
         # built with the same parameters.
-        layout_env = suction_debris_v0.parallel_env(**{k: v for k, v in kwargs.items() if k != "render_mode"})
+        layout_env = scene_env.parallel_env(**{k: v for k, v in kwargs.items() if k != "render_mode"})
         if surgeon == "learned":
             kwargs["surgeon"] = ArmPipeline(plans["grasper"], "grasper", layout_env)
         else:
@@ -91,9 +94,9 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         from dvrl_marl.teleop import Recorder
 
         recorder = Recorder(kwargs["surgeon"], seat="grasper", surgeon=surgeon, team=team, pipeline=pipeline,
-                            seed=seed, env="suction_debris_v0", max_cycles=kwargs.get("max_cycles"))
+                            seed=seed, env=ENV_NAME, max_cycles=kwargs.get("max_cycles"))
         kwargs["surgeon"] = recorder
-    env = suction_debris_v0.parallel_env(**kwargs)
+    env = scene_env.parallel_env(**kwargs)
     suction = policies.load("marl-suction") if team == "marl" else ArmPipeline(plans["suction"], "suction", env)
     if render_mode == "rgb_array":
         # Shadow maps triple the cost of a software-rendered frame; the demo must finish within a minute.
@@ -134,6 +137,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         "surgeon": surgeon,
         "pipeline": pipeline,
         "team": team,
+        "env": ENV_NAME,
         "seed": seed,
         "steps": steps,
         "max_cycles": env.params.max_cycles,
