@@ -1,9 +1,10 @@
 """The collaborative teams on suction_debris v0, v1 and v1 with a bleeding field (issue: re-evaluate on it).
 
-    python benchmarks/collaborative_v1.py [--episodes 100] [--bleeding 0.3]
+    python benchmarks/collaborative_v1.py [--episodes 100] [--bleeding 0.1 0.3]
         [--marl-suction runs/<run>/policies_best/marl-suction] [--marl-team runs/<run>/policies_best]
 
-Teams: the scripted team, the learned pipeline team (learned_team.toml), and, when given, a multi-agent PPO
+Teams: the scripted team, the learned pipeline team (learned_team.toml), the keep-clear scripted team (the
+cooperative experts for a bleeding field), and, when given, a multi-agent PPO
 suction beside the scripted surgeon and a MAPPO team (both seats). Held-out seeds (teams.EVAL_SEED), all worlds
 batched. Prints one row per (variant, team) and writes the figures as JSON next to the table when --out is given.
 """
@@ -15,20 +16,26 @@ import json
 import time
 from pathlib import Path
 
+from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon
+from dvrl_marl.envs import suction_debris_v1
 from dvrl_marl.training import teams
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--bleeding", type=float, default=0.3, help="bleeding_ml_s of the bleeding variant")
+    parser.add_argument("--bleeding", type=float, nargs="+", default=[0.1, 0.3],
+                        help="bleeding_ml_s of the bleeding variants")
     parser.add_argument("--marl-suction", help="a multi-agent PPO suction policy folder (trained beside the scripted surgeon)")
     parser.add_argument("--marl-team", help="a folder with marl-suction/ and marl-grasper/ (trained together)")
     parser.add_argument("--out", help="write the figures to this JSON file")
     args = parser.parse_args()
-    variants = {"v0": {}, "v1": {"task": "suction_debris_v1"},
-                f"v1, bleeding {args.bleeding} ml/s": {"task": "suction_debris_v1", "bleeding_ml_s": args.bleeding}}
-    lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline")}
+    variants = {"v0": {}, "v1": {"task": "suction_debris_v1"}}
+    for rate in args.bleeding:
+        variants[f"v1, bleeding {rate} ml/s"] = {"task": "suction_debris_v1", "bleeding_ml_s": rate}
+    layout = suction_debris_v1.parallel_env()
+    lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline"),
+              "keep-clear scripted team": (KeepClearSuction.for_env(layout), KeepClearSurgeon.for_env(layout))}
     if args.marl_suction:
         lineup["MAPPO suction + scripted surgeon"] = (args.marl_suction, "scripted")
     if args.marl_team:
@@ -45,7 +52,7 @@ def main() -> None:
             print(f"{variant:28s} {team:34s} {result['success_rate']:8.0%} {median if median is not None else '-':>13} "
                   f"{result['mean_blood_left_ml']:11.2f} {result['mean_debris_delivered']:7.2f} "
                   f"{result['mean_contact_steps']:9.2f} {wall:7.1f}", flush=True)
-            rows.append({"variant": variant, "team": team, "suction": suction, "grasper": grasper,
+            rows.append({"variant": variant, "team": team, "suction": str(suction), "grasper": str(grasper),
                          **{k: v for k, v in result.items() if k not in ("success", "steps")}})
     if args.out:
         Path(args.out).write_text(json.dumps(rows, indent=1) + "\n")

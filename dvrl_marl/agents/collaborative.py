@@ -1,16 +1,21 @@
-"""Scripted experts for the collaborative scene (suction_debris_v0): the suction arm and the surgeon (LND).
+"""Scripted experts for the collaborative scene (suction_debris_v0, v1): the suction arm and the surgeon (LND).
 
 They read only their agent's observation plus the scene's fixed layout (:meth:`SuctionDebrisEnv.layout`), so they
 can sit in the surgeon seat or act as an agent's policy. Their plan keeps the instruments apart: the suction clears
 the cavity farther from its own RCM first and parks on its own side afterwards; the surgeon only works in cavities
 the suction has cleared.
+
+For v1's bleeding field, where clearing first and picking afterwards fails (a cleared cavity refills before the last
+hand-off), :class:`KeepClearSuction` and :class:`KeepClearSurgeon` work at the same time: the suction keeps going
+back to whichever cavity fills and keeps out of the grasper's way, the grasper picks where the suction is not and
+holds the last pin over the hand-off point until the field is clear (``benchmarks/collaborative_v1.py``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ScriptedSuction", "ScriptedSurgeon"]
+__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon"]
 
 #: Heights above the phantom top (normalised units are scene-specific, so these are metres, converted in for_env).
 _SAFE_HEIGHT = 0.010
@@ -194,3 +199,126 @@ class ScriptedSurgeon(_Scripted):
                 return np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32)
             return np.append(self._towards_one(tip, self._via_safe_height_one(tip, pin, self.near)), 1.0).astype(np.float32)
         return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.home, 4 * self.near)), 1.0).astype(np.float32)
+
+
+class _KeepClear(_Scripted):
+    """What the two cooperative experts share: where each arm is, and which cavity lies on whose side.
+
+    The arms come from opposite sides, so their shafts cross when the grasper reaches over the cavity on its own side
+    while the suction works in it: the grasper's *near* cavity is the suction's *far* one."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float):
+        super().__init__(layout, observation_layout, workspace_range)
+        bases = {agent: np.asarray(layout.base_positions[agent][:2]) for agent in ("suction", "grasper")}
+        distance = {agent: np.hypot(*(self.cavity_centres - base).T) for agent, base in bases.items()}
+        self.suction_near = int(np.argmin(distance["suction"]))
+        self.grasper_near = int(np.argmin(distance["grasper"]))
+        self.grasper_base = bases["grasper"]
+        self.spare = 0.005 / workspace_range
+        # Where the suction waits when no cavity needs it: outside its own near cavity, on its side.
+        near = self.cavity_centres[self.suction_near]
+        outward = (bases["suction"] - near) / np.linalg.norm(bases["suction"] - near)
+        self.wait = np.array([*(near + outward * (layout.cavity_mouth_radius + 0.012 / workspace_range)), self.safe_z])
+        # How far (in x, from its base) the grasper's tip reaches before its shaft is over its near cavity.
+        self.reach_over = (abs(self.cavity_centres[self.grasper_near, 0] - self.grasper_base[0])
+                           - layout.cavity_mouth_radius)
+
+    def _inside(self, tip, cavity) -> bool:
+        cx, cy = self.cavity_centres[cavity]
+        return bool(np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius
+                    and tip[2] < self.layout.phantom_top + 0.5 * (self.safe_z - self.layout.phantom_top))
+
+    def _over(self, tip, cavity) -> bool:
+        """Above (at any height) or in the cavity's mouth, with 5 mm to spare."""
+        cx, cy = self.cavity_centres[cavity]
+        return bool(np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius + self.spare)
+
+    def _grasper_reaching_over(self, grasper_tip) -> bool:
+        return bool(abs(grasper_tip[0] - self.grasper_base[0]) > self.reach_over)
+
+    def _cavity_of(self, position) -> int:
+        return int(np.argmin(np.hypot(self.cavity_centres[:, 0] - position[0], self.cavity_centres[:, 1] - position[1])))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.stack([self.act_one(row) for row in obs])
+
+
+class KeepClearSuction(_KeepClear):
+    """The suction for a bleeding field: keeps going back to whichever cavity fills up, and keeps out of the
+    grasper's way (never into a cavity the grasper's tip is in, nor into the grasper's near cavity while the grasper
+    reaches over it).
+
+    It empties the cavity it is in (to ``empty`` x the threshold), then waits outside its own near cavity's mouth
+    until a cavity it may enter holds ``refill`` x the threshold."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float, empty: float = 0.1, refill: float = 1.5):
+        super().__init__(layout, observation_layout, workspace_range)
+        self.empty, self.refill = float(empty), float(refill)
+        self.settled = 0.003 / workspace_range  # within 3 mm of the floor: working there
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip = obs[self.slices["own_tip"]]
+        other = obs[self.slices["other_tip"]]
+        level = obs[self.slices["blood"]] / self.threshold  # in thresholds
+        free = [c for c in range(len(level)) if not self._inside(other, c)
+                and not (c == self.grasper_near and self._grasper_reaching_over(other))]
+        for cavity in free:  # keep emptying the cavity it works in: all of a full one; a low one while still down
+            down = tip[2] < self.layout.cavity_floor[cavity] + self.layout.clearance + self.settled  # (once it
+            committed = level[cavity] > self.refill or (down and level[cavity] > self.empty)  # rises, it has left)
+            if self._inside(tip, cavity) and committed:
+                return self._suck(tip, cavity)
+        wanted = [c for c in free if level[c] > self.refill]
+        if wanted:
+            return self._suck(tip, max(wanted, key=lambda c: level[c]))
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
+                         -1.0).astype(np.float32)
+
+    def _suck(self, tip, cavity) -> np.ndarray:
+        cx, cy = self.cavity_centres[cavity]
+        bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
+        move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
+        return np.append(move, 1.0 if self._inside(tip, cavity) else -1.0).astype(np.float32)
+
+
+class KeepClearSurgeon(_KeepClear):
+    """The surgeon for a bleeding field: picks revealed pins where the suction is not in its way (its near cavity
+    when the suction is not over it; its far cavity only while the suction waits), and holds the last pin
+    ``hold_height`` above the hand-off point until every cavity is below ``margin`` x the threshold, then hands it
+    over: the arms time the end together."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float, hold_height: float = 0.004,
+                 margin: float = 0.7):
+        super().__init__(layout, observation_layout, workspace_range)
+        self.home = np.array([self.grasper_base[0] - 0.015 / workspace_range,
+                              self.grasper_base[1] + 0.02 / workspace_range, self.park_z])
+        self.hold = np.array([0.0, 0.0, hold_height / workspace_range])
+        self.margin = float(margin)
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip = obs[self.slices["own_tip"]]
+        other = obs[self.slices["other_tip"]]
+        blood = obs[self.slices["blood"]]
+        debris = obs[self.slices["debris"]].reshape(-1, 6)
+        handoff = obs[self.slices["handoff"]]
+        held = [d for d in debris if d[4] > 0.5]
+        if held:
+            pin = held[0][:3]
+            last = sum(d[5] < 0.5 for d in debris) == 1
+            clear = bool(np.all(blood < self.margin * self.threshold))
+            goal = handoff + self.hold if last and not clear else handoff
+            return np.append(self._towards_one(pin, self._via_safe_height_one(pin, goal, 2 * self.near)),
+                             -1.0).astype(np.float32)
+        # Its near cavity when the suction is not over it; anywhere when the suction waits (its shaft would cross
+        # the suction's on the way to the far cavity otherwise).
+        allowed = set() if self._over(other, self.grasper_near) else {self.grasper_near}
+        if np.hypot(*(other[:2] - self.wait[:2])) < self.spare:
+            allowed = set(range(len(self.cavity_centres)))
+        candidates = [d[:3] for d in debris if d[3] > 0.5 and d[5] < 0.5 and self._cavity_of(d[:3]) in allowed]
+        if candidates:
+            pin = min(candidates, key=lambda c: np.linalg.norm(c - tip))
+            if np.linalg.norm(pin - tip) <= self.near:
+                return np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32)
+            return np.append(self._towards_one(tip, self._via_safe_height_one(tip, pin, self.near)),
+                             1.0).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.home, 4 * self.near)),
+                         1.0).astype(np.float32)
