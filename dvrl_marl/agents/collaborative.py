@@ -60,6 +60,16 @@ class _Scripted:
         row (the single env's seat calls it every step); a test holds both to the same actions."""
         raise NotImplementedError
 
+    def _parts(self, obs: np.ndarray):
+        """One observation's own tip, other tip, blood fractions, debris rows (D, 6) and hand-off point."""
+        s = self.slices
+        return (obs[s["own_tip"]], obs[s["other_tip"]], obs[s["blood"]], obs[s["debris"]].reshape(-1, 6),
+                obs[s["handoff"]])
+
+    def _cavity_of(self, position) -> int:
+        """The cavity whose centre is nearest (x, y) of ``position``."""
+        return int(np.argmin(np.hypot(self.cavity_centres[:, 0] - position[0], self.cavity_centres[:, 1] - position[1])))
+
     def _towards_one(self, tip, target) -> np.ndarray:
         return np.clip((np.asarray(target) - tip) * self.gain, -1.0, 1.0)
 
@@ -174,15 +184,8 @@ class ScriptedSurgeon(_Scripted):
             action[carrying] = self._with_tool(move, -1.0)[carrying]
         return action
 
-    def _cavity_of(self, position) -> int:
-        distances = [np.hypot(position[0] - cx, position[1] - cy) for cx, cy in self.layout.cavity_centres]
-        return int(np.argmin(distances))
-
     def act_one(self, obs: np.ndarray) -> np.ndarray:
-        tip = obs[self.slices["own_tip"]]
-        blood = obs[self.slices["blood"]]
-        debris = obs[self.slices["debris"]].reshape(-1, 6)
-        handoff = obs[self.slices["handoff"]]
+        tip, _, blood, debris, handoff = self._parts(obs)
         held = [d for d in debris if d[4] > 0.5]
         if held:
             pin = held[0][:3]
@@ -236,9 +239,6 @@ class _KeepClear(_Scripted):
     def _grasper_reaching_over(self, grasper_tip) -> bool:
         return bool(abs(grasper_tip[0] - self.grasper_base[0]) > self.reach_over)
 
-    def _cavity_of(self, position) -> int:
-        return int(np.argmin(np.hypot(self.cavity_centres[:, 0] - position[0], self.cavity_centres[:, 1] - position[1])))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         return np.stack([self.act_one(row) for row in obs])
 
@@ -257,9 +257,8 @@ class KeepClearSuction(_KeepClear):
         self.settled = 0.003 / workspace_range  # within 3 mm of the floor: working there
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:
-        tip = obs[self.slices["own_tip"]]
-        other = obs[self.slices["other_tip"]]
-        level = obs[self.slices["blood"]] / self.threshold  # in thresholds
+        tip, other, blood, _, _ = self._parts(obs)
+        level = blood / self.threshold  # in thresholds
         free = [c for c in range(len(level)) if not self._inside(other, c)
                 and not (c == self.grasper_near and self._grasper_reaching_over(other))]
         for cavity in free:  # keep emptying the cavity it works in: all of a full one; a low one while still down
@@ -295,11 +294,7 @@ class KeepClearSurgeon(_KeepClear):
         self.margin = float(margin)
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:
-        tip = obs[self.slices["own_tip"]]
-        other = obs[self.slices["other_tip"]]
-        blood = obs[self.slices["blood"]]
-        debris = obs[self.slices["debris"]].reshape(-1, 6)
-        handoff = obs[self.slices["handoff"]]
+        tip, other, blood, debris, handoff = self._parts(obs)
         held = [d for d in debris if d[4] > 0.5]
         if held:
             pin = held[0][:3]
