@@ -27,6 +27,16 @@ def _train(args) -> int:
     import tomllib
 
     run_table = tomllib.loads(Path(args.config).read_text()).get("run", {})
+    if run_table.get("algorithm") == "bc":  # behaviour cloning of a seat from a Minari dataset
+        from dvrl_marl.training import clone
+
+        config = clone.load_config(args.config)
+        out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
+        result = clone.train(config, args.seed, out, progress=not args.no_progress)
+        print(f"{config.name} seed {args.seed}: the clone succeeds in {result['success_rate']:.0%} of "
+              f"{result['episodes']} held-out episodes beside the {result['partner']} partner; policy in "
+              f"{result['policy']}; run folder {out}")
+        return 0
     if run_table.get("algorithm") in ("mappo", "ippo"):  # multi-agent PPO on TorchRL, fed by the batched env
         from dvrl_marl.training import mappo
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-__all__ = ["register_envs", "SINGLE_ARM_ENV_IDS", "MULTI_AGENT_ENV_IDS"]
+__all__ = ["register_envs", "SINGLE_ARM_ENV_IDS", "SEAT_ENV_IDS", "MULTI_AGENT_ENV_IDS"]
 
 _PAPER_EPISODE_STEPS = 100  # paper Sec. IV-A (also tasks/*.toml max_episode_steps)
 
@@ -31,6 +31,11 @@ _VECTOR_ENTRY_POINTS = {
 }
 
 
+#: One seat of the collaborative scene as a Gymnasium env, the partner inside (datasets, behaviour cloning).
+SEAT_ENV_IDS = {
+    "dvrl_marl/SurgeonSeat-v1": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper", "version": "v1"}),
+}
+
 #: PettingZoo ids -> (parallel entry point, AEC entry point)
 MULTI_AGENT_ENV_IDS = {
     "dvrl_marl/suction_debris-v0": (
@@ -51,6 +56,9 @@ def register_envs() -> None:
             continue
         gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs, max_episode_steps=_PAPER_EPISODE_STEPS,
                      vector_entry_point=_VECTOR_ENTRY_POINTS[entry_point])
+    for env_id, (entry_point, kwargs) in SEAT_ENV_IDS.items():
+        if env_id not in gym.registry:  # the scene truncates its own episodes (max_cycles)
+            gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but registration must never break import

@@ -289,10 +289,16 @@ def test_closing_the_window_ends_the_episode_and_keeps_the_metrics(desktop, tmp_
     _xdotool(desktop, "key", "Return")
     _xdotool(desktop, "keydown", "w")
     time.sleep(1.0)
-    _close_like_a_window_manager(desktop, window)
+    for _ in range(5):  # as a person would click the close button again if nothing happened (a loaded machine)
+        _close_like_a_window_manager(desktop, window)
+        try:
+            process.wait(timeout=5)
+            break
+        except subprocess.TimeoutExpired:
+            continue
     output, metrics = _finish(process, tmp_path)
     _xdotool(desktop, "keyup", "w")  # the virtual screen's keyboard is shared with the next test
-    assert "the window was closed" in output
+    assert metrics["viewer_closed"] and "the window was closed" in output, output
     assert metrics["viewer_closed"] and 10 < metrics["steps"] < 1500 and not metrics["success"]
     _, actions, _ = load_demonstration(tmp_path / "seat.npz")
     assert len(actions) == metrics["steps"] and actions[:, 1].max() == 1.0

@@ -1,0 +1,196 @@
+"""Demonstrations as Minari datasets (the Farama standard for offline RL): record a seat, load it, replay it.
+
+```python
+from dvrl_marl import datasets
+from dvrl_marl.agents import ScriptedSurgeon
+
+dataset = datasets.record("dvrl_marl/surgeon-scripted-v1", "scripted", episodes=20, seed=0)   # the LND seat
+observations, actions = datasets.transitions("dvrl_marl/surgeon-scripted-v1")                # for cloning
+device = datasets.replay_device("dvrl_marl/surgeon-scripted-v1", episode=3)                   # a teleop device
+```
+
+Each episode is one seat of ``suction_debris_v1`` as the Gymnasium env ``dvrl_marl/SurgeonSeat-v1`` (the partner
+inside it) sees it: observations, actions, rewards, terminations, truncations and infos (``is_success``,
+``blood_remaining``, ``debris_delivered``, ``collision`` and the partner's action), with the env spec (id and
+keyword arguments) and each episode's seed, so ``replay`` plays an episode back exactly. Minari keeps datasets
+under ``~/.minari/datasets`` unless ``MINARI_DATASETS_PATH`` says otherwise. Needs ``pip install "dvrl-marl[data]"``
+(Minari with its HDF5 storage; recording does not need Minari's JAX extra). Files recorded with
+:class:`~dvrl_marl.teleop.Recorder` (``.npz``) convert with :func:`from_recording`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "SEAT_ENV_ID"]
+
+#: The Gymnasium env every dataset here is recorded from.
+SEAT_ENV_ID = "dvrl_marl/SurgeonSeat-v1"
+_INFO_KEYS = ("is_success", "blood_remaining", "debris_delivered", "collision", "partner_action")
+
+
+def _minari():
+    try:
+        import minari
+    except ImportError as error:  # the optional extra
+        raise ModuleNotFoundError('datasets need Minari: pip install "dvrl-marl[data]"', name="minari") from error
+    return minari
+
+
+def _seat_env(env_kwargs: dict | None):
+    import gymnasium as gym
+
+    import dvrl_marl  # noqa: F401  (registration)
+
+    return gym.make(SEAT_ENV_ID, **(env_kwargs or {}))
+
+
+def _seat_policy(policy, env):
+    """``"scripted"`` (the seat's expert), a shipped policy name or folder, or a callable / teleop device."""
+    if isinstance(policy, str):
+        if policy == "scripted":
+            from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
+
+            scene = env.unwrapped.scene
+            return (ScriptedSurgeon if env.unwrapped.seat == "grasper" else ScriptedSuction).for_env(scene)
+        from dvrl_marl import policies
+
+        return policies.load(policy)
+    return policy
+
+
+def record_episodes(policy, episodes: int, *, seed: int = 0, env_kwargs: dict | None = None,
+                    action_noise: float = 0.0):
+    """Run ``episodes`` seeded episodes (``seed``, ``seed + 1``...) of the seat with ``policy``; Minari episode
+    buffers. A device (``.action``) or any ``policy(observation) -> action`` fills the seat.
+
+    ``action_noise`` (DART, Laskey et al. 2017): the seat executes the policy's motion plus Gaussian noise of this
+    spread (the jaw as the policy says), so the data shows the policy recovering from small errors; each step's
+    ``infos["expert_action"]`` is what the policy itself asked for, the label a clone learns."""
+    _minari()
+    from minari.data_collector.episode_buffer import EpisodeBuffer
+
+    env = _seat_env(env_kwargs)
+    act = _seat_policy(policy, env)
+    noise = np.random.default_rng(seed)
+    buffers = []
+    for episode in range(int(episodes)):
+        observation, info = env.reset(seed=seed + episode)
+        if hasattr(act, "reset"):
+            act.reset()
+        observations, actions, rewards, terminations, truncations = [observation], [], [], [], []
+        infos = {key: [info[key]] for key in _INFO_KEYS}
+        infos["expert_action"] = [np.zeros(4, dtype=np.float32)]
+        done = False
+        while not done:
+            wanted = np.asarray(act.action(observation) if hasattr(act, "action") else act(observation),
+                                dtype=np.float32)
+            action = wanted.copy()
+            if action_noise > 0.0:
+                action[:3] = np.clip(action[:3] + noise.normal(0.0, action_noise, 3), -1.0, 1.0)
+            observation, reward, terminated, truncated, info = env.step(action)
+            observations.append(observation)
+            actions.append(action)
+            rewards.append(reward)
+            terminations.append(terminated)
+            truncations.append(truncated)
+            for key in _INFO_KEYS:
+                infos[key].append(info[key])
+            infos["expert_action"].append(wanted)
+            done = terminated or truncated
+        buffers.append(EpisodeBuffer(id=episode, seed=seed + episode, observations=observations, actions=actions,
+                                     rewards=rewards, terminations=terminations, truncations=truncations,
+                                     infos={key: np.asarray(values) for key, values in infos.items()}))
+    env.close()
+    return buffers, env
+
+
+def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kwargs: dict | None = None,
+           description: str | None = None, algorithm_name: str | None = None, action_noise: float = 0.0):
+    """Record ``episodes`` episodes of ``policy`` in the surgeon seat as the Minari dataset ``dataset_id``
+    (``namespace/name-vN``); returns the dataset. An existing dataset of that id is an error (delete it with
+    ``minari.delete_dataset``)."""
+    minari = _minari()
+    if dataset_id in minari.list_local_datasets():
+        raise ValueError(f"a Minari dataset {dataset_id!r} exists already; delete it first (minari.delete_dataset)")
+    buffers, env = record_episodes(policy, episodes, seed=seed, env_kwargs=env_kwargs, action_noise=action_noise)
+    name = policy if isinstance(policy, str) else type(policy).__name__
+    return minari.create_dataset_from_buffers(
+        dataset_id, buffers, env=env.spec, eval_env=env.spec, algorithm_name=algorithm_name or f"dvrl-marl {name}",
+        author="dvrl-marl", author_email="dvrl-marl@users.noreply.github.com",
+        code_permalink="https://github.com/dvrl-marl/dvrl-marl",
+        description=description or (f"{episodes} episodes of {name} in the surgeon seat of suction_debris_v1 "
+                                    f"(seeds {seed}..{seed + episodes - 1}, action noise {action_noise})"))
+
+
+def _dataset(dataset):
+    return _minari().load_dataset(dataset) if isinstance(dataset, str) else dataset
+
+
+def transitions(dataset, successful_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Every (observation, label) pair of a dataset (an id or a loaded dataset), for behaviour cloning: the label
+    is what the recorded policy asked for (``infos["expert_action"]``, which differs from the executed action when
+    it was recorded with ``action_noise``)."""
+    observations, actions = [], []
+    for episode in _dataset(dataset).iterate_episodes():
+        if successful_only and not bool(np.asarray(episode.infos["is_success"])[-1]):
+            continue
+        observations.append(np.asarray(episode.observations)[:-1])
+        labels = episode.infos.get("expert_action") if episode.infos else None
+        actions.append(np.asarray(labels)[1:] if labels is not None else np.asarray(episode.actions))
+    if not observations:
+        raise ValueError("the dataset has no episodes to learn from")
+    return np.concatenate(observations), np.concatenate(actions).astype(np.float32)
+
+
+def _episode(dataset, index: int):
+    dataset = _dataset(dataset)
+    episodes = list(dataset.iterate_episodes([index]))
+    if not episodes:
+        raise ValueError(f"the dataset has no episode {index}")
+    return dataset, episodes[0]
+
+
+def replay_device(dataset, episode: int = 0):
+    """A :class:`~dvrl_marl.teleop.ReplayDevice` that plays one episode's actions."""
+    from dvrl_marl.teleop import ReplayDevice
+
+    return ReplayDevice(np.asarray(_episode(dataset, episode)[1].actions, dtype=np.float32))
+
+
+def replay(dataset, episode: int = 0) -> dict:
+    """Play one episode back in the env it was recorded in (same env arguments, same seed) and compare: the
+    largest observation difference and whether the outcome matches."""
+    import dvrl_marl  # noqa: F401  (the env the dataset names must be registered)
+
+    dataset, data = _episode(dataset, episode)
+    env = dataset.recover_environment()
+    seed = next(iter(dataset.storage.get_episode_metadata([episode]))).get("seed")
+    observation, _ = env.reset(seed=None if seed is None else int(seed))
+    recorded = np.asarray(data.observations)
+    worst = float(np.max(np.abs(observation - recorded[0])))
+    for step, action in enumerate(np.asarray(data.actions)):
+        observation, _, terminated, truncated, info = env.step(action)
+        worst = max(worst, float(np.max(np.abs(observation - recorded[step + 1]))))
+    env.close()
+    return {"max_observation_difference": worst, "success": bool(info["is_success"]),
+            "recorded_success": bool(np.asarray(data.infos["is_success"])[-1]), "steps": len(data.actions)}
+
+
+def from_recording(dataset_id: str, paths, *, seeds=None, env_kwargs: dict | None = None):
+    """Convert demonstration files (``teleop.Recorder`` / ``save_demonstration``, one episode each) into a Minari
+    dataset by replaying their actions in the surgeon seat (seeded with ``seeds``, one per file, or the seed the
+    file's metadata names)."""
+    from dvrl_marl.teleop import ReplayDevice, load_demonstration
+
+    minari = _minari()
+    buffers, env = [], None
+    for index, path in enumerate(paths):
+        _, actions, metadata = load_demonstration(path)
+        seed = int(seeds[index] if seeds is not None else metadata.get("seed", index))
+        episode_buffers, env = record_episodes(ReplayDevice(actions), 1, seed=seed, env_kwargs=env_kwargs)
+        buffers.append(episode_buffers[0].__class__(**{**episode_buffers[0].__dict__, "id": index}))
+    return minari.create_dataset_from_buffers(
+        dataset_id, buffers, env=env.spec, eval_env=env.spec, algorithm_name="dvrl-marl recording", author="dvrl-marl",
+        author_email="dvrl-marl@users.noreply.github.com", code_permalink="https://github.com/dvrl-marl/dvrl-marl",
+        description=f"{len(buffers)} recorded episodes converted from demonstration files")

@@ -1,0 +1,145 @@
+"""Behaviour cloning of a seat from a Minari dataset: a surgeon learned from demonstrations, then seated.
+
+``dvrl-marl train baselines/configs/surgeon_bc.toml`` records the dataset it names if it is not there yet (the
+scripted surgeon, 20 episodes), clones it and evaluates the clone in the seat beside its partner on held-out seeds:
+
+```toml
+[run]
+algorithm = "bc"
+dataset = "dvrl_marl/surgeon-scripted-v1"   # a Minari dataset id (see dvrl_marl.datasets)
+[record]                                     # how to make the dataset if it is missing
+policy = "scripted"
+episodes = 20
+[bc]
+hidden = [256, 256]
+epochs = 300
+[evaluate]
+partner = "pipeline"                         # the learned suction
+episodes = 100
+```
+
+The network maps the seat's observation (normalised by the dataset's mean and spread, folded into the exported
+first layer) to its action through tanh layers; the loss is the mean squared action error. The clone is a numpy
+policy (``<out>/policies/bc-surgeon``) that fills the surgeon seat like any other.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CloneConfig", "load_config", "clone", "train"]
+
+
+@dataclass(frozen=True)
+class CloneConfig:
+    name: str
+    dataset: str
+    record: dict = field(default_factory=dict)
+    hidden: tuple[int, ...] = (256, 256)
+    epochs: int = 300
+    batch_size: int = 512
+    learning_rate: float = 1e-3
+    evaluate: dict = field(default_factory=dict)
+
+
+def load_config(path) -> CloneConfig:
+    from dvrl_marl.files import read_toml
+
+    path = Path(path)
+    table = read_toml(path)
+    run, bc = dict(table.get("run", {})), dict(table.get("bc", {}))
+    if run.get("algorithm") != "bc" or not isinstance(run.get("dataset"), str):
+        raise ValueError(f"{path}: [run] needs algorithm = \"bc\" and a dataset id")
+    unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate"}
+    if unknown:
+        raise ValueError(f"{path}: unknown [bc] key(s) {sorted(unknown)}")
+    config = CloneConfig(name=path.stem, dataset=run["dataset"], record=dict(table.get("record", {})),
+                         evaluate=dict(table.get("evaluate", {})),
+                         **{k: (tuple(v) if k == "hidden" else v) for k, v in bc.items()})
+    if not config.hidden or any(int(h) < 1 for h in config.hidden) or config.epochs < 1 or config.batch_size < 1:
+        raise ValueError(f"{path}: hidden sizes, epochs and batch_size must be positive")
+    return config
+
+
+def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(256, 256), epochs: int = 300,
+          batch_size: int = 512, learning_rate: float = 1e-3, seed: int = 0, name: str = "bc-surgeon",
+          metadata: dict | None = None) -> tuple[Path, list[float]]:
+    """Fit ``observation -> action`` and export it as a numpy policy folder; returns it and the loss per epoch."""
+    import torch
+
+    from dvrl_marl.training.export import write_policy
+
+    torch.manual_seed(seed)
+    generator = np.random.default_rng(seed)
+    x = np.asarray(observations, dtype=np.float64)
+    y = np.asarray(actions, dtype=np.float32)
+    mean, std = x.mean(axis=0), x.std(axis=0) + 1e-6
+    inputs = torch.as_tensor((x - mean) / std, dtype=torch.float32)
+    targets = torch.as_tensor(y)
+    sizes = [x.shape[1], *[int(h) for h in hidden], y.shape[1]]
+    layers = []
+    for index in range(len(sizes) - 1):
+        layers += [torch.nn.Linear(sizes[index], sizes[index + 1]), torch.nn.Tanh()]
+    net = torch.nn.Sequential(*layers)
+    optimiser = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    losses = []
+    for _ in range(int(epochs)):
+        order = torch.as_tensor(generator.permutation(len(inputs)))
+        total = 0.0
+        for start in range(0, len(order), batch_size):
+            batch = order[start:start + batch_size]
+            loss = torch.nn.functional.mse_loss(net(inputs[batch]), targets[batch])
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            total += loss.item() * len(batch)
+        losses.append(total / len(order))
+    exported = []
+    linears = [module for module in net if isinstance(module, torch.nn.Linear)]
+    for position, linear in enumerate(linears):
+        weight = linear.weight.detach().numpy().astype(np.float64)
+        bias = linear.bias.detach().numpy().astype(np.float64)
+        if position == 0:  # W ((x - m) / s) + b = (W / s) x + (b - W (m / s))
+            bias = bias - weight @ (mean / std)
+            weight = weight / std[None, :]
+        exported.append((weight.astype(np.float32), bias.astype(np.float32), "tanh"))
+    folder = write_policy(directory, exported, name=name, env_id="dvrl_marl/SurgeonSeat-v1",
+                          algorithm="behaviour cloning", observation_keys=["observation"],
+                          action_low=[-1.0] * y.shape[1], action_high=[1.0] * y.shape[1], agent="grasper",
+                          **(metadata or {}))
+    return folder, losses
+
+
+def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
+    """Record the dataset if missing, clone it, evaluate the clone; writes ``<out>/result.json``."""
+    import minari
+
+    from dvrl_marl import datasets, policies
+    from dvrl_marl.training import teams
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    began = time.perf_counter()
+    if config.dataset not in minari.list_local_datasets():
+        record = {"policy": "scripted", "episodes": 20, "seed": 0, **config.record}
+        datasets.record(config.dataset, record["policy"], int(record["episodes"]), seed=int(record["seed"]),
+                        env_kwargs=record.get("env_kwargs"))
+        if progress:
+            print(f"recorded {record['episodes']} episodes of {record['policy']} as {config.dataset}")
+    observations, actions = datasets.transitions(config.dataset)
+    folder, losses = clone(observations, actions, out / "policies" / "bc-surgeon", hidden=config.hidden,
+                           epochs=config.epochs, batch_size=config.batch_size, learning_rate=config.learning_rate,
+                           seed=seed, metadata={"dataset": config.dataset, "transitions": int(len(actions))})
+    evaluate = {"partner": "pipeline", "episodes": 100, **config.evaluate}
+    team = {"suction": teams.seat(evaluate["partner"], "suction"), "grasper": policies.load(folder)}
+    result = teams.evaluate_team_batched(team, int(evaluate["episodes"]), task="suction_debris_v1")
+    summary = {"dataset": config.dataset, "transitions": int(len(actions)), "final_loss": losses[-1],
+               "partner": evaluate["partner"], "policy": str(folder), "wall_seconds": round(time.perf_counter() - began, 1),
+               **{k: v for k, v in result.items() if k not in ("success", "steps")}}
+    (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
