@@ -9,7 +9,8 @@ algorithm = "bc"
 dataset = "dvrl_marl/surgeon-scripted-v1"   # a Minari dataset id (see dvrl_marl.datasets)
 [record]                                     # how to make the dataset if it is missing
 policy = "scripted"
-episodes = 20
+episodes = 100
+action_noise = 0.3                           # DART: the expert corrects noisy motion; labels stay its own
 [bc]
 hidden = [256, 256]
 epochs = 300
@@ -128,7 +129,7 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
     if config.dataset not in minari.list_local_datasets():
         record = {"policy": "scripted", "episodes": 20, "seed": 0, **config.record}
         datasets.record(config.dataset, record["policy"], int(record["episodes"]), seed=int(record["seed"]),
-                        env_kwargs=record.get("env_kwargs"))
+                        env_kwargs=record.get("env_kwargs"), action_noise=float(record.get("action_noise", 0.0)))
         if progress:
             print(f"recorded {record['episodes']} episodes of {record['policy']} as {config.dataset}")
     observations, actions = datasets.transitions(config.dataset)
