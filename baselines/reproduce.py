@@ -31,6 +31,14 @@ SHIPPED = {
 }
 
 
+#: The figures of record (results/learning_curves<suffix>.png, summary<suffix>.csv) and the configurations in each.
+FIGURES = {
+    "": ("pick_lnd_ddpg_her", "pick_lnd_ddpg_her_bc", "pick_lnd_sac_her", "pick_lnd_tqc_her", "reach_lnd_ddpg_her",
+         "reach_lnd_sac_her", "reach_lnd_tqc_her", "reach_suction_irrigation_ddpg_her"),
+    "_v1": ("pick_lnd_ddpg_her_bc_v1", "reach_lnd_ddpg_her_v1", "reach_suction_irrigation_ddpg_her_v1"),
+}
+
+
 def run(config: str, seed: int) -> Path:
     out = RUNS / f"{config}-seed{seed}"
     command = [sys.executable, "-m", "dvrl_marl.cli", "train", str(HERE / "configs" / f"{config}.toml"),
@@ -85,12 +93,18 @@ def main() -> None:
             list(pool.map(lambda job: run(*job), [(c, s) for c in args.configs for s in args.seeds]))
     for name in args.ship:
         print(name, ship(name, args.seeds[0]))
-    runs = sorted(str(p) for p in RUNS.glob("*-seed*") if (p / "progress.csv").is_file())
-    if runs:
-        from dvrl_marl.training.plots import plot_learning_curves, summary_table
+    from dvrl_marl.training.plots import plot_learning_curves, summary_table
 
-        print(plot_learning_curves(runs, HERE / "results" / "learning_curves"))
-        print(summary_table(runs, HERE / "results" / "summary"))
+    for suffix, configs in FIGURES.items():
+        # A figure of record is redrawn only from all of its runs: a partial set would overwrite it with less.
+        runs = [RUNS / f"{config}-seed{seed}" for config in configs for seed in args.seeds]
+        missing = [str(run) for run in runs if not (run / "progress.csv").is_file()]
+        if missing:
+            print(f"results/learning_curves{suffix}: not redrawn, {len(missing)} of {len(runs)} runs missing "
+                  f"(e.g. {missing[0]})")
+            continue
+        print(plot_learning_curves([str(run) for run in runs], HERE / "results" / f"learning_curves{suffix}"))
+        print(summary_table([str(run) for run in runs], HERE / "results" / f"summary{suffix}"))
 
 
 if __name__ == "__main__":
