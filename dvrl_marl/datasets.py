@@ -111,6 +111,7 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
     (``namespace/name-vN``); returns the dataset. An existing dataset of that id is an error (delete it with
     ``minari.delete_dataset``)."""
     minari = _minari()
+    _check_id(dataset_id)
     if dataset_id in minari.list_local_datasets():
         raise ValueError(f"a Minari dataset {dataset_id!r} exists already; delete it first (minari.delete_dataset)")
     buffers, env = record_episodes(policy, episodes, seed=seed, env_kwargs=env_kwargs, action_noise=action_noise)
@@ -121,6 +122,17 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
         code_permalink="https://github.com/dvrl-marl/dvrl-marl",
         description=description or (f"{episodes} episodes of {name} in the surgeon seat of suction_debris_v1 "
                                     f"(seeds {seed}..{seed + episodes - 1}, action noise {action_noise})"))
+
+
+def _check_id(dataset_id: str) -> None:
+    """Refuse a malformed id before anything is written (Minari would leave a folder that breaks its own listing)."""
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    try:
+        parse_dataset_id(dataset_id)
+    except ValueError as error:
+        raise ValueError(f"dataset id {dataset_id!r} is not of the form (namespace/)name-vN, e.g. "
+                         f"'dvrl_marl/surgeon-scripted-v1'") from error
 
 
 def _dataset(dataset):
@@ -184,6 +196,7 @@ def from_recording(dataset_id: str, paths, *, seeds=None, env_kwargs: dict | Non
     from dvrl_marl.teleop import ReplayDevice, load_demonstration
 
     minari = _minari()
+    _check_id(dataset_id)
     buffers, env = [], None
     for index, path in enumerate(paths):
         _, actions, metadata = load_demonstration(path)

@@ -103,6 +103,9 @@ def test_recordings_convert_and_datasets_are_not_overwritten(tmp_path):
     assert datasets.replay(dataset, 0)["max_observation_difference"] == 0.0
     with pytest.raises(ValueError, match="exists already"):
         datasets.record("dvrl_marl/keyboard-session-v1", "scripted", episodes=1, env_kwargs=SCRIPTED_PARTNER)
+    with pytest.raises(ValueError, match="not of the form"):  # refused before anything is written
+        datasets.record("dvrl_marl/noise-0.3-v1", "scripted", episodes=1, env_kwargs=SCRIPTED_PARTNER)
+    assert "dvrl_marl/keyboard-session-v1" in minari.list_local_datasets()  # the store still lists
 
 
 def test_behaviour_cloning_learns_and_seats_its_clone(recorded, tmp_path):
