@@ -118,6 +118,14 @@ def test_no_bleeding_draws_nothing_so_v0_streams_are_unchanged():
     observations_v1, _ = blood_free.reset(seed=9)
     for agent in v0.agents:  # the same start: the same draws
         np.testing.assert_array_equal(observations_v0[agent], observations_v1[agent])
+    first = observations_v1
+    observations_v0, _ = v0.reset()  # the stream goes on: any extra draw in v1 would shift this episode
+    observations_v1, _ = blood_free.reset()
+    for agent in v0.agents:
+        np.testing.assert_array_equal(observations_v0[agent], observations_v1[agent])
+    bleeding, _ = suction_debris_v1.parallel_env(bleeding_ml_s=0.2).reset(seed=9)
+    for agent in v0.agents:  # bleeding draws come after everything else: the start is the same
+        np.testing.assert_array_equal(bleeding[agent], first[agent])
 
 
 def _scripted_team_success(episodes, **kwargs):

@@ -22,6 +22,11 @@ _SAFE_HEIGHT = 0.010
 _PARK_HEIGHT = 0.030
 
 
+def _surgeon_home(base, workspace_range: float, park_z: float) -> np.ndarray:
+    """Where a surgeon waits (normalised): beside its RCM, towards the assistant, at the park height."""
+    return np.array([base[0] - 0.015 / workspace_range, base[1] + 0.02 / workspace_range, park_z])
+
+
 class _Scripted:
     """Shared by both experts. ``__call__`` takes one observation ``(d,)`` or a batch ``(N, d)`` (the batched
     environment's worlds)."""
@@ -145,7 +150,7 @@ class ScriptedSurgeon(_Scripted):
     def __init__(self, layout, observation_layout, workspace_range: float):
         super().__init__(layout, observation_layout, workspace_range)
         base = np.asarray(layout.base_positions["grasper"][:2])
-        self.home = np.array([base[0] - 0.015 / workspace_range, base[1] + 0.02 / workspace_range, self.park_z])
+        self.home = _surgeon_home(base, workspace_range, self.park_z)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         n = len(obs)
@@ -288,8 +293,7 @@ class KeepClearSurgeon(_KeepClear):
     def __init__(self, layout, observation_layout, workspace_range: float, hold_height: float = 0.004,
                  margin: float = 0.7):
         super().__init__(layout, observation_layout, workspace_range)
-        self.home = np.array([self.grasper_base[0] - 0.015 / workspace_range,
-                              self.grasper_base[1] + 0.02 / workspace_range, self.park_z])
+        self.home = _surgeon_home(self.grasper_base, workspace_range, self.park_z)
         self.hold = np.array([0.0, 0.0, hold_height / workspace_range])
         self.margin = float(margin)
 

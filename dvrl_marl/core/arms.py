@@ -33,6 +33,10 @@ class ArmBatch:
         self.q = np.zeros((self.num_worlds, self.tool.n_joints))
         self.jaw = np.ones(self.num_worlds)
 
+    def _tool_points(self, tips: np.ndarray) -> np.ndarray:
+        """Where the tool points of ``tips`` lie (what IK solves for); ``tips`` itself, no copy, when they coincide."""
+        return tips - self._to_tool_point if self.tool_point_drop else tips
+
     def tip_world(self) -> np.ndarray:
         """Tip positions in world coordinates (a new array)."""
         return self.tip + self.base_position
@@ -40,7 +44,7 @@ class ArmBatch:
     def set_tips(self, worlds, positions) -> None:
         """Put the tips of ``worlds`` (indices or mask) at ``positions`` (base frame); they must be reachable."""
         positions = np.asarray(positions, dtype=np.float64)
-        q, reachable = kinematics.inverse_kinematics_batch(self.tool, positions - self._to_tool_point)
+        q, reachable = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(positions))
         if not np.all(reachable):
             raise kinematics.UnreachableError(self.tool.name, positions[np.argmin(reachable)] if positions.ndim > 1
                                               else positions, "geometry", np.nan, (np.nan, np.nan))
@@ -54,7 +58,7 @@ class ArmBatch:
         """
         start = self.tip
         target = np.minimum(np.maximum(start + delta, low), high)
-        q, reachable = kinematics.inverse_kinematics_batch(self.tool, target - self._to_tool_point)
+        q, reachable = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(target))
         blocked = ~reachable
         if blocked.any():
             rows = np.flatnonzero(blocked)
@@ -64,19 +68,19 @@ class ArmBatch:
             bad = np.ones(len(rows))
             for _ in range(_PROJECTION_ITERATIONS):
                 mid = 0.5 * (good + bad)
-                _, ok = kinematics.inverse_kinematics_batch(self.tool, origin + mid[:, None] * span - self._to_tool_point)
+                _, ok = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(origin + mid[:, None] * span))
                 good = np.where(ok, mid, good)
                 bad = np.where(ok, bad, mid)
             reached = origin + good[:, None] * span
             target[rows] = reached
-            q[rows] = kinematics.inverse_kinematics_batch(self.tool, reached - self._to_tool_point)[0]
+            q[rows] = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(reached))[0]
         self.tip = target
         self.q = q
         return blocked
 
     def tool_point_world(self) -> np.ndarray:
         """Where each tool acts (jaw control point / tube tip), world coordinates (a new array)."""
-        return self.tip + self.base_position - self._to_tool_point
+        return self._tool_points(self.tip + self.base_position)
 
     def wrist_world(self) -> np.ndarray:
         """The wrist pitch point (where the straight shaft ends) of every arm, world frame: ``(N, 3)``.

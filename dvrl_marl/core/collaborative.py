@@ -496,6 +496,8 @@ class CollaborativeCore:
 
     def _fall(self) -> None:
         """Released pins fall under gravity onto the surface below them (the single env's arithmetic)."""
+        if not self.params.pins_fall:  # v0: released pins never fall
+            return
         falling = ~np.isnan(self.fall_speed)
         if not falling.any():
             return

@@ -732,6 +732,8 @@ class SuctionDebrisEnv(ParallelEnv):
                 for _ in self.phantom.cavities]
 
     def _bleed(self) -> None:
+        if not self.bleeding:  # v0, and v1 without a bleeding field: nothing to do on the step path
+            return
         now, dt = self._step_count * self.params.control_dt, self.params.control_dt
         for index, (onset, rate) in enumerate(self.bleeding):
             if now >= onset and self.blood.bleed(index, rate * dt) > 0.0:
@@ -739,6 +741,8 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _fall(self) -> None:
         """Released pins fall under gravity onto the surface below them (never into it)."""
+        if not self.params.pins_fall:  # v0: released pins never fall
+            return
         dt = self.params.control_dt
         for index, pin in enumerate(self.debris):
             if pin.fall_speed is None:
