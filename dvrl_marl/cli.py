@@ -142,6 +142,29 @@ def _demo(args) -> int:
     return 0
 
 
+def _teleop(args) -> int:
+    from dvrl_marl.teleop.session import TeleopSession
+    from dvrl_marl.teleop.web import TeleopServer
+
+    session = TeleopSession(seat=args.seat, partner=args.partner, seed=args.seed, record=not args.no_record,
+                            dataset_id=args.dataset, max_cycles=args.max_cycles)
+    server = TeleopServer(session, args.host, args.port, allow_remote=args.allow_remote, token=args.token)
+    print(f"dvrl-marl teleop: the {args.seat} seat beside the {args.partner} partner; open this URL in a browser "
+          f"(Ctrl-C to stop):\n  {server.url}", flush=True)
+    if not args.no_record:
+        print(f"every episode is recorded; the Minari dataset {session.dataset_id} (or its next free version) is "
+              "written when you stop recording or the server stops", flush=True)
+    saved = server.run()
+    for dataset in saved:
+        if dataset.get("id"):
+            print(f"saved Minari dataset {dataset['id']}: {dataset['episodes']} episodes "
+                  f"({dataset['successes']} succeeded) in {dataset['path']}")
+        else:
+            print(f"dvrl-marl teleop: could not save {dataset['episodes']} episodes: {dataset['error']}",
+                  file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dvrl-marl", description="dVRK reinforcement-learning environments on MuJoCo")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -160,6 +183,23 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--no-video", action="store_true", help="skip rendering")
     demo.add_argument("--no-progress", action="store_true", help="no progress bar")
     demo.set_defaults(func=_demo)
+    teleop = sub.add_parser("teleop", help="a person in the surgeon seat, in a web browser (prints the URL to open)")
+    teleop.add_argument("--seat", choices=["grasper", "suction"], default="grasper",
+                        help="the arm the person works (default: grasper, the LND)")
+    teleop.add_argument("--partner", default="scripted", help="who works the other arm: scripted (default), learned "
+                        "(the learned_team pipeline's policy), pipeline, or a shipped policy name or folder")
+    teleop.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: any free port)")
+    teleop.add_argument("--host", default="127.0.0.1", help="interface to serve on (default 127.0.0.1: this "
+                        "machine only; another needs --allow-remote)")
+    teleop.add_argument("--allow-remote", action="store_true", help="allow --host to be reachable from other "
+                        "machines (the access token in the URL is still checked on every connection)")
+    teleop.add_argument("--token", help="access token (default: a new random one, printed in the URL)")
+    teleop.add_argument("--seed", type=int, default=0, help="episode k runs seed SEED + k")
+    teleop.add_argument("--max-cycles", type=int, help="steps before an episode is cut (default 6000: 2 minutes)")
+    teleop.add_argument("--dataset", default="dvrl_marl/surgeon-teleop-v1",
+                        help="Minari dataset id to record into (the next free version when taken)")
+    teleop.add_argument("--no-record", action="store_true", help="do not record episodes")
+    teleop.set_defaults(func=_teleop)
     render = sub.add_parser("render", help="render a scene from its endoscope camera and print a summary")
     render.add_argument("--scene", default="collaborative", help="scene name in scenes/ (default: collaborative)")
     render.add_argument("--out", default="collaborative.png", help="PNG file to write")
@@ -213,17 +253,20 @@ def main(argv: list[str] | None = None) -> int:
     except ModuleNotFoundError as error:
         if (error.name or "").split(".")[0] not in _EXTRA_MODULES:
             raise
-        print(f"dvrl-marl: {args.command} needs the training extra ({error.name} is not installed): "
-              'pip install "dvrl-marl[train]"', file=sys.stderr)
+        extra = "teleop" if args.command == "teleop" and error.name != "minari" else (
+            "data" if error.name == "minari" else "train")
+        print(f"dvrl-marl: {args.command} needs the {extra} extra ({error.name} is not installed): "
+              f'pip install "dvrl-marl[{extra}]"', file=sys.stderr)
         return 2
     except (FileNotFoundError, ValueError) as error:
         print(f"dvrl-marl: error: {error}", file=sys.stderr)
         return 2
 
 
-#: What the [train] extra brings; a command missing one of them ends with the install hint, not a traceback.
+#: What the optional extras bring ([train], [teleop], [data]); a command missing one of them ends with the install
+#: hint, not a traceback.
 _EXTRA_MODULES = {"torch", "torchrl", "tensordict", "stable_baselines3", "sb3_contrib", "supersuit", "matplotlib",
-                  "tensorboard"}
+                  "tensorboard", "starlette", "uvicorn", "websockets", "minari"}
 
 
 if __name__ == "__main__":

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "SEAT_ENV_ID"]
+__all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "EpisodeRecorder",
+           "save_episodes", "next_free_id", "SEAT_ENV_ID"]
 
 #: The Gymnasium env every dataset here is recorded from.
 SEAT_ENV_ID = "dvrl_marl/SurgeonSeat-v1"
@@ -78,9 +79,7 @@ def record_episodes(policy, episodes: int, *, seed: int = 0, env_kwargs: dict | 
         observation, info = env.reset(seed=seed + episode)
         if hasattr(act, "reset"):
             act.reset()
-        observations, actions, rewards, terminations, truncations = [observation], [], [], [], []
-        infos = {key: [info[key]] for key in _INFO_KEYS}
-        infos["expert_action"] = [np.zeros(4, dtype=np.float32)]
+        recorder = EpisodeRecorder(episode, seed + episode, observation, info)
         done = False
         while not done:
             wanted = np.asarray(act.action(observation) if hasattr(act, "action") else act(observation),
@@ -89,20 +88,83 @@ def record_episodes(policy, episodes: int, *, seed: int = 0, env_kwargs: dict | 
             if action_noise > 0.0:
                 action[:3] = np.clip(action[:3] + noise.normal(0.0, action_noise, 3), -1.0, 1.0)
             observation, reward, terminated, truncated, info = env.step(action)
-            observations.append(observation)
-            actions.append(action)
-            rewards.append(reward)
-            terminations.append(terminated)
-            truncations.append(truncated)
-            for key in _INFO_KEYS:
-                infos[key].append(info[key])
-            infos["expert_action"].append(wanted)
+            recorder.step(action, observation, reward, terminated, truncated, info, expert_action=wanted)
             done = terminated or truncated
-        buffers.append(EpisodeBuffer(id=episode, seed=seed + episode, observations=observations, actions=actions,
-                                     rewards=rewards, terminations=terminations, truncations=truncations,
-                                     infos={key: np.asarray(values) for key, values in infos.items()}))
+        buffers.append(recorder.buffer())
     env.close()
     return buffers, env
+
+
+class EpisodeRecorder:
+    """One episode of the seat, step by step, as a Minari episode buffer: what :func:`record_episodes` and the
+    browser seat (:mod:`dvrl_marl.teleop.session`) write. ``extra_info`` names further per-step info keys to keep
+    (each step's info must then hold them; the reset's value is taken from ``info`` or False)."""
+
+    def __init__(self, episode_id: int, seed: int, observation, info: dict, extra_info: tuple[str, ...] = ()):
+        self.episode_id, self.seed = int(episode_id), int(seed)
+        self._keys = _INFO_KEYS + tuple(extra_info)
+        self.observations, self.actions, self.rewards = [np.array(observation)], [], []
+        self.terminations, self.truncations = [], []
+        self.infos = {key: [info.get(key, False)] for key in self._keys}
+        self.infos["expert_action"] = [np.zeros(4, dtype=np.float32)]
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def step(self, action, observation, reward, terminated, truncated, info: dict, expert_action=None) -> None:
+        """One step: the action executed and what the env returned; ``expert_action`` is the label a clone learns
+        (the action itself when not given)."""
+        action = np.asarray(action, dtype=np.float32)
+        self.observations.append(np.array(observation))
+        self.actions.append(action)
+        self.rewards.append(float(reward))
+        self.terminations.append(bool(terminated))
+        self.truncations.append(bool(truncated))
+        for key in self._keys:
+            self.infos[key].append(info[key])
+        self.infos["expert_action"].append(action if expert_action is None else np.asarray(expert_action, np.float32))
+
+    def buffer(self, stopped: bool = False):
+        """The episode as a Minari ``EpisodeBuffer``; ``stopped``: it ended before the env said so (a person stopped
+        recording or reset), recorded as a truncation at its last step."""
+        from minari.data_collector.episode_buffer import EpisodeBuffer
+
+        if not self.actions:
+            raise ValueError("an episode needs at least one step to be recorded")
+        truncations = list(self.truncations)
+        if stopped and not (self.terminations[-1] or truncations[-1]):
+            truncations[-1] = True
+        return EpisodeBuffer(id=self.episode_id, seed=self.seed, observations=list(self.observations),
+                             actions=list(self.actions), rewards=list(self.rewards),
+                             terminations=list(self.terminations), truncations=truncations,
+                             infos={key: np.asarray(values) for key, values in self.infos.items()})
+
+
+def save_episodes(dataset_id: str, buffers, env, *, description: str, algorithm_name: str):
+    """Write episode buffers recorded in ``env`` (made with ``gym.make``, so its spec can be replayed) as the
+    Minari dataset ``dataset_id``."""
+    minari = _minari()
+    _check_id(dataset_id)
+    if dataset_id in minari.list_local_datasets():
+        raise ValueError(f"a Minari dataset {dataset_id!r} exists already; delete it first (minari.delete_dataset)")
+    return minari.create_dataset_from_buffers(
+        dataset_id, list(buffers), env=env.spec, eval_env=env.spec, algorithm_name=algorithm_name,
+        author="dvrl-marl", author_email="dvrl-marl@users.noreply.github.com",
+        code_permalink="https://github.com/dvrl-marl/dvrl-marl", description=description)
+
+
+def next_free_id(dataset_id: str) -> str:
+    """``dataset_id`` if no local dataset has it, else the same name at the first free version (``-v2``, ``-v3``...)."""
+    minari = _minari()
+    _check_id(dataset_id)
+    from minari.dataset.minari_dataset import gen_dataset_id, parse_dataset_id
+
+    namespace, name, version = parse_dataset_id(dataset_id)
+    taken = set(minari.list_local_datasets())
+    version = 1 if version is None else int(version)
+    while gen_dataset_id(namespace, name, version) in taken:
+        version += 1
+    return gen_dataset_id(namespace, name, version)
 
 
 def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kwargs: dict | None = None,
@@ -110,18 +172,15 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
     """Record ``episodes`` episodes of ``policy`` in the surgeon seat as the Minari dataset ``dataset_id``
     (``namespace/name-vN``); returns the dataset. An existing dataset of that id is an error (delete it with
     ``minari.delete_dataset``)."""
-    minari = _minari()
     _check_id(dataset_id)
-    if dataset_id in minari.list_local_datasets():
+    if dataset_id in _minari().list_local_datasets():  # before the episodes are run, not after
         raise ValueError(f"a Minari dataset {dataset_id!r} exists already; delete it first (minari.delete_dataset)")
     buffers, env = record_episodes(policy, episodes, seed=seed, env_kwargs=env_kwargs, action_noise=action_noise)
     name = policy if isinstance(policy, str) else type(policy).__name__
-    return minari.create_dataset_from_buffers(
-        dataset_id, buffers, env=env.spec, eval_env=env.spec, algorithm_name=algorithm_name or f"dvrl-marl {name}",
-        author="dvrl-marl", author_email="dvrl-marl@users.noreply.github.com",
-        code_permalink="https://github.com/dvrl-marl/dvrl-marl",
-        description=description or (f"{episodes} episodes of {name} in the surgeon seat of suction_debris_v1 "
-                                    f"(seeds {seed}..{seed + episodes - 1}, action noise {action_noise})"))
+    return save_episodes(dataset_id, buffers, env, algorithm_name=algorithm_name or f"dvrl-marl {name}",
+                         description=description or (f"{episodes} episodes of {name} in the surgeon seat of "
+                                                     f"suction_debris_v1 (seeds {seed}..{seed + episodes - 1}, "
+                                                     f"action noise {action_noise})"))
 
 
 def _check_id(dataset_id: str) -> None:
@@ -195,7 +254,6 @@ def from_recording(dataset_id: str, paths, *, seeds=None, env_kwargs: dict | Non
     file's metadata names)."""
     from dvrl_marl.teleop import ReplayDevice, load_demonstration
 
-    minari = _minari()
     _check_id(dataset_id)
     buffers, env = [], None
     for index, path in enumerate(paths):
@@ -203,7 +261,5 @@ def from_recording(dataset_id: str, paths, *, seeds=None, env_kwargs: dict | Non
         seed = int(seeds[index] if seeds is not None else metadata.get("seed", index))
         episode_buffers, env = record_episodes(ReplayDevice(actions), 1, seed=seed, env_kwargs=env_kwargs)
         buffers.append(episode_buffers[0].__class__(**{**episode_buffers[0].__dict__, "id": index}))
-    return minari.create_dataset_from_buffers(
-        dataset_id, buffers, env=env.spec, eval_env=env.spec, algorithm_name="dvrl-marl recording", author="dvrl-marl",
-        author_email="dvrl-marl@users.noreply.github.com", code_permalink="https://github.com/dvrl-marl/dvrl-marl",
-        description=f"{len(buffers)} recorded episodes converted from demonstration files")
+    return save_episodes(dataset_id, buffers, env, algorithm_name="dvrl-marl recording",
+                         description=f"{len(buffers)} recorded episodes converted from demonstration files")

@@ -350,7 +350,8 @@ class SuctionDebrisEnv(ParallelEnv):
         self.human_seat = bool(getattr(device, "human_operated", False))
         self._renderer = SceneRenderer(self.model, self.data, render_mode, width=width, height=height,
                                        key_listener=getattr(device, "key_event", None), overlay=self.overlay,
-                                       title="dvrl-marl: suction & debris", frame_budget=0.5 * p.control_dt)
+                                       title="dvrl-marl: suction & debris",
+                                       frame_budget=0.5 * p.control_dt if render_mode == "human" else None)
         self._display = PacedDisplay(self._renderer, p.control_dt) if render_mode == "human" else None
         self._executor = None
         self._pending_teleop = None
@@ -546,16 +547,33 @@ class SuctionDebrisEnv(ParallelEnv):
         if self._surgeon_is_device and hasattr(self._surgeon, "close"):
             self._safe_device_call(self._surgeon.close)
 
+    def progress(self) -> dict:
+        """Where the episode stands, for a person watching it: blood left per cavity (ml), debris found (uncovered
+        or delivered), delivered and in all, elapsed time (s), steps, whether the field is clear, and each arm's
+        tool tip (world frame, m) with the jaw opening (0 closed .. 1 open) and whether the suction valve is open."""
+        return {
+            "blood_ml": [float(v) for v in self.blood.remaining_ml],
+            "debris_found": int(sum(pin.visible or pin.delivered for pin in self.debris)),
+            "debris_delivered": int(sum(pin.delivered for pin in self.debris)),
+            "debris_total": len(self.debris),
+            "time_s": self._step_count * self.params.control_dt,
+            "steps": self._step_count,
+            "success": bool(self._complete()),
+            "tips": {agent: [float(v) for v in self.arms[agent].tip_world()] for agent in AGENTS},
+            "jaw": float(self.arms["grasper"].jaw),
+            "valve_open": bool(self.valve_open),
+        }
+
     def overlay(self) -> list[tuple[str, str, str]]:
         """What the window draws over the scene (``render_mode="human"``): ``(position, labels, values)`` panels."""
-        blood = " + ".join(f"{v:.1f}" for v in self.blood.remaining_ml)
-        found = sum(pin.visible or pin.delivered for pin in self.debris)
-        delivered = sum(pin.delivered for pin in self.debris)
+        progress = self.progress()
+        blood = " + ".join(f"{v:.1f}" for v in progress["blood_ml"])
+        total = progress["debris_total"]
         seat = f"{self.surgeon_seat} ({self.surgeon_label})" if self.surgeon_seat else "none"
         overlays = [("top left",
                      "Blood left (ml)\nDebris found\nDebris delivered\nTime\nSurgeon seat",
-                     f"{blood}\n{found} / {len(self.debris)}\n{delivered} / {len(self.debris)}\n"
-                     f"{self._step_count * self.params.control_dt:.1f} s\n{seat}")]
+                     f"{blood}\n{progress['debris_found']} / {total}\n{progress['debris_delivered']} / {total}\n"
+                     f"{progress['time_s']:.1f} s\n{seat}")]
         help_rows = getattr(self._surgeon, "KEY_HELP", None) if self._surgeon_is_device else None
         if help_rows:
             overlays.append(("bottom right", "\n".join(k for k, _ in help_rows), "\n".join(v for _, v in help_rows)))
