@@ -96,7 +96,7 @@ class BrowserDevice:
             raise BadMessage(f"'seq' must be a non-negative integer, got {seq!r}")
         if kind == "key":
             code, down = message.get("code"), message.get("down")
-            if code not in BROWSER_KEYS:
+            if not isinstance(code, str) or code not in BROWSER_KEYS:
                 raise BadMessage(f"unknown key code {code!r}; known: {sorted(BROWSER_KEYS)}")
             if not isinstance(down, bool):
                 raise BadMessage(f"'down' must be true or false, got {down!r}")
