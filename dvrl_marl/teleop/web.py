@@ -246,6 +246,8 @@ class TeleopServer:
         """Serve until interrupted; returns the datasets the session wrote."""
         try:
             self._server.run(sockets=[self._socket])
+        except KeyboardInterrupt:  # uvicorn shuts down gracefully on Ctrl-C, then re-raises it: that is our stop
+            pass
         finally:
             saved = self.session.close()
         return saved
