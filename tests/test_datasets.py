@@ -134,3 +134,36 @@ def test_train_command_records_clones_and_evaluates(tmp_path, capsys):
     assert result["dataset"] == "dvrl_marl/surgeon-tiny-v1" and result["episodes"] == 3
     assert 0.0 <= result["success_rate"] <= 1.0 and "held-out episodes" in capsys.readouterr().out
     assert "dvrl_marl/surgeon-tiny-v1" in minari.list_local_datasets()
+
+
+def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
+    from dvrl_marl.agents.collaborative import ScriptedSurgeon
+    from dvrl_marl.cli import main
+    from dvrl_marl.training.clone import dagger_round, load_config
+
+    config = tmp_path / "tiny_dagger.toml"
+    config.write_text('[run]\nalgorithm = "bc"\ndataset = "dvrl_marl/surgeon-dagger-v1"\n'
+                      '[record]\npolicy = "scripted"\nepisodes = 1\nseed = 4\nenv_kwargs = { partner = "scripted" }\n'
+                      '[bc]\nhidden = [32]\nepochs = 2\n[dagger]\nrounds = 2\nepisodes = 2\n'
+                      '[evaluate]\npartner = "scripted"\nepisodes = 2\n')
+    assert main(["train", str(config), "--out", str(tmp_path / "run"), "--no-progress"]) == 0
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    recorded = len(datasets.transitions("dvrl_marl/surgeon-dagger-v1")[1])
+    assert [r["round"] for r in result["dagger"]] == [1, 2]
+    assert result["transitions"] == recorded + sum(r["visited"] for r in result["dagger"])
+    relabelled = np.load(tmp_path / "run" / "dagger.npz")
+    expert = ScriptedSurgeon.for_env(suction_debris_v1.parallel_env())
+    np.testing.assert_allclose(relabelled["actions"][:50], expert(relabelled["observations"][:50]), atol=1e-6)
+    assert policies.load(tmp_path / "run" / "policies" / "bc-surgeon").spec["dagger_rounds"] == 2
+
+    visited, labels = dagger_round(policies.load(tmp_path / "run" / "policies" / "bc-surgeon"), "scripted", 2, seed=7)
+    assert len(visited) == len(labels) >= 2 and labels.shape[1] == 4
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[run]\nalgorithm = "bc"\ndataset = "dvrl_marl/x-v1"\n[record]\npolicy = "reach-lnd"\n'
+                   '[dagger]\nrounds = 1\n')
+    with pytest.raises(ValueError, match="scripted"):
+        load_config(bad)
+    bad.write_text('[run]\nalgorithm = "bc"\ndataset = "dvrl_marl/x-v1"\n[dagger]\nround = 1\n')
+    with pytest.raises(ValueError, match="unknown \\[dagger\\] key"):
+        load_config(bad)

@@ -14,10 +14,19 @@ action_noise = 0.3                           # DART: the expert corrects noisy m
 [bc]
 hidden = [256, 256]
 epochs = 300
+[dagger]                                     # optional: DAgger rounds after the clone (needs a queryable expert)
+rounds = 3
+episodes = 100
 [evaluate]
 partner = "pipeline"                         # the learned suction
 episodes = 100
 ```
+
+``[dagger]`` (Ross, Gordon and Bagnell 2011): the clone works the seat beside its partner on ``episodes`` training
+worlds (seeds from ``seed``, never the held-out range), the expert labels every observation it visited, the
+labels join the dataset's and the clone is fitted again; ``rounds`` times. It needs an expert to ask: the
+dataset's recorder must be ``"scripted"`` (a person's recording has none). The relabelled transitions are saved
+beside the policy (``dagger.npz``).
 
 The network maps the seat's observation (normalised by the dataset's mean and spread, folded into the exported
 first layer) to its action through tanh layers; the loss is the mean squared action error. The clone is a numpy
@@ -33,7 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CloneConfig", "load_config", "clone", "train"]
+__all__ = ["CloneConfig", "load_config", "clone", "train", "dagger_round", "DAGGER_SEED"]
+
+#: DAgger's worlds are seeded from here: apart from the recorded episodes' seeds (0...) and from the validation and
+#: held-out ranges (teams.VALIDATION_SEED, teams.EVAL_SEED).
+DAGGER_SEED = 100_000_000
 
 
 @dataclass(frozen=True)
@@ -46,6 +59,7 @@ class CloneConfig:
     batch_size: int = 512
     learning_rate: float = 1e-3
     evaluate: dict = field(default_factory=dict)
+    dagger: dict = field(default_factory=dict)
 
 
 def load_config(path) -> CloneConfig:
@@ -59,8 +73,17 @@ def load_config(path) -> CloneConfig:
     unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate"}
     if unknown:
         raise ValueError(f"{path}: unknown [bc] key(s) {sorted(unknown)}")
+    dagger = dict(table.get("dagger", {}))
+    unknown = set(dagger) - {"rounds", "episodes", "seed"}
+    if unknown:
+        raise ValueError(f"{path}: unknown [dagger] key(s) {sorted(unknown)}")
+    if dagger and (int(dagger.get("rounds", 1)) < 1 or int(dagger.get("episodes", 1)) < 1):
+        raise ValueError(f"{path}: [dagger] rounds and episodes must be positive")
+    if dagger and table.get("record", {}).get("policy", "scripted") != "scripted":
+        raise ValueError(f"{path}: [dagger] asks the expert to label the clone's states: [record] policy must be "
+                         "\"scripted\"")
     config = CloneConfig(name=path.stem, dataset=run["dataset"], record=dict(table.get("record", {})),
-                         evaluate=dict(table.get("evaluate", {})),
+                         evaluate=dict(table.get("evaluate", {})), dagger=dagger,
                          **{k: (tuple(v) if k == "hidden" else v) for k, v in bc.items()})
     if not config.hidden or any(int(h) < 1 for h in config.hidden) or config.epochs < 1 or config.batch_size < 1:
         raise ValueError(f"{path}: hidden sizes, epochs and batch_size must be positive")
@@ -116,6 +139,29 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
     return folder, losses
 
 
+def dagger_round(policy, partner: str, episodes: int, seed: int, task: str = "suction_debris_v1"):
+    """Let ``policy`` work the grasper seat beside ``partner`` on ``episodes`` worlds (seeded ``seed``, ``seed + 1``...)
+    and return every observation it visited with the scripted surgeon's action for it."""
+    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.training import teams
+
+    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", task=task)
+    expert, suction = teams.seat("scripted", "grasper"), teams.seat(partner, "suction")
+    observations, _ = env.reset(seed=seed)
+    done = np.zeros(episodes, dtype=bool)
+    visited, labels = [], []
+    while not done.all():
+        live = ~done
+        grasper = observations["grasper"]
+        visited.append(grasper[live].copy())
+        labels.append(np.asarray(expert(grasper[live]), dtype=np.float32))
+        observations, _, terminations, truncations, _ = env.step(
+            {"suction": np.asarray(suction(observations["suction"])), "grasper": np.asarray(policy(grasper))})
+        done |= terminations["grasper"] | truncations["grasper"]
+    env.close()
+    return np.concatenate(visited), np.concatenate(labels)
+
+
 def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
     """Record the dataset if missing, clone it, evaluate the clone; writes ``<out>/result.json``."""
     import minari
@@ -133,14 +179,36 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
         if progress:
             print(f"recorded {record['episodes']} episodes of {record['policy']} as {config.dataset}")
     observations, actions = datasets.transitions(config.dataset)
-    folder, losses = clone(observations, actions, out / "policies" / "bc-surgeon", hidden=config.hidden,
-                           epochs=config.epochs, batch_size=config.batch_size, learning_rate=config.learning_rate,
-                           seed=seed, metadata={"dataset": config.dataset, "transitions": int(len(actions))})
+    fit = dict(hidden=config.hidden, epochs=config.epochs, batch_size=config.batch_size,
+               learning_rate=config.learning_rate, seed=seed)
+    folder, losses = clone(observations, actions, out / "policies" / "bc-surgeon", **fit,
+                           metadata={"dataset": config.dataset, "transitions": int(len(actions))})
+    partner = {"partner": "pipeline", **config.evaluate}["partner"]
+    rounds = []
+    if config.dagger:
+        dagger = {"rounds": 3, "episodes": 100, "seed": DAGGER_SEED, **config.dagger}
+        seen, labels = [observations], [actions]
+        for index in range(int(dagger["rounds"])):
+            visited, expert = dagger_round(policies.load(folder), partner, int(dagger["episodes"]),
+                                           int(dagger["seed"]) + index * int(dagger["episodes"]))
+            seen.append(visited)
+            labels.append(expert)
+            observations, actions = np.concatenate(seen), np.concatenate(labels)
+            folder, losses = clone(observations, actions, out / "policies" / "bc-surgeon", **fit,
+                                   metadata={"dataset": config.dataset, "transitions": int(len(actions)),
+                                             "dagger_rounds": index + 1})
+            rounds.append({"round": index + 1, "visited": int(len(visited)), "transitions": int(len(actions)),
+                           "final_loss": losses[-1]})
+            if progress:
+                print(f"DAgger round {index + 1}: {len(visited)} states relabelled, {len(actions)} transitions")
+        np.savez_compressed(out / "dagger.npz", observations=np.concatenate(seen[1:]),
+                            actions=np.concatenate(labels[1:]))
     evaluate = {"partner": "pipeline", "episodes": 100, **config.evaluate}
     team = {"suction": teams.seat(evaluate["partner"], "suction"), "grasper": policies.load(folder)}
     result = teams.evaluate_team_batched(team, int(evaluate["episodes"]), task="suction_debris_v1")
     summary = {"dataset": config.dataset, "transitions": int(len(actions)), "final_loss": losses[-1],
-               "partner": evaluate["partner"], "policy": str(folder), "wall_seconds": round(time.perf_counter() - began, 1),
+               "partner": evaluate["partner"], "policy": str(folder), "dagger": rounds,
+               "wall_seconds": round(time.perf_counter() - began, 1),
                **{k: v for k, v in result.items() if k not in ("success", "steps")}}
     (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
