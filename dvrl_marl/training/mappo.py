@@ -405,12 +405,19 @@ class _GraspPathShaping:
 
 
 def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = None, resume: bool = False,
-          progress: bool = True, tensorboard: bool = True, log=print) -> dict:
-    """Train (or resume) a run; returns the last evaluation row. Exports the actors to ``out_dir/policies``."""
+          progress: bool = True, tensorboard: bool = True, log=print, ray_address: str | None = None,
+          num_collectors: int = 0, on_iteration=None) -> dict:
+    """Train (or resume) a run; returns the last evaluation row. Exports the actors to ``out_dir/policies``.
+
+    ``ray_address`` / ``num_collectors``: collect experience on Ray actors (:mod:`dvrl_marl.training.collectors`;
+    ``ray_address="auto"`` joins the cluster this machine belongs to, ``None`` with ``num_collectors`` starts Ray in
+    this process); otherwise here. ``on_iteration(iteration, collectors)`` runs after each update (monitoring,
+    tests)."""
     torch = _torch()
     from tensordict import TensorDict
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+    from dvrl_marl.training.collectors import make_collectors
 
     if config.torch_threads:
         torch.set_num_threads(int(config.torch_threads))
@@ -418,11 +425,9 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     out.mkdir(parents=True, exist_ok=True)
     total = int(total_steps or config.total_steps)
     surgeon = None if config.surgeon == "none" else config.surgeon
-    train_env = dict(config.env)
-    if config.contact_penalty is not None:
-        train_env["contact_penalty"] = config.contact_penalty
-    env = suction_debris_v0.batched_env(num_envs=config.num_envs, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
-                                        autoreset_mode="disabled", **train_env)
+    # The learner's view of the env (spaces, layout for the scripted partner in evaluation): one world.
+    env = suction_debris_v0.batched_env(num_envs=1, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
+                                        autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)
     n, horizon, count = config.num_envs, config.rollout_steps, len(agents)
     obs_dim = env.observation_space(agents[0]).shape[0]
@@ -440,7 +445,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     optimiser = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate)
     # running variance of the discounted return, per agent: rewards are divided by its square root (reward scaling)
     return_var_state = {"mean": np.zeros(count), "var": np.ones(count), "count": 1e-4}
-    steps_done, iteration, rng = 0, 0, np.random.default_rng(seed)
+    steps_done, iteration, rng_states = 0, 0, None
     checkpoint = out / "checkpoint.pt"
     if resume and checkpoint.is_file():
         saved = torch.load(checkpoint, weights_only=False)
@@ -448,7 +453,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         optimiser.load_state_dict(saved["optimiser"])
         return_var_state = saved["return_var"]
         steps_done, iteration = saved["steps"], saved["iteration"]
-        rng.bit_generator.state = saved["rng"]
+        rng_states = saved.get("collector_rng") or [saved["rng"]]  # (checkpoints before collectors kept one stream)
         torch.set_rng_state(saved["torch_rng"])
         log(f"resumed {out} at {steps_done} steps")
     (out / "config.toml").write_text(_config_toml(config))
@@ -460,25 +465,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             writer = SummaryWriter(str(out / "tb"))
         except ImportError:
             log("tensorboard is not installed: no TensorBoard logs")
-    curriculum = _Curriculum(config, env, rng)
-    shaping = _GraspPathShaping(env, config.grasp_path_shaping, agents, config.hold_bonus)
-    observations, _ = env.reset(seed=TRAIN_SEED_BASE * (seed + 1) + steps_done)
-    curriculum.reset(np.ones(n, dtype=bool), config.easy_fraction(steps_done / total))
-    observations = env.observations()
-    discounted = np.zeros((n, count))
-    # Worlds that start together stay in step for a whole episode (1,500 steps, ~50 rollouts of the same phase);
-    # the first episode of each world is cut at a random length (a time limit, bootstrapped like the env's own).
-    episode_step = np.zeros(n, dtype=np.int64)
-    first_cut = rng.integers(1, env.params.max_cycles + 1, n)
-    obs_buf = np.zeros((horizon, n, count, obs_dim), dtype=np.float32)
-    next_obs_buf = np.zeros_like(obs_buf)
-    state_buf = np.zeros((horizon, n, state_dim), dtype=np.float32)
-    next_state_buf = np.zeros_like(state_buf)
-    action_buf = np.zeros((horizon, n, count, 4), dtype=np.float32)
-    logp_buf = np.zeros((horizon, n, count), dtype=np.float32)
-    reward_buf = np.zeros((horizon, n, count), dtype=np.float32)
-    done_buf = np.zeros((horizon, n), dtype=bool)
-    term_buf = np.zeros((horizon, n), dtype=bool)
+    collectors = make_collectors(config, seed, actor=actor, steps_done=steps_done,
+                                 easy=config.easy_fraction(steps_done / total), rng_states=rng_states,
+                                 ray_address=ray_address, num_collectors=num_collectors)
+    if collectors.count > 1 or ray_address is not None or num_collectors:
+        spread = collectors.where()
+        log(f"collecting on Ray: {len(spread)} collectors on {len({w['node_id'] for w in spread})} node(s), "
+            f"{'/'.join(str(w['worlds']) for w in spread)} worlds")
     progress_file = out / "progress.csv"
     if not (resume and progress_file.is_file()):
         progress_file.write_text("steps,success_rate,blood_removed_ml,median_steps,contact_steps,easy_fraction,"
@@ -492,159 +485,134 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     if resume and (out / "best.json").is_file():
         best_success, best_blood = json.loads((out / "best.json").read_text())
     last = {}
-    state = env.state()
-    while steps_done < total:
-        easy = config.easy_fraction(steps_done / total)
-        # --- collect (sampling from the policy: TorchRL's actors act deterministically unless told otherwise) ---
-        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-            for t in range(horizon):
-                obs = np.stack([observations[a] for a in agents], axis=1)
-                obs_buf[t] = obs
-                state_buf[t] = state
-                potential_before = shaping.potential(state) if shaping.active else None
-                td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(obs_buf[t])},
-                                                      batch_size=[n, count])}, batch_size=[n])
-                actor(td)
-                action = td["agents", "action"].numpy()
-                action_buf[t] = action
-                logp_buf[t] = td["agents", "action_log_prob"].numpy()
-                observations, rewards, terminations, truncations, infos = env.step(
-                    {a: action[:, i].astype(np.float64) for i, a in enumerate(agents)})
-                state = env.state()
-                next_obs_buf[t] = np.stack([observations[a] for a in agents], axis=1)
-                next_state_buf[t] = state
-                reward = np.stack([rewards[a] for a in agents], axis=1)
-                if shaping.active:
-                    reward[:, shaping.index] += shaping.potential(state) - potential_before
-                terminated, truncated = terminations[agents[0]], truncations[agents[0]]
-                episode_step += 1
-                truncated = truncated | (episode_step == first_cut) | (episode_step == curriculum.cut)
-                first_cut[episode_step >= first_cut] = 0  # see first_cut
-                done = terminated | truncated
-                episode_step[done] = 0
-                discounted = discounted * config.gamma + reward
+    try:
+        while steps_done < total:
+            easy = config.easy_fraction(steps_done / total)
+            # --- collect ---
+            batch = collectors.collect(actor.state_dict(), easy)
+            for discounted in batch["discounted_return"]:  # step by step, as the returns grew
                 _update_running(return_var_state, discounted)
-                discounted[done] = 0.0
-                reward_buf[t] = reward
-                done_buf[t], term_buf[t] = done, terminated
-                if done.any():
-                    info = infos[agents[0]]
-                    episodes_ended += int(done.sum())
-                    successes += int((done & info["is_success"]).sum())
-                    delivered_sum += float((info["debris_delivered"] - curriculum.out_of_play)[done].sum())
-                    blood_left_sum += float(info["blood_remaining"][done].sum())
-                    curriculum.reset(done, easy)
-                    observations = env.observations()
-                    state = env.state()
-        steps_done += n * horizon
-        iteration += 1
-        # --- learn ---
-        if config.anneal_lr:
-            for group in optimiser.param_groups:
-                group["lr"] = config.learning_rate * max(1.0 - (steps_done - n * horizon) / total, 0.0)
-        scale = np.sqrt(return_var_state["var"] + 1e-8).astype(np.float32)
+            episodes_ended += batch["stats"]["episodes_ended"]
+            successes += batch["stats"]["successes"]
+            delivered_sum += batch["stats"]["debris_delivered"]
+            blood_left_sum += batch["stats"]["blood_left_ml"]
+            obs_buf, next_obs_buf = batch["observation"], batch["next_observation"]
+            state_buf, next_state_buf = batch["state"], batch["next_state"]
+            action_buf, logp_buf, reward_buf = batch["action"], batch["log_prob"], batch["reward"]
+            done_buf, term_buf = batch["done"], batch["terminated"]
+            steps_done += n * horizon
+            iteration += 1
+            # --- learn ---
+            if config.anneal_lr:
+                for group in optimiser.param_groups:
+                    group["lr"] = config.learning_rate * max(1.0 - (steps_done - n * horizon) / total, 0.0)
+            scale = np.sqrt(return_var_state["var"] + 1e-8).astype(np.float32)
 
-        def swap(x):  # (T, N, ...) -> (N, T, ...)
-            return torch.from_numpy(np.ascontiguousarray(np.swapaxes(x, 0, 1)))
+            def swap(x):  # (T, N, ...) -> (N, T, ...)
+                return torch.from_numpy(np.ascontiguousarray(np.swapaxes(x, 0, 1)))
 
-        done_t = swap(done_buf)[..., None, None].expand(n, horizon, count, 1)
-        term_t = swap(term_buf)[..., None, None].expand(n, horizon, count, 1)
-        data = TensorDict({
-            "agents": TensorDict({"observation": swap(obs_buf), "action": swap(action_buf),
-                                  "action_log_prob": swap(logp_buf)}, batch_size=[n, horizon, count]),
-            "state": swap(state_buf),
-            "next": TensorDict({
-                "agents": TensorDict({"observation": swap(next_obs_buf),
-                                      "reward": swap(reward_buf / scale)[..., None],
-                                      "done": done_t.clone(), "terminated": term_t.clone()},
-                                     batch_size=[n, horizon, count]),
-                "state": swap(next_state_buf)}, batch_size=[n, horizon]),
-        }, batch_size=[n, horizon])
-        with torch.no_grad():
-            loss_module.value_estimator(data, params=loss_module.critic_network_params,
-                                        target_params=loss_module.target_critic_network_params)
-        flat = data.reshape(-1)
-        size = flat.shape[0] // config.minibatches
-        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "clip_fraction": 0.0,
-                "kl_approx": 0.0, "explained_variance": 0.0, "entropy": 0.0}
-        for _ in range(config.epochs):
-            order = torch.randperm(flat.shape[0])
-            for m in range(config.minibatches):
-                batch = flat[order[m * size:(m + 1) * size]]
-                losses = loss_module(batch)
-                total_loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
-                optimiser.zero_grad()
-                total_loss.backward()
-                torch.nn.utils.clip_grad_norm_(loss_module.parameters(), config.max_grad_norm)
-                optimiser.step()
-                for key in sums:
-                    if key in losses.keys():
-                        sums[key] += float(losses[key].detach().float().mean())
-        # Normalisers move after the update, so the update sees the statistics the rollout was collected with.
-        norms["observation"].update(torch.from_numpy(obs_buf))
-        if "state" in norms:
-            norms["state"].update(torch.from_numpy(state_buf))
-        else:
-            norms["critic_observation"].update(torch.from_numpy(obs_buf))
-        if writer is not None:
-            updates = config.epochs * config.minibatches
-            for key, value in sums.items():
-                writer.add_scalar(f"train/{key}", value / updates, steps_done)
-            writer.add_scalar("train/reward_mean", float(reward_buf.mean()), steps_done)
-            writer.add_scalar("train/easy_fraction", easy, steps_done)
-            for i, agent in enumerate(agents):
-                writer.add_scalar(f"train/reward_{agent}", float(reward_buf[..., i].mean()), steps_done)
-            if episodes_ended:
-                writer.add_scalar("train/episode_success", successes / episodes_ended, steps_done)
-                writer.add_scalar("train/debris_delivered", delivered_sum / episodes_ended, steps_done)
-                writer.add_scalar("train/blood_left_ml", blood_left_sum / episodes_ended, steps_done)
-        if progress:
-            rate = (steps_done) / max(time.perf_counter() - start, 1e-9)
-            print(f"\r{config.name} seed {seed}: {steps_done:>11,d}/{total:,d} steps "
-                  f"({100 * steps_done / total:5.1f} %), {rate:,.0f} steps/s, easy {easy:.2f}, "
-                  f"train success {successes / max(episodes_ended, 1):.2f}", end="", file=sys.stderr, flush=True)
-        final = steps_done >= total
-        if steps_done >= next_eval or final:
-            next_eval += config.eval_every
-            seats = _learned_seats(actor_net, agents, out, config, seed, steps_done)
-            if surgeon is not None:
-                seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
-            result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
-                                           **_eval_kwargs(config))
-            if result["success_rate"] > best_success or (result["success_rate"] == best_success and
-                                                         result["mean_blood_removed_ml"] > best_blood):
-                best_success, best_blood = result["success_rate"], result["mean_blood_removed_ml"]
-                shutil.copytree(out / "policies", out / "policies_best", dirs_exist_ok=True)
-                (out / "best.json").write_text(json.dumps([best_success, best_blood]))
-            last = {"steps": steps_done, "success_rate": result["success_rate"],
-                    "blood_removed_ml": result["mean_blood_removed_ml"],
-                    "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],
-                    "easy_fraction": easy, "episode_success": successes / max(episodes_ended, 1),
-                    "wall_seconds": time.perf_counter() - start}
-            episodes_ended = successes = 0
-            delivered_sum = blood_left_sum = 0.0
-            with progress_file.open("a", newline="") as handle:
-                csv.writer(handle).writerow([last[k] for k in ("steps", "success_rate", "blood_removed_ml",
-                                                               "median_steps", "contact_steps", "easy_fraction",
-                                                               "episode_success", "wall_seconds")])
+            done_t = swap(done_buf)[..., None, None].expand(n, horizon, count, 1)
+            term_t = swap(term_buf)[..., None, None].expand(n, horizon, count, 1)
+            data = TensorDict({
+                "agents": TensorDict({"observation": swap(obs_buf), "action": swap(action_buf),
+                                      "action_log_prob": swap(logp_buf)}, batch_size=[n, horizon, count]),
+                "state": swap(state_buf),
+                "next": TensorDict({
+                    "agents": TensorDict({"observation": swap(next_obs_buf),
+                                          "reward": swap(reward_buf / scale)[..., None],
+                                          "done": done_t.clone(), "terminated": term_t.clone()},
+                                         batch_size=[n, horizon, count]),
+                    "state": swap(next_state_buf)}, batch_size=[n, horizon]),
+            }, batch_size=[n, horizon])
+            with torch.no_grad():
+                loss_module.value_estimator(data, params=loss_module.critic_network_params,
+                                            target_params=loss_module.target_critic_network_params)
+            flat = data.reshape(-1)
+            size = flat.shape[0] // config.minibatches
+            sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "clip_fraction": 0.0,
+                    "kl_approx": 0.0, "explained_variance": 0.0, "entropy": 0.0}
+            for _ in range(config.epochs):
+                order = torch.randperm(flat.shape[0])
+                for m in range(config.minibatches):
+                    batch = flat[order[m * size:(m + 1) * size]]
+                    losses = loss_module(batch)
+                    total_loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
+                    optimiser.zero_grad()
+                    total_loss.backward()
+                    torch.nn.utils.clip_grad_norm_(loss_module.parameters(), config.max_grad_norm)
+                    optimiser.step()
+                    for key in sums:
+                        if key in losses.keys():
+                            sums[key] += float(losses[key].detach().float().mean())
+            # Normalisers move after the update, so the update sees the statistics the rollout was collected with.
+            norms["observation"].update(torch.from_numpy(obs_buf))
+            if "state" in norms:
+                norms["state"].update(torch.from_numpy(state_buf))
+            else:
+                norms["critic_observation"].update(torch.from_numpy(obs_buf))
             if writer is not None:
-                writer.add_scalar("eval/success_rate", result["success_rate"], steps_done)
-                writer.add_scalar("eval/blood_removed_ml", result["mean_blood_removed_ml"], steps_done)
-                writer.add_scalar("eval/contact_steps", result["mean_contact_steps"], steps_done)
+                updates = config.epochs * config.minibatches
+                for key, value in sums.items():
+                    writer.add_scalar(f"train/{key}", value / updates, steps_done)
+                writer.add_scalar("train/reward_mean", float(reward_buf.mean()), steps_done)
+                writer.add_scalar("train/easy_fraction", easy, steps_done)
+                for i, agent in enumerate(agents):
+                    writer.add_scalar(f"train/reward_{agent}", float(reward_buf[..., i].mean()), steps_done)
+                if episodes_ended:
+                    writer.add_scalar("train/episode_success", successes / episodes_ended, steps_done)
+                    writer.add_scalar("train/debris_delivered", delivered_sum / episodes_ended, steps_done)
+                    writer.add_scalar("train/blood_left_ml", blood_left_sum / episodes_ended, steps_done)
             if progress:
-                print(file=sys.stderr)
-            log(f"{config.name} seed {seed} @ {steps_done:,d} steps: success {result['success_rate']:.2f}, "
-                f"blood removed {result['mean_blood_removed_ml']:.1f} ml, "
-                f"debris delivered {result['mean_debris_delivered']:.2f}, contacts {result['mean_contact_steps']:.1f}, "
-                f"{time.perf_counter() - start:.0f} s")
-        if steps_done >= next_checkpoint or final:
-            next_checkpoint += config.checkpoint_every
-            tmp = checkpoint.with_suffix(".tmp")
-            torch.save({"loss_module": loss_module.state_dict(), "optimiser": optimiser.state_dict(),
-                        "return_var": return_var_state, "steps": steps_done, "iteration": iteration,
-                        "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
-                        "config": asdict(config)}, tmp)
-            tmp.replace(checkpoint)  # atomic: an interruption never leaves a half-written checkpoint
+                rate = (steps_done) / max(time.perf_counter() - start, 1e-9)
+                print(f"\r{config.name} seed {seed}: {steps_done:>11,d}/{total:,d} steps "
+                      f"({100 * steps_done / total:5.1f} %), {rate:,.0f} steps/s, easy {easy:.2f}, "
+                      f"train success {successes / max(episodes_ended, 1):.2f}", end="", file=sys.stderr, flush=True)
+            final = steps_done >= total
+            if steps_done >= next_eval or final:
+                next_eval += config.eval_every
+                seats = _learned_seats(actor_net, agents, out, config, seed, steps_done)
+                if surgeon is not None:
+                    seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
+                result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
+                                               **_eval_kwargs(config))
+                if result["success_rate"] > best_success or (result["success_rate"] == best_success and
+                                                             result["mean_blood_removed_ml"] > best_blood):
+                    best_success, best_blood = result["success_rate"], result["mean_blood_removed_ml"]
+                    shutil.copytree(out / "policies", out / "policies_best", dirs_exist_ok=True)
+                    (out / "best.json").write_text(json.dumps([best_success, best_blood]))
+                last = {"steps": steps_done, "success_rate": result["success_rate"],
+                        "blood_removed_ml": result["mean_blood_removed_ml"],
+                        "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],
+                        "easy_fraction": easy, "episode_success": successes / max(episodes_ended, 1),
+                        "wall_seconds": time.perf_counter() - start}
+                episodes_ended = successes = 0
+                delivered_sum = blood_left_sum = 0.0
+                with progress_file.open("a", newline="") as handle:
+                    csv.writer(handle).writerow([last[k] for k in ("steps", "success_rate", "blood_removed_ml",
+                                                                   "median_steps", "contact_steps", "easy_fraction",
+                                                                   "episode_success", "wall_seconds")])
+                if writer is not None:
+                    writer.add_scalar("eval/success_rate", result["success_rate"], steps_done)
+                    writer.add_scalar("eval/blood_removed_ml", result["mean_blood_removed_ml"], steps_done)
+                    writer.add_scalar("eval/contact_steps", result["mean_contact_steps"], steps_done)
+                if progress:
+                    print(file=sys.stderr)
+                log(f"{config.name} seed {seed} @ {steps_done:,d} steps: success {result['success_rate']:.2f}, "
+                    f"blood removed {result['mean_blood_removed_ml']:.1f} ml, "
+                    f"debris delivered {result['mean_debris_delivered']:.2f}, contacts {result['mean_contact_steps']:.1f}, "
+                    f"{time.perf_counter() - start:.0f} s")
+            if steps_done >= next_checkpoint or final:
+                next_checkpoint += config.checkpoint_every
+                tmp = checkpoint.with_suffix(".tmp")
+                torch.save({"loss_module": loss_module.state_dict(), "optimiser": optimiser.state_dict(),
+                            "return_var": return_var_state, "steps": steps_done, "iteration": iteration,
+                            "collector_rng": collectors.rng_states(), "torch_rng": torch.get_rng_state(),
+                            "config": asdict(config)}, tmp)
+                tmp.replace(checkpoint)  # atomic: an interruption never leaves a half-written checkpoint
+            if on_iteration is not None:
+                on_iteration(iteration, collectors)
+    finally:
+        collectors.close()
     if writer is not None:
         writer.close()
     env.close()
