@@ -43,7 +43,8 @@ def _train(args) -> int:
         config = mappo.load_config(args.config)
         out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
         final = mappo.train(config, args.seed, out, total_steps=args.steps, resume=args.resume,
-                            progress=not args.no_progress)
+                            progress=not args.no_progress, ray_address=args.ray_address,
+                            num_collectors=args.num_collectors or 0)
         print(f"{config.name} seed {args.seed}: success {final['success_rate']:.2f} after {final['steps']:,d} steps; "
               f"policies in {out / 'policies'}; run folder {out}")
         if args.export:
@@ -216,6 +217,10 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs to <out>/sb3_log")
     train.add_argument("--export", help="folder to export the final policy to (numpy format)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.add_argument("--ray-address", help="MAPPO/IPPO: collect experience on a Ray cluster (auto: the cluster "
+                       "this machine joined with `ray start`; host:port; local: a Ray instance of this process)")
+    train.add_argument("--num-collectors", type=int, help="MAPPO/IPPO: Ray collector actors (each steps "
+                       "num_envs / N worlds; default 1 with --ray-address); without --ray-address, starts Ray here")
     train.set_defaults(func=_train)
 
     evaluate = sub.add_parser("evaluate", help="success rate of a policy over seeded episodes")
@@ -254,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
         if (error.name or "").split(".")[0] not in _EXTRA_MODULES:
             raise
         extra = "teleop" if args.command == "teleop" and error.name != "minari" else (
-            "data" if error.name == "minari" else "train")
+            "data" if error.name == "minari" else "ray" if error.name == "ray" else "train")
         print(f"dvrl-marl: {args.command} needs the {extra} extra ({error.name} is not installed): "
               f'pip install "dvrl-marl[{extra}]"', file=sys.stderr)
         return 2
@@ -266,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
 #: What the optional extras bring ([train], [teleop], [data]); a command missing one of them ends with the install
 #: hint, not a traceback.
 _EXTRA_MODULES = {"torch", "torchrl", "tensordict", "stable_baselines3", "sb3_contrib", "supersuit", "matplotlib",
-                  "tensorboard", "starlette", "uvicorn", "websockets", "minari"}
+                  "tensorboard", "starlette", "uvicorn", "websockets", "minari", "ray"}
 
 
 if __name__ == "__main__":

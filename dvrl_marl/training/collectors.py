@@ -218,8 +218,10 @@ class RayCollectors:
             raise ModuleNotFoundError('collecting on Ray needs Ray: pip install "dvrl-marl[ray]"', name="ray") from error
         self._ray = ray
         if not ray.is_initialized():
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
-                     include_dashboard=False if address is None else None)
+            if address is None:  # a Ray instance of this process: no dashboard to serve
+                ray.init(include_dashboard=False, log_to_driver=False)
+            else:
+                ray.init(address=address, log_to_driver=False)
         shares = split_worlds(config.num_envs, num_collectors)
         remote = ray.remote(num_cpus=cpus_per_collector, max_restarts=max_restarts, max_task_retries=-1)(
             RolloutCollector)
