@@ -485,11 +485,16 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     if resume and (out / "best.json").is_file():
         best_success, best_blood = json.loads((out / "best.json").read_text())
     last = {}
+    # Where the time goes (benchmarks/ray_scaling.py reads it from result.json): collecting vs. updating.
+    timing = {"collect_seconds": 0.0, "learn_seconds": 0.0, "steps": 0, "collectors": collectors.count}
     try:
         while steps_done < total:
             easy = config.easy_fraction(steps_done / total)
             # --- collect ---
+            began = time.perf_counter()
             batch = collectors.collect(actor.state_dict(), easy)
+            timing["collect_seconds"] += time.perf_counter() - began
+            began = time.perf_counter()
             for discounted in batch["discounted_return"]:  # step by step, as the returns grew
                 _update_running(return_var_state, discounted)
             episodes_ended += batch["stats"]["episodes_ended"]
@@ -567,6 +572,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                 print(f"\r{config.name} seed {seed}: {steps_done:>11,d}/{total:,d} steps "
                       f"({100 * steps_done / total:5.1f} %), {rate:,.0f} steps/s, easy {easy:.2f}, "
                       f"train success {successes / max(episodes_ended, 1):.2f}", end="", file=sys.stderr, flush=True)
+            timing["learn_seconds"] += time.perf_counter() - began
+            timing["steps"] += n * horizon
             final = steps_done >= total
             if steps_done >= next_eval or final:
                 next_eval += config.eval_every
@@ -616,7 +623,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     if writer is not None:
         writer.close()
     env.close()
-    (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, **last}, indent=2) + "\n")
+    (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, **last, "timing": timing},
+                                                indent=2) + "\n")
     return last
 
 
