@@ -6,10 +6,15 @@ not answer within the environment's ``teleop_timeout`` makes the seat hold still
 valve unchanged) with ``infos[agent]["teleop_lost"] = True``; the episode goes on. A device with
 ``human_operated = True`` (the keyboard) is driven by a person: in ``render_mode="human"`` the environment waits
 for ENTER before an episode and runs it in real time (:mod:`dvrl_marl.teleop.pacing`).
+
+In a web browser (``dvrl-marl teleop``): :class:`~dvrl_marl.teleop.browser.BrowserDevice` is the device,
+:mod:`dvrl_marl.teleop.session` runs a person's episodes in real time and records them as Minari datasets, and
+:mod:`dvrl_marl.teleop.web` serves the page (``pip install "dvrl-marl[teleop]"``).
 """
 
 from dvrl_marl.teleop import devices as _devices
 from dvrl_marl.teleop.devices import *  # noqa: F403 (the public names are devices.__all__)
+from dvrl_marl.teleop.browser import BrowserDevice, TeleopLost
 from dvrl_marl.teleop.pacing import PacedDisplay, RealTimePacer
 
-__all__ = [*_devices.__all__, "RealTimePacer", "PacedDisplay"]
+__all__ = [*_devices.__all__, "RealTimePacer", "PacedDisplay", "BrowserDevice", "TeleopLost"]

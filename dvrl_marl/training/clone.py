@@ -14,6 +14,7 @@ action_noise = 0.3                           # DART: the expert corrects noisy m
 [bc]
 hidden = [256, 256]
 epochs = 300
+cleared_features = true                      # a sharp "cavity cleared" input per cavity (the expert's switch)
 [dagger]                                     # optional: DAgger rounds after the clone (needs a queryable expert)
 rounds = 3
 episodes = 100
@@ -58,6 +59,7 @@ class CloneConfig:
     epochs: int = 300
     batch_size: int = 512
     learning_rate: float = 1e-3
+    cleared_features: bool = False  # a sharp "cavity cleared" step per cavity (see clone's threshold_features)
     evaluate: dict = field(default_factory=dict)
     dagger: dict = field(default_factory=dict)
 
@@ -70,7 +72,7 @@ def load_config(path) -> CloneConfig:
     run, bc = dict(table.get("run", {})), dict(table.get("bc", {}))
     if run.get("algorithm") != "bc" or not isinstance(run.get("dataset"), str):
         raise ValueError(f"{path}: [run] needs algorithm = \"bc\" and a dataset id")
-    unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate"}
+    unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate", "cleared_features"}
     if unknown:
         raise ValueError(f"{path}: unknown [bc] key(s) {sorted(unknown)}")
     dagger = dict(table.get("dagger", {}))
@@ -90,10 +92,46 @@ def load_config(path) -> CloneConfig:
     return config
 
 
+def cleared_features() -> list[tuple[int, float]]:
+    """``(observation index, threshold)`` of each cavity's blood fraction in the seat's observation, at the task's
+    "cleared" level (the scripted surgeon goes for a cavity's debris once its blood is under it)."""
+    from dvrl_marl.envs import suction_debris_v1
+
+    scene = suction_debris_v1.parallel_env()
+    blood = scene.observation_layout["blood"]
+    thresholds = scene.layout().blood_threshold_fraction
+    scene.close()
+    return [(blood.start + index, float(level)) for index, level in enumerate(thresholds)]
+
+
+#: Threshold features: tanh(STEEPNESS x (level - value)), +-0.76 at 1/STEEPNESS from the level (blood fractions
+#: hover within 0.005 of it while a partner finishes a cavity).
+STEEPNESS = 1000.0
+#: Pass-through features: tanh(PASS_SCALE x standardised value), nearly linear over the data's range.
+PASS_SCALE = 0.25
+
+
+def _feature_layer(mean, std, threshold_features):
+    """A fixed first layer (weight, bias; tanh): the standardised observation, scaled into tanh's linear range,
+    then one sharp step per threshold feature. An MLP cannot draw a step 0.005 wide on its own."""
+    dimension = len(mean)
+    weight = np.zeros((dimension + len(threshold_features), dimension))
+    bias = np.zeros(dimension + len(threshold_features))
+    weight[np.arange(dimension), np.arange(dimension)] = PASS_SCALE / std
+    bias[:dimension] = -PASS_SCALE * mean / std
+    for row, (index, level) in enumerate(threshold_features, start=dimension):
+        weight[row, index] = -STEEPNESS
+        bias[row] = STEEPNESS * level
+    return weight, bias
+
+
 def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(256, 256), epochs: int = 300,
           batch_size: int = 512, learning_rate: float = 1e-3, seed: int = 0, name: str = "bc-surgeon",
-          metadata: dict | None = None) -> tuple[Path, list[float]]:
-    """Fit ``observation -> action`` and export it as a numpy policy folder; returns it and the loss per epoch."""
+          metadata: dict | None = None, threshold_features=()) -> tuple[Path, list[float]]:
+    """Fit ``observation -> action`` and export it as a numpy policy folder; returns it and the loss per epoch.
+
+    ``threshold_features``: ``(index, level)`` pairs; the network also sees a sharp step at each (a fixed first
+    layer, exported with the rest: the numpy policy needs nothing new)."""
     import torch
 
     from dvrl_marl.training.export import write_policy
@@ -103,9 +141,14 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
     x = np.asarray(observations, dtype=np.float64)
     y = np.asarray(actions, dtype=np.float32)
     mean, std = x.mean(axis=0), x.std(axis=0) + 1e-6
-    inputs = torch.as_tensor((x - mean) / std, dtype=torch.float32)
+    features = None
+    if threshold_features:
+        features = _feature_layer(mean, std, list(threshold_features))
+        inputs = torch.as_tensor(np.tanh(x @ features[0].T + features[1]), dtype=torch.float32)
+    else:
+        inputs = torch.as_tensor((x - mean) / std, dtype=torch.float32)
     targets = torch.as_tensor(y)
-    sizes = [x.shape[1], *[int(h) for h in hidden], y.shape[1]]
+    sizes = [inputs.shape[1], *[int(h) for h in hidden], y.shape[1]]
     layers = []
     for index in range(len(sizes) - 1):
         layers += [torch.nn.Linear(sizes[index], sizes[index + 1]), torch.nn.Tanh()]
@@ -123,12 +166,12 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
             optimiser.step()
             total += loss.item() * len(batch)
         losses.append(total / len(order))
-    exported = []
+    exported = [] if features is None else [(features[0].astype(np.float32), features[1].astype(np.float32), "tanh")]
     linears = [module for module in net if isinstance(module, torch.nn.Linear)]
     for position, linear in enumerate(linears):
         weight = linear.weight.detach().numpy().astype(np.float64)
         bias = linear.bias.detach().numpy().astype(np.float64)
-        if position == 0:  # W ((x - m) / s) + b = (W / s) x + (b - W (m / s))
+        if position == 0 and features is None:  # W ((x - m) / s) + b = (W / s) x + (b - W (m / s))
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
         exported.append((weight.astype(np.float32), bias.astype(np.float32), "tanh"))
@@ -180,7 +223,8 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
             print(f"recorded {record['episodes']} episodes of {record['policy']} as {config.dataset}")
     observations, actions = datasets.transitions(config.dataset)
     fit = dict(hidden=config.hidden, epochs=config.epochs, batch_size=config.batch_size,
-               learning_rate=config.learning_rate, seed=seed)
+               learning_rate=config.learning_rate, seed=seed,
+               threshold_features=cleared_features() if config.cleared_features else ())
     folder, losses = clone(observations, actions, out / "policies" / "bc-surgeon", **fit,
                            metadata={"dataset": config.dataset, "transitions": int(len(actions))})
     partner = {"partner": "pipeline", **config.evaluate}["partner"]
