@@ -79,7 +79,8 @@ def main() -> None:
     ray.shutdown()
     cluster.shutdown()
 
-    lines = [f"MAPPO trainer throughput, {args.num_envs} worlds x 32 steps per iteration, {args.iterations} iterations, "
+    lines = [f"MAPPO trainer throughput, {args.num_envs} worlds x 32 steps per iteration, {args.iterations} "
+             "iterations, "
              f"{os.cpu_count()} CPU cores (python benchmarks/ray_scaling.py)",
              f"{'configuration':<46} {'env steps/s':>12} {'collecting':>12} {'updating':>12}  where",
              ]

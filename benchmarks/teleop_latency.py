@@ -74,7 +74,8 @@ def main() -> None:
     args = parser.parse_args()
     result = measure(args.presses, args.hold, args.gap)
     lines = [
-        f"browser seat on localhost ({os.cpu_count()} CPU cores, {platform.machine()}, headless Chromium, 640x480 JPEG, "
+        f"browser seat on localhost ({os.cpu_count()} CPU cores, {platform.machine()}, headless Chromium, "
+        "640x480 JPEG, "
         "scripted partner, 50 Hz control)",
         f"key press -> first frame showing the move: median {result['median_ms']:.0f} ms, p90 {result['p90_ms']:.0f} "
         f"ms, max {result['max_ms']:.0f} ms over {result['timed']} of {result['presses']} presses (target: median "

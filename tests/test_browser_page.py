@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-sync_api = pytest.importorskip("playwright.sync_api", reason='Playwright drives the browser: pip install "dvrl-marl[test]"')
+sync_api = pytest.importorskip("playwright.sync_api",
+                               reason='Playwright drives the browser: pip install "dvrl-marl[test]"')
 pytest.importorskip("starlette", reason='the web seat: pip install "dvrl-marl[teleop]"')
 minari = pytest.importorskip("minari", reason='recording needs Minari: pip install "dvrl-marl[data]"')
 

@@ -256,7 +256,8 @@ def test_session_arguments_are_checked():
 
 
 # --- the web app, as a websocket client meets it ---------------------------------------------------------------------
-websockets_client = pytest.importorskip("websockets.sync.client", reason='the web seat: pip install "dvrl-marl[teleop]"')
+websockets_client = pytest.importorskip("websockets.sync.client",
+                                        reason='the web seat: pip install "dvrl-marl[teleop]"')
 pytest.importorskip("starlette", reason='the web seat: pip install "dvrl-marl[teleop]"')
 
 

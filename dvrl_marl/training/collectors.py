@@ -215,7 +215,8 @@ class RayCollectors:
         try:
             import ray
         except ImportError as error:
-            raise ModuleNotFoundError('collecting on Ray needs Ray: pip install "dvrl-marl[ray]"', name="ray") from error
+            raise ModuleNotFoundError('collecting on Ray needs Ray: pip install "dvrl-marl[ray]"',
+                                      name="ray") from error
         self._ray = ray
         if not ray.is_initialized():
             if address is None:  # a Ray instance of this process: no dashboard to serve

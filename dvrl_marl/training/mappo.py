@@ -589,7 +589,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     (out / "best.json").write_text(json.dumps([best_success, best_blood]))
                 last = {"steps": steps_done, "success_rate": result["success_rate"],
                         "blood_removed_ml": result["mean_blood_removed_ml"],
-                        "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],
+                        "median_steps": result["median_steps_to_completion"],
+                        "contact_steps": result["mean_contact_steps"],
                         "easy_fraction": easy, "episode_success": successes / max(episodes_ended, 1),
                         "wall_seconds": time.perf_counter() - start}
                 episodes_ended = successes = 0
@@ -606,7 +607,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     print(file=sys.stderr)
                 log(f"{config.name} seed {seed} @ {steps_done:,d} steps: success {result['success_rate']:.2f}, "
                     f"blood removed {result['mean_blood_removed_ml']:.1f} ml, "
-                    f"debris delivered {result['mean_debris_delivered']:.2f}, contacts {result['mean_contact_steps']:.1f}, "
+                    f"debris delivered {result['mean_debris_delivered']:.2f}, "
+                    f"contacts {result['mean_contact_steps']:.1f}, "
                     f"{time.perf_counter() - start:.0f} s")
             if steps_done >= next_checkpoint or final:
                 next_checkpoint += config.checkpoint_every
