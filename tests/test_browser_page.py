@@ -172,7 +172,7 @@ def test_a_lost_connection_holds_the_seat_and_the_page_resumes_when_it_returns(b
     page.close()
 
 
-def test_an_episode_recorded_in_the_browser_loads_with_minari_and_replays(browser, served):
+def test_an_episode_recorded_in_the_browser_loads_with_minari_replays_and_trains_a_surgeon(browser, served, tmp_path):
     from dvrl_marl import datasets
 
     page = browser.new_page()
@@ -198,6 +198,17 @@ def test_an_episode_recorded_in_the_browser_loads_with_minari_and_replays(browse
     assert dataset.spec.env_spec.id == datasets.SEAT_ENV_ID
     replayed = datasets.replay(dataset, 0)
     assert replayed["max_observation_difference"] == 0.0
+
+    # ... and what the person did trains a surgeon that fills the seat (tiny budget: it runs, not how well)
+    from dvrl_marl import policies
+    from dvrl_marl.envs import suction_debris_v1
+    from dvrl_marl.training.clone import clone
+
+    observations, labels = datasets.transitions("dvrl_marl/surgeon-browser-v1")
+    folder, _ = clone(observations, labels, tmp_path / "bc", hidden=(16,), epochs=2)
+    env = suction_debris_v1.parallel_env(surgeon=policies.load(folder), max_cycles=5)
+    env.reset(seed=0)
+    env.step({"suction": np.zeros(4, np.float32)})
 
 
 def test_the_cli_prints_a_url_that_opens_the_page(browser, tmp_path):

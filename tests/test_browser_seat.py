@@ -375,6 +375,7 @@ def test_a_silent_or_closed_page_holds_the_seat_and_a_new_page_takes_it_back(ser
         assert moved["tip_mm"][0] > resumed["tip_mm"][0]  # the key is still held: it moves again
     with websockets_client.connect(ws_url(server)) as watcher:  # the driver closed: the seat holds ...
         assert json.loads(watcher.recv(timeout=10))["role"] == "controller"  # ... until a new page takes it
-        status = status_until(watcher, lambda s: not s["teleop_lost"])
+        first = next_status(watcher)  # the newest frame when it joined: possibly from before the driver left
+        status = status_until(watcher, lambda s: not s["teleop_lost"] and s["step"] >= first["step"] + 4)
         later = status_until(watcher, lambda s: s["step"] >= status["step"] + 10)
         assert later["tip_mm"] == status["tip_mm"]  # its keys start released
