@@ -240,7 +240,10 @@ class RayCollectors:
     def collect(self, actor_state, easy: float) -> dict:
         ray = self._ray
         weights = ray.put({key: value.detach().cpu() for key, value in actor_state.items()})
-        return _merge(ray.get([actor.rollout.remote(weights, easy) for actor in self.actors]))
+        results = ray.get([actor.rollout.remote(weights, easy) for actor in self.actors])
+        if len(results) == 1:  # Ray hands back read-only views of its object store; the learner's tensors want their own
+            results[0] = {key: np.array(value) if key in ROLLOUT_ARRAYS else value for key, value in results[0].items()}
+        return _merge(results)
 
     def rng_states(self) -> list:
         return self._ray.get([actor.rng_state.remote() for actor in self.actors])
