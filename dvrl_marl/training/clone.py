@@ -127,11 +127,14 @@ def _feature_layer(mean, std, threshold_features):
 
 def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(256, 256), epochs: int = 300,
           batch_size: int = 512, learning_rate: float = 1e-3, seed: int = 0, name: str = "bc-surgeon",
-          metadata: dict | None = None, threshold_features=()) -> tuple[Path, list[float]]:
+          metadata: dict | None = None, threshold_features=(), action_weights=None,
+          anneal_lr: bool = False) -> tuple[Path, list[float]]:
     """Fit ``observation -> action`` and export it as a numpy policy folder; returns it and the loss per epoch.
 
     ``threshold_features``: ``(index, level)`` pairs; the network also sees a sharp step at each (a fixed first
-    layer, exported with the rest: the numpy policy needs nothing new)."""
+    layer, exported with the rest: the numpy policy needs nothing new). ``action_weights``: a weight per action
+    dimension in the squared error (the jaw's switch matters more than a motion's last digit); ``anneal_lr``: the
+    learning rate falls to 0 along a cosine over the epochs (a sharper fit at the end)."""
     import torch
 
     from dvrl_marl.training.export import write_policy
@@ -154,18 +157,22 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
         layers += [torch.nn.Linear(sizes[index], sizes[index + 1]), torch.nn.Tanh()]
     net = torch.nn.Sequential(*layers)
     optimiser = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, int(epochs)) if anneal_lr else None
+    weights = torch.as_tensor(np.ones(y.shape[1]) if action_weights is None else action_weights, dtype=torch.float32)
     losses = []
     for _ in range(int(epochs)):
         order = torch.as_tensor(generator.permutation(len(inputs)))
         total = 0.0
         for start in range(0, len(order), batch_size):
             batch = order[start:start + batch_size]
-            loss = torch.nn.functional.mse_loss(net(inputs[batch]), targets[batch])
+            loss = ((net(inputs[batch]) - targets[batch]) ** 2 * weights).mean()
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
             total += loss.item() * len(batch)
         losses.append(total / len(order))
+        if schedule is not None:
+            schedule.step()
     exported = [] if features is None else [(features[0].astype(np.float32), features[1].astype(np.float32), "tanh")]
     linears = [module for module in net if isinstance(module, torch.nn.Linear)]
     for position, linear in enumerate(linears):

@@ -241,7 +241,7 @@ class RayCollectors:
         ray = self._ray
         weights = ray.put({key: value.detach().cpu() for key, value in actor_state.items()})
         results = ray.get([actor.rollout.remote(weights, easy) for actor in self.actors])
-        if len(results) == 1:  # Ray hands back read-only views of its object store; the learner's tensors want their own
+        if len(results) == 1:  # Ray returns read-only views of its object store; the learner's tensors want their own
             results[0] = {key: np.array(value) if key in ROLLOUT_ARRAYS else value for key, value in results[0].items()}
         return _merge(results)
 
