@@ -167,3 +167,21 @@ def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
     bad.write_text('[run]\nalgorithm = "bc"\ndataset = "dvrl_marl/x-v1"\n[dagger]\nround = 1\n')
     with pytest.raises(ValueError, match="unknown \\[dagger\\] key"):
         load_config(bad)
+
+
+def test_clone_options_sharp_cleared_inputs_weights_and_annealing(recorded, tmp_path):
+    from dvrl_marl.training.clone import cleared_features, clone
+
+    observations, actions = datasets.transitions(recorded)
+    features = cleared_features()
+    folder, losses = clone(observations, actions, tmp_path / "bc", hidden=(32,), epochs=4, threshold_features=features,
+                           action_weights=[1.0, 1.0, 1.0, 4.0], anneal_lr=True)
+    policy = policies.load(folder)
+    weight, bias = policy.weights[0]
+    assert weight.shape == (observations.shape[1] + len(features), observations.shape[1])
+    for row, (index, level) in enumerate(features, start=observations.shape[1]):
+        below, above = np.zeros(observations.shape[1]), np.zeros(observations.shape[1])
+        below[index], above[index] = level - 0.002, level + 0.002  # 2 % of a fraction point either side
+        assert np.tanh(weight[row] @ below + bias[row]) > 0.95 and np.tanh(weight[row] @ above + bias[row]) < -0.95
+    action = policy(observations[0])
+    assert action.shape == (4,) and np.all(np.abs(action) <= 1.0) and len(losses) == 4

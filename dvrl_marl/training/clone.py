@@ -60,6 +60,8 @@ class CloneConfig:
     batch_size: int = 512
     learning_rate: float = 1e-3
     cleared_features: bool = False  # a sharp "cavity cleared" step per cavity (see clone's threshold_features)
+    anneal_lr: bool = False  # cosine decay of the learning rate to 0 over the epochs
+    action_weights: tuple[float, ...] | None = None  # a weight per action dimension in the squared error
     evaluate: dict = field(default_factory=dict)
     dagger: dict = field(default_factory=dict)
 
@@ -72,7 +74,8 @@ def load_config(path) -> CloneConfig:
     run, bc = dict(table.get("run", {})), dict(table.get("bc", {}))
     if run.get("algorithm") != "bc" or not isinstance(run.get("dataset"), str):
         raise ValueError(f"{path}: [run] needs algorithm = \"bc\" and a dataset id")
-    unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate", "cleared_features"}
+    unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate", "cleared_features", "anneal_lr",
+                         "action_weights"}
     if unknown:
         raise ValueError(f"{path}: unknown [bc] key(s) {sorted(unknown)}")
     dagger = dict(table.get("dagger", {}))
@@ -86,7 +89,7 @@ def load_config(path) -> CloneConfig:
                          "\"scripted\"")
     config = CloneConfig(name=path.stem, dataset=run["dataset"], record=dict(table.get("record", {})),
                          evaluate=dict(table.get("evaluate", {})), dagger=dagger,
-                         **{k: (tuple(v) if k == "hidden" else v) for k, v in bc.items()})
+                         **{k: (tuple(v) if k in ("hidden", "action_weights") else v) for k, v in bc.items()})
     if not config.hidden or any(int(h) < 1 for h in config.hidden) or config.epochs < 1 or config.batch_size < 1:
         raise ValueError(f"{path}: hidden sizes, epochs and batch_size must be positive")
     return config
@@ -231,7 +234,8 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
     observations, actions = datasets.transitions(config.dataset)
     fit = dict(hidden=config.hidden, epochs=config.epochs, batch_size=config.batch_size,
                learning_rate=config.learning_rate, seed=seed,
-               threshold_features=cleared_features() if config.cleared_features else ())
+               threshold_features=cleared_features() if config.cleared_features else (),
+               anneal_lr=config.anneal_lr, action_weights=config.action_weights)
     folder, losses = clone(observations, actions, out / "policies" / "bc-surgeon", **fit,
                            metadata={"dataset": config.dataset, "transitions": int(len(actions))})
     partner = {"partner": "pipeline", **config.evaluate}["partner"]
