@@ -92,6 +92,18 @@ def _evaluate(args) -> int:
 
     policy = policies.load(args.policy)
     env_id = args.env or policy.spec["env_id"]
+    if env_id == "dvrl_marl/SurgeonSeat-v1":  # a seat of the collaborative scene: its team, on held-out seeds
+        from dvrl_marl.training import teams
+
+        agent = policy.spec.get("agent", "grasper")
+        partner = "suction" if agent == "grasper" else "grasper"
+        seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
+        result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner)}, args.episodes,
+                                             seed=seed, task="suction_debris_v1")
+        result = {k: v for k, v in result.items() if k not in ("success", "steps")}
+        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "seat": agent,
+                          "partner": "pipeline (learned_team)", **result}, indent=2))
+        return 0
     env_kwargs = {"tool": args.tool} if args.tool else {}
     result = evaluate_policy(policy, env_id, args.episodes, seed=args.seed, env_kwargs=env_kwargs, video_path=args.video)
     result.update({"policy": str(args.policy), "env_id": env_id, **env_kwargs})
@@ -105,7 +117,8 @@ def _evaluate_team(args) -> int:
     from dvrl_marl.training import teams
 
     seed = teams.EVAL_SEED if args.seed is None else args.seed
-    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed)
+    task = {} if args.task is None else {"task": args.task}
+    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, **task)
     width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
     print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
           f"{'median steps':>13} {'contacts':>9}")
@@ -240,6 +253,8 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--episodes", type=int, default=100)
     team.add_argument("--seed", type=int, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
+    team.add_argument("--task", choices=["suction_debris", "suction_debris_v1"],
+                      help="the scene's task (default: suction_debris, v0's; suction_debris_v1 for v1 policies)")
     team.set_defaults(func=_evaluate_team)
 
     plot = sub.add_parser("plot", help="success rate against training steps (paper Fig. 4 style)")
