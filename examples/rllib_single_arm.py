@@ -79,19 +79,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
-    import ray
+    from dvrl_marl.integrations.rllib import init_ray, train
 
-    ray.init(address=args.address, include_dashboard=False if args.address is None else None,
-             ignore_reinit_error=True, log_to_driver=False)
+    init_ray(args.address)
     algo = build_config(args.env, env_runners=args.env_runners, envs_per_runner=args.envs_per_runner,
                         train_batch=args.train_batch, minibatch=args.minibatch, epochs=args.epochs,
                         seed=args.seed).build_algo()
-    result = {}
-    for iteration in range(args.iterations):
-        result = algo.train()
-        runners = result.get("env_runners", {})
-        print(f"iteration {iteration + 1}: {result.get('num_env_steps_sampled_lifetime', 0):,} env steps, "
-              f"episode return {runners.get('episode_return_mean', float('nan')):.2f}", flush=True)
+    result = train(algo, args.iterations, log=lambda line: print(line, flush=True))
     summary = {"env": args.env, "iterations": args.iterations,
                "env_steps": int(result.get("num_env_steps_sampled_lifetime", 0)),
                **evaluate(algo, args.env, args.episodes, video=args.video)}

@@ -81,19 +81,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
-    import ray
+    from dvrl_marl.integrations.rllib import init_ray, train
 
-    ray.init(address=args.address, include_dashboard=False if args.address is None else None,
-             ignore_reinit_error=True, log_to_driver=False)
+    init_ray(args.address)
     config = build_config(shared=args.shared, env_runners=args.env_runners, train_batch=args.train_batch,
                           minibatch=args.minibatch, epochs=args.epochs, max_cycles=args.max_cycles, seed=args.seed)
     algo = config.build_algo()
-    result = {}
-    for iteration in range(args.iterations):
-        result = algo.train()
-        runners = result.get("env_runners", {})
-        print(f"iteration {iteration + 1}: {result.get('num_env_steps_sampled_lifetime', 0):,} env steps, "
-              f"episode return {runners.get('episode_return_mean', float('nan')):.2f}", flush=True)
+    result = train(algo, args.iterations, log=lambda line: print(line, flush=True))
     summary = {"iterations": args.iterations,
                "env_steps": int(result.get("num_env_steps_sampled_lifetime", 0)),
                "policies": sorted(algo.config.policies)}

@@ -20,7 +20,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 __all__ = ["RenderableParallelPettingZooEnv", "register_suction_debris", "register_single_arm", "policy_per_agent",
-           "shared_policy", "AGENTS"]
+           "shared_policy", "init_ray", "train", "AGENTS"]
 
 AGENTS = ("suction", "grasper")
 
@@ -73,3 +73,24 @@ def policy_per_agent() -> dict:
 def shared_policy() -> dict:
     """``PPOConfig().multi_agent(**shared_policy())``: both arms act with one policy (their spaces agree)."""
     return {"policies": {"shared"}, "policy_mapping_fn": lambda agent_id, episode, **kwargs: "shared"}
+
+
+def init_ray(address: str | None = None) -> None:
+    """Join the Ray cluster at ``address`` (``"auto"``, ``"host:port"``), or start Ray in this process (``None``)."""
+    import ray
+
+    if address is None:
+        ray.init(include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
+    else:
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+
+
+def train(algo, iterations: int, log=print) -> dict:
+    """``iterations`` of ``algo.train()``, a line each (env steps so far, mean episode return); the last result."""
+    result = {}
+    for iteration in range(int(iterations)):
+        result = algo.train()
+        runners = result.get("env_runners", {})
+        log(f"iteration {iteration + 1}: {result.get('num_env_steps_sampled_lifetime', 0):,} env steps, "
+            f"episode return {runners.get('episode_return_mean', float('nan')):.2f}")
+    return result
