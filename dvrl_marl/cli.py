@@ -273,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     except ModuleNotFoundError as error:
         if (error.name or "").split(".")[0] not in _EXTRA_MODULES:
             raise
-        extra = "teleop" if args.command == "teleop" and error.name != "minari" else (
+        extra = "teleop" if args.command == "teleop" else (  # [teleop] brings [data] too
             "data" if error.name == "minari" else "ray" if error.name == "ray" else "train")
         print(f"dvrl-marl: {args.command} needs the {extra} extra ({error.name} is not installed): "
               f'pip install "dvrl-marl[{extra}]"', file=sys.stderr)

@@ -133,3 +133,26 @@ def test_train_without_the_extra_prints_one_line_and_exits_2(tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and 'pip install "dvrl-marl[train]"' in lines[0] and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("blocked", [("minari",), ("starlette", "uvicorn"), ("ray",)])
+def test_commands_without_their_extra_print_one_line_and_exit_2(tmp_path, blocked):
+    command = ('["train", "x.toml", "--num-collectors", "2"]' if blocked == ("ray",)
+               else '["teleop", "--port", "0"]')
+    config = tmp_path / "x.toml"
+    config.write_text((ROOT / "baselines/configs/suction_debris_mappo.toml").read_text())
+    code = f"""
+        import sys
+        class Block:
+            def find_spec(self, name, path=None, target=None):
+                if name.split(".")[0] in {blocked!r}:
+                    raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+        sys.meta_path.insert(0, Block())
+        from dvrl_marl.cli import main
+        sys.exit(main({command}))
+    """
+    result = _headless(code, tmp_path)
+    extra = "ray" if blocked == ("ray",) else "teleop"
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2, result.stderr
+    assert len(lines) == 1 and f'pip install "dvrl-marl[{extra}]"' in lines[0] and "Traceback" not in result.stderr
