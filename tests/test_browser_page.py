@@ -240,3 +240,46 @@ def test_the_cli_prints_a_url_that_opens_the_page(browser, tmp_path):
         output = process.communicate(timeout=60)[0]
     assert process.returncode == 0, output
     assert "saved Minari dataset dvrl_marl/surgeon-teleop-v1: 1 episodes" in output
+
+
+KEYS_OF_AXES = (("KeyA", "KeyD"), ("KeyS", "KeyW"), ("KeyF", "KeyR"))  # (minus, plus) of x, y, z
+
+
+def test_a_person_pressing_keys_in_the_page_finishes_an_episode(browser, served):
+    """A stand-in for a person: it looks at what the seat sees and presses, in the page, the keys that point where
+    the scripted surgeon would move (SHIFT for small moves, SPACE to open or close the jaw), in real time."""
+    from dvrl_marl.agents.collaborative import ScriptedSurgeon
+    from dvrl_marl.envs import suction_debris_v1
+    from dvrl_marl.teleop.session import unpack_frame
+
+    expert = ScriptedSurgeon.for_env(suction_debris_v1.parallel_env())
+    page = browser.new_page()
+    page.goto(served.url)
+    page.wait_for_function("window.dvrl.frames >= 1", timeout=20000)
+    page.keyboard.press("Enter")
+    wait_status(page, "s.state === 'running'")
+    held, precise, jaw = set(), False, 1.0
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and unpack_frame(served.session.latest()[1])[0]["state"] == "running":
+        wanted = expert(served.session.observation)
+        keys = {plus if wanted[axis] > 0 else minus
+                for axis, (minus, plus) in enumerate(KEYS_OF_AXES) if abs(wanted[axis]) >= 0.12}
+        for key in held - keys:
+            page.keyboard.up(key)
+        for key in keys - held:
+            page.keyboard.down(key)
+        held = keys
+        if any(0.12 <= abs(value) < 0.6 for value in wanted[:3]) != precise:
+            precise = not precise
+            (page.keyboard.down if precise else page.keyboard.up)("ShiftLeft")
+        if wanted[3] * jaw < 0:
+            page.keyboard.press("Space")
+            jaw = -jaw
+        time.sleep(0.01)
+    final = wait_status(page, "s.state === 'over'")
+    assert final["success"] and final["debris_delivered"] == final["debris_total"], final
+    assert page.inner_text("#badge") == "SUCCESS" and "SUCCESS" in page.inner_text("#banner")
+    page.click("#record")  # the episode the person finished, as a dataset
+    saved = wait_status(page, "s.saved.length === 1")["saved"][0]
+    assert saved["episodes"] == 1 and saved["successes"] == 1
+    page.close()

@@ -148,6 +148,13 @@ class TeleopSession:
         """``callback()`` runs (in the loop's thread: keep it short) after each new frame."""
         self._subscribers.append(callback)
 
+    @property
+    def observation(self) -> np.ndarray | None:
+        """What the seat sees now (a copy of its latest observation), e.g. for an assistive display; None before
+        the first episode."""
+        observation = getattr(self, "_observation", None)
+        return None if observation is None else np.array(observation)
+
     def latest(self) -> tuple[int, bytes]:
         """The newest frame: (its number, :func:`pack_frame` bytes)."""
         with self._frame_lock:
