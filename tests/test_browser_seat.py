@@ -303,7 +303,10 @@ def test_the_page_and_the_websocket_need_the_token(server):
 
     page = urllib.request.urlopen(server.url, timeout=10).read().decode()
     assert "Start (Enter)" in page and "window.dvrl" in page  # the script is inline: nothing else to fetch
-    for url in (server.url.split("?")[0], server.url.replace(server.token, "x" * 22)):
+    status = json.loads(urllib.request.urlopen(server.url.replace("/?", "/status?"), timeout=10).read())
+    assert status["seat"] == "grasper" and status["partner"] == "scripted"
+    for url in (server.url.split("?")[0], server.url.replace(server.token, "x" * 22),
+                server.url.split("?")[0] + "status"):
         with pytest.raises(urllib.error.HTTPError) as refused:
             urllib.request.urlopen(url, timeout=10)
         assert refused.value.code == 403
@@ -379,3 +382,11 @@ def test_a_silent_or_closed_page_holds_the_seat_and_a_new_page_takes_it_back(ser
         status = status_until(watcher, lambda s: not s["teleop_lost"] and s["step"] >= first["step"] + 4)
         later = status_until(watcher, lambda s: s["step"] >= status["step"] + 10)
         assert later["tip_mm"] == status["tip_mm"]  # its keys start released
+
+
+def test_a_session_has_a_status_before_its_first_episode(minari_store):
+    from dvrl_marl.teleop.session import TeleopSession
+
+    session = TeleopSession(record=False)
+    assert session.status()["state"] == "starting" and session.observation is None
+    session.close()

@@ -109,6 +109,10 @@ class TeleopSession:
         self.audience = {"controller": False, "spectators": 0, "dropped_messages": 0, "last_drop": ""}
         self.error: str | None = None
         self._served = []  # publish times of the last frames, for the frames-per-second figure
+        # The loop's state (its thread owns it; status() reads it, also before the first episode)
+        self._state, self._episode, self._episode_seed, self._steps = "starting", -1, self.seed, 0
+        self._lost, self._success, self._recording = True, False, self.record_default
+        self._recorder, self._buffers = None, []
         self._thread = threading.Thread(target=self._run, name="teleop-session", daemon=True)
         self._started = False
 
@@ -171,9 +175,6 @@ class TeleopSession:
         renderer = SceneRenderer(self.scene.model, self.scene.data, "rgb_array", width=self.width,
                                  height=self.height, frame_budget=0.5 * self.frame_every * self.control_dt)
         self._renderer = renderer
-        self._episode = -1
-        self._recording = self.record_default
-        self._buffers: list = []
         try:
             self._new_episode()
             while not self._stopping.is_set():
@@ -258,7 +259,7 @@ class TeleopSession:
             self._keep_episode(stopped=False)
 
     def _keep_episode(self, stopped: bool) -> None:
-        if getattr(self, "_recorder", None) is not None and len(self._recorder):
+        if self._recorder is not None and len(self._recorder):
             self._buffers.append(self._recorder.buffer(stopped=stopped))
         self._recorder = None
 
