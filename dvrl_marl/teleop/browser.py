@@ -127,11 +127,6 @@ class BrowserDevice:
         with self._lock:
             return not self._connected or self._clock() - self._heard > self.silence_timeout
 
-    @property
-    def tool_command(self) -> float:
-        """The jaw (or valve) command the device holds: +1 open, -1 closed."""
-        return float(self._keyboard.action(None)[3]) if self._keyboard.action_dim > 3 else 0.0
-
     # --- the Device protocol --------------------------------------------------------------------------------
     def reset(self) -> None:
         """A new episode: keys released, sticks centred, jaw open (as :class:`KeyboardDevice`)."""

@@ -215,8 +215,7 @@ class TeleopSession:
                 self._keep_episode(stopped=True)
                 self._new_episode()
             elif name == "record_off" and self._recording:
-                self._keep_episode(stopped=True)
-                self._recorder = None
+                self._keep_episode(stopped=True)  # (and drops the recorder)
                 self._recording = False
                 self._save_recording()
             elif name == "record_on":
