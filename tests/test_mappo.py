@@ -189,6 +189,31 @@ def test_grasp_path_shaping_is_continuous_through_the_grasp():
     assert rewards["grasper"][0] < 1.3  # the env alone charges the grasp (what the trainer's term repairs)
 
 
+def test_suction_route_shaping_is_continuous_when_a_cavity_clears():
+    """Env potential + trainer potential: clearing a cavity earns the removal and ``clear_bonus``, not the env's
+    drop of 10 x the distance to the other cavity."""
+    blood_threshold = suction_debris_v0.SuctionDebrisParams.from_task().blood_threshold_ml
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+                                        blood_ml=[blood_threshold + 0.02, 8.0])
+    env.reset(seed=1)
+    cavities = env.core.cavities
+    surface = env.core.surface_z[0, 0]
+    tip = np.array([[cavities.centre_x[0], cavities.centre_y[0], max(surface - 0.0005, cavities.floor_z[0] + 0.0012)]])
+    env.set_tip_positions({"suction": tip})
+    route = mappo._SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0)
+    blood = env.core.info()["blood_remaining_per_cavity"]
+    before = route.potential(env.state(), blood)
+    _, rewards, *_ = env.step({"suction": np.array([[0.0, 0.0, 0.0, 1.0]]), "grasper": np.zeros((1, 4))})
+    after_blood = env.core.info()["blood_remaining_per_cavity"]
+    assert after_blood[0, 0] < blood_threshold <= blood[0, 0], "the step did not clear the cavity"
+    removed = blood[0, 0] - after_blood[0, 0]
+    total = rewards["suction"][0] + route.potential(env.state(), after_blood)[0] - before[0]
+    assert rewards["suction"][0] < -0.3  # the env alone charges the clearing
+    assert abs(total - (removed + 2.0)) < 0.03  # with the route: the removal and the bonus, the tip did not move
+    # nothing pending: no route, both cleared
+    assert route.potential(env.state(), np.zeros((1, 2)))[0] == pytest.approx(4.0)
+
+
 # --- start-state options of the batched env ------------------------------------------------------------------
 def test_tip_positions_and_debris_count_options():
     env = suction_debris_v0.batched_env(num_envs=3, autoreset_mode="disabled")
@@ -296,3 +321,43 @@ def test_refused_placement_moves_no_tip():
         env.set_tip_positions({"suction": np.array([[-0.03, 0.0, 0.05]]), "grasper": np.full((1, 3), 5.0)})
     for agent, tip in before.items():
         np.testing.assert_array_equal(env.core.arms[agent].tip_world(), tip)
+
+
+def test_over_rims_distances_go_around_the_phantom():
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
+    env.reset(seed=0)
+    rims = mappo._OverRims(env)
+    cavities = env.core.cavities
+    floor_a = np.array([cavities.centre_x[0], cavities.centre_y[0], cavities.floor_z[0] + 0.001])
+    floor_b = np.array([cavities.centre_x[1], cavities.centre_y[1], cavities.floor_z[1] + 0.001])
+    inside_a = floor_a + np.array([0.005, 0.0, 0.004])
+    # within one cavity: the straight line
+    assert rims.distance(inside_a, floor_a) == pytest.approx(np.linalg.norm(inside_a - floor_a))
+    # between cavities: up to the top (+ margin), across, down: longer than the straight line through the phantom
+    height = cavities.phantom.top_z + 0.002
+    expected = (height - inside_a[2]) + np.hypot(*(floor_b - inside_a)[:2]) + (height - floor_b[2])
+    assert rims.distance(inside_a, floor_b) == pytest.approx(expected)
+    assert rims.distance(inside_a, floor_b) > np.linalg.norm(floor_b - inside_a)
+    # a tip stuck on A's rim, pushing toward B's floor: climbing is progress, pushing down into the rim is not
+    on_rim = np.array([-0.0099, -0.0008, 0.028])
+    assert rims.distance(on_rim + [0, 0, 0.001], floor_b) < rims.distance(on_rim, floor_b)
+    assert rims.distance(on_rim + [0.001, 0, -0.001], floor_b) > rims.distance(on_rim + [0, 0, 0.001], floor_b)
+    # batched: (N, K, 3) against (N, 1, 3)
+    starts = np.stack([inside_a, floor_b])[None]
+    np.testing.assert_allclose(rims.distance(starts, floor_a[None, None]),
+                               [[rims.distance(inside_a, floor_a), rims.distance(floor_b, floor_a)]])
+
+
+@pytest.mark.parametrize("over_rims", [False, True])
+def test_grasp_path_shaping_over_rims_is_continuous_through_the_grasp(over_rims):
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env.reset(seed=3)
+    pin = env.core.debris_position[0, 0] + np.array([0.0, 0.0, 0.002])
+    env.reset(seed=3, options={"tip_positions": {"grasper": pin[None]}})
+    shaping = mappo._GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=over_rims)
+    before = shaping.potential(env.state())
+    _, rewards, *_ = env.step({"suction": np.zeros((1, 4)), "grasper": np.array([[0.0, 0.0, 0.0, -1.0]])})
+    total = rewards["grasper"][0] + shaping.potential(env.state())[0] - before[0]
+    assert abs(total - 2.0) < 0.06
+    if over_rims:  # while holding, the carry is measured around the rim: more than the env's straight line
+        assert shaping.potential(env.state())[0] < 0.0

@@ -71,6 +71,12 @@ class NumpyPolicy:
         else:
             x = np.asarray(observation, dtype=np.float64)
         expected = self.weights[0][0].shape[1]
+        if "features" in self.spec:  # features the policy computes from its observation (policy.features)
+            from dvrl_marl.policies import features
+
+            expected -= features.feature_count(self.spec["features"].get("name"))
+            if x.shape[-1] == expected:
+                return features.apply(self.spec["features"], x)
         if x.shape[-1] != expected:  # a policy meeting an env it was not made for (or a hand-edited file)
             raise ValueError(f"policy {self.name!r} ({self.spec.get('env_id', 'unknown env')}) reads {expected} "
                              f"observation features, got {x.shape[-1]}")

@@ -72,11 +72,15 @@ class RolloutCollector:
         if rng_state is not None:
             self.rng.bit_generator.state = rng_state
         self.curriculum = mappo._Curriculum(config, env, self.rng)
-        self.shaping = mappo._GraspPathShaping(env, config.grasp_path_shaping, self.agents, config.hold_bonus)
+        self.shaping = mappo._GraspPathShaping(env, config.grasp_path_shaping, self.agents, config.hold_bonus,
+                                               over_rims=config.shaping_over_rims)
+        self.route = mappo._SuctionRouteShaping(env, config.suction_route_shaping, self.agents, config.clear_bonus,
+                                                over_rims=config.shaping_over_rims)
         env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) + steps_done + first_world)
         self.curriculum.reset(np.ones(n, dtype=bool), easy)
         self.observations = env.observations()
         self.state = env.state()
+        self.blood = env.core.info()["blood_remaining_per_cavity"]  # (N, C), for the suction's route shaping
         self.discounted = np.zeros((n, len(self.agents)))
         # Worlds that start together stay in step for a whole episode (1,500 steps, ~50 rollouts of the same phase);
         # the first episode of each world is cut at a random length (a time limit, bootstrapped like the env's own).
@@ -117,6 +121,7 @@ class RolloutCollector:
                 buffers["observation"][t] = obs
                 buffers["state"][t] = self.state
                 potential_before = shaping.potential(self.state) if shaping.active else None
+                route_before = self.route.potential(self.state, self.blood) if self.route.active else None
                 td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(buffers["observation"][t])},
                                                       batch_size=[n, count])}, batch_size=[n])
                 self.actor(td)
@@ -131,6 +136,9 @@ class RolloutCollector:
                 reward = np.stack([rewards[a] for a in agents], axis=1)
                 if shaping.active:
                     reward[:, shaping.index] += shaping.potential(self.state) - potential_before
+                self.blood = infos[agents[0]]["blood_remaining_per_cavity"]
+                if self.route.active:
+                    reward[:, self.route.index] += self.route.potential(self.state, self.blood) - route_before
                 terminated, truncated = terminations[agents[0]], truncations[agents[0]]
                 self.episode_step += 1
                 truncated = truncated | (self.episode_step == self.first_cut) | (self.episode_step == curriculum.cut)
@@ -151,6 +159,7 @@ class RolloutCollector:
                     curriculum.reset(done, easy)
                     self.observations = env.observations()
                     self.state = env.state()
+                    self.blood = env.core.info()["blood_remaining_per_cavity"]
         return {**buffers, "stats": stats}
 
     def rng_state(self) -> dict:
@@ -183,14 +192,18 @@ def _merge(results: list[dict]) -> dict:
 
 
 class LocalCollectors:
-    """One collector in the learner's process, acting with the learner's own actor module."""
+    """One collector in the learner's process, acting with the learner's own actor module (``shared``), or with a
+    CPU copy of it that each rollout loads the learner's weights into (a learner on a GPU)."""
 
-    def __init__(self, collector: RolloutCollector):
+    def __init__(self, collector: RolloutCollector, shared: bool = True):
         self.collector = collector
+        self.shared = shared
         self.count = 1
 
     def collect(self, actor_state, easy: float) -> dict:
-        return self.collector.rollout(None, easy)  # the actor is the learner's: its weights are current
+        if self.shared:  # the actor is the learner's: its weights are current
+            return self.collector.rollout(None, easy)
+        return self.collector.rollout({key: value.detach().cpu() for key, value in actor_state.items()}, easy)
 
     def rng_states(self) -> list:
         return [self.collector.rng_state()]
@@ -263,7 +276,7 @@ def make_collectors(config, seed: int, *, actor, steps_done: int, easy: float, r
     if ray_address is None and not num_collectors:
         collector = RolloutCollector(config, seed, steps_done=steps_done, easy=easy, actor=actor,
                                      rng_state=None if not rng_states else rng_states[0])
-        return LocalCollectors(collector)
+        return LocalCollectors(collector, shared=actor is not None)
     return RayCollectors(config, seed, address=None if ray_address in (None, "local") else ray_address,
                          num_collectors=max(1, int(num_collectors or 1)), steps_done=steps_done, easy=easy,
                          rng_states=rng_states)

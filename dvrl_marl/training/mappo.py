@@ -58,6 +58,10 @@ __all__ = ["MappoConfig", "load_config", "train", "export_actor", "TRAIN_SEED_BA
 #: far beyond them.
 TRAIN_SEED_BASE = 1_000_000
 ALGORITHMS = ("mappo", "ippo")
+TOOL_HEADS = ("gaussian", "switch")
+#: Gain folded into an exported switch head's last layer: clip(gain x logit) is the sign of the logit, the
+#: distribution's most likely tool value, in the numpy policy format's plain layers.
+SWITCH_EXPORT_GAIN = 1e6
 
 
 @dataclass
@@ -88,6 +92,17 @@ class MappoConfig:
     max_grad_norm: float = 1.0
     hidden: list = field(default_factory=lambda: [128, 128])
     initial_std: float = 0.6
+    # 0: the standard deviation is learnt (PPO's usual). > 0: it follows a schedule, initial_std at the start to
+    # final_std at the end of the run, linearly (see exploration_std): the deterministic policy users get is then
+    # the one training ended with, not one that leant on noise to get past the cavities' rims
+    final_std: float = 0.0
+    # "gaussian": the tool value (valve / jaw) is a fourth Gaussian dimension; "switch": an open/closed decision
+    # (Bernoulli, action +1 or -1; see _SwitchGaussian), its initial logit per agent in initial_tool_logit
+    tool_head: str = "gaussian"
+    initial_tool_logit: dict = field(default_factory=dict)
+    # "": the actors read the observation; a name in dvrl_marl.policies.features.FEATURES: they also read features
+    # computed from it (relative targets), and the exported policies compute the same
+    observation_features: str = ""
     # curriculum
     easy_start: float = 0.0
     anneal_begin: float = 0.0
@@ -99,8 +114,19 @@ class MappoConfig:
     # trainer-side potential-based shaping (see _GraspPathShaping)
     grasp_path_shaping: float = 0.0
     hold_bonus: float = 0.0
+    suction_route_shaping: float = 0.0  # see _SuctionRouteShaping
+    clear_bonus: float = 0.0
+    shaping_over_rims: bool = False  # both shapings measure paths around the phantom (see _OverRims)
     contact_penalty: float | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
     torch_threads: int = 0  # 0: torch's default
+    # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
+    # Collection always runs on CPU (the env is numpy; a few hundred worlds per step are latency-bound on a GPU).
+    device: str = "cpu"
+
+    def exploration_std(self, progress: float) -> float:
+        """The motion's standard deviation at ``progress`` in [0, 1] of the run (with ``final_std`` > 0)."""
+        progress = min(max(progress, 0.0), 1.0)
+        return self.initial_std + (self.final_std - self.initial_std) * progress
 
     def easy_fraction(self, progress: float) -> float:
         """Fraction of resets that draw an easy episode, ``progress`` in [0, 1] of the run."""
@@ -140,8 +166,24 @@ def load_config(path) -> MappoConfig:
     for key in ("total_steps", "num_envs", "rollout_steps", "eval_every", "eval_episodes", "epochs", "minibatches"):
         if int(getattr(config, key)) < 1:
             raise ValueError(f"{path}: {key} must be >= 1, got {getattr(config, key)!r}")
+    if not config.initial_std > 0.0 or not config.final_std >= 0.0:
+        raise ValueError(f"{path}: initial_std must be > 0 and final_std >= 0 (0: learnt)")
     if not 0.0 <= config.easy_start <= 1.0 or not 0.0 <= config.near_debris <= 1.0:
         raise ValueError(f"{path}: easy_start and near_debris must lie in [0, 1]")
+    if config.observation_features:
+        from dvrl_marl.policies import features
+
+        if config.observation_features not in features.FEATURES:
+            raise ValueError(f"{path}: observation_features must be one of {sorted(features.FEATURES)} or \"\", "
+                             f"got {config.observation_features!r}")
+    if not (config.device in ("cpu", "auto") or str(config.device).startswith("cuda")):
+        raise ValueError(f"{path}: device must be \"cpu\", \"auto\" or \"cuda\" (\"cuda:N\"), got {config.device!r}")
+    if config.tool_head not in TOOL_HEADS:
+        raise ValueError(f"{path}: tool_head must be one of {TOOL_HEADS}, got {config.tool_head!r}")
+    unknown = set(config.initial_tool_logit) - set(suction_debris_v0.AGENTS)
+    if unknown:
+        raise ValueError(f"{path}: initial_tool_logit names unknown agents {sorted(unknown)} "
+                         f"(agents: {', '.join(suction_debris_v0.AGENTS)})")
     if not 0.0 <= config.anneal_begin < config.anneal_end <= 1.0:
         raise ValueError(f"{path}: need 0 <= anneal_begin < anneal_end <= 1")
     return config
@@ -160,8 +202,81 @@ def _torch():
     return torch
 
 
+_SWITCH_CLASS = None
+
+
+def _switch_gaussian():
+    """The ``tool_head = "switch"`` distribution class (built once torch is imported).
+
+    Why: the grasp rule holds a pin only while the jaw stays below ``grasp_threshold`` (a command under -0.5). A
+    Gaussian tool dimension with the usual exploration noise (standard deviation 0.6) opens the jaw on about one
+    step in five even when its mean says "closed", so every carry of 50+ steps drops its pin, and the noise that
+    lets the arm explore its motion is the noise that makes holding impossible (measured: the grasper grasped,
+    held a pin 11-51 % of the time and never delivered one in 8M steps). The env's tool value is a threshold, so the
+    policy decides it as one: a Bernoulli over open (+1) / closed (-1) whose logit the network outputs in the place
+    of the fourth mean; its certainty is learnt per state, apart from the motion's standard deviation.
+    """
+    global _SWITCH_CLASS
+    if _SWITCH_CLASS is not None:
+        return _SWITCH_CLASS
+    torch = _torch()
+    from torch import distributions
+
+    class SwitchGaussian(distributions.Distribution):
+        """Independent Normal over the motion (first dimensions) and a Bernoulli open/closed tool (last
+        dimension, values +1 / -1). ``loc[..., -1]`` is the tool's logit; ``scale[..., -1]`` is ignored."""
+
+        arg_constraints = {}
+        has_rsample = False
+
+        def __init__(self, loc, scale):
+            self.motion = distributions.Normal(loc[..., :-1], scale[..., :-1], validate_args=False)
+            self.tool = distributions.Bernoulli(logits=loc[..., -1], validate_args=False)
+            super().__init__(batch_shape=loc.shape[:-1], event_shape=loc.shape[-1:], validate_args=False)
+
+        def sample(self, sample_shape=torch.Size()):
+            with torch.no_grad():
+                tool = self.tool.sample(sample_shape) * 2.0 - 1.0
+                return torch.cat([self.motion.sample(sample_shape), tool.unsqueeze(-1)], dim=-1)
+
+        def log_prob(self, value):
+            return (self.motion.log_prob(value[..., :-1]).sum(-1)
+                    + self.tool.log_prob((value[..., -1] > 0.0).to(value.dtype)))
+
+        def entropy(self):
+            return self.motion.entropy().sum(-1) + self.tool.entropy()
+
+        @property
+        def mode(self):
+            return torch.cat([self.motion.loc, torch.sign(self.tool.logits).unsqueeze(-1)], dim=-1)
+
+        @property
+        def deterministic_sample(self):
+            return self.mode
+
+        @property
+        def mean(self):
+            return torch.cat([self.motion.loc, (2.0 * self.tool.probs - 1.0).unsqueeze(-1)], dim=-1)
+
+    _SWITCH_CLASS = SwitchGaussian
+    return SwitchGaussian
+
+
+def observation_feature_spec(config: MappoConfig, obs_dim: int) -> dict | None:
+    """The ``features`` entry of the exported policies (None without ``observation_features``): the feature set's
+    name and the observation's layout (cavities, debris slots) it needs."""
+    if not config.observation_features:
+        return None
+    from dvrl_marl import assets
+
+    cavities = len(assets.CAVITY_CENTRES)  # the observation: 10 + cavities + 6 x debris values
+    debris = (obs_dim - 10 - cavities) // 6
+    return {"name": config.observation_features, "cavities": cavities, "debris": debris}
+
+
 def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int):
     torch = _torch()
+    from dvrl_marl.policies import features
     from tensordict.nn import TensorDictModule
     from torch import nn
     from torchrl.modules import IndependentNormal, ProbabilisticActor
@@ -197,15 +312,22 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
         layers.append(nn.Linear(width, outputs))
         return nn.Sequential(*layers)
 
+    feature_spec = observation_feature_spec(config, obs_dim)
+    extra = 0 if feature_spec is None else features.feature_count(feature_spec["name"])
+
     class PerAgent(nn.Module):
-        """One network per agent: input (..., A, d) -> output (..., A, k)."""
+        """One network per agent: input (..., A, d) -> output (..., A, k); the observation features, when the
+        configuration asks for them, are appended before the normalisation."""
 
         def __init__(self, inputs, outputs, norm):
             super().__init__()
             self.norm = norm
-            self.nets = nn.ModuleList(mlp(inputs, outputs) for _ in agents)
+            self.feature_spec = feature_spec
+            self.nets = nn.ModuleList(mlp(inputs + extra, outputs) for _ in agents)
 
         def forward(self, x):
+            if self.feature_spec is not None:
+                x = features.apply(self.feature_spec, x)
             x = self.norm(x)
             return torch.stack([net(x[..., i, :]) for i, net in enumerate(self.nets)], dim=-2)
 
@@ -227,38 +349,45 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
         def __init__(self, net):
             super().__init__()
             self.net = net
-            self.log_std = nn.Parameter(torch.full((len(agents), action_dim), math.log(config.initial_std)))
+            self.log_std = nn.Parameter(torch.full((len(agents), action_dim), math.log(config.initial_std)),
+                                        requires_grad=not config.final_std)  # final_std: a schedule, not learnt
 
         def forward(self, x):
             loc = self.net(x)
             return loc, self.log_std.exp().expand_as(loc)
 
-    obs_norm = RunningNorm((obs_dim,))
+    obs_norm = RunningNorm((obs_dim + extra,))
     actor_net = PerAgent(obs_dim, action_dim, obs_norm)
     with torch.no_grad():  # small initial means: exploration starts from the standard deviation alone
-        for net in actor_net.nets:
+        for agent, net in zip(agents, actor_net.nets):
             net[-1].weight.mul_(0.01)
             net[-1].bias.zero_()
+            if config.tool_head == "switch":  # the tool's initial leaning (a prior the policy may unlearn)
+                net[-1].bias[-1] = float(config.initial_tool_logit.get(agent, 0.0))
     policy_module = TensorDictModule(GaussianHead(actor_net), in_keys=[("agents", "observation")],
                                      out_keys=[("agents", "loc"), ("agents", "scale")])
+    distribution = _switch_gaussian() if config.tool_head == "switch" else IndependentNormal
     actor = ProbabilisticActor(policy_module, in_keys=[("agents", "loc"), ("agents", "scale")],
-                               out_keys=[("agents", "action")], distribution_class=IndependentNormal,
+                               out_keys=[("agents", "action")], distribution_class=distribution,
                                return_log_prob=True, log_prob_key=("agents", "action_log_prob"))
     if config.algorithm == "mappo":
         state_norm = RunningNorm((state_dim,))
         critic = TensorDictModule(CentralCritic(state_norm), in_keys=["state"], out_keys=[("agents", "state_value")])
         norms = {"observation": obs_norm, "state": state_norm}
     else:
-        critic = TensorDictModule(PerAgent(obs_dim, 1, RunningNorm((obs_dim,))), in_keys=[("agents", "observation")],
+        critic = TensorDictModule(PerAgent(obs_dim, 1, RunningNorm((obs_dim + extra,))),
+                                  in_keys=[("agents", "observation")],
                                   out_keys=[("agents", "state_value")])
         norms = {"observation": obs_norm, "critic_observation": critic.module.norm}
     return actor, critic, actor_net, norms
 
 
 # --- numpy export ---------------------------------------------------------------------------------------------
-def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict) -> Path:
-    """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box) as a numpy
-    policy folder, the observation normalisation folded into the first layer."""
+def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
+                 tool_head: str = "gaussian") -> Path:
+    """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box; with the switch
+    tool head the tool's more likely value, +1 or -1) as a numpy policy folder, the observation normalisation
+    folded into the first layer."""
     from dvrl_marl.training.export import write_policy
 
     norm, net = actor_net.norm, actor_net.nets[index]
@@ -273,7 +402,12 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
         last = position == len(linears) - 1
+        if last and tool_head == "switch":  # clip(gain x logit) = sign(logit): the plain format's layers suffice
+            weight[-1] *= SWITCH_EXPORT_GAIN
+            bias[-1] *= SWITCH_EXPORT_GAIN
         layers.append((weight.astype(np.float32), bias.astype(np.float32), "clip" if last else "tanh"))
+    if getattr(actor_net, "feature_spec", None) is not None:  # the numpy policy computes them before layer 0
+        metadata = {**metadata, "features": dict(actor_net.feature_spec)}
     return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
@@ -371,7 +505,9 @@ class _GraspPathShaping:
     before the first delivery is ever seen.
     """
 
-    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0):
+    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False):
+        self.over_rims = _OverRims(env) if over_rims else None
+        self.centre = np.asarray(env.params.workspace_centre)
         self.weight = float(weight)
         self.hold_bonus = float(hold_bonus)
         self.index = agents.index("grasper") if "grasper" in agents else None
@@ -401,7 +537,108 @@ class _GraspPathShaping:
         holding = held.any(axis=1)
         live = pending.any(axis=1) & ~holding
         detour = np.where(live, path - np.where(live, env_term, 0.0), 0.0)  # pin -> hand-off of the best pin
+        if self.over_rims is not None:  # the same path, measured around the phantom (and the carry too)
+            world = lambda x: x * self.range + self.centre  # noqa: E731
+            pins, tip_w, handoff_w = world(debris[..., :3]), world(tip), world(handoff)
+            to_pin_geo = self.over_rims.distance(tip_w, pins)
+            to_handoff_geo = self.over_rims.distance(pins, handoff_w)
+            path_geo = np.where(pending, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
+            carry = np.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
+            detour = np.where(live, path_geo - np.where(live, env_term, 0.0), 0.0) + np.where(holding, carry, 0.0)
         return -self.weight * detour + self.hold_bonus * holding
+
+
+class _OverRims:
+    """Distances for a tip that cannot pass through the phantom: the length of the way up out of a cavity, across
+    above the phantom's top, and down into another (vertical legs; exact enough for a potential). Within one cavity,
+    or between two points outside every cavity, the straight line is clear (the bowl is convex) and is used.
+
+    Why: the env's potentials measure straight lines. Between the two cavities the straight line runs through the
+    phantom, and a tip pushing along it is held at the rim (the env refuses a horizontal move into a steep wall); a
+    deterministic policy that learnt with noise stays there for the rest of the episode (measured: with the straight
+    route the suction cleared both cavities in 76 % of episodes with noise and 12 % without; the stuck ones sat on a
+    rim, pushing down toward the other cavity's floor).
+    """
+
+    def __init__(self, env, margin: float = 0.002):
+        self.cavities = env.core.cavities
+        self.height = self.cavities.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
+
+    def _lift(self, point, cavity):
+        z = np.where(cavity >= 0, np.maximum(point[..., 2], self.height), point[..., 2])
+        return np.concatenate([point[..., :2], z[..., None]], axis=-1)
+
+    def distance(self, start, goal) -> np.ndarray:
+        """``start``, ``goal``: (..., 3) world positions (broadcast) -> (...) path lengths."""
+        start, goal = np.broadcast_arrays(start, goal)
+        from_cavity = self.cavities.cavity_at(start[..., 0], start[..., 1])
+        to_cavity = self.cavities.cavity_at(goal[..., 0], goal[..., 1])
+        straight = np.linalg.norm(goal - start, axis=-1)
+        up, down = self._lift(start, from_cavity), self._lift(goal, to_cavity)
+        around = (np.linalg.norm(up - start, axis=-1) + np.linalg.norm(down - up, axis=-1)
+                  + np.linalg.norm(goal - down, axis=-1))
+        return np.where(from_cavity == to_cavity, straight, around)
+
+
+class _SuctionRouteShaping:
+    """Potential-based shaping for the suction arm, added by the trainer (F = Phi(s') - Phi(s), as the env's own).
+
+    The env's dense reward pays the suction for closing on the nearest cavity that still holds blood (potential -10 x
+    tip-to-floor distance) and for each millilitre removed. When a cavity falls below the clearing threshold its
+    target jumps to the other cavity: the potential drops by about 10 x the distance between them (about 0.6) at
+    the very step that clears it, and the dense reward has no term for clearing. A cavity left at 0.51 ml costs
+    nothing, one cleared costs 0.6: a learner takes every millilitre but the last one (measured: 12-15 ml of 16
+    removed, success swinging between 0 and 0.5, and runs collapsing to no suction at all). With ``weight`` 10 this
+    term turns the env's potential into the length of the route from the tip over every cavity still to clear
+    (continuous when one clears), and ``clear_bonus`` adds that much potential per cleared cavity (a refill, as by
+    bleeding, takes it back).
+    """
+
+    def __init__(self, env, weight: float, agents, clear_bonus: float = 0.0, over_rims: bool = False):
+        import itertools
+
+        self.over_rims = _OverRims(env) if over_rims else None
+
+        self.weight = float(weight)
+        self.clear_bonus = float(clear_bonus)
+        self.index = agents.index("suction") if "suction" in agents else None
+        self.tip = env.state_layout["suction_tip"]
+        self.range = env.workspace_range
+        self.centre = np.asarray(env.params.workspace_centre)
+        self.threshold = env.params.blood_threshold_ml
+        cavities = env.core.cavities
+        self.floors = np.stack([cavities.centre_x, cavities.centre_y, cavities.floor_z], axis=1)  # (C, 3)
+        self.orders = np.array(list(itertools.permutations(range(len(self.floors)))))  # (P, C)
+
+    @property
+    def active(self) -> bool:
+        return (self.weight > 0.0 or self.clear_bonus > 0.0) and self.index is not None
+
+    def potential(self, state: np.ndarray, blood_ml: np.ndarray) -> np.ndarray:
+        """``state``: (N, state_dim); ``blood_ml``: (N, C), each cavity's remaining blood."""
+        tip = state[:, self.tip] * self.range + self.centre
+        pending = (blood_ml >= self.threshold) & (blood_ml > 0.0)
+        to_floor = np.linalg.norm(tip[:, None, :] - self.floors[None], axis=-1)  # (N, C)
+        nearest = np.where(pending, to_floor, np.inf).min(axis=1)
+        nearest = np.where(pending.any(axis=1), nearest, 0.0)
+        # shortest route tip -> every pending cavity, over the visiting orders (2 cavities: 2 orders)
+        measure = self._measure
+        route = np.full(len(state), np.inf)
+        for order in self.orders:
+            length = np.zeros(len(state))
+            here = tip
+            for cavity in order:
+                step = measure(here, self.floors[cavity])
+                length = length + np.where(pending[:, cavity], step, 0.0)
+                here = np.where(pending[:, cavity, None], self.floors[cavity], here)
+            route = np.minimum(route, length)
+        cleared = (~pending).sum(axis=1)
+        return -self.weight * (route - nearest) + self.clear_bonus * cleared
+
+    def _measure(self, start, goal):
+        if self.over_rims is None:
+            return np.linalg.norm(np.broadcast_to(goal, start.shape) - start, axis=-1)
+        return self.over_rims.distance(start, goal)
 
 
 def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = None, resume: bool = False,
@@ -417,10 +654,12 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     from tensordict import TensorDict
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
+    from dvrl_marl.policies import features
     from dvrl_marl.training.collectors import make_collectors
 
     if config.torch_threads:
         torch.set_num_threads(int(config.torch_threads))
+    device = learner_device(config)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     total = int(total_steps or config.total_steps)
@@ -434,6 +673,9 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     state_dim = env.state_space.shape[0]
     torch.manual_seed(seed)
     actor, critic, actor_net, norms = _build_models(config, agents, obs_dim, state_dim, 4)
+    actor.to(device)
+    critic.to(device)
+    actor_head = actor.module[0].module  # the GaussianHead (its log_std)
     loss_module = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=config.clip_epsilon,
                               entropy_coeff=config.entropy_coef, critic_coeff=config.value_coef,
                               normalize_advantage=True, normalize_advantage_exclude_dims=(-2,),
@@ -448,13 +690,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     steps_done, iteration, rng_states = 0, 0, None
     checkpoint = out / "checkpoint.pt"
     if resume and checkpoint.is_file():
-        saved = torch.load(checkpoint, weights_only=False)
+        saved = torch.load(checkpoint, weights_only=False, map_location=device)
         loss_module.load_state_dict(saved["loss_module"])
         optimiser.load_state_dict(saved["optimiser"])
         return_var_state = saved["return_var"]
         steps_done, iteration = saved["steps"], saved["iteration"]
         rng_states = saved.get("collector_rng") or [saved["rng"]]  # (checkpoints before collectors kept one stream)
-        torch.set_rng_state(saved["torch_rng"])
+        torch.set_rng_state(saved["torch_rng"].cpu())
         log(f"resumed {out} at {steps_done} steps")
     (out / "config.toml").write_text(_config_toml(config))
     writer = None
@@ -465,7 +707,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             writer = SummaryWriter(str(out / "tb"))
         except ImportError:
             log("tensorboard is not installed: no TensorBoard logs")
-    collectors = make_collectors(config, seed, actor=actor, steps_done=steps_done,
+    collectors = make_collectors(config, seed, actor=actor if device.type == "cpu" else None, steps_done=steps_done,
                                  easy=config.easy_fraction(steps_done / total), rng_states=rng_states,
                                  ray_address=ray_address, num_collectors=num_collectors)
     if collectors.count > 1 or ray_address is not None or num_collectors:
@@ -490,9 +732,12 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     try:
         while steps_done < total:
             easy = config.easy_fraction(steps_done / total)
+            if config.final_std:  # the scheduled exploration noise (the same in collection and in the update)
+                with torch.no_grad():
+                    actor_head.log_std.fill_(math.log(config.exploration_std(steps_done / total)))
             # --- collect ---
             began = time.perf_counter()
-            batch = collectors.collect(actor.state_dict(), easy)
+            batch = collectors.collect(actor.state_dict(), easy)  # (a CPU copy when the learner is elsewhere)
             timing["collect_seconds"] += time.perf_counter() - began
             began = time.perf_counter()
             for discounted in batch["discounted_return"]:  # step by step, as the returns grew
@@ -514,7 +759,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             scale = np.sqrt(return_var_state["var"] + 1e-8).astype(np.float32)
 
             def swap(x):  # (T, N, ...) -> (N, T, ...)
-                return torch.from_numpy(np.ascontiguousarray(np.swapaxes(x, 0, 1)))
+                return torch.from_numpy(np.ascontiguousarray(np.swapaxes(x, 0, 1))).to(device)
 
             done_t = swap(done_buf)[..., None, None].expand(n, horizon, count, 1)
             term_t = swap(term_buf)[..., None, None].expand(n, horizon, count, 1)
@@ -550,11 +795,14 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                         if key in losses.keys():
                             sums[key] += float(losses[key].detach().float().mean())
             # Normalisers move after the update, so the update sees the statistics the rollout was collected with.
-            norms["observation"].update(torch.from_numpy(obs_buf))
+            observed = torch.from_numpy(obs_buf).to(device)
+            if actor_net.feature_spec is not None:  # the networks normalise observation + features
+                observed = features.apply(actor_net.feature_spec, observed)
+            norms["observation"].update(observed)
             if "state" in norms:
-                norms["state"].update(torch.from_numpy(state_buf))
+                norms["state"].update(torch.from_numpy(state_buf).to(device))
             else:
-                norms["critic_observation"].update(torch.from_numpy(obs_buf))
+                norms["critic_observation"].update(observed)
             if writer is not None:
                 updates = config.epochs * config.minibatches
                 for key, value in sums.items():
@@ -630,6 +878,19 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     return last
 
 
+def learner_device(config: MappoConfig):
+    """The torch device of the learner's update (``config.device``; "auto": the first GPU when there is one)."""
+    torch = _torch()
+    name = str(config.device)
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {config.device!r}: this torch sees no GPU (torch {torch.__version__}); "
+                         'use device = "cpu" or "auto"')
+    return device
+
+
 def _update_running(stats: dict, x: np.ndarray) -> None:
     batch_mean, batch_var, count = x.mean(axis=0), x.var(axis=0), x.shape[0]
     delta, total = batch_mean - stats["mean"], stats["count"] + count
@@ -649,7 +910,7 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
     seats = {}
     for index, agent in enumerate(agents):
         folder = out / "policies" / f"marl-{agent}"
-        export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent,
+        export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                             "steps": steps}})
         seats[agent] = policies.load(folder)
@@ -662,7 +923,13 @@ def _config_toml(config: MappoConfig) -> str:
         value = getattr(config, f.name)
         if f.name in ("env", "name") or value is None:  # TOML has no null: an absent key is the default (None)
             continue
-        lines.append(f"{f.name} = {json.dumps(value)}")
+        lines.append(f"{f.name} = {_toml_value(value)}")
     lines.append("[env]")
-    lines += [f"{k} = {json.dumps(v)}" for k, v in config.env.items()]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in config.env.items()]
     return "\n".join(lines) + "\n"
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, dict):  # an inline table (JSON's braces are not TOML's)
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    return json.dumps(value)

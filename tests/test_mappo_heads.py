@@ -1,0 +1,207 @@
+"""The multi-agent trainer's policy pieces: the open/closed tool head, the observation features (the same in numpy
+and torch, and in the exported numpy policy), and the learner's device setting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dvrl_marl import policies
+from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.policies import features
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("torchrl")
+
+from dvrl_marl.training import mappo  # noqa: E402
+
+AGENTS = ["suction", "grasper"]
+OBS_DIM = 30  # 10 + 2 cavities + 6 x 3 debris
+
+
+def _observation(rng, tip, slots, handoff, other):
+    """An observation in the collaborative layout with the given pin slots [(position, visible, held, delivered)]."""
+    obs = np.zeros(OBS_DIM)
+    obs[0:3], obs[4:7] = tip, other
+    obs[7:9] = rng.random(2)
+    for index, (position, visible, held, delivered) in enumerate(slots):
+        start = 9 + 6 * index
+        obs[start:start + 3] = position if visible and not delivered else 0.0
+        obs[start + 3:start + 6] = visible, held, delivered
+    obs[27:30] = handoff
+    return obs
+
+
+coordinate = st.floats(-1.0, 1.0, allow_nan=False)
+point = st.tuples(coordinate, coordinate, coordinate).map(np.array)
+slot = st.tuples(point, st.booleans(), st.booleans(), st.booleans())
+
+
+@settings(max_examples=200, deadline=None)
+@given(tip=point, other=point, handoff=point, slots=st.lists(slot, min_size=3, max_size=3))
+def test_targets_point_at_the_nearest_pin_to_collect(tip, other, handoff, slots):
+    # at most one pin is held, as in the env
+    held_seen = False
+    cleaned = []
+    for position, visible, held, delivered in slots:
+        held = held and visible and not delivered and not held_seen
+        held_seen |= held
+        cleaned.append((position, visible, held, delivered))
+    obs = _observation(np.random.default_rng(0), tip, cleaned, handoff, other)
+    out = features.suction_debris_targets(obs, cavities=2, debris=3)
+    assert out.shape == (14,) and np.all(np.isfinite(out))
+    pending = [p for p, v, h, d in cleaned if v and not h and not d]
+    if pending:
+        nearest = min(pending, key=lambda p: float(np.sum((p - tip) ** 2)))
+        np.testing.assert_allclose(out[0:3], nearest - tip, atol=1e-12)
+        assert out[3] == 1.0
+    else:
+        assert np.all(out[0:4] == 0.0)
+    held_positions = [p for p, v, h, d in cleaned if h]
+    assert out[4] == float(bool(held_positions))
+    expected_carry = handoff - held_positions[0] if held_positions else np.zeros(3)
+    np.testing.assert_allclose(out[5:8], expected_carry, atol=1e-12)
+    np.testing.assert_allclose(out[8:11], handoff - tip, atol=1e-12)
+    np.testing.assert_allclose(out[11:14], other - tip, atol=1e-12)
+    # torch computes the same (batched, float64)
+    batched = np.stack([obs, obs[::-1].copy()])
+    np.testing.assert_allclose(features.suction_debris_targets(torch.from_numpy(batched), cavities=2, debris=3).numpy(),
+                               features.suction_debris_targets(batched, cavities=2, debris=3), atol=1e-12)
+
+
+def test_targets_on_real_observations_follow_the_env():
+    env = suction_debris_v0.batched_env(num_envs=6, surgeon="scripted", surgeon_seat="suction")
+    env.reset(seed=3)
+    for _ in range(500):  # the scripted suction reveals pins
+        env.step({"grasper": np.zeros((6, 4))})
+    observation = env.observations()["grasper"]
+    out = features.suction_debris_targets(observation, cavities=2, debris=3)
+    state = env.state()
+    layout = env.state_layout
+    assert out[:, 3].any(), "no pin revealed after 500 steps of the scripted suction"
+    tips = state[:, layout["grasper_tip"]]
+    np.testing.assert_allclose(out[:, 8:11], state[:, layout["handoff"]] - tips, atol=1e-12)
+
+
+def test_unknown_features_are_named():
+    with pytest.raises(ValueError, match="unknown observation features 'bogus'"):
+        features.apply({"name": "bogus"}, np.zeros(OBS_DIM))
+    with pytest.raises(ValueError, match="unknown observation features"):
+        features.feature_count("bogus")
+
+
+def _config(**model):
+    return mappo.MappoConfig(hidden=[16, 16], **model)
+
+
+def test_switch_head_samples_open_or_closed_with_its_log_probability():
+    config = _config(tool_head="switch", initial_tool_logit={"suction": 2.0, "grasper": -2.0})
+    actor, _, _, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    td = TensorDict({"agents": TensorDict({"observation": torch.zeros(4000, 2, OBS_DIM)}, batch_size=[4000, 2])},
+                    batch_size=[4000])
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        actor(td)
+    action = td["agents", "action"]
+    assert set(action[..., 3].unique().tolist()) == {-1.0, 1.0}
+    # the initial leaning: suction's valve open, grasper's jaw closed, with probability sigmoid(2) = 0.88
+    open_share = (action[..., 3] > 0).float().mean(0)
+    assert abs(float(open_share[0]) - 0.881) < 0.03 and abs(float(open_share[1]) - 0.119) < 0.03
+    # the stored log-probability is the distribution's, motion (Gaussian) plus tool (Bernoulli)
+    with torch.no_grad():
+        dist = actor.get_dist(td)
+    np.testing.assert_allclose(dist.log_prob(action).numpy(), td["agents", "action_log_prob"].numpy(), atol=1e-5)
+    motion = torch.distributions.Normal(td["agents", "loc"][..., :3], td["agents", "scale"][..., :3])
+    tool = torch.distributions.Bernoulli(logits=td["agents", "loc"][..., 3])
+    expected = motion.log_prob(action[..., :3]).sum(-1) + tool.log_prob((action[..., 3] > 0).float())
+    np.testing.assert_allclose(dist.log_prob(action).numpy(), expected.numpy(), atol=1e-5)
+    assert torch.allclose(dist.entropy(), motion.entropy().sum(-1) + tool.entropy())
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        actor(td)
+    assert torch.equal(td["agents", "action"][..., 3], torch.tensor([1.0, -1.0]).expand(4000, 2))
+
+
+@pytest.mark.parametrize("model", [
+    {"tool_head": "switch", "initial_tool_logit": {"grasper": -3.0}},
+    {"observation_features": "suction_debris_targets"},
+    {"tool_head": "switch", "observation_features": "suction_debris_targets"},
+])
+def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
+    """The numpy policy (features computed, normalisation folded, the switch as a sign) acts as the torch actor's
+    most likely action."""
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    config = _config(**model)
+    actor, _, actor_net, norms = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    env = suction_debris_v0.batched_env(num_envs=40, surgeon=None)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        env.step({agent: rng.uniform(-1, 1, (40, 4)) for agent in AGENTS})
+    observations = np.stack([env.observations()[a] for a in AGENTS], axis=1)
+    observed = torch.from_numpy(observations)
+    if actor_net.feature_spec is not None:
+        observed = features.apply(actor_net.feature_spec, observed)
+    norms["observation"].update(observed)
+    for net in actor_net.nets:  # make the head matter
+        torch.nn.init.normal_(net[-1].weight, std=0.5)
+    td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(observations).float()},
+                                          batch_size=[40, 2])}, batch_size=[40])
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        expected = np.clip(actor(td)["agents", "action"].numpy(), -1.0, 1.0)
+    for index, agent in enumerate(AGENTS):
+        folder = mappo.export_actor(actor_net, index, tmp_path / agent, name=agent, agent=agent, metadata={},
+                                    tool_head=config.tool_head)
+        policy = policies.load(folder)
+        assert ("features" in policy.spec) == bool(config.observation_features)
+        np.testing.assert_allclose(policy(observations[:, index]), expected[:, index], atol=2e-4)
+        if config.tool_head == "switch":
+            assert set(np.unique(policy(observations[:, index])[:, 3])) <= {-1.0, 1.0}
+        with pytest.raises(ValueError, match="reads 30 observation features, got 29"):
+            policy(np.zeros(29))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[model]\ntool_head = 'dice'\n", "tool_head must be one of"),
+    ("[run]\ndevice = 'tpu'\n", "device must be"),
+    ("[model]\nobservation_features = 'everything'\n", "observation_features must be one of"),
+    ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
+])
+def test_bad_head_settings_are_named(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace("[run]\n", "") if text.startswith("[run]") else text)
+    if text.startswith("[run]"):
+        path.write_text("[run]\nalgorithm = 'mappo'\n" + text.replace("[run]\n", ""))
+    else:
+        path.write_text("[run]\nalgorithm = 'mappo'\n" + text)
+    with pytest.raises(ValueError) as error:
+        mappo.load_config(path)
+    assert str(path) in str(error.value) and message in str(error.value)
+
+
+def test_device_setting():
+    assert mappo.learner_device(mappo.MappoConfig(device="cpu")).type == "cpu"
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert mappo.learner_device(mappo.MappoConfig(device="auto")).type == expected
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="sees no GPU"):
+            mappo.learner_device(mappo.MappoConfig(device="cuda"))
+
+
+def test_scheduled_exploration_noise(tmp_path):
+    """With final_std the motion's standard deviation is not learnt: it falls from initial_std to final_std."""
+    config = mappo.MappoConfig(total_steps=2048, num_envs=32, rollout_steps=16, eval_every=2048, eval_episodes=2,
+                               checkpoint_every=2048, hidden=[16, 16], epochs=1, minibatches=1, initial_std=0.6,
+                               final_std=0.1, tool_head="switch", env={"reward_type": "dense", "max_cycles": 40})
+    assert config.exploration_std(0.0) == pytest.approx(0.6) and config.exploration_std(1.0) == pytest.approx(0.1)
+    assert config.exploration_std(0.5) == pytest.approx(0.35)
+    mappo.train(config, 0, tmp_path / "run", progress=False, tensorboard=False, log=lambda *_: None)
+    saved = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    log_std = next(v for k, v in saved["loss_module"].items() if k.endswith("log_std"))
+    # the last update ran at 1 - 512/2048 of the run
+    assert torch.allclose(log_std.exp(), torch.tensor(config.exploration_std(1 - 512 / 2048)), atol=1e-6)
