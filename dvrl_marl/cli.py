@@ -118,7 +118,7 @@ def _evaluate_team(args) -> int:
 
     seed = teams.EVAL_SEED if args.seed is None else args.seed
     task = {} if args.task is None else {"task": args.task}
-    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, **task)
+    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, noise=args.noise, **task)
     width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
     print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
           f"{'median steps':>13} {'contacts':>9}")
@@ -127,7 +127,8 @@ def _evaluate_team(args) -> int:
         print(f"{row['suction']:<{width}} {row['grasper']:<{width}} {row['success_rate']:>8.2f} "
               f"{row['mean_blood_removed_ml']:>9.2f} {row['mean_debris_delivered']:>7.2f} {median:>13} "
               f"{row['mean_contact_steps']:>9.1f}")
-    print(f"({args.episodes} episodes each, seeds {seed}..{seed + args.episodes - 1})")
+    print(f"({args.episodes} episodes each, seeds {seed}..{seed + args.episodes - 1}"
+          f"{'; learned seats acting with their exploration noise' if args.noise else ''})")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
     return 0
@@ -255,6 +256,9 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--json", help="also write the rows to this JSON file")
     team.add_argument("--task", choices=["suction_debris", "suction_debris_v1"],
                       help="the scene's task (default: suction_debris, v0's; suction_debris_v1 for v1 policies)")
+    team.add_argument("--noise", action="store_true",
+                      help="learned seats act with the exploration noise they trained with (seeded; their policy.json "
+                           "records it), not their mean action")
     team.set_defaults(func=_evaluate_team)
 
     plot = sub.add_parser("plot", help="success rate against training steps (paper Fig. 4 style)")

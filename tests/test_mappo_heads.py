@@ -205,3 +205,57 @@ def test_scheduled_exploration_noise(tmp_path):
     log_std = next(v for k, v in saved["loss_module"].items() if k.endswith("log_std"))
     # the last update ran at 1 - 512/2048 of the run
     assert torch.allclose(log_std.exp(), torch.tensor(config.exploration_std(1 - 512 / 2048)), atol=1e-6)
+
+
+def test_exported_policy_acts_with_its_recorded_noise(tmp_path):
+    """The export records the exploration noise; with_noise adds it (seeded, clipped); the switch tool stays +-1."""
+    config = _config(tool_head="switch")
+    _, _, actor_net, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    log_std = torch.log(torch.tensor([0.3, 0.2, 0.1, 0.5]))
+    folder = mappo.export_actor(actor_net, 0, tmp_path / "p", name="p", agent="suction", metadata={},
+                                tool_head="switch", log_std=log_std)
+    policy = policies.load(folder)
+    assert policy.spec["exploration"]["std"] == pytest.approx([0.3, 0.2, 0.1, None])
+    observations = np.zeros((20000, OBS_DIM))
+    mean = policy(observations)
+    noisy = policy.with_noise(seed=7)(observations)
+    assert np.all(np.abs(noisy) <= 1.0)
+    np.testing.assert_array_equal(noisy[:, 3], mean[:, 3])  # the switch: no noise on the tool
+    spread = (noisy[:, :3] - mean[:, :3]).std(axis=0)
+    np.testing.assert_allclose(spread, [0.3, 0.2, 0.1], rtol=0.05)
+    np.testing.assert_array_equal(policy.with_noise(seed=7)(observations), noisy)  # seeded
+    assert not np.array_equal(policy.with_noise(seed=8)(observations), noisy)
+    # a policy without recorded noise says so
+    plain = mappo.export_actor(actor_net, 0, tmp_path / "q", name="q", agent="suction", metadata={})
+    with pytest.raises(ValueError, match="records no exploration noise"):
+        policies.load(plain).with_noise(0)
+
+
+def test_evaluate_team_with_noise_from_the_cli(tmp_path):
+    import subprocess
+    import sys
+
+    config = _config(tool_head="switch")
+    _, _, actor_net, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    folder = mappo.export_actor(actor_net, 0, tmp_path / "s", name="s", agent="suction", metadata={},
+                                tool_head="switch", log_std=torch.zeros(4))
+    command = [sys.executable, "-m", "dvrl_marl.cli", "evaluate-team", "--suction", str(folder), "--grasper",
+               "scripted", "--episodes", "2", "--noise"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert "exploration noise" in result.stdout and "scripted" in result.stdout
+
+
+@pytest.mark.parametrize("std, message", [([0.1, 0.1], "2 values for 4"), ([0.1, -0.1, 0.1, None], "finite and >= 0"),
+                                          ([0.1, float("nan"), 0.1, None], "finite and >= 0")])
+def test_bad_recorded_noise_is_named(tmp_path, std, message):
+    import json
+
+    config = _config()
+    _, _, actor_net, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    folder = mappo.export_actor(actor_net, 0, tmp_path / "p", name="p", agent="suction", metadata={})
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["exploration"] = {"std": std}
+    (folder / "policy.json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=message):
+        policies.load(folder).with_noise(0)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NumpyPolicy", "available", "load", "shipped_dir", "POLICY_FORMAT"]
+__all__ = ["NumpyPolicy", "NoisyPolicy", "available", "load", "shipped_dir", "POLICY_FORMAT"]
 
 POLICY_FORMAT = "dvrl-marl-policy-v1"
 _ACTIVATIONS = {
@@ -82,6 +82,10 @@ class NumpyPolicy:
                              f"observation features, got {x.shape[-1]}")
         return x
 
+    def with_noise(self, seed=None) -> "NoisyPolicy":
+        """This policy acting with its training's exploration noise (see :class:`NoisyPolicy`)."""
+        return NoisyPolicy(self, seed)
+
     def __call__(self, observation) -> np.ndarray:
         x = self.features(observation)
         for (weight, bias), activation in zip(self.weights, self._activations):
@@ -89,6 +93,38 @@ class NumpyPolicy:
         # Networks act in [-1, 1]; map to the action space (identity for the dvrl-marl envs).
         action = self.action_low + (x + 1.0) * 0.5 * (self.action_high - self.action_low)
         return action.astype(np.float32)
+
+
+class NoisyPolicy:
+    """A policy acting as it did while it was trained: its mean action plus Gaussian noise of the standard deviation
+    its ``policy.json`` records (``exploration.std``, one per action dimension; ``null`` for a dimension decided
+    without noise, such as a switch tool), clipped to the action box; its own seeded stream, so an evaluation is
+    reproducible. From :meth:`NumpyPolicy.with_noise`."""
+
+    def __init__(self, policy: "NumpyPolicy", seed=None):
+        exploration = policy.spec.get("exploration") or {}
+        std = exploration.get("std")
+        if std is None:
+            raise ValueError(f"policy {policy.name!r} records no exploration noise (policy.json has no "
+                             f"'exploration.std'); only its deterministic action exists")
+        if len(std) != len(policy.action_low):
+            raise ValueError(f"policy {policy.name!r}: exploration.std has {len(std)} values for "
+                             f"{len(policy.action_low)} action dimensions")
+        self.policy = policy
+        self.std = np.array([0.0 if v is None else float(v) for v in std])
+        if not np.all(np.isfinite(self.std)) or np.any(self.std < 0.0):
+            raise ValueError(f"policy {policy.name!r}: exploration.std must be finite and >= 0, got {std!r}")
+        self.rng = np.random.default_rng(seed)
+        self.spec = policy.spec
+
+    @property
+    def name(self) -> str:
+        return self.policy.name
+
+    def __call__(self, observation) -> np.ndarray:
+        mean = self.policy(observation).astype(np.float64)
+        action = mean + self.std * self.rng.standard_normal(mean.shape)
+        return np.clip(action, self.policy.action_low, self.policy.action_high).astype(np.float32)
 
 
 def available() -> list[str]:

@@ -28,6 +28,17 @@
   and what follows them, are a larger share of the data. ``easy_fraction`` falls linearly from ``easy_start`` to
   0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after that every episode is the default
   task. ``contact_penalty`` replaces the env's in the training reward only (evaluation counts contacts).
+- **What the measurements of this trainer added** (each a ``[model]`` or ``[shaping]`` option, off by default so
+  that earlier configurations run as they did; ``baselines/README.md`` has the figures):
+  ``tool_head = "switch"`` decides the valve / jaw as open or closed (a Bernoulli, :func:`_switch_gaussian`;
+  ``initial_tool_logit`` leans it at the start: valve open, jaw closed, which the grasp rule rewards);
+  ``observation_features`` appends relative targets computed from the actor's own observation
+  (:mod:`dvrl_marl.policies.features`; the exported numpy policy computes them too);
+  ``suction_route_shaping`` and ``clear_bonus`` (:class:`_SuctionRouteShaping`) stop the env's shaping from
+  charging the suction for clearing a cavity; ``shaping_over_rims`` measures both shapings' paths around the
+  phantom (:class:`_OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule.
+- **Device**: ``device = "cuda"`` (or ``"auto"``) runs the update on a GPU; collection stays on CPU (numpy env), the
+  collector acting with a CPU copy of the actor that each rollout refreshes.
 
 A run folder holds ``config.toml``, ``progress.csv`` (one row per evaluation), TensorBoard logs (``tb/``),
 ``checkpoint.pt`` (``--resume`` continues from it: networks, optimiser, normalisers, counters, random streams;
@@ -119,6 +130,9 @@ class MappoConfig:
     shaping_over_rims: bool = False  # both shapings measure paths around the phantom (see _OverRims)
     contact_penalty: float | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
     torch_threads: int = 0  # 0: torch's default
+    # validation (and so the best checkpoint) with the policies acting with their exploration noise, seeded
+    # (PPO optimises the noisy policy; see NumpyPolicy.with_noise); the deterministic figure is measured after
+    evaluate_with_noise: bool = False
     # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
     # Collection always runs on CPU (the env is numpy; a few hundred worlds per step are latency-bound on a GPU).
     device: str = "cpu"
@@ -384,10 +398,11 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
 
 # --- numpy export ---------------------------------------------------------------------------------------------
 def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
-                 tool_head: str = "gaussian") -> Path:
+                 tool_head: str = "gaussian", log_std=None) -> Path:
     """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box; with the switch
     tool head the tool's more likely value, +1 or -1) as a numpy policy folder, the observation normalisation
-    folded into the first layer."""
+    folded into the first layer. ``log_std``: this agent's exploration noise (log standard deviation per action
+    dimension), recorded for :meth:`dvrl_marl.policies.NumpyPolicy.with_noise`."""
     from dvrl_marl.training.export import write_policy
 
     norm, net = actor_net.norm, actor_net.nets[index]
@@ -408,6 +423,11 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
         layers.append((weight.astype(np.float32), bias.astype(np.float32), "clip" if last else "tanh"))
     if getattr(actor_net, "feature_spec", None) is not None:  # the numpy policy computes them before layer 0
         metadata = {**metadata, "features": dict(actor_net.feature_spec)}
+    if log_std is not None:  # the noise it acted with while training (NumpyPolicy.with_noise)
+        std = [float(v) for v in np.exp(log_std.detach().cpu().numpy().astype(np.float64))]
+        if tool_head == "switch":
+            std[-1] = None  # the tool is decided open / closed, not perturbed
+        metadata = {**metadata, "exploration": {"std": std, "tool_head": tool_head}}
     return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
@@ -825,7 +845,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             final = steps_done >= total
             if steps_done >= next_eval or final:
                 next_eval += config.eval_every
-                seats = _learned_seats(actor_net, agents, out, config, seed, steps_done)
+                seats = _learned_seats(actor_net, agents, out, config, seed, steps_done, actor_head.log_std)
                 if surgeon is not None:
                     seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
                 result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
@@ -903,8 +923,9 @@ def _eval_kwargs(config: MappoConfig) -> dict:
     return {k: v for k, v in config.env.items() if k != "reward_type"}
 
 
-def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int, steps: int) -> dict:
-    """Export the current actors and load them back as numpy policies (what users get is what is evaluated)."""
+def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int, steps: int, log_std=None) -> dict:
+    """Export the current actors and load them back as numpy policies (what users get is what is evaluated);
+    with ``evaluate_with_noise`` they act with their exploration noise (seeded), as ``evaluate-team --noise``."""
     from dvrl_marl import policies
 
     seats = {}
@@ -912,8 +933,11 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
         folder = out / "policies" / f"marl-{agent}"
         export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
-                                            "steps": steps}})
+                                            "steps": steps}},
+                     log_std=None if log_std is None else log_std[index])
         seats[agent] = policies.load(folder)
+        if config.evaluate_with_noise:
+            seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
     return seats
 
 

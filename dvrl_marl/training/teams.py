@@ -40,8 +40,14 @@ class _PerWorld:
         return np.stack([np.asarray(p(o), dtype=np.float64) for p, o in zip(self.policies, observations)])
 
 
-def seat(name, agent: str, env=None):
-    """A callable on observations ``(N, obs_dim)`` -> ``(N, 4)`` for ``agent`` (see the module documentation)."""
+def noise_seed(agent: str, seed: int) -> int:
+    """The seed of a learned seat's exploration noise in an evaluation starting at ``seed`` (one per seat)."""
+    return int(seed) * 2 + suction_debris_v0.AGENTS.index(agent)
+
+
+def seat(name, agent: str, env=None, noise_from: int | None = None):
+    """A callable on observations ``(N, obs_dim)`` -> ``(N, 4)`` for ``agent`` (see the module documentation).
+    ``noise_from``: a learned policy acts with its exploration noise, seeded from this evaluation seed."""
     from dvrl_marl import policies
     from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
 
@@ -62,11 +68,14 @@ def seat(name, agent: str, env=None):
     trained_for = policy.spec.get("agent")
     if trained_for is not None and trained_for != agent:
         raise ValueError(f"policy {name!r} was trained for the {trained_for!r} seat, not {agent!r}")
+    if noise_from is not None:
+        return policy.with_noise(noise_seed(agent, noise_from))
     return policy
 
 
-def seats(suction, grasper) -> dict:
-    return {"suction": seat(suction, "suction"), "grasper": seat(grasper, "grasper")}
+def seats(suction, grasper, noise_from: int | None = None) -> dict:
+    return {"suction": seat(suction, "suction", noise_from=noise_from),
+            "grasper": seat(grasper, "grasper", noise_from=noise_from)}
 
 
 def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> dict:
@@ -111,12 +120,15 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
             "success": success.tolist(), "steps": steps.tolist()}
 
 
-def cross_play(suctions, graspers, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> list[dict]:
-    """Every suction with every grasper: one row per pair (names as given, figures of evaluate_team_batched)."""
+def cross_play(suctions, graspers, episodes: int = 100, seed: int = EVAL_SEED, noise: bool = False,
+               **env_kwargs) -> list[dict]:
+    """Every suction with every grasper: one row per pair (names as given, figures of evaluate_team_batched).
+    ``noise``: learned policies act with their exploration noise (seeded from ``seed``)."""
     rows = []
     for suction in suctions:
         for grasper in graspers:
-            result = evaluate_team_batched(seats(suction, grasper), episodes, seed, **env_kwargs)
+            result = evaluate_team_batched(seats(suction, grasper, noise_from=seed if noise else None), episodes,
+                                           seed, **env_kwargs)
             rows.append({"suction": str(suction), "grasper": str(grasper),
                          **{k: v for k, v in result.items() if k not in ("success", "steps")}})
     return rows
