@@ -9,6 +9,12 @@ and the evaluation figures with the command that produced them).
 ['pick-lnd', 'pick-lnd-v1', 'reach-lnd', 'reach-lnd-v1', 'reach-suction-irrigation', 'reach-suction-irrigation-v1']
 >>> policy = policies.load("reach-lnd-v1")     # doctest: +SKIP
 >>> action = policy(observation)               # the env's observation dict in, an action array out
+
+A multi-agent PPO policy also records the exploration noise it trained with (``policy.json``'s ``exploration``):
+``policy.with_noise(seed)`` acts as it did in training (its mean action plus that noise, seeded), which is the
+policy PPO optimised; some of these act better that way than by their mean (``baselines/README.md``). A policy may
+also name observation ``features`` it computes from its observation before its first layer
+(:mod:`dvrl_marl.policies.features`).
 """
 
 from __future__ import annotations
@@ -82,14 +88,21 @@ class NumpyPolicy:
                              f"observation features, got {x.shape[-1]}")
         return x
 
+    def _forward(self, observation, clip_last: bool) -> np.ndarray:
+        x = self.features(observation)
+        last = len(self.weights) - 1
+        for index, ((weight, bias), activation) in enumerate(zip(self.weights, self._activations)):
+            x = x @ weight.T + bias
+            if index < last or clip_last or self.spec["activations"][index] != "clip":
+                x = activation(x)
+        return x
+
     def with_noise(self, seed=None) -> "NoisyPolicy":
         """This policy acting with its training's exploration noise (see :class:`NoisyPolicy`)."""
         return NoisyPolicy(self, seed)
 
     def __call__(self, observation) -> np.ndarray:
-        x = self.features(observation)
-        for (weight, bias), activation in zip(self.weights, self._activations):
-            x = activation(x @ weight.T + bias)
+        x = self._forward(observation, clip_last=True)
         # Networks act in [-1, 1]; map to the action space (identity for the dvrl-marl envs).
         action = self.action_low + (x + 1.0) * 0.5 * (self.action_high - self.action_low)
         return action.astype(np.float32)
@@ -122,9 +135,11 @@ class NoisyPolicy:
         return self.policy.name
 
     def __call__(self, observation) -> np.ndarray:
-        mean = self.policy(observation).astype(np.float64)
-        action = mean + self.std * self.rng.standard_normal(mean.shape)
-        return np.clip(action, self.policy.action_low, self.policy.action_high).astype(np.float32)
+        # the Gaussian's mean before the clip (as in training: sample, then the env clips)
+        mean = self.policy._forward(observation, clip_last=False)
+        action = np.clip(mean + self.std * self.rng.standard_normal(mean.shape), -1.0, 1.0)
+        low, high = self.policy.action_low, self.policy.action_high
+        return (low + (action + 1.0) * 0.5 * (high - low)).astype(np.float32)
 
 
 def available() -> list[str]:
