@@ -135,9 +135,9 @@ def _evaluate_team(args) -> int:
 
 
 def _plot(args) -> int:
-    from dvrl_marl.training.plots import plot_learning_curves
+    from dvrl_marl.training.plots import plot_learning_curves, plot_team_curves
 
-    png, csv_path = plot_learning_curves(args.runs, args.out)
+    png, csv_path = (plot_team_curves if args.team else plot_learning_curves)(args.runs, args.out)
     print(f"wrote {png} and {csv_path}")
     return 0
 
@@ -262,7 +262,9 @@ def build_parser() -> argparse.ArgumentParser:
     team.set_defaults(func=_evaluate_team)
 
     plot = sub.add_parser("plot", help="success rate against training steps (paper Fig. 4 style)")
-    plot.add_argument("runs", nargs="+", help="run folders (each with progress.csv)")
+    plot.add_argument("runs", nargs="+", help="run folders (each with progress.csv), or such CSV files")
+    plot.add_argument("--team", action="store_true",
+                      help="multi-agent runs: success and blood removed against steps (baselines/results/marl)")
     plot.add_argument("--out", default="baselines/results/learning_curves", help="output path without suffix")
     plot.set_defaults(func=_plot)
     return parser

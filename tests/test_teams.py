@@ -77,3 +77,16 @@ def test_team_learning_curves_figure_and_numbers(tmp_path):
     assert rows[0] == "configuration,metric,steps,mean,std,seeds"
     assert "mappo,success_rate,2000,0.6,0.09999999999999998,2" in rows or any(
         r.startswith("mappo,success_rate,2000,0.6") and r.endswith(",2") for r in rows)
+
+
+def test_plot_team_reads_progress_files_from_the_cli(tmp_path):
+    pytest.importorskip("matplotlib")
+    header = "steps,success_rate,blood_removed_ml,median_steps,contact_steps,easy_fraction,episode_success,wall_seconds\n"
+    for name in ("suction_route-seed0-progress.csv", "suction_route-seed1-progress.csv"):
+        (tmp_path / name).write_text(header + "1000,0.5,12,700,0.0,0.0,0.5,10\n2000,0.7,13,690,0.0,0.0,0.6,20\n")
+    result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "plot", "--team", *map(str, sorted(
+        tmp_path.glob("*-progress.csv"))), "--out", str(tmp_path / "curves")], capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 0, result.stderr
+    rows = (tmp_path / "curves.csv").read_text().splitlines()
+    assert any(r.startswith("suction_route,success_rate,2000,0.7") and r.endswith(",2") for r in rows)

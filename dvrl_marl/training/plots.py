@@ -13,14 +13,16 @@ __all__ = ["read_progress", "aggregate", "plot_learning_curves", "plot_team_curv
 
 
 def read_progress(run_dir) -> dict[str, np.ndarray]:
-    with (Path(run_dir) / "progress.csv").open() as handle:
+    """A run folder's ``progress.csv``, or such a file itself (``results/marl/<label>-progress.csv``)."""
+    path = Path(run_dir)
+    with (path if path.suffix == ".csv" else path / "progress.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     return {key: np.array([float(r[key]) if r[key] != "" else np.nan for r in rows]) for key in rows[0]} if rows else {}
 
 
 def _label(run_dir: Path) -> str:
     """Runs named ``<config>-seed<N>`` group by config."""
-    name = run_dir.name
+    name = run_dir.name.removesuffix("-progress.csv")
     return name.rsplit("-seed", 1)[0] if "-seed" in name else name
 
 
