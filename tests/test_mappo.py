@@ -189,7 +189,8 @@ def test_grasp_path_shaping_is_continuous_through_the_grasp():
     assert rewards["grasper"][0] < 1.3  # the env alone charges the grasp (what the trainer's term repairs)
 
 
-def test_suction_route_shaping_is_continuous_when_a_cavity_clears():
+@pytest.mark.parametrize("over_rims", [False, True])
+def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims):
     """Env potential + trainer potential: clearing a cavity earns the removal and ``clear_bonus``, not the env's
     drop of 10 x the distance to the other cavity."""
     blood_threshold = suction_debris_v0.SuctionDebrisParams.from_task().blood_threshold_ml
@@ -200,7 +201,7 @@ def test_suction_route_shaping_is_continuous_when_a_cavity_clears():
     surface = env.core.surface_z[0, 0]
     tip = np.array([[cavities.centre_x[0], cavities.centre_y[0], max(surface - 0.0005, cavities.floor_z[0] + 0.0012)]])
     env.set_tip_positions({"suction": tip})
-    route = mappo._SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0)
+    route = mappo._SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0, over_rims=over_rims)
     blood = env.core.info()["blood_remaining_per_cavity"]
     before = route.potential(env.state(), blood)
     _, rewards, *_ = env.step({"suction": np.array([[0.0, 0.0, 0.0, 1.0]]), "grasper": np.zeros((1, 4))})
@@ -209,7 +210,9 @@ def test_suction_route_shaping_is_continuous_when_a_cavity_clears():
     removed = blood[0, 0] - after_blood[0, 0]
     total = rewards["suction"][0] + route.potential(env.state(), after_blood)[0] - before[0]
     assert rewards["suction"][0] < -0.3  # the env alone charges the clearing
-    assert abs(total - (removed + 2.0)) < 0.03  # with the route: the removal and the bonus, the tip did not move
+    # with the route: the removal and the bonus (the tip did not move); around the rims the route from a tip a few
+    # millimetres above A's floor differs from the one through the floor by twice that height
+    assert abs(total - (removed + 2.0)) < (0.06 if over_rims else 0.03)
     # nothing pending: no route, both cleared
     assert route.potential(env.state(), np.zeros((1, 2)))[0] == pytest.approx(4.0)
 
