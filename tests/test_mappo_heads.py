@@ -259,3 +259,24 @@ def test_bad_recorded_noise_is_named(tmp_path, std, message):
     (folder / "policy.json").write_text(json.dumps(spec))
     with pytest.raises(ValueError, match=message):
         policies.load(folder).with_noise(0)
+
+
+def test_unshared_local_collector_acts_with_the_learners_weights():
+    """A learner on a GPU collects through a CPU copy of its actor: each rollout loads the learner's weights."""
+    from dvrl_marl.training.collectors import make_collectors
+
+    config = mappo.MappoConfig(num_envs=4, rollout_steps=3, hidden=[8], tool_head="switch",
+                               env={"reward_type": "dense", "max_cycles": 20})
+    learner, _, _, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    with torch.no_grad():
+        for parameter in learner.parameters():
+            parameter.add_(0.1)
+    collectors = make_collectors(config, 0, actor=None, steps_done=0, easy=0.0)
+    try:
+        assert not collectors.shared
+        batch = collectors.collect(learner.state_dict(), 0.0)
+        copy = collectors.collector.actor.state_dict()
+        assert all(torch.equal(copy[k], v.cpu()) for k, v in learner.state_dict().items())
+        assert batch["action"].shape == (3, 4, 2, 4)
+    finally:
+        collectors.close()
