@@ -18,7 +18,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
 from dvrl_marl import policies  # noqa: E402
-from dvrl_marl.training import mappo  # noqa: E402
+from dvrl_marl.training import mappo, shaping  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -179,11 +179,11 @@ def test_grasp_path_shaping_is_continuous_through_the_grasp():
     core = env.core
     pin = core.debris_position[0, 0] + np.array([0.0, 0.0, 0.002])
     env.reset(seed=3, options={"tip_positions": {"grasper": pin[None]}})  # same seed: same pins
-    shaping = mappo._GraspPathShaping(env, 10.0, ["suction", "grasper"])
-    before = shaping.potential(env.state())
+    grasp = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"])
+    before = grasp.potential(env.state())
     _, rewards, *_ = env.step({"suction": np.zeros((1, 4)), "grasper": np.array([[0.0, 0.0, 0.0, -1.0]])})
     assert core.holding[0] == 0
-    total = rewards["grasper"][0] + shaping.potential(env.state())[0] - before[0]
+    total = rewards["grasper"][0] + grasp.potential(env.state())[0] - before[0]
     # +2 for the first lift; the shaping terms move by at most 10 x (3 mm + 2 mm).
     assert abs(total - 2.0) < 0.06
     assert rewards["grasper"][0] < 1.3  # the env alone charges the grasp (what the trainer's term repairs)
@@ -201,7 +201,7 @@ def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims):
     surface = env.core.surface_z[0, 0]
     tip = np.array([[cavities.centre_x[0], cavities.centre_y[0], max(surface - 0.0005, cavities.floor_z[0] + 0.0012)]])
     env.set_tip_positions({"suction": tip})
-    route = mappo._SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0, over_rims=over_rims)
+    route = shaping.SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0, over_rims=over_rims)
     blood = env.core.info()["blood_remaining_per_cavity"]
     before = route.potential(env.state(), blood)
     _, rewards, *_ = env.step({"suction": np.array([[0.0, 0.0, 0.0, 1.0]]), "grasper": np.zeros((1, 4))})
@@ -275,12 +275,12 @@ def test_hold_bonus_charges_a_drop():
     env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
     env.reset(seed=3)
     env.set_tip_positions({"grasper": env.core.debris_position[:1, 0] + np.array([0.0, 0.0, 0.0015])})
-    shaping = mappo._GraspPathShaping(env, 0.0, ["suction", "grasper"], hold_bonus=1.0)
+    grasp = shaping.GraspPathShaping(env, 0.0, ["suction", "grasper"], hold_bonus=1.0)
     still = np.zeros((1, 4))
-    values = [shaping.potential(env.state())[0]]
+    values = [grasp.potential(env.state())[0]]
     for jaw in (-1.0, -1.0, 1.0):  # grasp, hold, release
         env.step({"suction": still, "grasper": np.array([[0.0, 0.0, 0.0, jaw]])})
-        values.append(shaping.potential(env.state())[0])
+        values.append(grasp.potential(env.state())[0])
     assert values == [0.0, 1.0, 1.0, 0.0]
 
 
@@ -329,7 +329,7 @@ def test_refused_placement_moves_no_tip():
 def test_over_rims_distances_go_around_the_phantom():
     env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
     env.reset(seed=0)
-    rims = mappo._OverRims(env)
+    rims = shaping.OverRims(env)
     cavities = env.core.cavities
     floor_a = np.array([cavities.centre_x[0], cavities.centre_y[0], cavities.floor_z[0] + 0.001])
     floor_b = np.array([cavities.centre_x[1], cavities.centre_y[1], cavities.floor_z[1] + 0.001])
@@ -357,10 +357,10 @@ def test_grasp_path_shaping_over_rims_is_continuous_through_the_grasp(over_rims)
     env.reset(seed=3)
     pin = env.core.debris_position[0, 0] + np.array([0.0, 0.0, 0.002])
     env.reset(seed=3, options={"tip_positions": {"grasper": pin[None]}})
-    shaping = mappo._GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=over_rims)
-    before = shaping.potential(env.state())
+    grasp = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=over_rims)
+    before = grasp.potential(env.state())
     _, rewards, *_ = env.step({"suction": np.zeros((1, 4)), "grasper": np.array([[0.0, 0.0, 0.0, -1.0]])})
-    total = rewards["grasper"][0] + shaping.potential(env.state())[0] - before[0]
+    total = rewards["grasper"][0] + grasp.potential(env.state())[0] - before[0]
     assert abs(total - 2.0) < 0.06
     if over_rims:  # while holding, the carry is measured around the rim: more than the env's straight line
-        assert shaping.potential(env.state())[0] < 0.0
+        assert grasp.potential(env.state())[0] < 0.0

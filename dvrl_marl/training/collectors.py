@@ -49,7 +49,7 @@ class RolloutCollector:
     def __init__(self, config, seed: int, *, index: int = 0, num_envs: int | None = None, first_world: int = 0,
                  steps_done: int = 0, easy: float = 0.0, rng_state=None, actor=None, torch_threads: int | None = None):
         from dvrl_marl.envs import suction_debris_v0
-        from dvrl_marl.training import mappo
+        from dvrl_marl.training import mappo, shaping
 
         torch = mappo._torch()
         if torch_threads:
@@ -72,9 +72,9 @@ class RolloutCollector:
         if rng_state is not None:
             self.rng.bit_generator.state = rng_state
         self.curriculum = mappo._Curriculum(config, env, self.rng)
-        self.shaping = mappo._GraspPathShaping(env, config.grasp_path_shaping, self.agents, config.hold_bonus,
+        self.shaping = shaping.GraspPathShaping(env, config.grasp_path_shaping, self.agents, config.hold_bonus,
                                                over_rims=config.shaping_over_rims)
-        self.route = mappo._SuctionRouteShaping(env, config.suction_route_shaping, self.agents, config.clear_bonus,
+        self.route = shaping.SuctionRouteShaping(env, config.suction_route_shaping, self.agents, config.clear_bonus,
                                                 over_rims=config.shaping_over_rims)
         env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) + steps_done + first_world)
         self.curriculum.reset(np.ones(n, dtype=bool), easy)

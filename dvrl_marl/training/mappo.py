@@ -17,7 +17,7 @@
   standard deviation of the discounted return (per agent), a few epochs on large minibatches (Yu et al. 2022).
 - **What is meant to make the task learnable** (``[curriculum]``, ``[shaping]``; measured in
   ``baselines/README.md``, where the targets are not met yet): the env's dense reward (potential-based shaping
-  keeps the optimum; success is still the sparse rule), :class:`_GraspPathShaping` and a curriculum over start
+  keeps the optimum; success is still the sparse rule), :class:`dvrl_marl.training.shaping.GraspPathShaping` and a curriculum over start
   states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an easier
   episode: each cavity empty with ``empty_cavity_probability``, otherwise uniform in ``[0, blood_ml]`` (no blood
   reveals debris at once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris,
@@ -34,9 +34,9 @@
   ``initial_tool_logit`` leans it at the start: valve open, jaw closed, which the grasp rule rewards);
   ``observation_features`` appends relative targets computed from the actor's own observation
   (:mod:`dvrl_marl.policies.features`; the exported numpy policy computes them too);
-  ``suction_route_shaping`` and ``clear_bonus`` (:class:`_SuctionRouteShaping`) stop the env's shaping from
+  ``suction_route_shaping`` and ``clear_bonus`` (:class:`~dvrl_marl.training.shaping.SuctionRouteShaping`) stop the env's shaping from
   charging the suction for clearing a cavity; ``shaping_over_rims`` measures both shapings' paths around the
-  phantom (:class:`_OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule.
+  phantom (:class:`~dvrl_marl.training.shaping.OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule.
 - **Device**: ``device = "cuda"`` (or ``"auto"``) runs the update on a GPU; collection stays on CPU (numpy env), the
   collector acting with a CPU copy of the actor that each rollout refreshes.
 
@@ -122,12 +122,12 @@ class MappoConfig:
     random_start: float = 0.0
     easy_episode_steps: int = 0  # > 0: easy episodes are cut (bootstrapped) after this many steps
     empty_cavity_probability: float = 0.5  # each cavity of an easy episode starts empty this often
-    # trainer-side potential-based shaping (see _GraspPathShaping)
+    # trainer-side potential-based shaping (see dvrl_marl.training.shaping)
     grasp_path_shaping: float = 0.0
     hold_bonus: float = 0.0
-    suction_route_shaping: float = 0.0  # see _SuctionRouteShaping
+    suction_route_shaping: float = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
     clear_bonus: float = 0.0
-    shaping_over_rims: bool = False  # both shapings measure paths around the phantom (see _OverRims)
+    shaping_over_rims: bool = False  # both shapings measure paths around the phantom (see shaping.OverRims)
     contact_penalty: float | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
     torch_threads: int = 0  # 0: torch's default
     # validation (and so the best checkpoint) with the policies acting with their exploration noise, seeded
@@ -509,156 +509,6 @@ class _Curriculum:
                     self.env.set_tip_positions(tips, [world])
                 except ValueError:
                     pass  # that world keeps its ordinary start
-
-
-class _GraspPathShaping:
-    """Potential-based shaping for the grasper, added by the trainer (Ng et al. 1999: F = Phi(s') - Phi(s) leaves the
-    optimal policy unchanged; the env's own shaping has the same form).
-
-    The env's dense reward pays the grasper for closing on the nearest pin (potential -10 x tip-to-pin distance) and,
-    once it holds one, for bringing it to the hand-off point (-10 x pin-to-hand-off distance). At the grasp the second
-    distance replaces the first, so closing the jaw costs about 0.8 at once and a grasp looks worse than no grasp to
-    a young value function (measured: the grasper learnt to reach pins, grasp rarely and never carry). With ``weight``
-    10 this potential turns the sum into the shortest path tip -> pin -> hand-off over the pending pins while the
-    grasper holds nothing (continuous in the state, through the grasp too). ``hold_bonus`` adds that much potential
-    while a pin is held: a drop then costs what the grasp earned, the only signal that says "keep the jaw closed"
-    before the first delivery is ever seen.
-    """
-
-    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False):
-        self.over_rims = _OverRims(env) if over_rims else None
-        self.centre = np.asarray(env.params.workspace_centre)
-        self.weight = float(weight)
-        self.hold_bonus = float(hold_bonus)
-        self.index = agents.index("grasper") if "grasper" in agents else None
-        layout = env.state_layout
-        self.tip = layout["grasper_tip"]
-        self.debris = layout["debris"].start
-        self.count = env.params.debris_count
-        self.handoff = layout["handoff"]
-        self.range = env.workspace_range
-
-    @property
-    def active(self) -> bool:
-        return (self.weight > 0.0 or self.hold_bonus > 0.0) and self.index is not None
-
-    def potential(self, state: np.ndarray) -> np.ndarray:
-        debris = state[:, self.debris:self.debris + 6 * self.count].reshape(len(state), self.count, 6)
-        tip = state[:, None, self.tip]
-        handoff = state[:, None, self.handoff]
-        visible, held, delivered = debris[..., 3] > 0.5, debris[..., 4] > 0.5, debris[..., 5] > 0.5
-        pending = visible & ~delivered & ~held
-        to_pin = np.linalg.norm(debris[..., :3] - tip, axis=-1) * self.range
-        to_handoff = np.linalg.norm(debris[..., :3] - handoff, axis=-1) * self.range
-        # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
-        # tip -> pin -> hand-off over the pending pins, a continuous function of the state.
-        env_term = np.where(pending, to_pin, np.inf).min(axis=1)
-        path = np.where(pending, to_pin + to_handoff, np.inf).min(axis=1)
-        holding = held.any(axis=1)
-        live = pending.any(axis=1) & ~holding
-        detour = np.where(live, path - np.where(live, env_term, 0.0), 0.0)  # pin -> hand-off of the best pin
-        if self.over_rims is not None:  # the same path, measured around the phantom (and the carry too)
-            world = lambda x: x * self.range + self.centre  # noqa: E731
-            pins, tip_w, handoff_w = world(debris[..., :3]), world(tip), world(handoff)
-            to_pin_geo = self.over_rims.distance(tip_w, pins)
-            to_handoff_geo = self.over_rims.distance(pins, handoff_w)
-            path_geo = np.where(pending, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
-            carry = np.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
-            detour = np.where(live, path_geo - np.where(live, env_term, 0.0), 0.0) + np.where(holding, carry, 0.0)
-        return -self.weight * detour + self.hold_bonus * holding
-
-
-class _OverRims:
-    """Distances for a tip that cannot pass through the phantom: the length of the way up out of a cavity, across
-    above the phantom's top, and down into another (vertical legs; exact enough for a potential). Within one cavity,
-    or between two points outside every cavity, the straight line is clear (the bowl is convex) and is used.
-
-    Why: the env's potentials measure straight lines. Between the two cavities the straight line runs through the
-    phantom, and a tip pushing along it is held at the rim (the env refuses a horizontal move into a steep wall); a
-    deterministic policy that learnt with noise stays there for the rest of the episode (measured: with the straight
-    route the suction cleared both cavities in 76 % of episodes with noise and 12 % without; the stuck ones sat on a
-    rim, pushing down toward the other cavity's floor).
-    """
-
-    def __init__(self, env, margin: float = 0.002):
-        self.cavities = env.core.cavities
-        self.height = self.cavities.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
-
-    def _lift(self, point, cavity):
-        z = np.where(cavity >= 0, np.maximum(point[..., 2], self.height), point[..., 2])
-        return np.concatenate([point[..., :2], z[..., None]], axis=-1)
-
-    def distance(self, start, goal) -> np.ndarray:
-        """``start``, ``goal``: (..., 3) world positions (broadcast) -> (...) path lengths."""
-        start, goal = np.broadcast_arrays(start, goal)
-        from_cavity = self.cavities.cavity_at(start[..., 0], start[..., 1])
-        to_cavity = self.cavities.cavity_at(goal[..., 0], goal[..., 1])
-        straight = np.linalg.norm(goal - start, axis=-1)
-        up, down = self._lift(start, from_cavity), self._lift(goal, to_cavity)
-        around = (np.linalg.norm(up - start, axis=-1) + np.linalg.norm(down - up, axis=-1)
-                  + np.linalg.norm(goal - down, axis=-1))
-        return np.where(from_cavity == to_cavity, straight, around)
-
-
-class _SuctionRouteShaping:
-    """Potential-based shaping for the suction arm, added by the trainer (F = Phi(s') - Phi(s), as the env's own).
-
-    The env's dense reward pays the suction for closing on the nearest cavity that still holds blood (potential -10 x
-    tip-to-floor distance) and for each millilitre removed. When a cavity falls below the clearing threshold its
-    target jumps to the other cavity: the potential drops by about 10 x the distance between them (about 0.6) at
-    the very step that clears it, and the dense reward has no term for clearing. A cavity left at 0.51 ml costs
-    nothing, one cleared costs 0.6: a learner takes every millilitre but the last one (measured: 12-15 ml of 16
-    removed, success swinging between 0 and 0.5, and runs collapsing to no suction at all). With ``weight`` 10 this
-    term turns the env's potential into the length of the route from the tip over every cavity still to clear
-    (continuous when one clears), and ``clear_bonus`` adds that much potential per cleared cavity (a refill, as by
-    bleeding, takes it back).
-    """
-
-    def __init__(self, env, weight: float, agents, clear_bonus: float = 0.0, over_rims: bool = False):
-        import itertools
-
-        self.over_rims = _OverRims(env) if over_rims else None
-
-        self.weight = float(weight)
-        self.clear_bonus = float(clear_bonus)
-        self.index = agents.index("suction") if "suction" in agents else None
-        self.tip = env.state_layout["suction_tip"]
-        self.range = env.workspace_range
-        self.centre = np.asarray(env.params.workspace_centre)
-        self.threshold = env.params.blood_threshold_ml
-        cavities = env.core.cavities
-        self.floors = np.stack([cavities.centre_x, cavities.centre_y, cavities.floor_z], axis=1)  # (C, 3)
-        self.orders = np.array(list(itertools.permutations(range(len(self.floors)))))  # (P, C)
-
-    @property
-    def active(self) -> bool:
-        return (self.weight > 0.0 or self.clear_bonus > 0.0) and self.index is not None
-
-    def potential(self, state: np.ndarray, blood_ml: np.ndarray) -> np.ndarray:
-        """``state``: (N, state_dim); ``blood_ml``: (N, C), each cavity's remaining blood."""
-        tip = state[:, self.tip] * self.range + self.centre
-        pending = (blood_ml >= self.threshold) & (blood_ml > 0.0)
-        to_floor = np.linalg.norm(tip[:, None, :] - self.floors[None], axis=-1)  # (N, C)
-        nearest = np.where(pending, to_floor, np.inf).min(axis=1)
-        nearest = np.where(pending.any(axis=1), nearest, 0.0)
-        # shortest route tip -> every pending cavity, over the visiting orders (2 cavities: 2 orders)
-        measure = self._measure
-        route = np.full(len(state), np.inf)
-        for order in self.orders:
-            length = np.zeros(len(state))
-            here = tip
-            for cavity in order:
-                step = measure(here, self.floors[cavity])
-                length = length + np.where(pending[:, cavity], step, 0.0)
-                here = np.where(pending[:, cavity, None], self.floors[cavity], here)
-            route = np.minimum(route, length)
-        cleared = (~pending).sum(axis=1)
-        return -self.weight * (route - nearest) + self.clear_bonus * cleared
-
-    def _measure(self, start, goal):
-        if self.over_rims is None:
-            return np.linalg.norm(np.broadcast_to(goal, start.shape) - start, axis=-1)
-        return self.over_rims.distance(start, goal)
 
 
 def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = None, resume: bool = False,

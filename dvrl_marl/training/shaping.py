@@ -1,0 +1,165 @@
+"""Trainer-side reward shaping for the collaborative env (potential-based: F = Phi(s') - Phi(s), Ng et al. 1999,
+the form of the env's own dense shaping, so the optimal policy is unchanged and success keeps its sparse rule).
+
+:class:`GraspPathShaping` (the grasper's path over a pin to the hand-off point, continuous through the grasp, and a
+hold bonus), :class:`SuctionRouteShaping` (the suction's route over the cavities still to clear, continuous when
+one clears, and a clearing bonus) and :class:`OverRims` (distances measured around the phantom). The multi-agent
+trainer (:mod:`dvrl_marl.training.mappo`) adds them to the env's dense reward in its collectors; each is measured
+in ``baselines/README.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["GraspPathShaping", "SuctionRouteShaping", "OverRims"]
+
+
+class GraspPathShaping:
+    """Potential-based shaping for the grasper, added by the trainer (Ng et al. 1999: F = Phi(s') - Phi(s) leaves the
+    optimal policy unchanged; the env's own shaping has the same form).
+
+    The env's dense reward pays the grasper for closing on the nearest pin (potential -10 x tip-to-pin distance) and,
+    once it holds one, for bringing it to the hand-off point (-10 x pin-to-hand-off distance). At the grasp the second
+    distance replaces the first, so closing the jaw costs about 0.8 at once and a grasp looks worse than no grasp to
+    a young value function (measured: the grasper learnt to reach pins, grasp rarely and never carry). With ``weight``
+    10 this potential turns the sum into the shortest path tip -> pin -> hand-off over the pending pins while the
+    grasper holds nothing (continuous in the state, through the grasp too). ``hold_bonus`` adds that much potential
+    while a pin is held: a drop then costs what the grasp earned, the only signal that says "keep the jaw closed"
+    before the first delivery is ever seen.
+    """
+
+    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False):
+        self.over_rims = OverRims(env) if over_rims else None
+        self.centre = np.asarray(env.params.workspace_centre)
+        self.weight = float(weight)
+        self.hold_bonus = float(hold_bonus)
+        self.index = agents.index("grasper") if "grasper" in agents else None
+        layout = env.state_layout
+        self.tip = layout["grasper_tip"]
+        self.debris = layout["debris"].start
+        self.count = env.params.debris_count
+        self.handoff = layout["handoff"]
+        self.range = env.workspace_range
+
+    @property
+    def active(self) -> bool:
+        return (self.weight > 0.0 or self.hold_bonus > 0.0) and self.index is not None
+
+    def potential(self, state: np.ndarray) -> np.ndarray:
+        debris = state[:, self.debris:self.debris + 6 * self.count].reshape(len(state), self.count, 6)
+        tip = state[:, None, self.tip]
+        handoff = state[:, None, self.handoff]
+        visible, held, delivered = debris[..., 3] > 0.5, debris[..., 4] > 0.5, debris[..., 5] > 0.5
+        pending = visible & ~delivered & ~held
+        to_pin = np.linalg.norm(debris[..., :3] - tip, axis=-1) * self.range
+        to_handoff = np.linalg.norm(debris[..., :3] - handoff, axis=-1) * self.range
+        # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
+        # tip -> pin -> hand-off over the pending pins, a continuous function of the state.
+        env_term = np.where(pending, to_pin, np.inf).min(axis=1)
+        path = np.where(pending, to_pin + to_handoff, np.inf).min(axis=1)
+        holding = held.any(axis=1)
+        live = pending.any(axis=1) & ~holding
+        detour = np.where(live, path - np.where(live, env_term, 0.0), 0.0)  # pin -> hand-off of the best pin
+        if self.over_rims is not None:  # the same path, measured around the phantom (and the carry too)
+            world = lambda x: x * self.range + self.centre  # noqa: E731
+            pins, tip_w, handoff_w = world(debris[..., :3]), world(tip), world(handoff)
+            to_pin_geo = self.over_rims.distance(tip_w, pins)
+            to_handoff_geo = self.over_rims.distance(pins, handoff_w)
+            path_geo = np.where(pending, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
+            carry = np.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
+            detour = np.where(live, path_geo - np.where(live, env_term, 0.0), 0.0) + np.where(holding, carry, 0.0)
+        return -self.weight * detour + self.hold_bonus * holding
+
+
+class OverRims:
+    """Distances for a tip that cannot pass through the phantom: the length of the way up out of a cavity, across
+    above the phantom's top, and down into another (vertical legs; exact enough for a potential). Within one cavity,
+    or between two points outside every cavity, the straight line is clear (the bowl is convex) and is used.
+
+    Why: the env's potentials measure straight lines. Between the two cavities the straight line runs through the
+    phantom, and a tip pushing along it is held at the rim (the env refuses a horizontal move into a steep wall); a
+    deterministic policy that learnt with noise stays there for the rest of the episode (measured: with the straight
+    route the suction cleared both cavities in 76 % of episodes with noise and 12 % without; the stuck ones sat on a
+    rim, pushing down toward the other cavity's floor).
+    """
+
+    def __init__(self, env, margin: float = 0.002):
+        self.cavities = env.core.cavities
+        self.height = self.cavities.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
+
+    def _lift(self, point, cavity):
+        z = np.where(cavity >= 0, np.maximum(point[..., 2], self.height), point[..., 2])
+        return np.concatenate([point[..., :2], z[..., None]], axis=-1)
+
+    def distance(self, start, goal) -> np.ndarray:
+        """``start``, ``goal``: (..., 3) world positions (broadcast) -> (...) path lengths."""
+        start, goal = np.broadcast_arrays(start, goal)
+        from_cavity = self.cavities.cavity_at(start[..., 0], start[..., 1])
+        to_cavity = self.cavities.cavity_at(goal[..., 0], goal[..., 1])
+        straight = np.linalg.norm(goal - start, axis=-1)
+        up, down = self._lift(start, from_cavity), self._lift(goal, to_cavity)
+        around = (np.linalg.norm(up - start, axis=-1) + np.linalg.norm(down - up, axis=-1)
+                  + np.linalg.norm(goal - down, axis=-1))
+        return np.where(from_cavity == to_cavity, straight, around)
+
+
+class SuctionRouteShaping:
+    """Potential-based shaping for the suction arm, added by the trainer (F = Phi(s') - Phi(s), as the env's own).
+
+    The env's dense reward pays the suction for closing on the nearest cavity that still holds blood (potential -10 x
+    tip-to-floor distance) and for each millilitre removed. When a cavity falls below the clearing threshold its
+    target jumps to the other cavity: the potential drops by about 10 x the distance between them (about 0.6) at
+    the very step that clears it, and the dense reward has no term for clearing. A cavity left at 0.51 ml costs
+    nothing, one cleared costs 0.6: a learner takes every millilitre but the last one (measured: 12-15 ml of 16
+    removed, success swinging between 0 and 0.5, and runs collapsing to no suction at all). With ``weight`` 10 this
+    term turns the env's potential into the length of the route from the tip over every cavity still to clear
+    (continuous when one clears), and ``clear_bonus`` adds that much potential per cleared cavity (a refill, as by
+    bleeding, takes it back).
+    """
+
+    def __init__(self, env, weight: float, agents, clear_bonus: float = 0.0, over_rims: bool = False):
+        import itertools
+
+        self.over_rims = OverRims(env) if over_rims else None
+
+        self.weight = float(weight)
+        self.clear_bonus = float(clear_bonus)
+        self.index = agents.index("suction") if "suction" in agents else None
+        self.tip = env.state_layout["suction_tip"]
+        self.range = env.workspace_range
+        self.centre = np.asarray(env.params.workspace_centre)
+        self.threshold = env.params.blood_threshold_ml
+        cavities = env.core.cavities
+        self.floors = np.stack([cavities.centre_x, cavities.centre_y, cavities.floor_z], axis=1)  # (C, 3)
+        self.orders = np.array(list(itertools.permutations(range(len(self.floors)))))  # (P, C)
+
+    @property
+    def active(self) -> bool:
+        return (self.weight > 0.0 or self.clear_bonus > 0.0) and self.index is not None
+
+    def potential(self, state: np.ndarray, blood_ml: np.ndarray) -> np.ndarray:
+        """``state``: (N, state_dim); ``blood_ml``: (N, C), each cavity's remaining blood."""
+        tip = state[:, self.tip] * self.range + self.centre
+        pending = (blood_ml >= self.threshold) & (blood_ml > 0.0)
+        to_floor = np.linalg.norm(tip[:, None, :] - self.floors[None], axis=-1)  # (N, C)
+        nearest = np.where(pending, to_floor, np.inf).min(axis=1)
+        nearest = np.where(pending.any(axis=1), nearest, 0.0)
+        # shortest route tip -> every pending cavity, over the visiting orders (2 cavities: 2 orders)
+        measure = self._measure
+        route = np.full(len(state), np.inf)
+        for order in self.orders:
+            length = np.zeros(len(state))
+            here = tip
+            for cavity in order:
+                step = measure(here, self.floors[cavity])
+                length = length + np.where(pending[:, cavity], step, 0.0)
+                here = np.where(pending[:, cavity, None], self.floors[cavity], here)
+            route = np.minimum(route, length)
+        cleared = (~pending).sum(axis=1)
+        return -self.weight * (route - nearest) + self.clear_bonus * cleared
+
+    def _measure(self, start, goal):
+        if self.over_rims is None:
+            return np.linalg.norm(np.broadcast_to(goal, start.shape) - start, axis=-1)
+        return self.over_rims.distance(start, goal)
