@@ -244,6 +244,16 @@ def test_evaluate_team_with_noise_from_the_cli(tmp_path):
     result = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     assert "exploration noise" in result.stdout and "scripted" in result.stdout
+    # what --noise seats: the learned policy with its seeded noise, the scripted partner unchanged
+    from dvrl_marl.training import teams
+
+    seated = teams.seats(str(folder), "scripted", noise_from=900)
+    assert isinstance(seated["suction"], policies.NoisyPolicy)
+    assert not isinstance(seated["grasper"], (policies.NoisyPolicy, policies.NumpyPolicy))
+    observations = np.zeros((5, OBS_DIM))
+    again = teams.seat(str(folder), "suction", noise_from=900)
+    np.testing.assert_array_equal(seated["suction"](observations), again(observations))
+    assert not np.array_equal(seated["suction"](observations), policies.load(folder)(observations))
 
 
 @pytest.mark.parametrize("std, message", [([0.1, 0.1], "2 values for 4"), ([0.1, -0.1, 0.1, None], "finite and >= 0"),

@@ -61,6 +61,11 @@ class NumpyPolicy:
         self._activations = [_ACTIVATIONS[a] for a in activations]
         self.action_low = np.asarray(spec["action_low"], dtype=np.float64)
         self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
+        self._feature_count = 0
+        if "features" in spec:  # checked once here, not on every call (dvrl_marl.policies.features)
+            from dvrl_marl.policies import features
+
+            self._feature_count = features.feature_count((spec["features"] or {}).get("name"))
 
     @property
     def name(self) -> str:
@@ -76,13 +81,11 @@ class NumpyPolicy:
             x = np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
         else:
             x = np.asarray(observation, dtype=np.float64)
-        expected = self.weights[0][0].shape[1]
-        if "features" in self.spec:  # features the policy computes from its observation (policy.features)
+        expected = self.weights[0][0].shape[1] - self._feature_count
+        if self._feature_count and x.shape[-1] == expected:  # features it computes from its observation
             from dvrl_marl.policies import features
 
-            expected -= features.feature_count(self.spec["features"].get("name"))
-            if x.shape[-1] == expected:
-                return features.apply(self.spec["features"], x)
+            return features.apply(self.spec["features"], x)
         if x.shape[-1] != expected:  # a policy meeting an env it was not made for (or a hand-edited file)
             raise ValueError(f"policy {self.name!r} ({self.spec.get('env_id', 'unknown env')}) reads {expected} "
                              f"observation features, got {x.shape[-1]}")

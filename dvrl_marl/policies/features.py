@@ -45,7 +45,7 @@ class _Ops:
         return np.arange(count) if self.numpy else self.torch.arange(count, device=self.device)
 
 
-def feature_count(name: str = "suction_debris_targets") -> int:
+def feature_count(name: str) -> int:
     """How many features ``name`` appends."""
     if name not in FEATURES:
         raise ValueError(f"unknown observation features {name!r} (known: {sorted(FEATURES)})")

@@ -108,7 +108,7 @@ class MappoConfig:
     # the one training ended with, not one that leant on noise to get past the cavities' rims
     final_std: float = 0.0
     # "gaussian": the tool value (valve / jaw) is a fourth Gaussian dimension; "switch": an open/closed decision
-    # (Bernoulli, action +1 or -1; see _SwitchGaussian), its initial logit per agent in initial_tool_logit
+    # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
     tool_head: str = "gaussian"
     initial_tool_logit: dict = field(default_factory=dict)
     # "": the actors read the observation; a name in dvrl_marl.policies.features.FEATURES: they also read features
