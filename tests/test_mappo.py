@@ -189,8 +189,8 @@ def test_grasp_path_shaping_is_continuous_through_the_grasp():
     assert rewards["grasper"][0] < 1.3  # the env alone charges the grasp (what the trainer's term repairs)
 
 
-@pytest.mark.parametrize("over_rims", [False, True])
-def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims):
+@pytest.mark.parametrize("over_rims, park", [(False, False), (True, False), (False, True)])
+def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims, park):
     """Env potential + trainer potential: clearing a cavity earns the removal and ``clear_bonus``, not the env's
     drop of 10 x the distance to the other cavity."""
     blood_threshold = suction_debris_v0.SuctionDebrisParams.from_task().blood_threshold_ml
@@ -201,7 +201,8 @@ def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims):
     surface = env.core.surface_z[0, 0]
     tip = np.array([[cavities.centre_x[0], cavities.centre_y[0], max(surface - 0.0005, cavities.floor_z[0] + 0.0012)]])
     env.set_tip_positions({"suction": tip})
-    route = shaping.SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0, over_rims=over_rims)
+    route = shaping.SuctionRouteShaping(env, 10.0, ["suction", "grasper"], clear_bonus=2.0, over_rims=over_rims,
+                                        park=park)
     blood = env.core.info()["blood_remaining_per_cavity"]
     before = route.potential(env.state(), blood)
     _, rewards, *_ = env.step({"suction": np.array([[0.0, 0.0, 0.0, 1.0]]), "grasper": np.zeros((1, 4))})
@@ -213,8 +214,42 @@ def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims):
     # with the route: the removal and the bonus (the tip did not move); around the rims the route from a tip a few
     # millimetres above A's floor differs from the one through the floor by twice that height
     assert abs(total - (removed + 2.0)) < (0.06 if over_rims else 0.03)
-    # nothing pending: no route, both cleared
-    assert route.potential(env.state(), np.zeros((1, 2)))[0] == pytest.approx(4.0)
+    # nothing pending: both cleared, and no route left (or the way to the parking place)
+    to_park = np.linalg.norm(route.park - env.core.arms["suction"].tip_world()[0]) if park else 0.0
+    assert route.potential(env.state(), np.zeros((1, 2)))[0] == pytest.approx(4.0 - 10.0 * to_park)
+
+
+def test_route_to_park_leads_out_of_the_way_and_favours_the_far_cavity_first():
+    """With the park leg the cleared suction's potential rises toward its parking place (the scripted expert's), and
+    the shortest route visits the cavity farther from the suction's side first, as the expert does."""
+    from dvrl_marl.agents.collaborative import ScriptedSuction
+
+    env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
+    env.reset(seed=0)
+    route = shaping.SuctionRouteShaping(env, 10.0, ["suction", "grasper"], park=True)
+    expert = ScriptedSuction.for_env(env)
+    np.testing.assert_allclose(route.park, np.asarray(expert.park) * env.workspace_range
+                               + np.asarray(env.params.workspace_centre))
+    state = env.state()
+    tip = env.state_layout["suction_tip"]
+    cleared = np.zeros((1, 2))
+    start = route.potential(state, cleared)[0]
+    toward = state.copy()
+    toward[:, tip] += (expert.park - state[0, tip]) * 0.5  # halfway to the park (normalised coordinates)
+    assert route.potential(toward, cleared)[0] > start
+    # from a point midway between the cavities, both full: the route's order is the expert's (far cavity first)
+    floors = route.floors
+    middle = state.copy()
+    middle[:, tip] = ((floors[0] + floors[1]) / 2 + [0.0, 0.0, 0.01] - env.params.workspace_centre) / env.workspace_range
+    full = np.full((1, 2), 8.0)
+    lengths = {order: sum(np.linalg.norm(b - a) for a, b in zip(
+        [middle[0, tip] * env.workspace_range + env.params.workspace_centre] + [floors[k] for k in order],
+        [floors[k] for k in order] + [route.park])) for order in [(0, 1), (1, 0)]}
+    far_first = tuple(expert.order)
+    assert lengths[far_first] < lengths[far_first[::-1]]
+    # the trainer's potential replaces the env's (10 x the distance to the nearest cavity) by 10 x that route
+    nearest = np.linalg.norm(middle[0, tip] * env.workspace_range + env.params.workspace_centre - floors[0])
+    assert -route.potential(middle, full)[0] == pytest.approx(10.0 * (lengths[far_first] - nearest), rel=1e-9)
 
 
 # --- start-state options of the batched env ------------------------------------------------------------------

@@ -85,6 +85,84 @@ def test_targets_on_real_observations_follow_the_env():
     np.testing.assert_allclose(out[:, 8:11], state[:, layout["handoff"]] - tips, atol=1e-12)
 
 
+GEOMETRY = features.routes_geometry(suction_debris_v0.batched_env(num_envs=1).layout())
+
+
+def _routes_reference(obs, targets14):
+    """The routes features one observation at a time, in plain Python (the scene's geometry from GEOMETRY)."""
+    tip = obs[0:3]
+    centres = [np.array(c) for c in GEOMETRY["cavity_centres"]]
+    mouth, rim = GEOMETRY["cavity_mouth_radius"], GEOMETRY["rim_z"]
+    floors = [np.array([*c, z]) for c, z in zip(centres, GEOMETRY["cavity_targets_z"])]
+    pending = [k for k in range(2) if obs[7 + k] >= GEOMETRY["blood_threshold_fraction"][k] and obs[7 + k] > 0]
+    to_cavity = min((floors[k] - tip for k in pending), key=lambda v: float(v @ v)) if pending else np.zeros(3)
+
+    def over(point):
+        return {k for k in range(2) if float(np.sum((point[0:2] - centres[k]) ** 2)) < mouth**2}
+
+    def climb(target, valid=True):
+        return max(rim - tip[2], 0.0) if valid and not over(tip) & over(target) else 0.0
+
+    return np.concatenate([targets14, to_cavity, [float(bool(pending))],
+                           [climb(tip + to_cavity, bool(pending)), climb(tip + targets14[0:3], targets14[3] > 0.5),
+                            climb(obs[27:30])]])
+
+
+@settings(max_examples=300, deadline=None)
+@given(tip=point, other=point, handoff=point, slots=st.lists(slot, min_size=3, max_size=3),
+       levels=st.tuples(st.sampled_from([0.0, 0.03, 0.0625, 0.07, 1.0]), st.floats(0.0, 1.0)))
+def test_routes_name_the_cavity_to_clear_and_the_rims_in_the_way(tip, other, handoff, slots, levels):
+    tip = tip * [1.0, 1.0, 0.4] + [0.0, 0.0, -0.45]  # about the phantom, inside and outside its cavities
+    obs = _observation(np.random.default_rng(0), tip, slots, handoff, other)
+    obs[7:9] = levels
+    out = features.suction_debris_routes(obs, cavities=2, debris=3, **GEOMETRY)
+    assert out.shape == (21,) and np.all(np.isfinite(out))
+    targets = features.suction_debris_targets(obs, cavities=2, debris=3)
+    np.testing.assert_allclose(out, _routes_reference(obs, targets), atol=1e-12)
+    batched = np.stack([obs, obs[::-1].copy()])
+    np.testing.assert_allclose(
+        features.suction_debris_routes(torch.from_numpy(batched), cavities=2, debris=3, **GEOMETRY).numpy(),
+        features.suction_debris_routes(batched, cavities=2, debris=3, **GEOMETRY), atol=1e-12)
+
+
+def test_climb_reads_the_wall_the_env_enforces():
+    """The climb feature against the env's own wall rule: from a cleared cavity's floor, with blood left in the other,
+    steps straight toward the next cavity never get the tip out while the climb reads more than 0; after rising
+    until it reads 0, the same steps do."""
+    env = suction_debris_v0.batched_env(num_envs=1, surgeon=None, autoreset_mode="disabled")
+    env.reset(seed=0, options={"blood_ml": [[8.0, 0.0]]})
+    layout = env.layout()
+    rho, centre = env.workspace_range, np.asarray(env.params.workspace_centre)
+    mouth_centre = np.asarray(layout.cavity_centres[1])
+    floor = np.array([*mouth_centre, layout.cavity_floor[1] + layout.clearance]) * rho + centre
+    env.set_tip_positions({"suction": floor[None] + [0.0, 0.0, 0.0005]})
+    park = {"grasper": np.zeros((1, 4))}
+
+    def read():
+        observation = env.observations()["suction"]
+        out = features.suction_debris_routes(observation, cavities=2, debris=3, **GEOMETRY)[0]
+        assert out[17] == 1.0 and out[14] < 0  # the full cavity (0, at -x) is the next to clear
+        inside = np.hypot(*(observation[0, 0:2] - mouth_centre)) < layout.cavity_mouth_radius
+        return out[18], inside
+
+    def across(steps):
+        for _ in range(steps):
+            env.step({"suction": np.array([[-1.0, 0.0, 0.0, -1.0]]), **park})
+
+    climb, inside = read()
+    assert climb > 0 and inside
+    across(60)  # to the wall, and against it
+    climb, inside = read()
+    assert climb > 0 and inside, "the tip left the cavity through its wall"
+    rises = 0
+    while read()[0] > 0:
+        env.step({"suction": np.array([[0.0, 0.0, 1.0, -1.0]]), **park})
+        rises += 1
+        assert rises < 60
+    across(30)
+    assert not read()[1], "at the rim's height the tip still could not leave the cavity"
+
+
 def test_unknown_features_are_named():
     with pytest.raises(ValueError, match="unknown observation features 'bogus'"):
         features.apply({"name": "bogus"}, np.zeros(OBS_DIM))
@@ -129,6 +207,7 @@ def test_switch_head_samples_open_or_closed_with_its_log_probability():
     {"tool_head": "switch", "initial_tool_logit": {"grasper": -3.0}},
     {"observation_features": "suction_debris_targets"},
     {"tool_head": "switch", "observation_features": "suction_debris_targets"},
+    {"tool_head": "switch", "observation_features": "suction_debris_routes"},
 ])
 def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     """The numpy policy (features computed, normalisation folded, the switch as a sign) acts as the torch actor's
@@ -170,6 +249,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[model]\ntool_head = 'dice'\n", "tool_head must be one of"),
     ("[run]\ndevice = 'tpu'\n", "device must be"),
     ("[model]\nobservation_features = 'everything'\n", "observation_features must be one of"),
+    ("[shaping]\nroute_to_park = 'yes'\n", "route_to_park must be true or false"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):

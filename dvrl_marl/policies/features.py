@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["suction_debris_targets", "feature_count", "apply", "FEATURES"]
+__all__ = ["suction_debris_targets", "suction_debris_routes", "routes_geometry", "feature_count", "apply", "FEATURES"]
 
 #: A distance no pin in the normalised workspace reaches (masked slots).
 _FAR = 1e6
@@ -43,6 +43,14 @@ class _Ops:
 
     def arange(self, count):
         return np.arange(count) if self.numpy else self.torch.arange(count, device=self.device)
+
+    def constant(self, values):
+        values = np.asarray(values, dtype=np.float64)
+        return values.astype(self.dtype) if self.numpy else self.torch.as_tensor(values, dtype=self.dtype,
+                                                                                 device=self.device)
+
+    def positive_part(self, x):
+        return np.maximum(x, 0.0) if self.numpy else x.clamp_min(0.0)
 
 
 def feature_count(name: str) -> int:
@@ -81,9 +89,69 @@ def suction_debris_targets(observation, *, cavities: int, debris: int):
                             handoff - tip, other - tip])
 
 
+def routes_geometry(layout) -> dict:
+    """The scene facts :func:`suction_debris_routes` needs, from an env's ``layout()`` (normalised, JSON-ready)."""
+    return {"cavity_centres": [[float(v) for v in c] for c in layout.cavity_centres],
+            "cavity_mouth_radius": float(layout.cavity_mouth_radius),
+            "cavity_targets_z": [float(z + layout.clearance) for z in layout.cavity_floor],
+            "rim_z": float(layout.phantom_top + layout.clearance),
+            "blood_threshold_fraction": [float(v) for v in layout.blood_threshold_fraction]}
+
+
+def suction_debris_routes(observation, *, cavities: int, debris: int, cavity_centres, cavity_mouth_radius,
+                          cavity_targets_z, rim_z, blood_threshold_fraction):
+    """``(..., obs_dim)`` -> ``(..., 21)``: :func:`suction_debris_targets`'s 14, then where to go next and whether
+    a wall stands in the way (the env refuses a horizontal step into a wall, so a tip below a rim must rise before
+    it can leave; measured: learned arms' mean actions push across the wall and stay there):
+
+    - ``to_cavity`` (3): from the tip to the floor of the nearest cavity still above its clearing threshold (the
+      scripted suction's target; zeros when every cavity is clear), ``has_cavity`` (1);
+    - ``climb_to_cavity``, ``climb_to_pin``, ``climb_to_handoff`` (3): how far the tip lies below the rim (in a
+      cavity, or beside the phantom) unless that target lies over the same cavity (0 above the rim, or when there is
+      no such target). Measured: a grasper waiting beside the phantom pushed into its side for 1,000 steps.
+
+    The geometry is the scene's, fixed (:func:`routes_geometry`; the exported policy keeps it in its
+    ``policy.json``), not state: the actor still reads nothing but its own observation.
+    """
+    ops = _Ops(observation)
+    base = suction_debris_targets(observation, cavities=cavities, debris=debris)
+    tip = observation[..., 0:3]
+    levels = observation[..., 7:7 + cavities]
+    centres = ops.constant(cavity_centres)  # (C, 2)
+    targets = ops.concatenate([centres, ops.constant(cavity_targets_z)[:, None]])  # (C, 3)
+    pending = (levels >= ops.constant(blood_threshold_fraction)) & (levels > 0.0)
+    offset = targets - tip[..., None, :]
+    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
+    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(cavities))
+    has_cavity = pending.any(-1)
+    to_cavity = (offset * (chosen * ops.as_float(has_cavity)[..., None])[..., None]).sum(-2)
+
+    mouth2 = float(cavity_mouth_radius) ** 2
+
+    def inside(points):  # (..., 3) -> (..., C): which cavity mouths the point lies over
+        horizontal = points[..., None, 0:2] - centres
+        return (horizontal * horizontal).sum(-1) < mouth2
+
+    # Below the rim the tip is in a cavity or beside the phantom: every way out but into the same cavity is walled.
+    below_rim = ops.positive_part(rim_z - tip[..., 2])
+    tip_over = inside(tip)
+
+    def climb(target, valid=None):
+        walled = ~(tip_over & inside(target)).any(-1)
+        return (below_rim * ops.as_float(walled if valid is None else walled & valid))[..., None]
+
+    handoff = observation[..., -3:]
+    pin = tip + base[..., 0:3]
+    return ops.concatenate([base, to_cavity, ops.as_float(has_cavity)[..., None],
+                            climb(tip + to_cavity, has_cavity), climb(pin, base[..., 3] > 0.5),
+                            climb(handoff)])
+
+
 #: Known feature sets and how many values each appends.
-FEATURES = {"suction_debris_targets": 14}
-_FUNCTIONS = {"suction_debris_targets": suction_debris_targets}
+FEATURES = {"suction_debris_targets": 14, "suction_debris_routes": 21}
+_FUNCTIONS = {"suction_debris_targets": suction_debris_targets, "suction_debris_routes": suction_debris_routes}
+#: Feature sets that carry the scene's geometry in their spec (:func:`routes_geometry`).
+NEEDS_GEOMETRY = {"suction_debris_routes"}
 
 
 def apply(spec: dict, observation):

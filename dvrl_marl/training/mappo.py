@@ -35,7 +35,8 @@
   ``observation_features`` appends relative targets computed from the actor's own observation
   (:mod:`dvrl_marl.policies.features`; the exported numpy policy computes them too);
   ``suction_route_shaping`` and ``clear_bonus`` (:class:`~dvrl_marl.training.shaping.SuctionRouteShaping`) stop the env's shaping from
-  charging the suction for clearing a cavity; ``shaping_over_rims`` measures both shapings' paths around the
+  charging the suction for clearing a cavity, and ``route_to_park`` ends that route at the suction's parking place
+  (once it has cleared, out of the surgeon's way); ``shaping_over_rims`` measures both shapings' paths around the
   phantom (:class:`~dvrl_marl.training.shaping.OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule.
 - **Device**: ``device = "cuda"`` (or ``"auto"``) runs the update on a GPU; collection stays on CPU (numpy env), the
   collector acting with a CPU copy of the actor that each rollout refreshes.
@@ -127,6 +128,7 @@ class MappoConfig:
     hold_bonus: float = 0.0
     suction_route_shaping: float = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
     clear_bonus: float = 0.0
+    route_to_park: bool = False  # the suction's route ends at its parking place (out of the surgeon's way)
     shaping_over_rims: bool = False  # both shapings measure paths around the phantom (see shaping.OverRims)
     contact_penalty: float | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
     torch_threads: int = 0  # 0: torch's default
@@ -173,6 +175,9 @@ def load_config(path) -> MappoConfig:
                 raise ValueError(f"{path}: unknown key {key!r} in [{section}]")
             values[key] = value
     config = MappoConfig(**values)
+    for key in ("evaluate_with_noise", "shaping_over_rims", "route_to_park"):
+        if not isinstance(getattr(config, key), bool):
+            raise ValueError(f"{path}: {key} must be true or false, got {getattr(config, key)!r}")
     if config.algorithm not in ALGORITHMS:
         raise ValueError(f"{path}: algorithm must be one of {ALGORITHMS}, got {config.algorithm!r}")
     if config.surgeon not in ("none", "scripted"):
@@ -278,14 +283,21 @@ def _switch_gaussian():
 
 def observation_feature_spec(config: MappoConfig, obs_dim: int) -> dict | None:
     """The ``features`` entry of the exported policies (None without ``observation_features``): the feature set's
-    name and the observation's layout (cavities, debris slots) it needs."""
+    name, the observation's layout (cavities, debris slots) and, for the sets that need them, the scene's fixed
+    geometry (read from the env the configuration describes)."""
     if not config.observation_features:
         return None
     from dvrl_marl import assets
+    from dvrl_marl.policies import features
 
     cavities = len(assets.CAVITY_CENTRES)  # the observation: 10 + cavities + 6 x debris values
     debris = (obs_dim - 10 - cavities) // 6
-    return {"name": config.observation_features, "cavities": cavities, "debris": debris}
+    spec = {"name": config.observation_features, "cavities": cavities, "debris": debris}
+    if config.observation_features in features.NEEDS_GEOMETRY:
+        env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled", **config.env)
+        spec.update(features.routes_geometry(env.layout()))
+        env.close()
+    return spec
 
 
 def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int):
