@@ -380,6 +380,17 @@ def test_over_rims_distances_go_around_the_phantom():
     on_rim = np.array([-0.0099, -0.0008, 0.028])
     assert rims.distance(on_rim + [0, 0, 0.001], floor_b) < rims.distance(on_rim, floor_b)
     assert rims.distance(on_rim + [0.001, 0, -0.001], floor_b) > rims.distance(on_rim + [0, 0, 0.001], floor_b)
+    # beside the phantom, below its top (its side is a wall): up, across, down into the cavity
+    phantom = cavities.phantom
+    beside = np.array([phantom.centre_x - phantom.half_x - 0.004, 0.0, phantom.top_z - 0.02])
+    assert rims.region(beside) == shaping.OverRims.BESIDE and rims.region(beside + [0, 0, 0.03]) == -1
+    expected = (height - beside[2]) + np.hypot(*(floor_a - beside)[:2]) + (height - floor_a[2])
+    assert rims.distance(beside, floor_a) == pytest.approx(expected)
+    above = np.array([0.0, 0.03, phantom.top_z + 0.01])  # over the top, outside the cavities: straight lines
+    over_a = floor_a + [0.0, 0.0, 0.02]  # over cavity A, above the top: nothing to climb
+    assert rims.distance(above, over_a) == pytest.approx(np.linalg.norm(over_a - above))
+    assert rims.distance(above, beside + [0.0, 0.0, 0.03]) == pytest.approx(
+        np.linalg.norm(beside + [0.0, 0.0, 0.03] - above))
     # batched: (N, K, 3) against (N, 1, 3)
     starts = np.stack([inside_a, floor_b])[None]
     np.testing.assert_allclose(rims.distance(starts, floor_a[None, None]),
@@ -399,3 +410,26 @@ def test_grasp_path_shaping_over_rims_is_continuous_through_the_grasp(over_rims)
     assert abs(total - 2.0) < 0.06
     if over_rims:  # while holding, the carry is measured around the rim: more than the env's straight line
         assert grasp.potential(env.state())[0] < 0.0
+
+
+def test_grasp_shaping_waits_at_the_surgeon_home_when_there_is_nothing_to_collect():
+    from dvrl_marl.agents.collaborative import ScriptedSurgeon
+
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
+    env.reset(seed=0)  # full cavities: no pin in view
+    grasp = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, home=True)
+    home = np.asarray(ScriptedSurgeon.for_env(env).home) * env.workspace_range + np.asarray(env.params.workspace_centre)
+    np.testing.assert_allclose(grasp.home, home)
+    state = env.state()
+    tip = env.state_layout["grasper_tip"]
+    start = state[0, tip] * env.workspace_range + env.params.workspace_centre
+    assert grasp.potential(state)[0] == pytest.approx(-10.0 * shaping.OverRims(env).distance(start, home))
+    closer = state.copy()
+    closer[:, tip] = ((start + home) / 2 - env.params.workspace_centre) / env.workspace_range
+    assert grasp.potential(closer)[0] > grasp.potential(state)[0]
+    # with a pin in view the way home no longer counts
+    with_pin = state.copy()
+    first = env.state_layout["debris"].start
+    with_pin[:, first + 3] = 1.0
+    without_home = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True)
+    assert grasp.potential(with_pin)[0] == pytest.approx(without_home.potential(with_pin)[0])

@@ -27,9 +27,17 @@ class GraspPathShaping:
     grasper holds nothing (continuous in the state, through the grasp too). ``hold_bonus`` adds that much potential
     while a pin is held: a drop then costs what the grasp earned, the only signal that says "keep the jaw closed"
     before the first delivery is ever seen.
+
+    ``home``: while no pin is in view and none is held, the potential leads to the scripted surgeon's waiting place
+    (above the phantom, beside the grasper's RCM) instead of nowhere. Measured without it: the grasper waited at
+    table height beside the phantom and, once a pin showed, pushed into the phantom's side. (A pin's appearing is
+    the suction's doing, not the grasper's: the potential's change then says nothing about the grasper's action.)
     """
 
-    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False):
+    def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False,
+                 home: bool = False):
+        from dvrl_marl.agents.collaborative import ScriptedSurgeon
+
         self.over_rims = OverRims(env) if over_rims else None
         self.centre = np.asarray(env.params.workspace_centre)
         self.weight = float(weight)
@@ -41,6 +49,7 @@ class GraspPathShaping:
         self.count = env.params.debris_count
         self.handoff = layout["handoff"]
         self.range = env.workspace_range
+        self.home = (np.asarray(ScriptedSurgeon.for_env(env).home) * self.range + self.centre) if home else None
 
     @property
     def active(self) -> bool:
@@ -69,13 +78,20 @@ class GraspPathShaping:
             path_geo = np.where(pending, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
             carry = np.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
             detour = np.where(live, path_geo - np.where(live, env_term, 0.0), 0.0) + np.where(holding, carry, 0.0)
+        if self.home is not None:  # nothing to collect or carry: the way to the waiting place
+            tip_w = tip[:, 0] * self.range + self.centre
+            idle = ~pending.any(axis=1) & ~holding
+            way = self.over_rims.distance(tip_w, self.home) if self.over_rims is not None else np.linalg.norm(
+                tip_w - self.home, axis=-1)
+            detour = detour + np.where(idle, way, 0.0)
         return -self.weight * detour + self.hold_bonus * holding
 
 
 class OverRims:
     """Distances for a tip that cannot pass through the phantom: the length of the way up out of a cavity, across
-    above the phantom's top, and down into another (vertical legs; exact enough for a potential). Within one cavity,
-    or between two points outside every cavity, the straight line is clear (the bowl is convex) and is used.
+    above the phantom's top, and down into another (vertical legs; exact enough for a potential); a point beside the
+    phantom, below its top, rises the same way. Within one cavity, or between two points above the phantom's top
+    outside every cavity, the straight line is clear (the bowl is convex) and is used.
 
     Why: the env's potentials measure straight lines. Between the two cavities the straight line runs through the
     phantom, and a tip pushing along it is held at the rim (the env refuses a horizontal move into a steep wall); a
@@ -84,19 +100,31 @@ class OverRims:
     rim, pushing down toward the other cavity's floor).
     """
 
+    #: The region of a point beside the phantom below its top (its sides are walls too; measured: a grasper that
+    #: waited there pushed into the side toward a pin for the rest of the episode).
+    BESIDE = -2
+
     def __init__(self, env, margin: float = 0.002):
         self.cavities = env.core.cavities
-        self.height = self.cavities.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
+        self.phantom = self.cavities.phantom
+        self.height = self.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
 
-    def _lift(self, point, cavity):
-        z = np.where(cavity >= 0, np.maximum(point[..., 2], self.height), point[..., 2])
+    def _lift(self, point, region):
+        z = np.where(region != -1, np.maximum(point[..., 2], self.height), point[..., 2])
         return np.concatenate([point[..., :2], z[..., None]], axis=-1)
+
+    def region(self, point) -> np.ndarray:
+        """The cavity a point lies over (its index), BESIDE the phantom below its top, or -1 (above the top)."""
+        p = self.phantom
+        beside = ((np.abs(point[..., 0] - p.centre_x) > p.half_x) | (np.abs(point[..., 1] - p.centre_y) > p.half_y)) & (
+            point[..., 2] < p.top_z)
+        return np.where(beside, self.BESIDE, self.cavities.cavity_at(point[..., 0], point[..., 1]))
 
     def distance(self, start, goal) -> np.ndarray:
         """``start``, ``goal``: (..., 3) world positions (broadcast) -> (...) path lengths."""
         start, goal = np.broadcast_arrays(start, goal)
-        from_cavity = self.cavities.cavity_at(start[..., 0], start[..., 1])
-        to_cavity = self.cavities.cavity_at(goal[..., 0], goal[..., 1])
+        from_cavity = self.region(start)
+        to_cavity = self.region(goal)
         straight = np.linalg.norm(goal - start, axis=-1)
         up, down = self._lift(start, from_cavity), self._lift(goal, to_cavity)
         around = (np.linalg.norm(up - start, axis=-1) + np.linalg.norm(down - up, axis=-1)
