@@ -192,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
                       "task's 1500; 6000, two minutes, for --surgeon keyboard)")
     demo.add_argument("--pipeline", help="pipeline name or TOML file (default: learned_team)")
     demo.add_argument("--team", choices=["pipeline", "marl"], default="pipeline",
-                      help="pipeline: composed single-arm policies (default); marl: the team learned by MAPPO")
+                      help="pipeline: composed single-arm policies (default); marl: the suction learned by MAPPO "
+                      "(with --surgeon learned, the learned grasper too)")
     demo.add_argument("--record", metavar="FILE", help="save what the surgeon seat did as a demonstration (.npz) "
                       "that ReplayDevice plays back and behaviour cloning learns from")
     demo.add_argument("--no-video", action="store_true", help="skip rendering")

@@ -3,9 +3,11 @@ from the endoscope.
 
 ``team="pipeline"`` (default): the suction arm runs the learned Reach policy through the ``learned_team``
 pipeline; the surgeon seat (the LND) is filled by the learned Reach + Pick pipeline, the scripted surgeon, or a
-keyboard. ``team="marl"``: the team learned together by multi-agent PPO (the shipped ``marl-suction`` and
-``marl-grasper`` policies; ``surgeon="learned"`` seats ``marl-grasper``). Writes ``demo.mp4`` and ``metrics.json``
-into a new run folder and returns the metrics.
+keyboard. ``team="marl"``: the suction arm learned by multi-agent PPO (the shipped ``marl-suction``), beside the
+scripted surgeon, a person at the keyboard, or (``surgeon="learned"``) the learned ``marl-grasper`` where one is
+shipped. Learned MAPPO policies act as they trained, with the exploration noise their ``policy.json`` records,
+seeded from ``seed`` (their mean action alone can stay pressed against the other instrument). Writes ``demo.mp4``
+and ``metrics.json`` into a new run folder and returns the metrics.
 
 ``surgeon="keyboard"``: a person works the LND in the scene's window (held keys move, see
 :class:`~dvrl_marl.teleop.KeyboardDevice`); the episode starts when they press ENTER and runs in real time at the
@@ -42,6 +44,11 @@ def _pipeline_name() -> str:
     return "learned_team" if all(name in policies.available() for name in _LEARNED_POLICIES) else "scripted_team"
 
 
+def _as_trained(policy, seed: int):
+    """A learned policy acting with the exploration noise it records (seeded), or its mean action if it records none."""
+    return policy.with_noise(seed) if policy.spec.get("exploration") else policy
+
+
 def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, max_cycles: int | None = None,
              video: bool = True, frame_every: int = 4, width: int = 640, height: int = 480,
              progress: bool = True, pipeline: str | None = None, team: str = "pipeline",
@@ -55,11 +62,14 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         raise ValueError("team='marl' runs the learned multi-agent policies; a pipeline applies to team='pipeline'")
     out = Path(out) if out else Path("runs") / f"demo-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
-    missing = [name for name in ("marl-suction", "marl-grasper") if name not in policies.available()]
+    needed = ("marl-suction", "marl-grasper") if surgeon == "learned" else ("marl-suction",)
+    missing = [name for name in needed if name not in policies.available()]
     if team == "marl" and missing:
-        raise FileNotFoundError(f"team='marl' seats the multi-agent policies marl-suction and marl-grasper; "
-                                f"{' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not shipped with this "
-                                "release (train them: dvrl-marl train baselines/configs/suction_debris_mappo.toml)")
+        raise FileNotFoundError(f"team='marl' with surgeon={surgeon!r} seats the multi-agent policies "
+                                f"{' and '.join(needed)}; {' and '.join(missing)} "
+                                f"{'is' if len(missing) == 1 else 'are'} not shipped with this release (train: "
+                                "dvrl-marl train baselines/configs/suction_debris_mappo.toml; or seat another "
+                                "surgeon: --surgeon scripted or keyboard)")
     pipeline = "marl" if team == "marl" else (pipeline or _pipeline_name())
     plans = None if team == "marl" else load_pipeline(pipeline)
     render_mode = "human" if surgeon == "keyboard" else ("rgb_array" if video else None)
@@ -77,7 +87,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         keyboard = KeyboardDevice()
         kwargs["surgeon"] = keyboard
     if surgeon == "learned" and team == "marl":
-        kwargs["surgeon"] = policies.load("marl-grasper")
+        kwargs["surgeon"] = _as_trained(policies.load("marl-grasper"), seed)
     elif surgeon == "learned" or (surgeon == "scripted" and record):
         # The pipeline (or the expert, bound here so that it can be recorded) reads the scene layout from an env
         # built with the same parameters.
@@ -97,7 +107,10 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
                             seed=seed, env=ENV_NAME, max_cycles=kwargs.get("max_cycles"))
         kwargs["surgeon"] = recorder
     env = scene_env.parallel_env(**kwargs)
-    suction = policies.load("marl-suction") if team == "marl" else ArmPipeline(plans["suction"], "suction", env)
+    if team == "marl":
+        suction = _as_trained(policies.load("marl-suction"), seed)
+    else:
+        suction = ArmPipeline(plans["suction"], "suction", env)
     if render_mode == "rgb_array":
         # Shadow maps triple the cost of a software-rendered frame; the demo must finish within a minute.
         env.model.light_castshadow[:] = 0

@@ -337,8 +337,11 @@ def test_demo_without_shipped_marl_policies_names_them(tmp_path, monkeypatch):
     from dvrl_marl import demo
 
     monkeypatch.setattr(policies, "shipped_dir", lambda: tmp_path)
-    with pytest.raises(FileNotFoundError, match="marl-grasper"):
+    with pytest.raises(FileNotFoundError, match="marl-suction and marl-grasper"):
         demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=10, video=False, progress=False)
+    with pytest.raises(FileNotFoundError, match="seats the multi-agent policies marl-suction; marl-suction is not"):
+        demo.run_demo(team="marl", surgeon="scripted", out=tmp_path / "demo", max_cycles=10, video=False,
+                      progress=False)
 
 
 def test_run_folder_configuration_reads_back(tmp_path):
@@ -433,3 +436,27 @@ def test_grasp_shaping_waits_at_the_surgeon_home_when_there_is_nothing_to_collec
     with_pin[:, first + 3] = 1.0
     without_home = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True)
     assert grasp.potential(with_pin)[0] == pytest.approx(without_home.potential(with_pin)[0])
+
+
+def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
+    """cleared_only: a pin showing where blood is still above the threshold is not a target (the env's pull toward
+    it is cancelled: env + trainer potential is the way home); once its cavity is clear it is."""
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
+    env.reset(seed=0)
+    grasp = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, home=True, cleared_only=True)
+    plain = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, home=True)
+    layout = env.state_layout
+    state = env.state()
+    first = layout["debris"].start
+    state[:, first + 3] = 1.0  # pin 0 in view ...
+    pin = state[0, first:first + 3] * env.workspace_range + env.params.workspace_centre
+    cavity = int(np.argmin(np.hypot(env.core.cavities.centre_x - pin[0], env.core.cavities.centre_y - pin[1])))
+    tip = state[0, layout["grasper_tip"]] * env.workspace_range + env.params.workspace_centre
+    env_potential = -10.0 * np.linalg.norm(tip - pin)
+    way_home = shaping.OverRims(env).distance(tip, grasp.home)
+    # ... its cavity full: not a target; the sum of both potentials is the way home, as with no pin at all
+    assert env_potential + grasp.potential(state)[0] == pytest.approx(-10.0 * way_home)
+    assert plain.potential(state)[0] != pytest.approx(grasp.potential(state)[0])
+    # ... its cavity cleared: the target, exactly as without the rule
+    state[0, layout["blood"].start + cavity] = 0.0
+    assert grasp.potential(state)[0] == pytest.approx(plain.potential(state)[0])

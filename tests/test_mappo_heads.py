@@ -125,6 +125,41 @@ def test_routes_name_the_cavity_to_clear_and_the_rims_in_the_way(tip, other, han
         features.suction_debris_routes(batched, cavities=2, debris=3, **GEOMETRY), atol=1e-12)
 
 
+@settings(max_examples=300, deadline=None)
+@given(tip=point, handoff=point, slots=st.lists(slot, min_size=3, max_size=3),
+       levels=st.tuples(st.sampled_from([0.0, 0.03, 0.0625, 0.07, 1.0]), st.sampled_from([0.0, 0.05, 0.5])))
+def test_cleared_pins_are_those_in_a_cleared_cavity(tip, handoff, slots, levels):
+    tip = tip * [1.0, 1.0, 0.4] + [0.0, 0.0, -0.45]
+    obs = _observation(np.random.default_rng(0), tip, slots, handoff, np.zeros(3))
+    obs[7:9] = levels
+    out = features.suction_debris_cleared_pins(obs, cavities=2, debris=3, **GEOMETRY)
+    assert out.shape == (26,) and np.all(np.isfinite(out))
+    np.testing.assert_array_equal(out[:21], features.suction_debris_routes(obs, cavities=2, debris=3, **GEOMETRY))
+    centres = np.array(GEOMETRY["cavity_centres"])
+    clear = [levels[k] < GEOMETRY["blood_threshold_fraction"][k] or levels[k] <= 0 for k in range(2)]
+    candidates = []
+    for index in range(3):
+        start = 9 + 6 * index
+        position, (visible, held, delivered) = obs[start:start + 3], obs[start + 3:start + 6]
+        cavity = int(np.argmin(np.sum((position[0:2] - centres) ** 2, axis=1)))
+        if visible > 0.5 and held < 0.5 and delivered < 0.5 and clear[cavity]:
+            candidates.append(position)
+    if candidates:
+        nearest = min(candidates, key=lambda p: float(np.sum((p - tip) ** 2)))
+        np.testing.assert_allclose(out[21:24], nearest - tip, atol=1e-12)
+        assert out[24] == 1.0
+        mouth = GEOMETRY["cavity_mouth_radius"]
+        same = any(np.sum((tip[0:2] - c) ** 2) < mouth**2 and np.sum((nearest[0:2] - c) ** 2) < mouth**2
+                   for c in centres)
+        assert out[25] == pytest.approx(0.0 if same else max(GEOMETRY["rim_z"] - tip[2], 0.0))
+    else:
+        assert np.all(out[21:26] == 0.0)
+    batched = np.stack([obs, obs[::-1].copy()])
+    np.testing.assert_allclose(
+        features.suction_debris_cleared_pins(torch.from_numpy(batched), cavities=2, debris=3, **GEOMETRY).numpy(),
+        features.suction_debris_cleared_pins(batched, cavities=2, debris=3, **GEOMETRY), atol=1e-12)
+
+
 def test_climb_reads_the_wall_the_env_enforces():
     """The climb feature against the env's own wall rule: from a cleared cavity's floor, with blood left in the other,
     steps straight toward the next cavity never get the tip out while the climb reads more than 0; after rising
@@ -208,6 +243,7 @@ def test_switch_head_samples_open_or_closed_with_its_log_probability():
     {"observation_features": "suction_debris_targets"},
     {"tool_head": "switch", "observation_features": "suction_debris_targets"},
     {"tool_head": "switch", "observation_features": "suction_debris_routes"},
+    {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins"},
 ])
 def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     """The numpy policy (features computed, normalisation folded, the switch as a sign) acts as the torch actor's

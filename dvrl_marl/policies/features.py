@@ -9,13 +9,17 @@ of its lessons and still carried it toward a phantom target). :func:`suction_deb
 as vectors relative to its own tip, from nothing but the agent's observation (no privileged state): the trainer's
 actors read ``observation + features`` and the exported numpy policy computes the same features before its first
 layer (its ``policy.json`` names them, see :func:`apply`).
+
+:func:`suction_debris_routes` adds what the env's wall rule asks of a policy: the cavity still to clear, and how far
+the tip must rise before a wall stops standing between it and its target. A feature set's definition is part of
+every policy exported with it: change one only under a new name.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["suction_debris_targets", "suction_debris_routes", "routes_geometry", "feature_count", "apply", "FEATURES"]
+__all__ = ["suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins", "routes_geometry", "feature_count", "apply", "FEATURES"]
 
 #: A distance no pin in the normalised workspace reaches (masked slots).
 _FAR = 1e6
@@ -147,11 +151,49 @@ def suction_debris_routes(observation, *, cavities: int, debris: int, cavity_cen
                             climb(handoff)])
 
 
+def suction_debris_cleared_pins(observation, *, cavities: int, debris: int, cavity_centres, cavity_mouth_radius,
+                                cavity_targets_z, rim_z, blood_threshold_fraction):
+    """``(..., obs_dim)`` -> ``(..., 26)``: :func:`suction_debris_routes`'s 21, then the nearest pin to collect that
+    lies in a cleared cavity (the only pins the scripted surgeon goes for: the others share a cavity with the working
+    suction): ``to_clear_pin`` (3, zeros when there is none), ``has_clear_pin`` (1) and ``climb_to_clear_pin`` (1).
+    Measured: a grasper drifting toward the revealed pins while the suction still worked there touched it for 128 of
+    1,500 steps (return 1.75 against 14.5 for one that kept away), and learnt to keep away from every pin.
+    """
+    ops = _Ops(observation)
+    geometry = dict(cavity_centres=cavity_centres, cavity_mouth_radius=cavity_mouth_radius,
+                    cavity_targets_z=cavity_targets_z, rim_z=rim_z, blood_threshold_fraction=blood_threshold_fraction)
+    base = suction_debris_routes(observation, cavities=cavities, debris=debris, **geometry)
+    tip = observation[..., 0:3]
+    levels = observation[..., 7:7 + cavities]
+    centres = ops.constant(cavity_centres)
+    first = 7 + cavities
+    slots = observation[..., first:first + 6 * debris].reshape(*observation.shape[:-1], debris, 6)
+    position = slots[..., 0:3]
+    horizontal = position[..., None, 0:2] - centres  # (..., D, C, 2)
+    home = ops.as_float((horizontal * horizontal).sum(-1).argmin(-1)[..., None] == ops.arange(cavities))  # (..., D, C)
+    cleared = (levels < ops.constant(blood_threshold_fraction)) | (levels <= 0.0)  # (..., C)
+    in_cleared = (home * ops.as_float(cleared)[..., None, :]).sum(-1) > 0.5  # (..., D)
+    pending = (slots[..., 3] > 0.5) & (slots[..., 4] < 0.5) & (slots[..., 5] < 0.5) & in_cleared
+    offset = position - tip[..., None, :]
+    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
+    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(debris))
+    has_pin = pending.any(-1)
+    to_pin = (offset * (chosen * ops.as_float(has_pin)[..., None])[..., None]).sum(-2)
+    # the climb toward it, as suction_debris_routes measures its own
+    mouth2 = float(cavity_mouth_radius) ** 2
+    target = tip + to_pin
+    tip_h, target_h = tip[..., None, 0:2] - centres, target[..., None, 0:2] - centres
+    same = (((tip_h * tip_h).sum(-1) < mouth2) & ((target_h * target_h).sum(-1) < mouth2)).any(-1)
+    climb = ops.positive_part(rim_z - tip[..., 2]) * ops.as_float(~same & has_pin)
+    return ops.concatenate([base, to_pin, ops.as_float(has_pin)[..., None], climb[..., None]])
+
+
 #: Known feature sets and how many values each appends.
-FEATURES = {"suction_debris_targets": 14, "suction_debris_routes": 21}
-_FUNCTIONS = {"suction_debris_targets": suction_debris_targets, "suction_debris_routes": suction_debris_routes}
+FEATURES = {"suction_debris_targets": 14, "suction_debris_routes": 21, "suction_debris_cleared_pins": 26}
+_FUNCTIONS = {"suction_debris_targets": suction_debris_targets, "suction_debris_routes": suction_debris_routes,
+              "suction_debris_cleared_pins": suction_debris_cleared_pins}
 #: Feature sets that carry the scene's geometry in their spec (:func:`routes_geometry`).
-NEEDS_GEOMETRY = {"suction_debris_routes"}
+NEEDS_GEOMETRY = {"suction_debris_routes", "suction_debris_cleared_pins"}
 
 
 def apply(spec: dict, observation):

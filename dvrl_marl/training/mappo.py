@@ -127,6 +127,7 @@ class MappoConfig:
     grasp_path_shaping: float = 0.0
     hold_bonus: float = 0.0
     wait_at_home: bool = False  # the grasper's shaping leads it to the scripted surgeon's waiting place when idle
+    cleared_pins_only: bool = False  # the grasper's shaping collects only pins in cleared cavities (the expert's rule)
     suction_route_shaping: float = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
     clear_bonus: float = 0.0
     route_to_park: bool = False  # the suction's route ends at its parking place (out of the surgeon's way)
@@ -176,7 +177,7 @@ def load_config(path) -> MappoConfig:
                 raise ValueError(f"{path}: unknown key {key!r} in [{section}]")
             values[key] = value
     config = MappoConfig(**values)
-    for key in ("evaluate_with_noise", "shaping_over_rims", "route_to_park", "wait_at_home"):
+    for key in ("evaluate_with_noise", "shaping_over_rims", "route_to_park", "wait_at_home", "cleared_pins_only"):
         if not isinstance(getattr(config, key), bool):
             raise ValueError(f"{path}: {key} must be true or false, got {getattr(config, key)!r}")
     if config.algorithm not in ALGORITHMS:

@@ -32,10 +32,15 @@ class GraspPathShaping:
     (above the phantom, beside the grasper's RCM) instead of nowhere. Measured without it: the grasper waited at
     table height beside the phantom and, once a pin showed, pushed into the phantom's side. (A pin's appearing is
     the suction's doing, not the grasper's: the potential's change then says nothing about the grasper's action.)
+
+    ``cleared_only``: only pins in a cleared cavity are collected (the scripted surgeon's rule), and the env's own
+    pull toward the others is cancelled. Measured without it: a grasper drifting toward pins revealed where the
+    suction still worked touched it for 128 of 1,500 steps (return 1.75 against 14.5 for one keeping away) and
+    learnt to keep away from every pin, in a corner of the workspace.
     """
 
     def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False,
-                 home: bool = False):
+                 home: bool = False, cleared_only: bool = False):
         from dvrl_marl.agents.collaborative import ScriptedSurgeon
 
         self.over_rims = OverRims(env) if over_rims else None
@@ -50,6 +55,11 @@ class GraspPathShaping:
         self.handoff = layout["handoff"]
         self.range = env.workspace_range
         self.home = (np.asarray(ScriptedSurgeon.for_env(env).home) * self.range + self.centre) if home else None
+        self.cleared_only = bool(cleared_only)
+        scene = env.layout()
+        self.cavity_centres = np.asarray(scene.cavity_centres)  # normalised, as the state's positions
+        self.clear_fraction = np.asarray(scene.blood_threshold_fraction)
+        self.blood = layout["blood"]
 
     @property
     def active(self) -> bool:
@@ -64,27 +74,39 @@ class GraspPathShaping:
         to_pin = np.linalg.norm(debris[..., :3] - tip, axis=-1) * self.range
         to_handoff = np.linalg.norm(debris[..., :3] - handoff, axis=-1) * self.range
         # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
-        # tip -> pin -> hand-off over the pending pins, a continuous function of the state.
-        env_term = np.where(pending, to_pin, np.inf).min(axis=1)
-        path = np.where(pending, to_pin + to_handoff, np.inf).min(axis=1)
+        # tip -> pin -> hand-off over the pins to collect, a continuous function of the state.
+        env_term = np.where(pending.any(axis=1), np.where(pending, to_pin, np.inf).min(axis=1), 0.0)
+        targets = pending & self._in_cleared_cavity(state, debris) if self.cleared_only else pending
         holding = held.any(axis=1)
-        live = pending.any(axis=1) & ~holding
-        detour = np.where(live, path - np.where(live, env_term, 0.0), 0.0)  # pin -> hand-off of the best pin
-        if self.over_rims is not None:  # the same path, measured around the phantom (and the carry too)
+        live = targets.any(axis=1) & ~holding
+        carry = np.zeros(len(state))
+        if self.over_rims is None:
+            path = np.where(targets, to_pin + to_handoff, np.inf).min(axis=1)
+        else:  # the same path, measured around the phantom (and the carry too)
             world = lambda x: x * self.range + self.centre  # noqa: E731
             pins, tip_w, handoff_w = world(debris[..., :3]), world(tip), world(handoff)
             to_pin_geo = self.over_rims.distance(tip_w, pins)
             to_handoff_geo = self.over_rims.distance(pins, handoff_w)
-            path_geo = np.where(pending, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
+            path = np.where(targets, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
             carry = np.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
-            detour = np.where(live, path_geo - np.where(live, env_term, 0.0), 0.0) + np.where(holding, carry, 0.0)
+        idle = ~targets.any(axis=1) & ~holding
+        way_home = np.zeros(len(state))
         if self.home is not None:  # nothing to collect or carry: the way to the waiting place
             tip_w = tip[:, 0] * self.range + self.centre
-            idle = ~pending.any(axis=1) & ~holding
-            way = self.over_rims.distance(tip_w, self.home) if self.over_rims is not None else np.linalg.norm(
+            way_home = self.over_rims.distance(tip_w, self.home) if self.over_rims is not None else np.linalg.norm(
                 tip_w - self.home, axis=-1)
-            detour = detour + np.where(idle, way, 0.0)
+        # idle: the env's pull toward pins not to be collected yet (cleared_only) is cancelled
+        detour = (np.where(live, np.where(live, path, 0.0) - env_term, 0.0) + np.where(idle, way_home - env_term, 0.0)
+                  + np.where(holding, carry, 0.0))
         return -self.weight * detour + self.hold_bonus * holding
+
+    def _in_cleared_cavity(self, state, debris) -> np.ndarray:
+        """(N, D): whether each pin lies in a cavity below its clearing threshold (the cavity nearest it)."""
+        horizontal = debris[..., None, 0:2] - self.cavity_centres  # (N, D, C, 2)
+        cavity = (horizontal * horizontal).sum(-1).argmin(-1)  # (N, D)
+        blood = state[:, self.blood]
+        cleared = (blood < self.clear_fraction) | (blood <= 0.0)  # (N, C)
+        return np.take_along_axis(cleared, cavity, axis=1)
 
 
 class OverRims:

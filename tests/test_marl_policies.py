@@ -1,0 +1,52 @@
+"""The shipped multi-agent policies (``marl-*``): numpy only, and they do the task they were trained for.
+
+The figures of record (100 held-out seeds, three training seeds) are in ``baselines/README.md``; here a smaller
+held-out sample shows that the shipped policy solves its seat, as a scripted expert's test shows for the expert.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from dvrl_marl import policies
+from dvrl_marl.training import teams
+
+
+def test_marl_suction_is_shipped_and_loads_with_numpy_alone():
+    assert "marl-suction" in policies.available()
+    code = ("import sys; sys.modules['torch'] = None; sys.modules['torchrl'] = None\n"
+            "import numpy as np\n"
+            "from dvrl_marl import policies\n"
+            "p = policies.load('marl-suction')\n"
+            "print(p.spec['agent'], p.spec['features']['name'], p(np.zeros(30)).shape)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["suction", "suction_debris_routes", "(4,)"]
+
+
+def test_marl_suction_clears_the_field_beside_the_scripted_surgeon():
+    """With the noise it trained with (as evaluated and as the demo runs it), on held-out seeds."""
+    result = teams.evaluate_team_batched(teams.seats("marl-suction", "scripted", noise_from=teams.EVAL_SEED),
+                                         episodes=30, seed=teams.EVAL_SEED)
+    assert result["success_rate"] >= 0.9, result["success_rate"]
+    assert result["mean_contact_steps"] < 20.0
+    # and its mean action (the policy called plainly) still clears blood: the learned routes, not the noise, do that
+    plain = teams.evaluate_team_batched(teams.seats("marl-suction", "scripted"), episodes=30, seed=teams.EVAL_SEED)
+    assert plain["mean_blood_removed_ml"] > 12.0
+
+
+def test_the_demo_seats_the_learned_suction_beside_the_scripted_surgeon(tmp_path):
+    from dvrl_marl import demo
+
+    metrics = demo.run_demo(team="marl", surgeon="scripted", out=tmp_path / "demo", video=False, progress=False)
+    assert metrics["team"] == "marl" and metrics["surgeon"] == "scripted"
+    assert metrics["success"], metrics  # the whole episode (suction_debris_v1): cleared and delivered
+    assert metrics["debris_delivered"] == metrics["debris_total"] and metrics["steps"] < metrics["max_cycles"]
+
+
+def test_a_shipped_learned_policy_refuses_the_other_seat():
+    with pytest.raises(ValueError, match="trained for the 'suction' seat"):
+        teams.seat("marl-suction", "grasper")
