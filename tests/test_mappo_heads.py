@@ -286,6 +286,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[run]\ndevice = 'tpu'\n", "device must be"),
     ("[model]\nobservation_features = 'everything'\n", "observation_features must be one of"),
     ("[shaping]\nroute_to_park = 'yes'\n", "route_to_park must be true or false"),
+    ("[ppo]\nbounds_loss_coef = -1.0\n", "bounds_loss_coef must be >= 0"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):
@@ -406,3 +407,47 @@ def test_unshared_local_collector_acts_with_the_learners_weights():
         assert batch["action"].shape == (3, 4, 2, 4)
     finally:
         collectors.close()
+
+
+def test_bounds_loss_penalises_only_means_beyond_the_action_box():
+    loc = torch.tensor([[0.5, -1.0, 2.0, 9.0], [-3.0, 0.0, 1.0, -9.0]])
+    # switch: the tool's logit (last) is free; motion excess 1^2 and 2^2, averaged over the two rows
+    assert float(mappo.bounds_loss(loc, "switch")) == pytest.approx((1.0 + 4.0) / 2)
+    assert float(mappo.bounds_loss(loc, "gaussian")) == pytest.approx((1.0 + 64.0 + 4.0 + 64.0) / 2)
+    assert float(mappo.bounds_loss(torch.zeros(5, 4))) == 0.0
+
+
+def test_bounds_loss_pulls_saturated_means_back_in_training(tmp_path):
+    """A tiny run whose actors start saturated (output bias 3): with the bounds loss the exported policy's means
+    come back toward the box, without it they stay out."""
+    env = suction_debris_v0.batched_env(num_envs=64, surgeon=None)
+    observations, _ = env.reset(seed=1)
+
+    def final_means(coef):
+        config = mappo.MappoConfig(total_steps=2048, num_envs=16, rollout_steps=16, eval_every=2048, eval_episodes=1,
+                                   checkpoint_every=2048, hidden=[16, 16], epochs=4, minibatches=2, anneal_lr=False,
+                                   learning_rate=0.01, bounds_loss_coef=coef, tool_head="switch",
+                                   env={"reward_type": "dense", "max_cycles": 40})
+        original = mappo._build_models
+
+        def saturated(*args, **kwargs):
+            models = original(*args, **kwargs)
+            with torch.no_grad():
+                for net in models[2].nets:
+                    net[-1].bias[:3] = 3.0
+            return models
+
+        mappo._build_models = saturated
+        try:
+            mappo.train(config, 0, tmp_path / f"run{coef}", progress=False, tensorboard=False, log=lambda *_: None)
+        finally:
+            mappo._build_models = original
+        policy = policies.load(tmp_path / f"run{coef}" / "policies" / "marl-suction")
+        hidden = policy.features(observations["suction"])
+        for index, (weight, bias) in enumerate(policy.weights):
+            hidden = hidden @ weight.T + bias
+            if index < len(policy.weights) - 1:
+                hidden = np.tanh(hidden)
+        return float(hidden[:, :3].mean())  # the motion means, before the clip
+
+    assert final_means(1.0) < 1.5 and final_means(0.0) > 2.5
