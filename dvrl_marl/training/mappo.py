@@ -37,7 +37,10 @@
   ``suction_route_shaping`` and ``clear_bonus`` (:class:`~dvrl_marl.training.shaping.SuctionRouteShaping`) stop the env's shaping from
   charging the suction for clearing a cavity, and ``route_to_park`` ends that route at the suction's parking place
   (once it has cleared, out of the surgeon's way); ``shaping_over_rims`` measures both shapings' paths around the
-  phantom (:class:`~dvrl_marl.training.shaping.OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule.
+  phantom (:class:`~dvrl_marl.training.shaping.OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule;
+  ``wait_at_home`` and ``cleared_pins_only`` lead the grasper's shaping to the scripted surgeon's waiting place
+  when idle and to pins in cleared cavities only; ``[ppo] bounds_loss_coef`` keeps the actors' means inside the
+  action box (:func:`bounds_loss`).
 - **Device**: ``device = "cuda"`` (or ``"auto"``) runs the update on a GPU; collection stays on CPU (numpy env), the
   collector acting with a CPU copy of the actor that each rollout refreshes.
 
