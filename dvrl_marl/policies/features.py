@@ -57,6 +57,15 @@ class _Ops:
         return np.maximum(x, 0.0) if self.numpy else x.clamp_min(0.0)
 
 
+def _nearest(ops, offset, pending):
+    """``offset`` (..., K, 3) from the tip to K candidates, ``pending`` (..., K): the offset to the nearest pending
+    one (zeros when none is) and whether there is one."""
+    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
+    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(offset.shape[-2]))  # one-hot of the nearest
+    has = pending.any(-1)
+    return (offset * (chosen * ops.as_float(has)[..., None])[..., None]).sum(-2), has
+
+
 def feature_count(name: str) -> int:
     """How many features ``name`` appends."""
     if name not in FEATURES:
@@ -80,11 +89,7 @@ def suction_debris_targets(observation, *, cavities: int, debris: int):
     position = slots[..., 0:3]
     visible, held, delivered = slots[..., 3] > 0.5, slots[..., 4] > 0.5, slots[..., 5] > 0.5
     pending = visible & ~held & ~delivered
-    offset = position - tip[..., None, :]
-    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
-    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(debris))  # one-hot of the nearest slot
-    has_pin = pending.any(-1)
-    to_pin = (offset * (chosen * ops.as_float(has_pin)[..., None])[..., None]).sum(-2)
+    to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
     holding = held.any(-1)
     handoff = observation[..., -3:]
     held_position = (position * ops.as_float(held)[..., None]).sum(-2)  # at most one pin is held
@@ -124,11 +129,7 @@ def suction_debris_routes(observation, *, cavities: int, debris: int, cavity_cen
     centres = ops.constant(cavity_centres)  # (C, 2)
     targets = ops.concatenate([centres, ops.constant(cavity_targets_z)[:, None]])  # (C, 3)
     pending = (levels >= ops.constant(blood_threshold_fraction)) & (levels > 0.0)
-    offset = targets - tip[..., None, :]
-    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
-    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(cavities))
-    has_cavity = pending.any(-1)
-    to_cavity = (offset * (chosen * ops.as_float(has_cavity)[..., None])[..., None]).sum(-2)
+    to_cavity, has_cavity = _nearest(ops, targets - tip[..., None, :], pending)
 
     mouth2 = float(cavity_mouth_radius) ** 2
 
@@ -174,11 +175,7 @@ def suction_debris_cleared_pins(observation, *, cavities: int, debris: int, cavi
     cleared = (levels < ops.constant(blood_threshold_fraction)) | (levels <= 0.0)  # (..., C)
     in_cleared = (home * ops.as_float(cleared)[..., None, :]).sum(-1) > 0.5  # (..., D)
     pending = (slots[..., 3] > 0.5) & (slots[..., 4] < 0.5) & (slots[..., 5] < 0.5) & in_cleared
-    offset = position - tip[..., None, :]
-    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
-    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(debris))
-    has_pin = pending.any(-1)
-    to_pin = (offset * (chosen * ops.as_float(has_pin)[..., None])[..., None]).sum(-2)
+    to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
     # the climb toward it, as suction_debris_routes measures its own
     mouth2 = float(cavity_mouth_radius) ** 2
     target = tip + to_pin
