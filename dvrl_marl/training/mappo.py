@@ -142,6 +142,16 @@ class MappoConfig:
     # validation (and so the best checkpoint) with the policies acting with their exploration noise, seeded
     # (PPO optimises the noisy policy; see NumpyPolicy.with_noise); the deterministic figure is measured after
     evaluate_with_noise: bool = False
+    # behaviour cloning before PPO (see dvrl_marl.training.pretrain): "" off, "scripted": the scripted experts of
+    # the learning seats, recorded over bc_episodes episodes with DART noise bc_action_noise. A run that uses it
+    # learns from demonstrations (reported apart from the runs from scratch).
+    bc_expert: str = ""
+    bc_episodes: int = 256
+    bc_action_noise: float = 0.3
+    bc_epochs: int = 30
+    bc_learning_rate: float = 1e-3
+    # PPO steps (parallel env steps) at the start of the run during which only the critic learns, the actor frozen
+    critic_warmup_steps: int = 0
     # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
     # Collection always runs on CPU (the env is numpy; a few hundred worlds per step are latency-bound on a GPU).
     device: str = "cpu"
@@ -160,7 +170,7 @@ class MappoConfig:
         return self.easy_start * (self.anneal_end - progress) / (self.anneal_end - self.anneal_begin)
 
 
-_TABLES = {"run": None, "ppo": None, "model": None, "curriculum": None, "shaping": None}
+_TABLES = {"run": None, "ppo": None, "model": None, "curriculum": None, "shaping": None, "pretrain": None}
 
 
 def load_config(path) -> MappoConfig:
@@ -192,6 +202,14 @@ def load_config(path) -> MappoConfig:
     for key in ("total_steps", "num_envs", "rollout_steps", "eval_every", "eval_episodes", "epochs", "minibatches"):
         if int(getattr(config, key)) < 1:
             raise ValueError(f"{path}: {key} must be >= 1, got {getattr(config, key)!r}")
+    if config.bc_expert not in ("", "scripted"):
+        raise ValueError(f"{path}: bc_expert must be \"\" (no cloning) or \"scripted\", got {config.bc_expert!r}")
+    if config.bc_expert and (int(config.bc_episodes) < 1 or int(config.bc_epochs) < 1
+                             or not config.bc_action_noise >= 0.0 or not config.bc_learning_rate > 0.0):
+        raise ValueError(f"{path}: bc_episodes and bc_epochs must be >= 1, bc_action_noise >= 0 and "
+                         "bc_learning_rate > 0")
+    if not int(config.critic_warmup_steps) >= 0:
+        raise ValueError(f"{path}: critic_warmup_steps must be >= 0, got {config.critic_warmup_steps!r}")
     if not config.bounds_loss_coef >= 0.0:
         raise ValueError(f"{path}: bounds_loss_coef must be >= 0, got {config.bounds_loss_coef!r}")
     if not config.initial_std > 0.0 or not config.final_std >= 0.0:
@@ -373,10 +391,16 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
             self.feature_spec = feature_spec
             self.nets = nn.ModuleList(mlp(inputs + extra, outputs) for _ in agents)
 
+        def with_features(self, x):
+            """The observation with the configured features appended (what the normaliser sees)."""
+            return x if self.feature_spec is None else features.apply(self.feature_spec, x)
+
+        def agent_forward(self, x, index: int):
+            """Agent ``index``'s output on its own observations ``(..., d)`` (behaviour cloning)."""
+            return self.nets[index](self.norm(self.with_features(x)))
+
         def forward(self, x):
-            if self.feature_spec is not None:
-                x = features.apply(self.feature_spec, x)
-            x = self.norm(x)
+            x = self.norm(self.with_features(x))
             return torch.stack([net(x[..., i, :]) for i, net in enumerate(self.nets)], dim=-2)
 
     class CentralCritic(nn.Module):
@@ -631,6 +655,58 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     if resume and (out / "best.json").is_file():
         best_success, best_blood = json.loads((out / "best.json").read_text())
     last = {}
+
+    def evaluate(steps: int, easy: float, episode_success: float) -> dict:
+        """Validation of the current actors (with the scripted partner, if any): a progress row, the best
+        checkpoint's policies, TensorBoard and the log."""
+        nonlocal best_success, best_blood
+        seats = _learned_seats(actor_net, agents, out, config, seed, steps, actor_head.log_std)
+        if surgeon is not None:
+            seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
+        result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
+                                       **_eval_kwargs(config))
+        if result["success_rate"] > best_success or (result["success_rate"] == best_success and
+                                                     result["mean_blood_removed_ml"] > best_blood):
+            best_success, best_blood = result["success_rate"], result["mean_blood_removed_ml"]
+            shutil.copytree(out / "policies", out / "policies_best", dirs_exist_ok=True)
+            (out / "best.json").write_text(json.dumps([best_success, best_blood]))
+        row = {"steps": steps, "success_rate": result["success_rate"],
+               "blood_removed_ml": result["mean_blood_removed_ml"],
+               "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],
+               "easy_fraction": easy, "episode_success": episode_success, "wall_seconds": time.perf_counter() - start}
+        with progress_file.open("a", newline="") as handle:
+            csv.writer(handle).writerow([row[k] for k in ("steps", "success_rate", "blood_removed_ml", "median_steps",
+                                                          "contact_steps", "easy_fraction", "episode_success",
+                                                          "wall_seconds")])
+        if writer is not None:
+            writer.add_scalar("eval/success_rate", result["success_rate"], steps)
+            writer.add_scalar("eval/blood_removed_ml", result["mean_blood_removed_ml"], steps)
+            writer.add_scalar("eval/contact_steps", result["mean_contact_steps"], steps)
+        log(f"{config.name} seed {seed} @ {steps:,d} steps: success {result['success_rate']:.2f}, "
+            f"blood removed {result['mean_blood_removed_ml']:.1f} ml, "
+            f"debris delivered {result['mean_debris_delivered']:.2f}, "
+            f"contacts {result['mean_contact_steps']:.1f}, {time.perf_counter() - start:.0f} s")
+        return row
+
+    if config.bc_expert and steps_done == 0:  # demonstrations first (dvrl_marl.training.pretrain)
+        from dvrl_marl.training import pretrain
+
+        began = time.perf_counter()
+        recorded = pretrain.record_expert(config, seed)
+        summary = {"expert": config.bc_expert, "episodes": int(config.bc_episodes),
+                   "action_noise": config.bc_action_noise, "epochs": int(config.bc_epochs), "agents": {}}
+        for index, agent in enumerate(agents):
+            observations, labels = recorded[agent]
+            loss = pretrain.clone_actor(actor_net, index, observations, labels, tool_head=config.tool_head,
+                                        epochs=config.bc_epochs, learning_rate=config.bc_learning_rate, seed=seed)
+            summary["agents"][agent] = {"transitions": int(len(observations)), "final_loss": loss}
+        summary["wall_seconds"] = time.perf_counter() - began
+        (out / "pretrain.json").write_text(json.dumps(summary, indent=2) + "\n")
+        fitted = ", ".join(f"{agent}: {value['transitions']:,d} transitions, loss {value['final_loss']:.4f}"
+                           for agent, value in summary["agents"].items())
+        log(f"{config.name} seed {seed}: cloned the {config.bc_expert} expert ({fitted}) in "
+            f"{summary['wall_seconds']:.0f} s")
+        last = evaluate(0, config.easy_fraction(0.0), 0.0)  # what the clone does before PPO
     # Where the time goes (benchmarks/ray_scaling.py reads it from result.json): collecting vs. updating.
     timing = {"collect_seconds": 0.0, "learn_seconds": 0.0, "steps": 0, "collectors": collectors.count}
     try:
@@ -696,6 +772,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                                                                        config.tool_head)
                         total_loss = total_loss + bounds
                         sums["loss_bounds"] = sums.get("loss_bounds", 0.0) + float(bounds.detach())
+                    if steps_done <= config.critic_warmup_steps:  # the actor frozen while the critic learns
+                        total_loss = losses["loss_critic"]
                     optimiser.zero_grad()
                     total_loss.backward()
                     torch.nn.utils.clip_grad_norm_(loss_module.parameters(), config.max_grad_norm)
@@ -707,7 +785,10 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             observed = torch.from_numpy(obs_buf).to(device)
             if actor_net.feature_spec is not None:  # the networks normalise observation + features
                 observed = features.apply(actor_net.feature_spec, observed)
-            norms["observation"].update(observed)
+            # A clone keeps the input scaling it was fitted with (refitting it to the rollouts took one from 0.88
+            # success to 0.00 while its weights were frozen).
+            if not config.bc_expert:
+                norms["observation"].update(observed)
             if "state" in norms:
                 norms["state"].update(torch.from_numpy(state_buf).to(device))
             else:
@@ -734,39 +815,11 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             final = steps_done >= total
             if steps_done >= next_eval or final:
                 next_eval += config.eval_every
-                seats = _learned_seats(actor_net, agents, out, config, seed, steps_done, actor_head.log_std)
-                if surgeon is not None:
-                    seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
-                result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
-                                               **_eval_kwargs(config))
-                if result["success_rate"] > best_success or (result["success_rate"] == best_success and
-                                                             result["mean_blood_removed_ml"] > best_blood):
-                    best_success, best_blood = result["success_rate"], result["mean_blood_removed_ml"]
-                    shutil.copytree(out / "policies", out / "policies_best", dirs_exist_ok=True)
-                    (out / "best.json").write_text(json.dumps([best_success, best_blood]))
-                last = {"steps": steps_done, "success_rate": result["success_rate"],
-                        "blood_removed_ml": result["mean_blood_removed_ml"],
-                        "median_steps": result["median_steps_to_completion"],
-                        "contact_steps": result["mean_contact_steps"],
-                        "easy_fraction": easy, "episode_success": successes / max(episodes_ended, 1),
-                        "wall_seconds": time.perf_counter() - start}
-                episodes_ended = successes = 0
-                delivered_sum = blood_left_sum = 0.0
-                with progress_file.open("a", newline="") as handle:
-                    csv.writer(handle).writerow([last[k] for k in ("steps", "success_rate", "blood_removed_ml",
-                                                                   "median_steps", "contact_steps", "easy_fraction",
-                                                                   "episode_success", "wall_seconds")])
-                if writer is not None:
-                    writer.add_scalar("eval/success_rate", result["success_rate"], steps_done)
-                    writer.add_scalar("eval/blood_removed_ml", result["mean_blood_removed_ml"], steps_done)
-                    writer.add_scalar("eval/contact_steps", result["mean_contact_steps"], steps_done)
                 if progress:
                     print(file=sys.stderr)
-                log(f"{config.name} seed {seed} @ {steps_done:,d} steps: success {result['success_rate']:.2f}, "
-                    f"blood removed {result['mean_blood_removed_ml']:.1f} ml, "
-                    f"debris delivered {result['mean_debris_delivered']:.2f}, "
-                    f"contacts {result['mean_contact_steps']:.1f}, "
-                    f"{time.perf_counter() - start:.0f} s")
+                last = evaluate(steps_done, easy, successes / max(episodes_ended, 1))
+                episodes_ended = successes = 0
+                delivered_sum = blood_left_sum = 0.0
             if steps_done >= next_checkpoint or final:
                 next_checkpoint += config.checkpoint_every
                 tmp = checkpoint.with_suffix(".tmp")

@@ -1,0 +1,98 @@
+"""Behaviour cloning of the scripted experts into a MAPPO run's actors, before PPO takes over.
+
+This is the demonstrations route of the partner-seat configurations (``[pretrain] bc_expert = "scripted"``): it is
+off by default, and a run that uses it learns *from demonstrations*, so its figures are reported apart from the
+"from scratch" ones. Why it exists: PPO alone never learnt the grasper's job beside the scripted suction (0 % in
+every variant measured, ``baselines/README.md``), while a clone of the scripted surgeon succeeds most of the time;
+PPO then fine-tunes the clone on the team's reward.
+
+- :func:`record_expert` plays the scripted expert in each learning seat (the configuration's scripted partner in
+  the other) over ``bc_episodes`` default-task episodes from training seeds, executing the expert's motion plus
+  Gaussian noise of standard deviation ``bc_action_noise`` while labelling each state with the expert's own
+  action (DART, Laskey et al. 2017: the clone sees how the expert recovers from the errors it will make).
+- :func:`clone_actor` fits one agent's actor mean to those labels (squared error on the motion, clipped to the
+  action box; with the switch tool head, cross-entropy of the open/closed logit), observation normaliser first.
+- The trainer then runs PPO with the actor frozen for ``critic_warmup_steps`` (only the critic learns: advantages
+  from an untrained critic would push the clone off what it learnt before the critic knows its value).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["record_expert", "clone_actor"]
+
+
+def record_expert(config, seed: int) -> dict:
+    """``{agent: (observations (M, obs_dim), expert actions (M, 4))}`` for each learning seat of ``config``."""
+    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.training import mappo, teams
+
+    episodes = int(config.bc_episodes)
+    surgeon = None if config.surgeon == "none" else config.surgeon
+    env = suction_debris_v0.batched_env(num_envs=episodes, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
+                                        autoreset_mode="disabled", **config.env)
+    agents = list(env.possible_agents)
+    experts = {agent: teams.seat(config.bc_expert, agent, env) for agent in agents}
+    # seeds of their own: below the training worlds' (TRAIN_SEED_BASE * (seed + 1) on), far from evaluation's
+    rng = np.random.default_rng([seed, 7])
+    observations, _ = env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) - episodes)
+    recorded = {agent: ([], []) for agent in agents}
+    running = np.ones(episodes, dtype=bool)
+    for _ in range(env.params.max_cycles):
+        actions = {}
+        for agent in agents:
+            label = np.asarray(experts[agent](observations[agent]), dtype=np.float64)
+            recorded[agent][0].append(observations[agent][running].astype(np.float32))
+            recorded[agent][1].append(label[running].astype(np.float32))
+            executed = label.copy()
+            executed[:, :3] = np.clip(label[:, :3] + rng.normal(0.0, config.bc_action_noise, (episodes, 3)),
+                                      -1.0, 1.0)
+            actions[agent] = executed
+        observations, _, terminations, truncations, _ = env.step(actions)
+        running &= ~(terminations[agents[0]] | truncations[agents[0]])
+        if not running.any():
+            break
+    env.close()
+    return {agent: (np.concatenate(obs), np.concatenate(act)) for agent, (obs, act) in recorded.items()}
+
+
+def clone_actor(actor_net, index: int, observations: np.ndarray, actions: np.ndarray, *, tool_head: str,
+                epochs: int, learning_rate: float, batch_size: int = 4096, seed: int = 0) -> float:
+    """Fit agent ``index``'s actor mean to ``actions`` on ``observations`` (see the module documentation); updates
+    the actors' observation normaliser with these observations first. Returns the last epoch's mean loss."""
+    import torch
+    from torch.nn import functional
+
+    device = next(actor_net.parameters()).device
+    x = torch.from_numpy(np.ascontiguousarray(observations)).to(device)
+    y = torch.from_numpy(np.ascontiguousarray(actions)).to(device)
+    with torch.no_grad():
+        actor_net.norm.update(actor_net.with_features(x))
+    network = actor_net.nets[index]
+    optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
+    generator = torch.Generator().manual_seed(seed)
+    count = x.shape[0]
+    steps_per_epoch = max(count // batch_size, 1)
+    schedule = torch.optim.lr_scheduler.LambdaLR(  # annealed to 0: a sharp fit where the expert switches
+        optimiser, lambda step: max(1.0 - step / (epochs * steps_per_epoch), 0.0))
+    last = float("nan")
+    for _ in range(int(epochs)):
+        order = torch.randperm(count, generator=generator).to(device)
+        total = 0.0
+        for step in range(steps_per_epoch):
+            chosen = order[step * batch_size:(step + 1) * batch_size]
+            loc = actor_net.agent_forward(x[chosen], index)
+            target = y[chosen]
+            if tool_head == "switch":
+                loss = ((loc[:, :3] - target[:, :3].clamp(-1.0, 1.0)) ** 2).sum(-1).mean()
+                loss = loss + functional.binary_cross_entropy_with_logits(loc[:, 3], (target[:, 3] > 0.0).float())
+            else:
+                loss = ((loc - target.clamp(-1.0, 1.0)) ** 2).sum(-1).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            total += float(loss.detach())
+        last = total / steps_per_epoch
+    return last

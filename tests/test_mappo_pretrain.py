@@ -1,0 +1,132 @@
+"""Behaviour cloning before MAPPO (``[pretrain]``): the recorded labels are the expert's own actions, the clone
+acts like the expert, the run records what it cloned and evaluates the clone before PPO, the critic warm-up
+freezes the actor, and the clone's observation scaling stays as it was fitted."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("torchrl")
+
+from dvrl_marl.agents.collaborative import ScriptedSurgeon  # noqa: E402
+from dvrl_marl.envs import suction_debris_v0  # noqa: E402
+from dvrl_marl.training import mappo, pretrain  # noqa: E402
+
+CONFIG = """
+[run]
+algorithm = "mappo"
+total_steps = 2048
+num_envs = 32
+rollout_steps = 16
+eval_every = 1024
+eval_episodes = 4
+checkpoint_every = 1024
+surgeon = "scripted"
+surgeon_seat = "suction"
+[env]
+reward_type = "dense"
+max_cycles = {max_cycles}
+blood_ml = [0.0, 0.0]
+[ppo]
+epochs = 2
+minibatches = 2
+[model]
+hidden = [32, 32]
+initial_std = 0.3
+tool_head = "switch"
+observation_features = "suction_debris_cleared_pins"
+[pretrain]
+bc_expert = "scripted"
+bc_episodes = {episodes}
+bc_action_noise = 0.3
+bc_epochs = {epochs}
+critic_warmup_steps = 1024
+"""
+
+
+def _config(tmp_path, max_cycles=40, episodes=4, epochs=2):
+    path = tmp_path / "bc.toml"
+    path.write_text(CONFIG.format(max_cycles=max_cycles, episodes=episodes, epochs=epochs))
+    return mappo.load_config(path)
+
+
+def test_recorded_labels_are_the_experts_actions(tmp_path):
+    config = _config(tmp_path, max_cycles=60)
+    recorded = pretrain.record_expert(config, seed=0)
+    assert list(recorded) == ["grasper"]  # only the learning seat; the scripted suction is the partner
+    observations, labels = recorded["grasper"]
+    env = suction_debris_v0.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="suction",
+                                        autoreset_mode="disabled", **config.env)
+    expert = ScriptedSurgeon.for_env(env)
+    assert observations.shape == (4 * 60, env.observation_space("grasper").shape[0]) and labels.shape == (240, 4)
+    # (observations are kept as float32: a state on one of the expert's thresholds may round across it)
+    same = np.all(np.abs(labels - expert(observations.astype(np.float64))) < 1e-4, axis=1)
+    assert same.mean() > 0.99
+    # DART: the executed motion was noisy, so the episodes leave the expert's own path (the states differ)
+    noiseless = config.__class__(**{**config.__dict__, "bc_action_noise": 0.0})
+    quiet, _ = pretrain.record_expert(noiseless, seed=0)["grasper"]
+    assert not np.allclose(quiet, observations)
+
+
+def test_the_clone_acts_like_the_expert(tmp_path):
+    config = _config(tmp_path, max_cycles=150, episodes=16, epochs=40)
+    observations, labels = pretrain.record_expert(config, seed=0)["grasper"]
+    _, _, actor_net, _ = mappo._build_models(config, ["grasper"], observations.shape[1], 10, 4)
+    before = actor_net.agent_forward(torch.from_numpy(observations), 0).detach().numpy()
+    loss = pretrain.clone_actor(actor_net, 0, observations, labels, tool_head="switch", epochs=40,
+                                learning_rate=3e-3, batch_size=256)
+    after = actor_net.agent_forward(torch.from_numpy(observations), 0).detach().numpy()
+    error_before = np.mean((before[:, :3] - labels[:, :3]) ** 2)
+    error_after = np.mean((np.clip(after[:, :3], -1, 1) - labels[:, :3]) ** 2)
+    assert np.isfinite(loss) and error_after < 0.25 * error_before
+    assert np.mean(np.sign(after[:, 3]) == np.sign(labels[:, 3])) > 0.95  # the jaw opens and closes as the expert's
+    assert actor_net.norm.count > len(observations)  # the normaliser saw the demonstrations first
+
+
+def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
+    config = _config(tmp_path)
+    run = tmp_path / "run"
+    snapshots = []
+
+    def snapshot(iteration, collectors):
+        actor = collectors.collector.actor
+        snapshots.append({k: v.detach().clone() for k, v in actor.state_dict().items()})
+
+    mappo.train(config, 0, run, progress=False, log=lambda *_: None, on_iteration=snapshot)
+    summary = json.loads((run / "pretrain.json").read_text())
+    assert summary["expert"] == "scripted" and summary["agents"]["grasper"]["transitions"] == 4 * 40
+    with (run / "progress.csv").open() as handle:
+        assert [int(r["steps"]) for r in csv.DictReader(handle)] == [0, 1024, 2048]  # the clone, then PPO
+    weights = [k for k in snapshots[0] if "nets" in k and "weight" in k]
+    norm = [k for k in snapshots[0] if k.endswith("norm.mean")]
+    assert weights and norm
+    # iterations 1 and 2 (512 and 1024 steps) are the warm-up: the actor does not move
+    assert all(torch.equal(snapshots[0][k], snapshots[1][k]) for k in weights)
+    assert any(not torch.equal(snapshots[1][k], snapshots[3][k]) for k in weights)  # then PPO updates it
+    assert all(torch.equal(snapshots[0][k], snapshots[3][k]) for k in norm)  # the clone's scaling stays
+    # resuming does not clone again (the checkpoint holds the fine-tuned actor)
+    messages = []
+    mappo.train(config, 0, run, total_steps=2560, resume=True, progress=False, log=messages.append)
+    assert not any("cloned" in m for m in messages)
+
+
+@pytest.mark.parametrize("line, message", [
+    ('bc_expert = "human"', "bc_expert must be"),
+    ("bc_episodes = 0", "bc_episodes and bc_epochs must be >= 1"),
+    ("bc_action_noise = -0.1", "bc_action_noise >= 0"),
+    ("critic_warmup_steps = -5", "critic_warmup_steps must be >= 0"),
+])
+def test_bad_pretrain_settings_are_named(tmp_path, line, message):
+    path = tmp_path / "bad.toml"
+    text = CONFIG.format(max_cycles=40, episodes=4, epochs=2)
+    key = line.split(" = ")[0]
+    text = "\n".join(line if row.startswith(key + " ") else row for row in text.splitlines())
+    path.write_text(text)
+    with pytest.raises(ValueError) as error:
+        mappo.load_config(path)
+    assert str(path) in str(error.value) and message in str(error.value)
