@@ -45,13 +45,14 @@ bc_expert = "scripted"
 bc_episodes = {episodes}
 bc_action_noise = 0.3
 bc_epochs = {epochs}
+bc_dagger_rounds = {rounds}
 critic_warmup_steps = 1024
 """
 
 
-def _config(tmp_path, max_cycles=40, episodes=4, epochs=2):
+def _config(tmp_path, max_cycles=40, episodes=4, epochs=2, rounds=0):
     path = tmp_path / "bc.toml"
-    path.write_text(CONFIG.format(max_cycles=max_cycles, episodes=episodes, epochs=epochs))
+    path.write_text(CONFIG.format(max_cycles=max_cycles, episodes=episodes, epochs=epochs, rounds=rounds))
     return mappo.load_config(path)
 
 
@@ -73,6 +74,25 @@ def test_recorded_labels_are_the_experts_actions(tmp_path):
     assert not np.allclose(quiet, observations)
 
 
+def test_a_dagger_round_records_where_the_learner_drove_labelled_by_the_expert(tmp_path):
+    config = _config(tmp_path, max_cycles=30)
+    calls = []
+
+    def stand_still(index, observations, rng):  # the "clone": never moves, jaw closed
+        calls.append(index)
+        return np.tile([0.0, 0.0, 0.0, -1.0], (len(observations), 1))
+
+    observations, labels = pretrain.record_expert(config, seed=0, act=stand_still, round_index=1)["grasper"]
+    assert calls and set(calls) == {0}
+    tips = observations[:, 0:3].reshape(30, 4, 3)
+    np.testing.assert_allclose(tips, np.broadcast_to(tips[0], tips.shape), atol=1e-6)  # where it drove: nowhere
+    env = suction_debris_v0.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="suction",
+                                        autoreset_mode="disabled", **config.env)
+    expert = ScriptedSurgeon.for_env(env)
+    assert np.mean(np.all(np.abs(labels - expert(observations.astype(np.float64))) < 1e-4, axis=1)) > 0.99
+    assert np.abs(labels[:, :3]).max() > 0.5  # the expert would have moved
+
+
 def test_the_clone_acts_like_the_expert(tmp_path):
     config = _config(tmp_path, max_cycles=150, episodes=16, epochs=40)
     observations, labels = pretrain.record_expert(config, seed=0)["grasper"]
@@ -89,7 +109,7 @@ def test_the_clone_acts_like_the_expert(tmp_path):
 
 
 def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
-    config = _config(tmp_path)
+    config = _config(tmp_path, rounds=1)  # the demonstrations, then one DAgger round
     run = tmp_path / "run"
     snapshots = []
 
@@ -99,7 +119,7 @@ def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
 
     mappo.train(config, 0, run, progress=False, log=lambda *_: None, on_iteration=snapshot)
     summary = json.loads((run / "pretrain.json").read_text())
-    assert summary["expert"] == "scripted" and summary["agents"]["grasper"]["transitions"] == 4 * 40
+    assert summary["expert"] == "scripted" and summary["agents"]["grasper"]["transitions"] == 2 * 4 * 40
     with (run / "progress.csv").open() as handle:
         assert [int(r["steps"]) for r in csv.DictReader(handle)] == [0, 1024, 2048]  # the clone, then PPO
     weights = [k for k in snapshots[0] if "nets" in k and "weight" in k]
@@ -120,10 +140,11 @@ def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
     ("bc_episodes = 0", "bc_episodes and bc_epochs must be >= 1"),
     ("bc_action_noise = -0.1", "bc_action_noise >= 0"),
     ("critic_warmup_steps = -5", "critic_warmup_steps must be >= 0"),
+    ("bc_dagger_rounds = -1", "bc_dagger_rounds >= 0"),
 ])
 def test_bad_pretrain_settings_are_named(tmp_path, line, message):
     path = tmp_path / "bad.toml"
-    text = CONFIG.format(max_cycles=40, episodes=4, epochs=2)
+    text = CONFIG.format(max_cycles=40, episodes=4, epochs=2, rounds=0)
     key = line.split(" = ")[0]
     text = "\n".join(line if row.startswith(key + " ") else row for row in text.splitlines())
     path.write_text(text)

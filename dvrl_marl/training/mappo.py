@@ -41,6 +41,10 @@
   ``wait_at_home`` and ``cleared_pins_only`` lead the grasper's shaping to the scripted surgeon's waiting place
   when idle and to pins in cleared cavities only; ``[ppo] bounds_loss_coef`` keeps the actors' means inside the
   action box (:func:`bounds_loss`).
+- **Demonstrations** (``[pretrain]``, off by default; the partner-seat configurations only, reported apart from
+  the runs from scratch): ``bc_expert = "scripted"`` clones the scripted expert of each learning seat into its actor
+  before PPO (:mod:`dvrl_marl.training.pretrain`; the clone is evaluated at step 0 and keeps the observation scaling
+  it was fitted with), and ``critic_warmup_steps`` lets the critic learn the clone's values before the actor moves.
 - **Device**: ``device = "cuda"`` (or ``"auto"``) runs the update on a GPU; collection stays on CPU (numpy env), the
   collector acting with a CPU copy of the actor that each rollout refreshes.
 
@@ -150,6 +154,7 @@ class MappoConfig:
     bc_action_noise: float = 0.3
     bc_epochs: int = 30
     bc_learning_rate: float = 1e-3
+    bc_dagger_rounds: int = 0  # then this many DAgger rounds: the clone drives, the expert labels, the clone refits
     # PPO steps (parallel env steps) at the start of the run during which only the critic learns, the actor frozen
     critic_warmup_steps: int = 0
     # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
@@ -205,9 +210,10 @@ def load_config(path) -> MappoConfig:
     if config.bc_expert not in ("", "scripted"):
         raise ValueError(f"{path}: bc_expert must be \"\" (no cloning) or \"scripted\", got {config.bc_expert!r}")
     if config.bc_expert and (int(config.bc_episodes) < 1 or int(config.bc_epochs) < 1
-                             or not config.bc_action_noise >= 0.0 or not config.bc_learning_rate > 0.0):
-        raise ValueError(f"{path}: bc_episodes and bc_epochs must be >= 1, bc_action_noise >= 0 and "
-                         "bc_learning_rate > 0")
+                             or not config.bc_action_noise >= 0.0 or not config.bc_learning_rate > 0.0
+                             or int(config.bc_dagger_rounds) < 0):
+        raise ValueError(f"{path}: bc_episodes and bc_epochs must be >= 1, bc_action_noise >= 0, "
+                         "bc_learning_rate > 0 and bc_dagger_rounds >= 0")
     if not int(config.critic_warmup_steps) >= 0:
         raise ValueError(f"{path}: critic_warmup_steps must be >= 0, got {config.critic_warmup_steps!r}")
     if not config.bounds_loss_coef >= 0.0:
@@ -692,14 +698,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         from dvrl_marl.training import pretrain
 
         began = time.perf_counter()
-        recorded = pretrain.record_expert(config, seed)
-        summary = {"expert": config.bc_expert, "episodes": int(config.bc_episodes),
-                   "action_noise": config.bc_action_noise, "epochs": int(config.bc_epochs), "agents": {}}
-        for index, agent in enumerate(agents):
-            observations, labels = recorded[agent]
-            loss = pretrain.clone_actor(actor_net, index, observations, labels, tool_head=config.tool_head,
-                                        epochs=config.bc_epochs, learning_rate=config.bc_learning_rate, seed=seed)
-            summary["agents"][agent] = {"transitions": int(len(observations)), "final_loss": loss}
+        summary = pretrain.clone_experts(config, seed, actor_net, agents)
         summary["wall_seconds"] = time.perf_counter() - began
         (out / "pretrain.json").write_text(json.dumps(summary, indent=2) + "\n")
         fitted = ", ".join(f"{agent}: {value['transitions']:,d} transitions, loss {value['final_loss']:.4f}"

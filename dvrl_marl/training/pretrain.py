@@ -12,6 +12,7 @@ PPO then fine-tunes the clone on the team's reward.
   action (DART, Laskey et al. 2017: the clone sees how the expert recovers from the errors it will make).
 - :func:`clone_actor` fits one agent's actor mean to those labels (squared error on the motion, clipped to the
   action box; with the switch tool head, cross-entropy of the open/closed logit), observation normaliser first.
+- :func:`clone_experts` does both, then ``bc_dagger_rounds`` rounds of DAgger (the clone drives, the expert labels).
 - The trainer then runs PPO with the actor frozen for ``critic_warmup_steps`` (only the critic learns: advantages
   from an untrained critic would push the clone off what it learnt before the critic knows its value).
 """
@@ -20,11 +21,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["record_expert", "clone_actor"]
+__all__ = ["record_expert", "clone_actor", "clone_experts"]
 
 
-def record_expert(config, seed: int) -> dict:
-    """``{agent: (observations (M, obs_dim), expert actions (M, 4))}`` for each learning seat of ``config``."""
+def record_expert(config, seed: int, *, act=None, round_index: int = 0) -> dict:
+    """``{agent: (observations (M, obs_dim), expert actions (M, 4))}`` for each learning seat of ``config``, over
+    ``bc_episodes`` default-task episodes. ``act(index, observations) -> actions``: who drives (a DAgger round: the
+    clone acts, the expert labels what it visits); None: the expert with DART noise. ``round_index`` picks the
+    episodes' seeds (each round its own)."""
     from dvrl_marl.envs import suction_debris_v0
     from dvrl_marl.training import mappo, teams
 
@@ -35,19 +39,22 @@ def record_expert(config, seed: int) -> dict:
     agents = list(env.possible_agents)
     experts = {agent: teams.seat(config.bc_expert, agent, env) for agent in agents}
     # seeds of their own: below the training worlds' (TRAIN_SEED_BASE * (seed + 1) on), far from evaluation's
-    rng = np.random.default_rng([seed, 7])
-    observations, _ = env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) - episodes)
+    rng = np.random.default_rng([seed, 7, round_index])
+    observations, _ = env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) - episodes * (round_index + 1))
     recorded = {agent: ([], []) for agent in agents}
     running = np.ones(episodes, dtype=bool)
     for _ in range(env.params.max_cycles):
         actions = {}
-        for agent in agents:
+        for index, agent in enumerate(agents):
             label = np.asarray(experts[agent](observations[agent]), dtype=np.float64)
             recorded[agent][0].append(observations[agent][running].astype(np.float32))
             recorded[agent][1].append(label[running].astype(np.float32))
-            executed = label.copy()
-            executed[:, :3] = np.clip(label[:, :3] + rng.normal(0.0, config.bc_action_noise, (episodes, 3)),
-                                      -1.0, 1.0)
+            if act is None:
+                executed = label.copy()
+                executed[:, :3] = np.clip(label[:, :3] + rng.normal(0.0, config.bc_action_noise, (episodes, 3)),
+                                          -1.0, 1.0)
+            else:
+                executed = act(index, observations[agent], rng)
             actions[agent] = executed
         observations, _, terminations, truncations, _ = env.step(actions)
         running &= ~(terminations[agents[0]] | truncations[agents[0]])
@@ -57,18 +64,56 @@ def record_expert(config, seed: int) -> dict:
     return {agent: (np.concatenate(obs), np.concatenate(act)) for agent, (obs, act) in recorded.items()}
 
 
+def clone_experts(config, seed: int, actor_net, agents) -> dict:
+    """Record, clone, then ``bc_dagger_rounds`` DAgger rounds (Ross et al. 2011: the clone drives with the noise
+    PPO will start from, the expert labels every state it visits, the clone is refitted on everything so far: the
+    states where a clone gets stuck are the ones its expert never visited). Returns a summary for ``pretrain.json``."""
+    import torch
+
+    summary = {"expert": config.bc_expert, "episodes": int(config.bc_episodes), "action_noise": config.bc_action_noise,
+               "epochs": int(config.bc_epochs), "dagger_rounds": int(config.bc_dagger_rounds), "agents": {}}
+    std = float(config.initial_std)
+    device = next(actor_net.parameters()).device
+
+    def act(index, observations, rng):
+        with torch.no_grad():
+            x = torch.from_numpy(observations.astype(np.float32)).to(device)
+            loc = actor_net.agent_forward(x, index).cpu().numpy()
+        action = np.clip(loc + rng.normal(0.0, std, loc.shape), -1.0, 1.0).astype(np.float64)
+        if config.tool_head == "switch":  # the logit's more likely side, as the exported policy acts
+            action[:, 3] = np.where(loc[:, 3] > 0.0, 1.0, -1.0)
+        return action
+
+    data = record_expert(config, seed)
+    for round_index in range(int(config.bc_dagger_rounds) + 1):
+        if round_index:
+            visited = record_expert(config, seed, act=act, round_index=round_index)
+            data = {agent: (np.concatenate([data[agent][0], visited[agent][0]]),
+                            np.concatenate([data[agent][1], visited[agent][1]])) for agent in agents}
+        for index, agent in enumerate(agents):
+            observations, labels = data[agent]
+            loss = clone_actor(actor_net, index, observations, labels, tool_head=config.tool_head,
+                               epochs=config.bc_epochs, learning_rate=config.bc_learning_rate, seed=seed,
+                               update_norm=round_index == 0)
+            summary["agents"][agent] = {"transitions": int(len(observations)), "final_loss": loss}
+    return summary
+
+
 def clone_actor(actor_net, index: int, observations: np.ndarray, actions: np.ndarray, *, tool_head: str,
-                epochs: int, learning_rate: float, batch_size: int = 4096, seed: int = 0) -> float:
-    """Fit agent ``index``'s actor mean to ``actions`` on ``observations`` (see the module documentation); updates
-    the actors' observation normaliser with these observations first. Returns the last epoch's mean loss."""
+                epochs: int, learning_rate: float, batch_size: int = 4096, seed: int = 0,
+                update_norm: bool = True) -> float:
+    """Fit agent ``index``'s actor mean to ``actions`` on ``observations`` (see the module documentation); with
+    ``update_norm`` updates the actors' observation normaliser with these observations first. Returns the last
+    epoch's mean loss."""
     import torch
     from torch.nn import functional
 
     device = next(actor_net.parameters()).device
     x = torch.from_numpy(np.ascontiguousarray(observations)).to(device)
     y = torch.from_numpy(np.ascontiguousarray(actions)).to(device)
-    with torch.no_grad():
-        actor_net.norm.update(actor_net.with_features(x))
+    if update_norm:
+        with torch.no_grad():
+            actor_net.norm.update(actor_net.with_features(x))
     network = actor_net.nets[index]
     optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
     generator = torch.Generator().manual_seed(seed)
