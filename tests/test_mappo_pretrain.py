@@ -129,6 +129,10 @@ def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
     assert all(torch.equal(snapshots[0][k], snapshots[1][k]) for k in weights)
     assert any(not torch.equal(snapshots[1][k], snapshots[3][k]) for k in weights)  # then PPO updates it
     assert all(torch.equal(snapshots[0][k], snapshots[3][k]) for k in norm)  # the clone's scaling stays
+    from dvrl_marl import policies
+
+    learnt_from = policies.load(run / "policies" / "marl-grasper").spec["training"]["demonstrations"]
+    assert learnt_from == {"expert": "scripted", "episodes": 4, "action_noise": 0.3, "dagger_rounds": 1}
     # resuming does not clone again (the checkpoint holds the fine-tuned actor)
     messages = []
     mappo.train(config, 0, run, total_steps=2560, resume=True, progress=False, log=messages.append)

@@ -15,16 +15,20 @@ from dvrl_marl import policies
 from dvrl_marl.training import teams
 
 
-def test_marl_suction_is_shipped_and_loads_with_numpy_alone():
-    assert "marl-suction" in policies.available()
+@pytest.mark.parametrize("name, agent, feature_set", [
+    ("marl-suction", "suction", "suction_debris_routes"),
+    ("marl-grasper", "grasper", "suction_debris_cleared_pins"),
+])
+def test_shipped_marl_policy_loads_with_numpy_alone(name, agent, feature_set):
+    assert name in policies.available()
     code = ("import sys; sys.modules['torch'] = None; sys.modules['torchrl'] = None\n"
             "import numpy as np\n"
             "from dvrl_marl import policies\n"
-            "p = policies.load('marl-suction')\n"
+            f"p = policies.load({name!r})\n"
             "print(p.spec['agent'], p.spec['features']['name'], p(np.zeros(30)).shape)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == ["suction", "suction_debris_routes", "(4,)"]
+    assert result.stdout.split() == [agent, feature_set, "(4,)"]
 
 
 def test_marl_suction_clears_the_field_beside_the_scripted_surgeon():
@@ -36,6 +40,21 @@ def test_marl_suction_clears_the_field_beside_the_scripted_surgeon():
     # and its mean action (the policy called plainly) still clears blood: the learned routes, not the noise, do that
     plain = teams.evaluate_team_batched(teams.seats("marl-suction", "scripted"), episodes=30, seed=teams.EVAL_SEED)
     assert plain["mean_blood_removed_ml"] > 12.0
+
+
+def test_marl_grasper_collects_every_pin_beside_the_scripted_suction():
+    """Cloned from the scripted surgeon (DAgger) and fine-tuned by MAPPO; with its noise, on held-out seeds."""
+    result = teams.evaluate_team_batched(teams.seats("scripted", "marl-grasper", noise_from=teams.EVAL_SEED),
+                                         episodes=30, seed=teams.EVAL_SEED)
+    assert result["success_rate"] >= 0.9, result["success_rate"]
+    assert result["mean_contact_steps"] < 20.0
+
+
+def test_the_learned_team_works_together():
+    """Both learned seats, neither trained with the other (cross-play), acting as they trained."""
+    result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper", noise_from=teams.EVAL_SEED),
+                                         episodes=30, seed=teams.EVAL_SEED)
+    assert result["success_rate"] >= 0.85, result["success_rate"]
 
 
 def test_the_demo_seats_the_learned_suction_beside_the_scripted_surgeon(tmp_path):
@@ -50,3 +69,11 @@ def test_the_demo_seats_the_learned_suction_beside_the_scripted_surgeon(tmp_path
 def test_a_shipped_learned_policy_refuses_the_other_seat():
     with pytest.raises(ValueError, match="trained for the 'suction' seat"):
         teams.seat("marl-suction", "grasper")
+
+
+def test_the_demo_runs_the_whole_learned_team(tmp_path):
+    from dvrl_marl import demo
+
+    metrics = demo.run_demo(team="marl", surgeon="learned", out=tmp_path / "demo", video=False, progress=False)
+    assert metrics["team"] == "marl" and metrics["surgeon"] == "learned"
+    assert metrics["success"], metrics

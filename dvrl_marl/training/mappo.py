@@ -874,12 +874,20 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
         folder = out / "policies" / f"marl-{agent}"
         export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
-                                            "steps": steps}},
+                                            "steps": steps, **_demonstrations(config)}},
                      log_std=None if log_std is None else log_std[index])
         seats[agent] = policies.load(folder)
         if config.evaluate_with_noise:
             seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
     return seats
+
+
+def _demonstrations(config: MappoConfig) -> dict:
+    """What a policy learnt from besides its reward (recorded in its policy.json): nothing, or the cloned expert."""
+    if not config.bc_expert:
+        return {"demonstrations": None}
+    return {"demonstrations": {"expert": config.bc_expert, "episodes": int(config.bc_episodes),
+                               "action_noise": config.bc_action_noise, "dagger_rounds": int(config.bc_dagger_rounds)}}
 
 
 def _config_toml(config: MappoConfig) -> str:
