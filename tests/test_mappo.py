@@ -156,6 +156,11 @@ def test_cli_train_mappo(tmp_path):
     ("[nonsense]\nx = 1\n", "unknown table [nonsense]"),
     ("[run]\nalgorithm = 'mappo'\nnum_envs = 0\n", "num_envs must be >= 1"),
     ("[run\n", "not valid TOML"),
+    ("[pretrain]\nbc_expert = 'human'\n", "bc_expert must be"),
+    ("[pretrain]\nbc_expert = 'scripted'\nbc_episodes = 0\n", "bc_episodes and bc_epochs must be >= 1"),
+    ("[pretrain]\nbc_expert = 'scripted'\nbc_action_noise = -0.1\n", "bc_action_noise >= 0"),
+    ("[pretrain]\nbc_expert = 'scripted'\nbc_dagger_rounds = -1\n", "bc_dagger_rounds >= 0"),
+    ("[pretrain]\ncritic_warmup_steps = -5\n", "critic_warmup_steps must be >= 0"),
 ])
 def test_bad_configuration_names_file_and_key(tmp_path, text, message):
     path = tmp_path / "bad.toml"
