@@ -161,6 +161,12 @@ def test_cli_train_mappo(tmp_path):
     ("[pretrain]\nbc_expert = 'scripted'\nbc_action_noise = -0.1\n", "bc_action_noise >= 0"),
     ("[pretrain]\nbc_expert = 'scripted'\nbc_dagger_rounds = -1\n", "bc_dagger_rounds >= 0"),
     ("[pretrain]\ncritic_warmup_steps = -5\n", "critic_warmup_steps must be >= 0"),
+    ("[run]\nsurgeon = []\n", "non-empty list"),
+    ("[run]\nsurgeon = 3\n", "surgeon must be"),
+    ("[run]\nsurgeon = ['none', 'scripted']\n", "cannot be one of several"),
+    ("[run]\nsurgeon = ['scripted', 'no-such-policy']\nsurgeon_seat = 'suction'\n",
+     "surgeon 'no-such-policy' cannot fill the 'suction' seat"),
+    ("[run]\nsurgeon = 'marl-grasper'\nsurgeon_seat = 'suction'\n", "trained for the 'grasper' seat"),
 ])
 def test_bad_configuration_names_file_and_key(tmp_path, text, message):
     path = tmp_path / "bad.toml"

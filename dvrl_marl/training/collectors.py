@@ -57,7 +57,7 @@ class RolloutCollector:
         if actor is None:  # a collector of its own (a Ray actor): its own sampling stream too
             torch.manual_seed(int(np.random.SeedSequence([seed, index, steps_done]).generate_state(1)[0]))
         self.config, self.index = config, int(index)
-        surgeon = None if config.surgeon == "none" else config.surgeon
+        surgeon = mappo._partner(config, None, noise_from=mappo.TRAIN_SEED_BASE * (seed + 1) + 104_729 * (index + 1))
         train_env = dict(config.env)
         if config.contact_penalty is not None:
             train_env["contact_penalty"] = config.contact_penalty

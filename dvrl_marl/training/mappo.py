@@ -45,6 +45,10 @@
   the runs from scratch): ``bc_expert = "scripted"`` clones the scripted expert of each learning seat into its actor
   before PPO (:mod:`dvrl_marl.training.pretrain`; the clone is evaluated at step 0 and keeps the observation scaling
   it was fitted with), and ``critic_warmup_steps`` lets the critic learn the clone's values before the actor moves.
+- **Partners** (``[run] surgeon``): the seat that does not learn is filled by the scripted expert, a learned policy
+  or a list of these (:class:`dvrl_marl.training.teams.Partners`: world ``i`` gets partner ``i % K`` in the
+  demonstrations, the DAgger rounds, PPO and validation alike; learned partners act with their recorded noise).
+  Measured: a grasper cloned beside the scripted suction alone deadlocked beside learned suctions.
 - **Device**: ``device = "cuda"`` (or ``"auto"``) runs the update on a GPU; collection stays on CPU (numpy env), the
   collector acting with a CPU copy of the actor that each rollout refreshes.
 
@@ -95,7 +99,10 @@ class MappoConfig:
     eval_every: int = 2_000_000
     eval_episodes: int = 100
     checkpoint_every: int = 2_000_000
-    surgeon: str = "none"  # "none" | "scripted": the scripted expert fills surgeon_seat
+    # who fills surgeon_seat while the other seat learns: "none" (both learn), "scripted" (the built-in expert), a
+    # policy (a shipped name or a folder), or a list of these (teams.Partners: a share of the worlds each, in
+    # training, demonstrations and validation alike; learned partners act with their recorded noise)
+    surgeon: str | list = "none"
     surgeon_seat: str = "grasper"
     env: dict = field(default_factory=lambda: {"reward_type": "dense"})
     # PPO
@@ -202,8 +209,7 @@ def load_config(path) -> MappoConfig:
             raise ValueError(f"{path}: {key} must be true or false, got {getattr(config, key)!r}")
     if config.algorithm not in ALGORITHMS:
         raise ValueError(f"{path}: algorithm must be one of {ALGORITHMS}, got {config.algorithm!r}")
-    if config.surgeon not in ("none", "scripted"):
-        raise ValueError(f"{path}: surgeon must be 'none' or 'scripted', got {config.surgeon!r}")
+    _check_surgeon(path, config)
     for key in ("total_steps", "num_envs", "rollout_steps", "eval_every", "eval_episodes", "epochs", "minibatches"):
         if int(getattr(config, key)) < 1:
             raise ValueError(f"{path}: {key} must be >= 1, got {getattr(config, key)!r}")
@@ -597,8 +603,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     total = int(total_steps or config.total_steps)
-    surgeon = None if config.surgeon == "none" else config.surgeon
-    # The learner's view of the env (spaces, layout for the scripted partner in evaluation): one world.
+    surgeon = None if config.surgeon == "none" else "scripted"  # (who fills the seat does not change the spaces)
+    # The learner's view of the env (spaces, layout for the partner in evaluation): one world.
     env = suction_debris_v0.batched_env(num_envs=1, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
                                         autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)
@@ -668,7 +674,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         nonlocal best_success, best_blood
         seats = _learned_seats(actor_net, agents, out, config, seed, steps, actor_head.log_std)
         if surgeon is not None:
-            seats[config.surgeon_seat] = teams.seat("scripted", config.surgeon_seat, env)
+            seats[config.surgeon_seat] = _partner(config, env, noise_from=teams.VALIDATION_SEED)
         result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
                                        **_eval_kwargs(config))
         if result["success_rate"] > best_success or (result["success_rate"] == best_success and
@@ -880,6 +886,38 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
         if config.evaluate_with_noise:
             seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
     return seats
+
+
+def _check_surgeon(path, config: MappoConfig) -> None:
+    """``surgeon``: "none", or one or more partners that exist and were trained for ``surgeon_seat``."""
+    spec = config.surgeon
+    if spec == "none":
+        return
+    names = [spec] if isinstance(spec, str) else spec
+    if not isinstance(names, list) or not names or not all(isinstance(name, str) and name for name in names):
+        raise ValueError(f"{path}: surgeon must be \"none\", \"scripted\", a policy or a non-empty list of these, "
+                         f"got {spec!r}")
+    if "none" in names and len(names) > 1:
+        raise ValueError(f"{path}: surgeon \"none\" cannot be one of several partners")
+    if config.surgeon_seat not in suction_debris_v0.AGENTS:
+        raise ValueError(f"{path}: surgeon_seat must be one of {suction_debris_v0.AGENTS}, got {config.surgeon_seat!r}")
+    for name in names:
+        if name in ("scripted", "pipeline"):
+            continue
+        try:
+            teams.seat(name, config.surgeon_seat)
+        except (ValueError, FileNotFoundError, KeyError) as error:
+            raise ValueError(f"{path}: surgeon {name!r} cannot fill the {config.surgeon_seat!r} seat: {error}") from None
+
+
+def _partner(config: MappoConfig, env, noise_from: int):
+    """The filler of the partner seat (see MappoConfig.surgeon and teams.partner), or None; ``env``: the one whose
+    layout a scripted partner reads (None: a world of ``config.env``)."""
+    if config.surgeon == "none":
+        return None
+    if env is None:
+        env = suction_debris_v0.parallel_env(**config.env)
+    return teams.partner(config.surgeon, config.surgeon_seat, env, noise_from=noise_from)
 
 
 def _demonstrations(config: MappoConfig) -> dict:

@@ -33,7 +33,7 @@ def record_expert(config, seed: int, *, act=None, round_index: int = 0) -> dict:
     from dvrl_marl.training import mappo, teams
 
     episodes = int(config.bc_episodes)
-    surgeon = None if config.surgeon == "none" else config.surgeon
+    surgeon = mappo._partner(config, None, noise_from=mappo.TRAIN_SEED_BASE * (seed + 1) - 31 * (round_index + 1))
     env = suction_debris_v0.batched_env(num_envs=episodes, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
                                         autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)

@@ -19,7 +19,8 @@ import numpy as np
 
 from dvrl_marl.envs import suction_debris_v0
 
-__all__ = ["evaluate_team_batched", "seat", "seats", "cross_play", "EVAL_SEED", "VALIDATION_SEED"]
+__all__ = ["evaluate_team_batched", "seat", "seats", "partner", "Partners", "cross_play", "EVAL_SEED",
+           "VALIDATION_SEED"]
 
 #: Reported evaluations use seeds EVAL_SEED, EVAL_SEED + 1, ...: no training world ever draws them.
 EVAL_SEED = 900_000_000
@@ -71,6 +72,51 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     if noise_from is not None:
         return policy.with_noise(noise_seed(agent, noise_from))
     return policy
+
+
+class Partners:
+    """Several partners filling one seat of a batch of worlds, a share each: world ``i`` is played by
+    ``members[i % len(members)]`` (a fixed assignment, so each partner keeps the same worlds across resets)."""
+
+    def __init__(self, members, names):
+        if not members:
+            raise ValueError("Partners: no partner given")
+        self.members, self.names = list(members), [str(name) for name in names]
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        observations = np.asarray(observations)
+        actions = np.empty((len(observations), 4), dtype=np.float64)
+        count = len(self.members)
+        for index, member in enumerate(self.members):
+            if index < len(observations):
+                actions[index::count] = member(observations[index::count])
+        return actions
+
+    def reset(self) -> None:
+        for member in self.members:
+            if hasattr(member, "reset"):
+                member.reset()
+
+    def __repr__(self) -> str:
+        return f"Partners({self.names})"
+
+
+def partner(spec, agent: str, env=None, noise_from: int | None = None):
+    """The filler of a trainer's partner seat ``agent``: None for ``"none"``; a seat name (see :func:`seat`); or a
+    list of them (:class:`Partners`, a share of the worlds each). Learned partners that record their exploration
+    noise act with it (seeded from ``noise_from``, one stream per partner): the partner a trainee meets varies as a
+    person's hand does."""
+    if spec is None or spec == "none":
+        return None
+    names = [spec] if isinstance(spec, str) else list(spec)
+    members = []
+    for index, name in enumerate(names):
+        member = seat(name, agent, env)
+        spec_of = getattr(member, "spec", None)
+        if noise_from is not None and spec_of is not None and (spec_of.get("exploration") or {}).get("std"):
+            member = member.with_noise(noise_seed(agent, int(noise_from) + 7919 * index))
+        members.append(member)
+    return members[0] if isinstance(spec, str) else Partners(members, names)
 
 
 def seats(suction, grasper, noise_from: int | None = None) -> dict:
