@@ -471,3 +471,10 @@ def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
     # ... its cavity cleared: the target, exactly as without the rule
     state[0, layout["blood"].start + cavity] = 0.0
     assert grasp.potential(state)[0] == pytest.approx(plain.potential(state)[0])
+
+
+@pytest.mark.parametrize("path", sorted(p for pattern in ("suction_debris_mappo*.toml", "suction_debris_ippo*.toml")
+                                       for p in (ROOT / "baselines" / "configs").glob(pattern)), ids=lambda p: p.stem)
+def test_every_shipped_multi_agent_configuration_loads(path):
+    config = mappo.load_config(path)
+    assert config.name == path.stem and config.algorithm in mappo.ALGORITHMS
