@@ -43,11 +43,30 @@ def test_marl_suction_clears_the_field_beside_the_scripted_surgeon():
 
 
 def test_marl_grasper_collects_every_pin_beside_the_scripted_suction():
-    """Cloned from the scripted surgeon (DAgger) and fine-tuned by MAPPO; with its noise, on held-out seeds."""
+    """Cloned from the scripted surgeon (DAgger, beside scripted and learned suctions) and fine-tuned by MAPPO; with
+    its noise, on held-out seeds."""
     result = teams.evaluate_team_batched(teams.seats("scripted", "marl-grasper", noise_from=teams.EVAL_SEED),
                                          episodes=30, seed=teams.EVAL_SEED)
     assert result["success_rate"] >= 0.9, result["success_rate"]
     assert result["mean_contact_steps"] < 20.0
+
+
+def test_the_learned_team_works_together():
+    """Both shipped learned seats, acting as they trained, on held-out seeds (the grasper trained beside a population
+    of suctions, marl-suction among them; cross-play with suctions it never met is in baselines/README.md)."""
+    result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper", noise_from=teams.EVAL_SEED),
+                                         episodes=30, seed=teams.EVAL_SEED)
+    assert result["success_rate"] >= 0.85, result["success_rate"]
+    assert result["mean_debris_delivered"] > 2.7
+
+
+def test_the_demo_runs_the_whole_learned_team(tmp_path):
+    from dvrl_marl import demo
+
+    metrics = demo.run_demo(team="marl", surgeon="learned", out=tmp_path / "demo", video=False, progress=False)
+    assert metrics["team"] == "marl" and metrics["surgeon"] == "learned"
+    assert metrics["success"], metrics
+    assert metrics["debris_delivered"] == metrics["debris_total"]
 
 
 def test_the_demo_seats_the_learned_suction_beside_the_scripted_surgeon(tmp_path):

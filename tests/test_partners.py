@@ -102,3 +102,7 @@ hidden = [16, 16]
     assert sorted(p.name for p in (run / "policies").iterdir()) == ["marl-grasper"]
     assert 'surgeon = ["scripted", "marl-suction"]' in (run / "config.toml").read_text()
     assert mappo.load_config(run / "config.toml").surgeon == ["scripted", "marl-suction"]
+    import json
+
+    spec = json.loads((run / "policies" / "marl-grasper" / "policy.json").read_text())
+    assert spec["training"]["partners"] == ["scripted", "marl-suction"]

@@ -880,7 +880,8 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
         folder = out / "policies" / f"marl-{agent}"
         export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
-                                            "steps": steps, **_demonstrations(config)}},
+                                            "steps": steps, "partners": _partners(config),
+                                            **_demonstrations(config)}},
                      log_std=None if log_std is None else log_std[index])
         seats[agent] = policies.load(folder)
         if config.evaluate_with_noise:
@@ -918,6 +919,13 @@ def _partner(config: MappoConfig, env, noise_from: int):
     if env is None:
         env = suction_debris_v0.parallel_env(**config.env)
     return teams.partner(config.surgeon, config.surgeon_seat, env, noise_from=noise_from)
+
+
+def _partners(config: MappoConfig) -> list:
+    """Who filled the other seat while this policy learnt (recorded in its policy.json): [] when both learnt."""
+    if config.surgeon == "none":
+        return []
+    return [config.surgeon] if isinstance(config.surgeon, str) else list(config.surgeon)
 
 
 def _demonstrations(config: MappoConfig) -> dict:
