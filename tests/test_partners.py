@@ -106,3 +106,22 @@ hidden = [16, 16]
 
     spec = json.loads((run / "policies" / "marl-grasper" / "policy.json").read_text())
     assert spec["training"]["partners"] == ["scripted", "marl-suction"]
+
+
+def test_the_thread_cap_reaches_numpy_blas_too():
+    """torch_threads caps the BLAS pool as well: a learned partner's numpy forward pass runs in the trainer."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    import torch
+
+    before_torch = torch.get_num_threads()
+    pools = [pool for pool in threadpoolctl.threadpool_info() if pool["user_api"] == "blas"]
+    if not pools:
+        pytest.skip("numpy has no BLAS pool that threadpoolctl can see")
+    before = pools[0]["num_threads"]
+    try:
+        mappo.limit_threads(1)
+        assert torch.get_num_threads() == 1
+        assert all(pool["num_threads"] == 1 for pool in threadpoolctl.threadpool_info() if pool["user_api"] == "blas")
+    finally:
+        torch.set_num_threads(before_torch)
+        threadpoolctl.threadpool_limits(before, user_api="blas")

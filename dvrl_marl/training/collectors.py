@@ -53,7 +53,7 @@ class RolloutCollector:
 
         torch = mappo._torch()
         if torch_threads:
-            torch.set_num_threads(int(torch_threads))
+            mappo.limit_threads(int(torch_threads))
         if actor is None:  # a collector of its own (a Ray actor): its own sampling stream too
             torch.manual_seed(int(np.random.SeedSequence([seed, index, steps_done]).generate_state(1)[0]))
         self.config, self.index = config, int(index)
