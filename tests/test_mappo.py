@@ -125,7 +125,10 @@ def test_resume_continues_from_the_checkpoint(tmp_path):
     final = mappo.train(config, 0, run, total_steps=2048, resume=True, progress=False, log=messages.append)
     assert any("resumed" in m and "1024" in m for m in messages)
     assert final["steps"] == 2048
-    assert [int(r["steps"]) for r in _rows(run)] == [1024, 2048]  # the log continues, nothing repeated
+    rows = _rows(run)
+    assert [int(r["steps"]) for r in rows] == [1024, 2048]  # the log continues, nothing repeated
+    # wall-clock is the run's, across sessions: the resumed row counts the first session's seconds too
+    assert float(rows[1]["wall_seconds"]) > first["wall_seconds"] > 0
     second = torch.load(run / "checkpoint.pt", weights_only=False)
     changed = [not torch.equal(first["loss_module"][k], second["loss_module"][k]) for k in first["loss_module"]]
     assert any(changed), "resumed training did not update the networks"

@@ -627,7 +627,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     optimiser = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate)
     # running variance of the discounted return, per agent: rewards are divided by its square root (reward scaling)
     return_var_state = {"mean": np.zeros(count), "var": np.ones(count), "count": 1e-4}
-    steps_done, iteration, rng_states = 0, 0, None
+    steps_done, iteration, rng_states, seconds_before = 0, 0, None, 0.0
     checkpoint = out / "checkpoint.pt"
     if resume and checkpoint.is_file():
         saved = torch.load(checkpoint, weights_only=False, map_location=device)
@@ -637,6 +637,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         steps_done, iteration = saved["steps"], saved["iteration"]
         rng_states = saved.get("collector_rng") or [saved["rng"]]  # (checkpoints before collectors kept one stream)
         torch.set_rng_state(saved["torch_rng"].cpu())
+        seconds_before = float(saved.get("wall_seconds", 0.0))  # the run's cost counts every session it took
         log(f"resumed {out} at {steps_done} steps")
     (out / "config.toml").write_text(_config_toml(config))
     writer = None
@@ -658,7 +659,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     if not (resume and progress_file.is_file()):
         progress_file.write_text("steps,success_rate,blood_removed_ml,median_steps,contact_steps,easy_fraction,"
                                  "episode_success,wall_seconds\n")
-    start = time.perf_counter()
+    start = time.perf_counter() - seconds_before
     next_eval = (steps_done // config.eval_every + 1) * config.eval_every
     next_checkpoint = (steps_done // config.checkpoint_every + 1) * config.checkpoint_every
     episodes_ended = successes = 0
@@ -831,7 +832,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                 torch.save({"loss_module": loss_module.state_dict(), "optimiser": optimiser.state_dict(),
                             "return_var": return_var_state, "steps": steps_done, "iteration": iteration,
                             "collector_rng": collectors.rng_states(), "torch_rng": torch.get_rng_state(),
-                            "config": asdict(config)}, tmp)
+                            "wall_seconds": time.perf_counter() - start, "config": asdict(config)}, tmp)
                 tmp.replace(checkpoint)  # atomic: an interruption never leaves a half-written checkpoint
             if on_iteration is not None:
                 on_iteration(iteration, collectors)
