@@ -164,6 +164,7 @@ def test_cli_train_mappo(tmp_path):
     ("[pretrain]\nbc_expert = 'scripted'\nbc_action_noise = -0.1\n", "bc_action_noise >= 0"),
     ("[pretrain]\nbc_expert = 'scripted'\nbc_dagger_rounds = -1\n", "bc_dagger_rounds >= 0"),
     ("[pretrain]\ncritic_warmup_steps = -5\n", "critic_warmup_steps must be >= 0"),
+    ("[curriculum]\nreceding_starts = 1.5\n", "receding_starts must lie in [0, 1]"),
     ("[run]\nsurgeon = []\n", "non-empty list"),
     ("[run]\nsurgeon = 3\n", "surgeon must be"),
     ("[run]\nsurgeon = ['none', 'scripted']\n", "cannot be one of several"),
@@ -184,6 +185,54 @@ def test_curriculum_anneals_to_the_default_task():
     assert config.easy_fraction(0.0) == 1.0 and config.easy_fraction(0.2) == 1.0
     assert config.easy_fraction(0.4) == pytest.approx(0.5)
     assert config.easy_fraction(0.6) == 0.0 and config.easy_fraction(1.0) == 0.0
+
+
+def _grasper_tips_and_pins(env):
+    """World positions of the grasper's tips and of the pins in view (not delivered), per world."""
+    state, centre = env.state(), np.asarray(env.params.workspace_centre)
+    tips = state[:, env.state_layout["grasper_tip"]] * env.workspace_range + centre
+    debris = state[:, env.state_layout["debris"]].reshape(len(state), -1, 6)
+    pins = [debris[w][(debris[w, :, 3] > 0.5) & (debris[w, :, 5] < 0.5), :3] * env.workspace_range + centre
+            for w in range(len(state))]
+    return tips, pins
+
+
+def test_receding_starts_move_from_the_pin_back_to_the_ordinary_start():
+    """A reverse curriculum: early in the run the grasper starts just above a pin in view, later anywhere on the way
+    (around the rims) from there back to its ordinary start, and never off that way."""
+    config = mappo.MappoConfig(easy_start=1.0, near_debris=1.0, receding_starts=0.5)
+    env = suction_debris_v0.batched_env(num_envs=48, autoreset_mode="disabled")
+    curriculum = mappo._Curriculum(config, env, np.random.default_rng(0))
+    rims = shaping.OverRims(env)
+    drawn, reset = [], env.reset
+
+    def recording_reset(*args, **kwargs):  # the ordinary starts the curriculum's own reset draws
+        result = reset(*args, **kwargs)
+        drawn.append(_grasper_tips_and_pins(env)[0])
+        return result
+
+    env.reset = recording_reset
+    env.reset(seed=5)
+    reached = {}
+    for progress in (0.0, 0.25, 1.0):
+        curriculum.reset(np.ones(env.num_envs, dtype=bool), 1.0, progress)
+        ordinary = drawn[-1]
+        tips, pins = _grasper_tips_and_pins(env)
+        placed = [w for w in range(env.num_envs) if len(pins[w]) and not np.allclose(tips[w], ordinary[w])]
+        assert len(placed) >= 10, "too few worlds with a pin in view to test"
+        from_pin = []
+        for w in placed:
+            gaps = np.linalg.norm(pins[w] - tips[w], axis=1)
+            pin = pins[w][np.argmin(rims.distance(pins[w], tips[w]) + rims.distance(tips[w], ordinary[w])
+                                    - rims.distance(pins[w], ordinary[w]))]
+            # on the way: going through the tip is no longer than the way itself (a few mm of start jitter)
+            detour = rims.distance(pin, tips[w]) + rims.distance(tips[w], ordinary[w]) - rims.distance(pin, ordinary[w])
+            assert detour < 0.008, (progress, w, detour)
+            from_pin.append(gaps.min())
+        reached[progress] = (max(from_pin), np.median(from_pin))
+    assert reached[0.0][0] < 0.005  # just above a pin
+    assert reached[0.25][0] < reached[1.0][0] and reached[0.25][1] < reached[1.0][1]  # receding with the run
+    assert reached[1.0][0] > 0.03  # some start far back along the way
 
 
 def test_grasp_path_shaping_is_continuous_through_the_grasp():

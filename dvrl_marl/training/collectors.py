@@ -41,13 +41,14 @@ class RolloutCollector:
     """Steps ``num_envs`` training worlds (see the module documentation).
 
     ``first_world``: this share's offset among all training worlds (its worlds are seeded after the ones before
-    it); ``steps_done`` and ``easy`` say where the run stands (resets are seeded from it and the curriculum draws its
-    first episodes at that difficulty); ``rng_state`` restores the random stream of a checkpoint; ``actor`` shares
+    it); ``steps_done``, ``easy`` and ``progress`` (the fraction of the run done) say where the run stands (resets
+    are seeded from it and the curriculum draws its first episodes at that difficulty); ``rng_state`` restores the random stream of a checkpoint; ``actor`` shares
     the learner's actor module (local collection) instead of building a copy that rollouts load weights into.
     """
 
     def __init__(self, config, seed: int, *, index: int = 0, num_envs: int | None = None, first_world: int = 0,
-                 steps_done: int = 0, easy: float = 0.0, rng_state=None, actor=None, torch_threads: int | None = None):
+                 steps_done: int = 0, easy: float = 0.0, progress: float = 0.0, rng_state=None, actor=None,
+                 torch_threads: int | None = None):
         from dvrl_marl.envs import suction_debris_v0
         from dvrl_marl.training import mappo, shaping
 
@@ -78,7 +79,7 @@ class RolloutCollector:
         self.route = shaping.SuctionRouteShaping(env, config.suction_route_shaping, self.agents, config.clear_bonus,
                                                 over_rims=config.shaping_over_rims, park=config.route_to_park)
         env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) + steps_done + first_world)
-        self.curriculum.reset(np.ones(n, dtype=bool), easy)
+        self.curriculum.reset(np.ones(n, dtype=bool), easy, progress)
         self.observations = env.observations()
         self.state = env.state()
         self.blood = env.core.info()["blood_remaining_per_cavity"]  # (N, C), for the suction's route shaping
@@ -101,7 +102,7 @@ class RolloutCollector:
         self.buffers["next_observation"] = np.zeros_like(self.buffers["observation"])
         self.buffers["next_state"] = np.zeros_like(self.buffers["state"])
 
-    def rollout(self, actor_state=None, easy: float = 0.0) -> dict:
+    def rollout(self, actor_state=None, easy: float = 0.0, progress: float = 0.0) -> dict:
         """Step every world ``rollout_steps`` times sampling from the actors (``actor_state``: the learner's
         ``actor.state_dict()``, loaded first); the per-step arrays (:data:`ROLLOUT_ARRAYS`) and episode counts."""
         from dvrl_marl.training import mappo
@@ -157,7 +158,7 @@ class RolloutCollector:
                     stats["successes"] += int((done & info["is_success"]).sum())
                     stats["debris_delivered"] += float((info["debris_delivered"] - curriculum.out_of_play)[done].sum())
                     stats["blood_left_ml"] += float(info["blood_remaining"][done].sum())
-                    curriculum.reset(done, easy)
+                    curriculum.reset(done, easy, progress)
                     self.observations = env.observations()
                     self.state = env.state()
                     self.blood = env.core.info()["blood_remaining_per_cavity"]
@@ -201,10 +202,11 @@ class LocalCollectors:
         self.shared = shared
         self.count = 1
 
-    def collect(self, actor_state, easy: float) -> dict:
+    def collect(self, actor_state, easy: float, progress: float = 0.0) -> dict:
         if self.shared:  # the actor is the learner's: its weights are current
-            return self.collector.rollout(None, easy)
-        return self.collector.rollout({key: value.detach().cpu() for key, value in actor_state.items()}, easy)
+            return self.collector.rollout(None, easy, progress)
+        return self.collector.rollout({key: value.detach().cpu() for key, value in actor_state.items()}, easy,
+                                      progress)
 
     def rng_states(self) -> list:
         return [self.collector.rng_state()]
@@ -225,7 +227,8 @@ class RayCollectors:
     """
 
     def __init__(self, config, seed: int, *, address: str | None, num_collectors: int, steps_done: int = 0,
-                 easy: float = 0.0, rng_states=None, cpus_per_collector: float = 1.0, max_restarts: int = -1):
+                 easy: float = 0.0, progress: float = 0.0, rng_states=None, cpus_per_collector: float = 1.0,
+                 max_restarts: int = -1):
         try:
             import ray
         except ImportError as error:
@@ -246,15 +249,15 @@ class RayCollectors:
         for index, share in enumerate(shares):
             self.actors.append(remote.options(scheduling_strategy="SPREAD", name=None).remote(
                 config, seed, index=index, num_envs=share, first_world=first, steps_done=steps_done, easy=easy,
-                rng_state=None if rng_states is None else rng_states[index],
+                progress=progress, rng_state=None if rng_states is None else rng_states[index],
                 torch_threads=max(1, int(cpus_per_collector))))
             first += share
         self.count = num_collectors
 
-    def collect(self, actor_state, easy: float) -> dict:
+    def collect(self, actor_state, easy: float, progress: float = 0.0) -> dict:
         ray = self._ray
         weights = ray.put({key: value.detach().cpu() for key, value in actor_state.items()})
-        results = ray.get([actor.rollout.remote(weights, easy) for actor in self.actors])
+        results = ray.get([actor.rollout.remote(weights, easy, progress) for actor in self.actors])
         if len(results) == 1:  # Ray returns read-only views of its object store; the learner's tensors want their own
             results[0] = {key: np.array(value) if key in ROLLOUT_ARRAYS else value for key, value in results[0].items()}
         return _merge(results)
@@ -271,13 +274,13 @@ class RayCollectors:
         self.actors = []
 
 
-def make_collectors(config, seed: int, *, actor, steps_done: int, easy: float, rng_states=None,
-                    ray_address: str | None = None, num_collectors: int = 0):
+def make_collectors(config, seed: int, *, actor, steps_done: int, easy: float, progress: float = 0.0,
+                    rng_states=None, ray_address: str | None = None, num_collectors: int = 0):
     """:class:`RayCollectors` when ``ray_address`` or ``num_collectors`` asks for Ray, else :class:`LocalCollectors`."""
     if ray_address is None and not num_collectors:
-        collector = RolloutCollector(config, seed, steps_done=steps_done, easy=easy, actor=actor,
+        collector = RolloutCollector(config, seed, steps_done=steps_done, easy=easy, progress=progress, actor=actor,
                                      rng_state=None if not rng_states else rng_states[0])
         return LocalCollectors(collector, shared=actor is not None)
     return RayCollectors(config, seed, address=None if ray_address in (None, "local") else ray_address,
                          num_collectors=max(1, int(num_collectors or 1)), steps_done=steps_done, easy=easy,
-                         rng_states=rng_states)
+                         progress=progress, rng_states=rng_states)

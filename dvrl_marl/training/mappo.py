@@ -23,7 +23,9 @@
   reveals debris at once, so the grasper meets the grasp long before the suction can clear 16 ml), fewer debris,
   with probability
   ``random_start`` the learning arms' tips scattered over the phantom (approaches from everywhere), and with
-  probability ``near_debris`` the grasper's tip starting a few millimetres above a visible pin. With
+  probability ``near_debris`` the grasper's tip starting a few millimetres above a visible pin (with
+  ``receding_starts`` > 0, somewhere on the way from there back to its ordinary start, at most a fraction
+  ``progress / receding_starts`` of that way: a reverse curriculum whose starts recede from the pin). With
   ``easy_episode_steps`` easy episodes end (bootstrapped, as a time limit) after that many steps, so that starts,
   and what follows them, are a larger share of the data. ``easy_fraction`` falls linearly from ``easy_start`` to
   0 between ``anneal_begin`` and ``anneal_end`` (fractions of the run); after that every episode is the default
@@ -138,6 +140,9 @@ class MappoConfig:
     near_debris: float = 0.0
     random_start: float = 0.0
     easy_episode_steps: int = 0  # > 0: easy episodes are cut (bootstrapped) after this many steps
+    # > 0: near-debris starts recede along the way from the pin back to the grasper's ordinary start, reaching it
+    # at this fraction of the run (a reverse curriculum; 0: always just above the pin)
+    receding_starts: float = 0.0
     empty_cavity_probability: float = 0.5  # each cavity of an easy episode starts empty this often
     # trainer-side potential-based shaping (see dvrl_marl.training.shaping)
     grasp_path_shaping: float = 0.0
@@ -228,6 +233,9 @@ def load_config(path) -> MappoConfig:
         raise ValueError(f"{path}: initial_std must be > 0 and final_std >= 0 (0: learnt)")
     if not 0.0 <= config.easy_start <= 1.0 or not 0.0 <= config.near_debris <= 1.0:
         raise ValueError(f"{path}: easy_start and near_debris must lie in [0, 1]")
+    if not 0.0 <= config.receding_starts <= 1.0:
+        raise ValueError(f"{path}: receding_starts must lie in [0, 1] (a fraction of the run), "
+                         f"got {config.receding_starts!r}")
     if config.observation_features:
         from dvrl_marl.policies import features
 
@@ -522,8 +530,9 @@ class _Curriculum:
         self.centre = np.asarray(env.params.workspace_centre)
         self.out_of_play = np.zeros(env.num_envs, dtype=np.int64)  # debris each episode left out (count < D)
         self.cut = np.zeros(env.num_envs, dtype=np.int64)  # episode length the trainer imposes (0: the env's)
+        self._rims = None  # the way around the phantom's rims, built on first use
 
-    def reset(self, worlds: np.ndarray, easy_fraction: float):
+    def reset(self, worlds: np.ndarray, easy_fraction: float, progress: float = 0.0):
         n = self.env.num_envs
         easy = worlds & (self.rng.random(n) < easy_fraction)
         hard = worlds & ~easy
@@ -552,6 +561,8 @@ class _Curriculum:
         near = easy & (self.rng.random(n) < self.config.near_debris)
         state = self.env.state()
         debris = self.env.state_layout["debris"].start
+        ordinary = self.env.state_layout["grasper_tip"]
+        reach = min(1.0, progress / self.config.receding_starts) if self.config.receding_starts > 0 else 0.0
         worlds_near = np.flatnonzero(near)
         targets, chosen = [], []
         for world in worlds_near.tolist():
@@ -563,12 +574,38 @@ class _Curriculum:
             start = debris + 6 * k
             pin = state[world, start:start + 3] * self.range + self.centre
             # within the jaw's sensor range of the pin's axis: 1-2 mm above it, up to 2 mm aside
-            targets.append(pin + np.array([0.0, 0.0, 0.0015]) + self.rng.uniform(-0.002, 0.002, 3) * [1, 1, 0.25])
+            target = pin + np.array([0.0, 0.0, 0.0015]) + self.rng.uniform(-0.002, 0.002, 3) * [1, 1, 0.25]
+            if reach > 0:
+                start = state[world, ordinary] * self.range + self.centre
+                target = self._along_the_way(target, start, self.rng.uniform(0.0, reach))
+            targets.append(target)
             chosen.append(world)
         if chosen:
             tips = np.zeros((n, 3))
             tips[chosen] = targets
             self._place({"grasper": tips}, chosen)
+
+    def _along_the_way(self, pin_side, start, fraction: float) -> np.ndarray:
+        """The point ``fraction`` of the way from ``pin_side`` to ``start`` (world positions), the way going up out
+        of the cavity to just above the phantom's top, across, and down: the path a tip can take (shaping.OverRims)."""
+        if self._rims is None:
+            from dvrl_marl.training.shaping import OverRims
+
+            self._rims = OverRims(self.env)
+        regions = self._rims.region(np.stack([pin_side, start]))
+        if regions[0] == regions[1]:  # within one cavity (a convex bowl) or both above the top: straight
+            corners = np.stack([pin_side, start])
+        else:  # up to just above the top where a wall is in the way, across, down
+            lift = [np.array([p[0], p[1], max(p[2], self._rims.height)]) if r != -1 else p
+                    for p, r in zip((pin_side, start), regions)]
+            corners = np.stack([pin_side, lift[0], lift[1], start])
+        legs = np.linalg.norm(np.diff(corners, axis=0), axis=1)
+        travelled = fraction * legs.sum()
+        for leg, length in enumerate(legs):
+            if travelled <= length or leg == len(legs) - 1:
+                return corners[leg] + (corners[leg + 1] - corners[leg]) * min(travelled / max(length, 1e-9), 1.0)
+            travelled -= length
+        return start
 
     def _place(self, tips: dict, worlds) -> None:
         try:
@@ -649,7 +686,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         except ImportError:
             log("tensorboard is not installed: no TensorBoard logs")
     collectors = make_collectors(config, seed, actor=actor if device.type == "cpu" else None, steps_done=steps_done,
-                                 easy=config.easy_fraction(steps_done / total), rng_states=rng_states,
+                                 easy=config.easy_fraction(steps_done / total), progress=steps_done / total,
+                                 rng_states=rng_states,
                                  ray_address=ray_address, num_collectors=num_collectors)
     if collectors.count > 1 or ray_address is not None or num_collectors:
         spread = collectors.where()
@@ -723,7 +761,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                     actor_head.log_std.fill_(math.log(config.exploration_std(steps_done / total)))
             # --- collect ---
             began = time.perf_counter()
-            batch = collectors.collect(actor.state_dict(), easy)  # (a CPU copy when the learner is elsewhere)
+            # (a CPU copy when the learner is elsewhere)
+            batch = collectors.collect(actor.state_dict(), easy, steps_done / total)
             timing["collect_seconds"] += time.perf_counter() - began
             began = time.perf_counter()
             for discounted in batch["discounted_return"]:  # step by step, as the returns grew
