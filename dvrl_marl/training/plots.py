@@ -74,11 +74,12 @@ def plot_learning_curves(run_dirs, out) -> tuple[Path, Path]:
     return _save(figure, out, ["config", "timesteps", "success_mean", "success_std", "seeds"], rows, dpi=120)
 
 
-def _save(figure, out: Path, header: list, rows: list, dpi: int) -> tuple[Path, Path]:
-    """Write the figure as ``<out>.png`` and the numbers behind it as ``<out>.csv``."""
+def _save(figure, out: Path, header: list, rows: list, dpi: int, layout_rect=(0, 0, 1, 1)) -> tuple[Path, Path]:
+    """Write the figure as ``<out>.png`` and the numbers behind it as ``<out>.csv`` (the axes laid out inside
+    ``layout_rect``, figure fractions: room for a legend below them)."""
     import matplotlib.pyplot as plt
 
-    figure.tight_layout()
+    figure.tight_layout(rect=layout_rect)
     png = out.with_suffix(".png")
     figure.savefig(png, dpi=dpi)
     plt.close(figure)
@@ -126,23 +127,32 @@ def plot_team_curves(run_dirs, out) -> tuple[Path, Path]:
         progress = read_progress(run)
         if progress:
             groups[_label(run)].append(progress)
-    figure, axes = plt.subplots(1, 2, figsize=(13, 4.2))
+    # Many configurations: distinct colours (tab20) and line styles, the legend below both panels, not over them.
+    columns, legend_rows = 3, -(-len(groups) // 3)
+    legend_inches = 0.18 * legend_rows + 0.55  # the legend's rows and the axis labels above them
+    figure, axes = plt.subplots(1, 2, figsize=(13, 4.0 + legend_inches))
+    colours = plt.get_cmap("tab20").colors
     rows = []
-    for label, runs in sorted(groups.items()):
+    for index, (label, runs) in enumerate(sorted(groups.items())):
         length = min(len(r["steps"]) for r in runs)
         steps = runs[0]["steps"][:length]
+        style = {"color": colours[index % len(colours)], "linestyle": ("-", "--", ":")[index // len(colours) % 3]}
         for axis, key, title in ((axes[0], "success_rate", "success rate"),
                                  (axes[1], "blood_removed_ml", "blood removed (ml of 16)")):
             values = np.stack([r[key][:length] for r in runs])
             mean, std = values.mean(0), values.std(0)
-            axis.plot(steps, mean, label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
-            axis.fill_between(steps, mean - std, mean + std, alpha=0.2)
-            axis.set_xlabel("environment steps (parallel)")
+            axis.plot(steps / 1e6, mean, label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})",
+                      linewidth=1.4, marker="." if length < 3 else None, **style)
+            if len(runs) > 1:
+                axis.fill_between(steps / 1e6, mean - std, mean + std, alpha=0.12, color=style["color"])
+            axis.set_xlabel("environment steps (millions, parallel)")
             axis.set_ylabel(title)
             axis.grid(alpha=0.3)
             for step, m, s in zip(steps, mean, std):
                 rows.append((label, key, int(step), float(m), float(s), len(runs)))
     axes[0].set_ylim(-0.02, 1.02)
-    axes[0].legend(fontsize=8)
+    handles, labels = axes[0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
     figure.suptitle("suction_debris_v0: multi-agent PPO (validation episodes)")
-    return _save(figure, out, ["configuration", "metric", "steps", "mean", "std", "seeds"], rows, dpi=110)
+    return _save(figure, out, ["configuration", "metric", "steps", "mean", "std", "seeds"], rows, dpi=110,
+                 layout_rect=(0, (legend_inches - 0.3) / (4.0 + legend_inches), 1, 1))
