@@ -331,6 +331,26 @@ def test_the_server_refuses_other_interfaces_without_the_flag():
     session.close()
 
 
+def test_a_page_opened_before_the_server_runs_waits_for_it_instead_of_being_refused():
+    """The CLI prints the URL before serving: a person (or a script) opening it at once must get the page."""
+    import threading
+
+    from dvrl_marl.teleop.session import TeleopSession
+    from dvrl_marl.teleop.web import TeleopServer
+
+    server = TeleopServer(TeleopSession(record=False), port=0)
+    pages = []
+    opener = threading.Thread(target=lambda: pages.append(urllib.request.urlopen(server.url, timeout=30).read()))
+    opener.start()
+    time.sleep(0.5)  # the page's request is in before the server runs
+    server.start()
+    try:
+        opener.join(30)
+        assert pages and b"Start (Enter)" in pages[0]
+    finally:
+        server.stop()
+
+
 def test_first_page_drives_a_second_watches_and_bad_messages_are_counted_not_fatal(server):
     with websockets_client.connect(ws_url(server)) as driver, websockets_client.connect(ws_url(server)) as watcher:
         assert json.loads(driver.recv(timeout=10)) == {"type": "role", "role": "controller"}

@@ -229,6 +229,9 @@ class TeleopServer:
         self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._socket.bind((host, int(port)))
         self.port = self._socket.getsockname()[1]
+        # Listening from here on: a page opened as soon as the URL is printed waits in the backlog until the server
+        # starts, instead of being refused (measured: refused under load between printing the URL and serving).
+        self._socket.listen(128)
         import uvicorn
 
         self.app = create_app(session, self.token)
