@@ -461,6 +461,14 @@ def test_over_rims_distances_go_around_the_phantom():
     starts = np.stack([inside_a, floor_b])[None]
     np.testing.assert_allclose(rims.distance(starts, floor_a[None, None]),
                                [[rims.distance(inside_a, floor_a), rims.distance(floor_b, floor_a)]])
+    # a point along that way splits its length, and the way starts and ends where it says (up first, from A's floor)
+    for fraction in (0.0, 0.1, 0.5, 0.9, 1.0):
+        point = rims.point_along(inside_a, floor_b, fraction)
+        assert rims.distance(inside_a, point) + rims.distance(point, floor_b) == pytest.approx(
+            rims.distance(inside_a, floor_b), abs=1e-9)
+        assert rims.distance(inside_a, point) == pytest.approx(fraction * rims.distance(inside_a, floor_b), abs=1e-9)
+    np.testing.assert_allclose(rims.point_along(inside_a, floor_b, 0.01)[:2], inside_a[:2])
+    np.testing.assert_allclose(rims.point_along(inside_a, floor_a, 0.5), (inside_a + floor_a) / 2)
 
 
 @pytest.mark.parametrize("over_rims", [False, True])

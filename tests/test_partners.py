@@ -1,6 +1,7 @@
 """A population of partners in one seat (teams.Partners, MappoConfig.surgeon as a list): who plays which world,
 seeded noise, and a trainer run beside a learned and a scripted partner."""
 
+import json
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -102,8 +103,6 @@ hidden = [16, 16]
     assert sorted(p.name for p in (run / "policies").iterdir()) == ["marl-grasper"]
     assert 'surgeon = ["scripted", "marl-suction"]' in (run / "config.toml").read_text()
     assert mappo.load_config(run / "config.toml").surgeon == ["scripted", "marl-suction"]
-    import json
-
     spec = json.loads((run / "policies" / "marl-grasper" / "policy.json").read_text())
     assert spec["training"]["partners"] == ["scripted", "marl-suction"]
 

@@ -42,8 +42,9 @@ class RolloutCollector:
 
     ``first_world``: this share's offset among all training worlds (its worlds are seeded after the ones before
     it); ``steps_done``, ``easy`` and ``progress`` (the fraction of the run done) say where the run stands (resets
-    are seeded from it and the curriculum draws its first episodes at that difficulty); ``rng_state`` restores the random stream of a checkpoint; ``actor`` shares
-    the learner's actor module (local collection) instead of building a copy that rollouts load weights into.
+    are seeded from it and the curriculum draws its first episodes at that difficulty); ``rng_state`` restores the
+    random stream of a checkpoint; ``actor`` shares the learner's actor module (local collection) instead of
+    building a copy that rollouts load weights into.
     """
 
     def __init__(self, config, seed: int, *, index: int = 0, num_envs: int | None = None, first_world: int = 0,

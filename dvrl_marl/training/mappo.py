@@ -530,7 +530,7 @@ class _Curriculum:
         self.centre = np.asarray(env.params.workspace_centre)
         self.out_of_play = np.zeros(env.num_envs, dtype=np.int64)  # debris each episode left out (count < D)
         self.cut = np.zeros(env.num_envs, dtype=np.int64)  # episode length the trainer imposes (0: the env's)
-        self._rims = None  # the way around the phantom's rims, built on first use
+        self._rims = None  # the way around the phantom's rims (shaping.OverRims), built on first use
 
     def reset(self, worlds: np.ndarray, easy_fraction: float, progress: float = 0.0):
         n = self.env.num_envs
@@ -575,37 +575,19 @@ class _Curriculum:
             pin = state[world, start:start + 3] * self.range + self.centre
             # within the jaw's sensor range of the pin's axis: 1-2 mm above it, up to 2 mm aside
             target = pin + np.array([0.0, 0.0, 0.0015]) + self.rng.uniform(-0.002, 0.002, 3) * [1, 1, 0.25]
-            if reach > 0:
-                start = state[world, ordinary] * self.range + self.centre
-                target = self._along_the_way(target, start, self.rng.uniform(0.0, reach))
+            if reach > 0:  # the way a tip can take, out of the cavity and around the rims
+                if self._rims is None:
+                    from dvrl_marl.training.shaping import OverRims
+
+                    self._rims = OverRims(self.env)
+                ordinary_tip = state[world, ordinary] * self.range + self.centre
+                target = self._rims.point_along(target, ordinary_tip, self.rng.uniform(0.0, reach))
             targets.append(target)
             chosen.append(world)
         if chosen:
             tips = np.zeros((n, 3))
             tips[chosen] = targets
             self._place({"grasper": tips}, chosen)
-
-    def _along_the_way(self, pin_side, start, fraction: float) -> np.ndarray:
-        """The point ``fraction`` of the way from ``pin_side`` to ``start`` (world positions), the way going up out
-        of the cavity to just above the phantom's top, across, and down: the path a tip can take (shaping.OverRims)."""
-        if self._rims is None:
-            from dvrl_marl.training.shaping import OverRims
-
-            self._rims = OverRims(self.env)
-        regions = self._rims.region(np.stack([pin_side, start]))
-        if regions[0] == regions[1]:  # within one cavity (a convex bowl) or both above the top: straight
-            corners = np.stack([pin_side, start])
-        else:  # up to just above the top where a wall is in the way, across, down
-            lift = [np.array([p[0], p[1], max(p[2], self._rims.height)]) if r != -1 else p
-                    for p, r in zip((pin_side, start), regions)]
-            corners = np.stack([pin_side, lift[0], lift[1], start])
-        legs = np.linalg.norm(np.diff(corners, axis=0), axis=1)
-        travelled = fraction * legs.sum()
-        for leg, length in enumerate(legs):
-            if travelled <= length or leg == len(legs) - 1:
-                return corners[leg] + (corners[leg + 1] - corners[leg]) * min(travelled / max(length, 1e-9), 1.0)
-            travelled -= length
-        return start
 
     def _place(self, tips: dict, worlds) -> None:
         try:

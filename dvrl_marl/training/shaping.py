@@ -153,6 +153,22 @@ class OverRims:
                   + np.linalg.norm(goal - down, axis=-1))
         return np.where(from_cavity == to_cavity, straight, around)
 
+    def point_along(self, start, goal, fraction: float) -> np.ndarray:
+        """The point ``fraction`` of the way (the one :meth:`distance` measures) from ``start`` to ``goal``, two (3,)
+        world positions: straight within a region, else up to just above the top, across, and down."""
+        regions = self.region(np.stack([start, goal]))
+        if regions[0] == regions[1]:
+            corners = np.stack([start, goal])
+        else:
+            corners = np.stack([start, self._lift(start, regions[0]), self._lift(goal, regions[1]), goal])
+        legs = np.linalg.norm(np.diff(corners, axis=0), axis=1)
+        travelled = fraction * legs.sum()
+        for leg, length in enumerate(legs[:-1]):
+            if travelled <= length:
+                return corners[leg] + (corners[leg + 1] - corners[leg]) * (travelled / max(length, 1e-12))
+            travelled -= length
+        return corners[-2] + (corners[-1] - corners[-2]) * min(travelled / max(legs[-1], 1e-12), 1.0)
+
 
 class SuctionRouteShaping:
     """Potential-based shaping for the suction arm, added by the trainer (F = Phi(s') - Phi(s), as the env's own).
