@@ -538,3 +538,79 @@ def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
 def test_every_shipped_multi_agent_configuration_loads(path):
     config = mappo.load_config(path)
     assert config.name == path.stem and config.algorithm in mappo.ALGORITHMS
+
+
+def _pin_along_x(seeds=range(40)):
+    """A seed whose first pin lies within 25 degrees of the x axis (a grasp at its +x end holds it 11+ mm short)."""
+    for seed in seeds:
+        env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+                                            blood_ml=[0.0, 0.0])
+        env.reset(seed=seed)
+        if abs(np.cos(env.core.debris_yaw[0, 0])) > np.cos(np.radians(25)):
+            return seed
+    raise AssertionError("no pin along x in the seeds tried")
+
+
+def test_centred_grasps_charge_a_grasp_that_can_never_be_delivered():
+    """A pin taken by its +x end is held so far behind the tip that the tip would have to leave the workspace to
+    bring it onto the hand-off point: the scripted carry never delivers it, while the same pin taken by its centre
+    is delivered. ``centred`` shaping charges the first at the grasp (the hold bonus gone, the distance beyond the
+    workspace counted) and not the second."""
+    from dvrl_marl.agents.collaborative import ScriptedSurgeon
+
+    seed = _pin_along_x()
+    gains, delivered = {}, {}
+    for grip in ("centre", "end"):
+        env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+                                            blood_ml=[0.0, 0.0])
+        env.reset(seed=seed)
+        core = env.core
+        pin = core.debris_position[0, 0].copy()
+        axis = np.array([np.cos(core.debris_yaw[0, 0]), np.sin(core.debris_yaw[0, 0]), 0.0]) * 0.0125
+        place = pin if grip == "centre" else pin + (axis if axis[0] > 0 else -axis)  # the centre or the +x end
+        env.reset(seed=seed, options={"tip_positions": {"grasper": (place + [0.0, 0.0, 0.0015])[None]}})
+        shapings = {"centred": shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], hold_bonus=1.0,
+                                                        over_rims=True, centred=True),
+                    "plain": shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], hold_bonus=1.0,
+                                                      over_rims=True)}
+        still = np.zeros((1, 4))
+        before = {name: s.potential(env.state())[0] for name, s in shapings.items()}
+        observations, rewards, *_ = env.step({"suction": still, "grasper": np.array([[0.0, 0.0, 0.0, -1.0]])})
+        assert core.holding[0] == 0
+        gains[grip] = {name: rewards["grasper"][0] + s.potential(env.state())[0] - before[name]
+                       for name, s in shapings.items()}
+        surgeon = ScriptedSurgeon.for_env(env)  # the carry: the pin (not the tip) toward the hand-off point
+        delivered[grip] = False
+        for _ in range(600):
+            observations, _, _, _, infos = env.step({"suction": still, "grasper": surgeon.act(observations["grasper"])})
+            delivered[grip] |= bool(infos["grasper"]["debris_delivered"][0])
+        if grip == "end":
+            assert core.holding[0] == 0  # still held, at the workspace's face, more than 3 mm short
+    assert delivered == {"centre": True, "end": False}
+    # without the rule both grasps earn the same; with it the end grasp loses its hold bonus and more
+    assert gains["end"]["plain"] == pytest.approx(gains["centre"]["plain"], abs=0.3)
+    assert gains["centre"]["centred"] == pytest.approx(gains["centre"]["plain"], abs=0.2)
+    assert gains["end"]["centred"] < gains["centre"]["centred"] - 1.5
+
+
+def test_centred_grasps_approach_a_pin_from_above():
+    """``centred``: at the same distance from a pin's centre, a tip above it is nearer in potential than one beside
+    it at its height (a tip coming along the floor would close on the pin's end)."""
+    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env.reset(seed=3)
+    pin = env.core.debris_position[0, 0].copy()
+    yaw = env.core.debris_yaw[0, 0]
+    across = np.array([-np.sin(yaw), np.cos(yaw), 0.0])  # horizontal, across the pin's axis
+    centred = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, centred=True)
+    plain = shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True)
+    totals = {}
+    for name, place in (("above", pin + [0.0, 0.0, 0.006]), ("beside", pin + 0.006 * across)):
+        env.set_tip_positions({"grasper": place[None]})
+        tip = env.core.arms["grasper"].tip_world()[0]
+        np.testing.assert_allclose(tip, place, atol=1e-6)
+        state = env.state()
+        env_potential = -10.0 * np.linalg.norm(tip - pin)
+        totals[name] = (env_potential + plain.potential(state)[0], env_potential + centred.potential(state)[0])
+    plain_preference = totals["above"][0] - totals["beside"][0]
+    centred_preference = totals["above"][1] - totals["beside"][1]
+    assert centred_preference > max(plain_preference, 0.0) + 0.05

@@ -286,6 +286,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[run]\ndevice = 'tpu'\n", "device must be"),
     ("[model]\nobservation_features = 'everything'\n", "observation_features must be one of"),
     ("[shaping]\nroute_to_park = 'yes'\n", "route_to_park must be true or false"),
+    ("[shaping]\ncentred_grasps = 1\n", "centred_grasps must be true or false"),
     ("[ppo]\nbounds_loss_coef = -1.0\n", "bounds_loss_coef must be >= 0"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
 ])

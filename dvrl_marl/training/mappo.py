@@ -41,7 +41,8 @@
   (once it has cleared, out of the surgeon's way); ``shaping_over_rims`` measures both shapings' paths around the
   phantom (:class:`~dvrl_marl.training.shaping.OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule;
   ``wait_at_home`` and ``cleared_pins_only`` lead the grasper's shaping to the scripted surgeon's waiting place
-  when idle and to pins in cleared cavities only; ``[ppo] bounds_loss_coef`` keeps the actors' means inside the
+  when idle and to pins in cleared cavities only; ``centred_grasps`` measures its way to a pin over a point above the
+  pin's centre and charges grasps that cannot be delivered (a pin held by its end); ``[ppo] bounds_loss_coef`` keeps the actors' means inside the
   action box (:func:`bounds_loss`).
 - **Demonstrations** (``[pretrain]``, off by default; the partner-seat configurations only, reported apart from
   the runs from scratch): ``bc_expert = "scripted"`` clones the scripted expert of each learning seat into its actor
@@ -149,6 +150,7 @@ class MappoConfig:
     hold_bonus: float = 0.0
     wait_at_home: bool = False  # the grasper's shaping leads it to the scripted surgeon's waiting place when idle
     cleared_pins_only: bool = False  # the grasper's shaping collects only pins in cleared cavities (the expert's rule)
+    centred_grasps: bool = False  # the grasper's shaping: pins approached from above, undeliverable grasps cost
     suction_route_shaping: float = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
     clear_bonus: float = 0.0
     route_to_park: bool = False  # the suction's route ends at its parking place (out of the surgeon's way)
@@ -209,7 +211,8 @@ def load_config(path) -> MappoConfig:
                 raise ValueError(f"{path}: unknown key {key!r} in [{section}]")
             values[key] = value
     config = MappoConfig(**values)
-    for key in ("evaluate_with_noise", "shaping_over_rims", "route_to_park", "wait_at_home", "cleared_pins_only"):
+    for key in ("evaluate_with_noise", "shaping_over_rims", "route_to_park", "wait_at_home", "cleared_pins_only",
+                "centred_grasps"):
         if not isinstance(getattr(config, key), bool):
             raise ValueError(f"{path}: {key} must be true or false, got {getattr(config, key)!r}")
     if config.algorithm not in ALGORITHMS:
