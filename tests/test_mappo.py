@@ -165,6 +165,8 @@ def test_cli_train_mappo(tmp_path):
     ("[pretrain]\nbc_expert = 'scripted'\nbc_dagger_rounds = -1\n", "bc_dagger_rounds >= 0"),
     ("[pretrain]\ncritic_warmup_steps = -5\n", "critic_warmup_steps must be >= 0"),
     ("[curriculum]\nreceding_starts = 1.5\n", "receding_starts must lie in [0, 1]"),
+    ("[shaping]\noff_centre_grasps = -1.0\n", "off_centre_grasps must be a number >= 0"),
+    ("[shaping]\noff_centre_grasps = 'yes'\n", "off_centre_grasps must be a number >= 0"),
     ("[run]\nsurgeon = []\n", "non-empty list"),
     ("[run]\nsurgeon = 3\n", "surgeon must be"),
     ("[run]\nsurgeon = ['none', 'scripted']\n", "cannot be one of several"),
@@ -614,3 +616,33 @@ def test_centred_grasps_approach_a_pin_from_above():
     plain_preference = totals["above"][0] - totals["beside"][0]
     centred_preference = totals["above"][1] - totals["beside"][1]
     assert centred_preference > max(plain_preference, 0.0) + 0.05
+
+
+def test_off_centre_grasps_charge_a_grasp_in_proportion_to_its_distance_from_the_pins_centre():
+    """``off_centre``: a pin taken at its centre costs nothing more than with ``centred`` alone; taken 3 mm and 6 mm
+    along its axis toward an end (both deliverable in principle) it costs in proportion, at the grasp."""
+    seed = _pin_along_x()
+    gains = {}
+    for along in (0.0, 0.003, 0.006):
+        env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+                                            blood_ml=[0.0, 0.0])
+        env.reset(seed=seed)
+        core = env.core
+        pin = core.debris_position[0, 0].copy()
+        axis = np.array([np.cos(core.debris_yaw[0, 0]), np.sin(core.debris_yaw[0, 0]), 0.0])
+        place = pin + along * (axis if axis[0] > 0 else -axis)
+        env.reset(seed=seed, options={"tip_positions": {"grasper": (place + [0.0, 0.0, 0.0015])[None]}})
+        shapings = {weight: shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], hold_bonus=1.0,
+                                                     over_rims=True, centred=True, off_centre=weight)
+                    for weight in (0.0, 20.0)}
+        before = {w: s.potential(env.state())[0] for w, s in shapings.items()}
+        env.step({"suction": np.zeros((1, 4)), "grasper": np.array([[0.0, 0.0, 0.0, -1.0]])})
+        assert core.holding[0] == 0
+        after = {w: s.potential(env.state())[0] for w, s in shapings.items()}
+        gains[along] = {w: after[w] - before[w] for w in shapings}
+    charge = {along: gains[along][0.0] - gains[along][20.0] for along in gains}
+    assert charge[0.0] == pytest.approx(0.0, abs=0.02)
+    assert charge[0.003] == pytest.approx(10.0 * 20.0 * 0.003, rel=0.15)
+    assert charge[0.006] == pytest.approx(2.0 * charge[0.003], rel=0.15)
+    with pytest.raises(ValueError, match="off_centre"):
+        shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], off_centre=-1.0)

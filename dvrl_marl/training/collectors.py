@@ -77,7 +77,8 @@ class RolloutCollector:
         self.shaping = shaping.GraspPathShaping(env, config.grasp_path_shaping, self.agents, config.hold_bonus,
                                                over_rims=config.shaping_over_rims, home=config.wait_at_home,
                                                cleared_only=config.cleared_pins_only,
-                                               centred=config.centred_grasps)
+                                               centred=config.centred_grasps,
+                                               off_centre=config.off_centre_grasps)
         self.route = shaping.SuctionRouteShaping(env, config.suction_route_shaping, self.agents, config.clear_bonus,
                                                 over_rims=config.shaping_over_rims, park=config.route_to_park)
         env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) + steps_done + first_world)

@@ -42,7 +42,8 @@
   phantom (:class:`~dvrl_marl.training.shaping.OverRims`); ``final_std`` replaces the learnt exploration noise by a schedule;
   ``wait_at_home`` and ``cleared_pins_only`` lead the grasper's shaping to the scripted surgeon's waiting place
   when idle and to pins in cleared cavities only; ``centred_grasps`` measures its way to a pin over a point above the
-  pin's centre and charges grasps that cannot be delivered (a pin held by its end); ``[ppo] bounds_loss_coef`` keeps the actors' means inside the
+  pin's centre and charges grasps that cannot be delivered (a pin held by its end), ``off_centre_grasps`` charges
+  every grasp by how far off the pin's centre it took it; ``[ppo] bounds_loss_coef`` keeps the actors' means inside the
   action box (:func:`bounds_loss`).
 - **Demonstrations** (``[pretrain]``, off by default; the partner-seat configurations only, reported apart from
   the runs from scratch): ``bc_expert = "scripted"`` clones the scripted expert of each learning seat into its actor
@@ -151,6 +152,7 @@ class MappoConfig:
     wait_at_home: bool = False  # the grasper's shaping leads it to the scripted surgeon's waiting place when idle
     cleared_pins_only: bool = False  # the grasper's shaping collects only pins in cleared cavities (the expert's rule)
     centred_grasps: bool = False  # the grasper's shaping: pins approached from above, undeliverable grasps cost
+    off_centre_grasps: float = 0.0  # the grasper's shaping: a held pin costs this x weight per metre off the tip
     suction_route_shaping: float = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
     clear_bonus: float = 0.0
     route_to_park: bool = False  # the suction's route ends at its parking place (out of the surgeon's way)
@@ -218,6 +220,9 @@ def load_config(path) -> MappoConfig:
     if config.algorithm not in ALGORITHMS:
         raise ValueError(f"{path}: algorithm must be one of {ALGORITHMS}, got {config.algorithm!r}")
     _check_surgeon(path, config)
+    if not (isinstance(config.off_centre_grasps, (int, float)) and not isinstance(config.off_centre_grasps, bool)
+            and 0.0 <= config.off_centre_grasps < float("inf")):
+        raise ValueError(f"{path}: off_centre_grasps must be a number >= 0, got {config.off_centre_grasps!r}")
     for key in ("total_steps", "num_envs", "rollout_steps", "eval_every", "eval_episodes", "epochs", "minibatches"):
         if int(getattr(config, key)) < 1:
             raise ValueError(f"{path}: {key} must be >= 1, got {getattr(config, key)!r}")

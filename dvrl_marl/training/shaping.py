@@ -48,6 +48,12 @@ class GraspPathShaping:
     potential counts how far the tip would have to leave the workspace to deliver it (x ``UNDELIVERABLE_WEIGHT``),
     the hold bonus fading to nothing over the hand-off's 3 mm: a grasp by the end costs at once, its release pays
     that back.
+
+    ``off_centre``: every grasp is charged by how far off the pin's centre it took the pin (the held pin's horizontal
+    distance from the tip, x ``off_centre`` x ``weight`` per metre). Measured with ``centred`` alone: the learnt
+    graspers' grasps sit a median 2.3-3.3 mm off-centre toward the hand-off side, deliverable in principle but only
+    with the tip within 2 mm of the workspace's face; a collapsed grasper held such pins for 900 steps and delivered
+    0.13 per episode. A centre grasp (the scripted surgeon's) costs nothing; releasing a bad one pays its charge back.
     """
 
     #: ``centred``: the approach point's height above a pin's centre (m): more than the jaw's 3 mm sensor range.
@@ -57,7 +63,7 @@ class GraspPathShaping:
     UNDELIVERABLE_WEIGHT = 10.0
 
     def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False,
-                 home: bool = False, cleared_only: bool = False, centred: bool = False):
+                 home: bool = False, cleared_only: bool = False, centred: bool = False, off_centre: float = 0.0):
         from dvrl_marl.agents.collaborative import ScriptedSurgeon
 
         self.over_rims = OverRims(env) if over_rims else None
@@ -74,6 +80,9 @@ class GraspPathShaping:
         self.home = (np.asarray(ScriptedSurgeon.for_env(env).home) * self.range + self.centre) if home else None
         self.cleared_only = bool(cleared_only)
         self.centred = bool(centred)
+        self.off_centre = float(off_centre)
+        if not self.off_centre >= 0.0:
+            raise ValueError(f"off_centre must be >= 0, got {off_centre!r}")
         self.delivery_threshold = float(env.params.distance_threshold)
         scene = env.layout()
         self.cavity_centres = np.asarray(scene.cavity_centres)  # normalised, as the state's positions
@@ -126,6 +135,10 @@ class GraspPathShaping:
             beyond = self._beyond_workspace(debris, tip[:, 0], handoff[:, 0], held)
             detour = detour + self.UNDELIVERABLE_WEIGHT * beyond
             bonus = bonus * np.clip(1.0 - beyond / self.delivery_threshold, 0.0, 1.0)
+        if self.off_centre > 0.0:  # the held pin's horizontal distance from the tip: 0 for a grasp at its centre
+            pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
+            off = np.linalg.norm((pin - tip[:, 0])[:, :2], axis=-1) * self.range
+            detour = detour + self.off_centre * np.where(holding, off, 0.0)
         return -self.weight * detour + bonus
 
     def _beyond_workspace(self, debris, tip, handoff, held) -> np.ndarray:
