@@ -238,12 +238,37 @@ def test_switch_head_samples_open_or_closed_with_its_log_probability():
     assert torch.equal(td["agents", "action"][..., 3], torch.tensor([1.0, -1.0]).expand(4000, 2))
 
 
+def test_held_tool_logit_leans_the_jaw_by_whether_a_pin_is_held():
+    """Open while the grasper holds nothing (sigmoid(2) = 0.88), closed while it holds a pin (sigmoid(-8)); the
+    suction's valve, which has no offset, leans the same way in both."""
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    config = _config(tool_head="switch", initial_tool_logit={"suction": 2.0, "grasper": 2.0},
+                     held_tool_logit={"grasper": -10.0})
+    actor, _, _, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    observations = torch.zeros(4000, 2, OBS_DIM)
+    observations[2000:, :, 9 + 6 * 2 + 3:9 + 6 * 2 + 5] = 1.0  # pin 2 visible and held in the second half
+    td = TensorDict({"agents": TensorDict({"observation": observations}, batch_size=[4000, 2])}, batch_size=[4000])
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        actor(td)
+    opened = (td["agents", "action"][..., 3] > 0).float()
+    assert abs(float(opened[:2000, 1].mean()) - 0.881) < 0.03  # grasper, holding nothing
+    assert float(opened[2000:, 1].mean()) < 0.003  # grasper, holding
+    assert abs(float(opened[:2000, 0].mean()) - 0.881) < 0.03 and abs(float(opened[2000:, 0].mean()) - 0.881) < 0.03
+    np.testing.assert_allclose(td["agents", "loc"][2000:, 1, 3].numpy(), td["agents", "loc"][:2000, 1, 3].numpy() - 10.0,
+                               atol=0.05)  # (the flags are inputs too: the small initial head moves a little)
+
+
 @pytest.mark.parametrize("model", [
     {"tool_head": "switch", "initial_tool_logit": {"grasper": -3.0}},
     {"observation_features": "suction_debris_targets"},
     {"tool_head": "switch", "observation_features": "suction_debris_targets"},
     {"tool_head": "switch", "observation_features": "suction_debris_routes"},
     {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins"},
+    {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins",
+     "initial_tool_logit": {"grasper": 2.0}, "held_tool_logit": {"grasper": -10.0}},
+    {"tool_head": "switch", "held_tool_logit": {"grasper": -4.0, "suction": 1.0}, "hidden": []},
 ])
 def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     """The numpy policy (features computed, normalisation folded, the switch as a sign) acts as the torch actor's
@@ -251,7 +276,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    config = _config(**model)
+    config = mappo.MappoConfig(**{"hidden": [16, 16], **model})
     actor, _, actor_net, norms = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
     env = suction_debris_v0.batched_env(num_envs=40, surgeon=None)
     env.reset(seed=0)
@@ -259,6 +284,8 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     for _ in range(200):
         env.step({agent: rng.uniform(-1, 1, (40, 4)) for agent in AGENTS})
     observations = np.stack([env.observations()[a] for a in AGENTS], axis=1)
+    observations[:, :, 9 + 4:27:6] = 0.0  # held flags: none, but pin 1 (visible) in every other world
+    observations[::2, :, 9 + 6 * 1 + 3:9 + 6 * 1 + 5] = 1.0
     observed = torch.from_numpy(observations)
     if actor_net.feature_spec is not None:
         observed = features.apply(actor_net.feature_spec, observed)
@@ -289,6 +316,8 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[shaping]\ncentred_grasps = 1\n", "centred_grasps must be true or false"),
     ("[ppo]\nbounds_loss_coef = -1.0\n", "bounds_loss_coef must be >= 0"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
+    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = 'closed' }\n", "held_tool_logit.grasper must be a finite"),
+    ("[model]\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit needs tool_head = \"switch\""),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):
     path = tmp_path / "bad.toml"

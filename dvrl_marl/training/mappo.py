@@ -33,7 +33,9 @@
 - **What the measurements of this trainer added** (each a ``[model]`` or ``[shaping]`` option, off by default so
   that earlier configurations run as they did; ``baselines/README.md`` has the figures):
   ``tool_head = "switch"`` decides the valve / jaw as open or closed (a Bernoulli, :func:`_switch_gaussian`;
-  ``initial_tool_logit`` leans it at the start: valve open, jaw closed, which the grasp rule rewards);
+  ``initial_tool_logit`` leans it at the start: valve open, jaw closed, which the grasp rule rewards;
+  ``held_tool_logit`` adds a fixed offset while the agent holds a pin, so the jaw can lean open on the way to a
+  pin and closed while it carries one: :func:`held_pin_prior`);
   ``observation_features`` appends relative targets computed from the actor's own observation
   (:mod:`dvrl_marl.policies.features`; the exported numpy policy computes them too);
   ``suction_route_shaping`` and ``clear_bonus`` (:class:`~dvrl_marl.training.shaping.SuctionRouteShaping`) stop the env's shaping from
@@ -132,6 +134,9 @@ class MappoConfig:
     # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
     tool_head: str = "gaussian"
     initial_tool_logit: dict = field(default_factory=dict)
+    # with the switch head, a fixed offset added to an agent's tool logit while its observation says it holds a pin
+    # (see held_pin_prior): the grasper's jaw can lean open while it approaches and closed while it carries
+    held_tool_logit: dict = field(default_factory=dict)
     # "": the actors read the observation; a name in dvrl_marl.policies.features.FEATURES: they also read features
     # computed from it (relative targets), and the exported policies compute the same
     observation_features: str = ""
@@ -254,10 +259,20 @@ def load_config(path) -> MappoConfig:
         raise ValueError(f"{path}: device must be \"cpu\", \"auto\" or \"cuda\" (\"cuda:N\"), got {config.device!r}")
     if config.tool_head not in TOOL_HEADS:
         raise ValueError(f"{path}: tool_head must be one of {TOOL_HEADS}, got {config.tool_head!r}")
-    unknown = set(config.initial_tool_logit) - set(suction_debris_v0.AGENTS)
-    if unknown:
-        raise ValueError(f"{path}: initial_tool_logit names unknown agents {sorted(unknown)} "
-                         f"(agents: {', '.join(suction_debris_v0.AGENTS)})")
+    for key in ("initial_tool_logit", "held_tool_logit"):
+        leaning = getattr(config, key)
+        if not isinstance(leaning, dict):
+            raise ValueError(f"{path}: {key} must be a table of agent = logit, got {leaning!r}")
+        unknown = set(leaning) - set(suction_debris_v0.AGENTS)
+        if unknown:
+            raise ValueError(f"{path}: {key} names unknown agents {sorted(unknown)} "
+                             f"(agents: {', '.join(suction_debris_v0.AGENTS)})")
+        for agent, value in leaning.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"{path}: {key}.{agent} must be a finite number, got {value!r}")
+    if any(config.held_tool_logit.values()) and config.tool_head != "switch":
+        raise ValueError(f"{path}: held_tool_logit needs tool_head = \"switch\" (it leans the open/closed "
+                         f"decision), got tool_head = {config.tool_head!r}")
     if not 0.0 <= config.anneal_begin < config.anneal_end <= 1.0:
         raise ValueError(f"{path}: need 0 <= anneal_begin < anneal_end <= 1")
     return config
@@ -368,6 +383,30 @@ def observation_feature_spec(config: MappoConfig, obs_dim: int) -> dict | None:
     return spec
 
 
+def held_flag_indices(obs_dim: int) -> list[int]:
+    """Where a collaborative agent's observation says which pin is held (one flag per debris slot; at most one is
+    set, so their sum is 1 while the arm holds a pin and 0 otherwise)."""
+    from dvrl_marl import assets
+
+    cavities = len(assets.CAVITY_CENTRES)  # the observation: 10 + cavities + 6 x debris values
+    debris = (obs_dim - 10 - cavities) // 6
+    return [7 + cavities + 6 * slot + 4 for slot in range(debris)]
+
+
+def held_pin_prior(config: MappoConfig, agents) -> list[float]:
+    """Per agent, the fixed offset ``held_tool_logit`` adds to its tool logit while it holds a pin (0: none).
+
+    Why: with one leaning for the jaw in every state, a grasper from scratch either keeps it closed (the grasp rule
+    then takes a pin wherever the tip first passes within 3 mm of its axis, and where that happens is decided by the
+    whole approach path, many steps before; measured: a fifth to a quarter of such grasps took a pin by its end,
+    which can never be delivered) or leans it open (and drops every pin it carries). Leaning the jaw open while the
+    arm holds nothing and closed while it holds a pin makes the grasp a decision of one step, at the place where it
+    closes, which PPO credits directly (the scripted surgeon approaches open and closes over the pin's centre). The
+    prior is a function of the agent's own observation (its held flags), a fixed part of the actor that the
+    network's own logit can outweigh; the exported numpy policy computes it too (:func:`export_actor`)."""
+    return [float(config.held_tool_logit.get(agent, 0.0)) for agent in agents]
+
+
 def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int):
     torch = _torch()
     from dvrl_marl.policies import features
@@ -413,23 +452,39 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
         """One network per agent: input (..., A, d) -> output (..., A, k); the observation features, when the
         configuration asks for them, are appended before the normalisation."""
 
-        def __init__(self, inputs, outputs, norm):
+        def __init__(self, inputs, outputs, norm, held_prior=None):
             super().__init__()
             self.norm = norm
             self.feature_spec = feature_spec
             self.nets = nn.ModuleList(mlp(inputs + extra, outputs) for _ in agents)
+            # the tool logit's fixed offset while a pin is held (held_pin_prior), per agent; None: no offset
+            self.held_prior = held_prior if held_prior is not None and any(held_prior) else None
+            self.held_flags = held_flag_indices(inputs)
 
         def with_features(self, x):
             """The observation with the configured features appended (what the normaliser sees)."""
             return x if self.feature_spec is None else features.apply(self.feature_spec, x)
 
+        def _leaning(self, raw, output, offset):
+            """``output`` with ``offset`` added to its last (tool) value where ``raw`` says a pin is held."""
+            holding = raw[..., self.held_flags].sum(-1, keepdim=True).to(output.dtype)
+            return torch.cat([output[..., :-1], output[..., -1:] + offset * holding], dim=-1)
+
         def agent_forward(self, x, index: int):
             """Agent ``index``'s output on its own observations ``(..., d)`` (behaviour cloning)."""
-            return self.nets[index](self.norm(self.with_features(x)))
+            out = self.nets[index](self.norm(self.with_features(x)))
+            if self.held_prior is not None and self.held_prior[index]:
+                out = self._leaning(x, out, self.held_prior[index])
+            return out
 
         def forward(self, x):
+            raw = x
             x = self.norm(self.with_features(x))
-            return torch.stack([net(x[..., i, :]) for i, net in enumerate(self.nets)], dim=-2)
+            outputs = [net(x[..., i, :]) for i, net in enumerate(self.nets)]
+            if self.held_prior is not None:
+                outputs = [self._leaning(raw[..., i, :], out, offset) if offset else out
+                           for i, (out, offset) in enumerate(zip(outputs, self.held_prior))]
+            return torch.stack(outputs, dim=-2)
 
     class CentralCritic(nn.Module):
         """MAPPO's critic: the global state in, one value per agent out (..., A, 1)."""
@@ -457,7 +512,7 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
             return loc, self.log_std.exp().expand_as(loc)
 
     obs_norm = RunningNorm((obs_dim + extra,))
-    actor_net = PerAgent(obs_dim, action_dim, obs_norm)
+    actor_net = PerAgent(obs_dim, action_dim, obs_norm, held_pin_prior(config, agents))
     with torch.no_grad():  # small initial means: exploration starts from the standard deviation alone
         for agent, net in zip(agents, actor_net.nets):
             net[-1].weight.mul_(0.01)
@@ -502,11 +557,15 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
         if position == 0:  # W ((x - m) / s) + b = (W / s) x + (b - W (m / s))
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
-        last = position == len(linears) - 1
-        if last and tool_head == "switch":  # clip(gain x logit) = sign(logit): the plain format's layers suffice
-            weight[-1] *= SWITCH_EXPORT_GAIN
-            bias[-1] *= SWITCH_EXPORT_GAIN
-        layers.append((weight.astype(np.float32), bias.astype(np.float32), "clip" if last else "tanh"))
+        layers.append([weight, bias])
+    held_prior = getattr(actor_net, "held_prior", None)
+    if held_prior is not None and held_prior[index]:
+        _fold_held_prior(layers, actor_net.held_flags, held_prior[index])
+    if tool_head == "switch":  # clip(gain x logit) = sign(logit): the plain format's layers suffice
+        layers[-1][0][-1] *= SWITCH_EXPORT_GAIN
+        layers[-1][1][-1] *= SWITCH_EXPORT_GAIN
+    layers = [(weight.astype(np.float32), bias.astype(np.float32), "clip" if position == len(layers) - 1 else "tanh")
+              for position, (weight, bias) in enumerate(layers)]
     if getattr(actor_net, "feature_spec", None) is not None:  # the numpy policy computes them before layer 0
         metadata = {**metadata, "features": dict(actor_net.feature_spec)}
     if log_std is not None:  # the noise it acted with while training (NumpyPolicy.with_noise)
@@ -517,6 +576,35 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
     return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
+
+
+#: Gain of the exported policy's "holding" unit: tanh(gain x (flags - 1/2)) is +-1 to float precision.
+_HELD_UNIT_GAIN = 40.0
+
+
+def _fold_held_prior(layers: list, held_flags: list[int], offset: float) -> None:
+    """Widen every hidden layer of ``layers`` ([weight, bias] pairs, float64, normalisation folded) by one unit that
+    carries whether a pin is held (+1) or not (-1) to the last layer, which adds ``offset`` x holding to the tool
+    logit: :func:`held_pin_prior` in the plain numpy format (tanh layers), exact to float precision."""
+    first_weight, first_bias = layers[0]
+    if len(layers) == 1:  # no hidden layer: the flags reach the logit directly
+        first_weight[-1, held_flags] += offset
+        return
+    row = np.zeros((1, first_weight.shape[1]))
+    row[0, held_flags] = _HELD_UNIT_GAIN  # the flags sum to 1 while holding, 0 otherwise
+    layers[0] = [np.vstack([first_weight, row]), np.append(first_bias, -0.5 * _HELD_UNIT_GAIN)]
+    for position in range(1, len(layers)):
+        weight, bias = layers[position]
+        column = np.zeros((weight.shape[0], 1))
+        if position == len(layers) - 1:  # logit + offset x (u + 1) / 2, u = +-1
+            column[-1, 0] = 0.5 * offset
+            bias = bias.copy()
+            bias[-1] += 0.5 * offset
+            layers[position] = [np.hstack([weight, column]), bias]
+        else:  # pass the unit on: tanh(gain x (+-1)) = +-1
+            row = np.zeros((1, weight.shape[1] + 1))
+            row[0, -1] = _HELD_UNIT_GAIN
+            layers[position] = [np.vstack([np.hstack([weight, column]), row]), np.append(bias, 0.0)]
 
 
 # --- training -------------------------------------------------------------------------------------------------
