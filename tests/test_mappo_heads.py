@@ -160,6 +160,30 @@ def test_cleared_pins_are_those_in_a_cleared_cavity(tip, handoff, slots, levels)
         features.suction_debris_cleared_pins(batched, cavities=2, debris=3, **GEOMETRY), atol=1e-12)
 
 
+@settings(max_examples=200, deadline=None)
+@given(tip=point, handoff=point, slots=st.lists(slot, min_size=3, max_size=3),
+       levels=st.tuples(st.sampled_from([0.0, 0.03, 1.0]), st.sampled_from([0.0, 0.5])))
+def test_zoomed_features_magnify_the_pin_and_carry_offsets(tip, handoff, slots, levels):
+    obs = _observation(np.random.default_rng(0), tip, slots, handoff, np.zeros(3))
+    obs[7:9] = levels
+    out = features.suction_debris_cleared_pins_zoom(obs, cavities=2, debris=3, **GEOMETRY)
+    base = features.suction_debris_cleared_pins(obs, cavities=2, debris=3, **GEOMETRY)
+    assert out.shape == (32,) and np.all(np.isfinite(out)) and np.all(np.abs(out[26:]) <= 1.0)
+    np.testing.assert_array_equal(out[:26], base)
+    np.testing.assert_allclose(out[26:29], np.tanh(base[21:24] / (0.005 / 0.08)), atol=1e-12)
+    np.testing.assert_allclose(out[29:32], np.tanh(base[5:8] / (0.005 / 0.08)), atol=1e-12)
+    batched = np.stack([obs, obs[::-1].copy()])
+    np.testing.assert_allclose(
+        features.suction_debris_cleared_pins_zoom(torch.from_numpy(batched), cavities=2, debris=3, **GEOMETRY).numpy(),
+        features.suction_debris_cleared_pins_zoom(batched, cavities=2, debris=3, **GEOMETRY), atol=1e-12)
+
+
+def test_zoom_resolves_millimetres():
+    """1 mm and 3 mm from a pin read far apart in the zoomed copy (0.2 against 0.5), not in the plain offset."""
+    one, three = (np.tanh(np.array([0.001, 0.003]) / 0.08 / features.ZOOM)).tolist()
+    assert one == pytest.approx(0.197, abs=1e-3) and three == pytest.approx(0.537, abs=1e-3)
+
+
 def test_climb_reads_the_wall_the_env_enforces():
     """The climb feature against the env's own wall rule: from a cleared cavity's floor, with blood left in the other,
     steps straight toward the next cavity never get the tip out while the climb reads more than 0; after rising
@@ -269,6 +293,7 @@ def test_held_tool_logit_leans_the_jaw_by_whether_a_pin_is_held():
     {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins",
      "initial_tool_logit": {"grasper": 2.0}, "held_tool_logit": {"grasper": -10.0}},
     {"tool_head": "switch", "held_tool_logit": {"grasper": -4.0, "suction": 1.0}, "hidden": []},
+    {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins_zoom"},
 ])
 def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     """The numpy policy (features computed, normalisation folded, the switch as a sign) acts as the torch actor's

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins", "routes_geometry", "feature_count", "apply", "FEATURES"]
+__all__ = ["suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
+           "suction_debris_cleared_pins_zoom", "routes_geometry", "feature_count", "apply", "FEATURES"]
 
 #: A distance no pin in the normalised workspace reaches (masked slots).
 _FAR = 1e6
@@ -55,6 +56,9 @@ class _Ops:
 
     def positive_part(self, x):
         return np.maximum(x, 0.0) if self.numpy else x.clamp_min(0.0)
+
+    def tanh(self, x):
+        return np.tanh(x) if self.numpy else self.torch.tanh(x)
 
 
 def _nearest(ops, offset, pending):
@@ -185,12 +189,36 @@ def suction_debris_cleared_pins(observation, *, cavities: int, debris: int, cavi
     return ops.concatenate([base, to_pin, ops.as_float(has_pin)[..., None], climb[..., None]])
 
 
+#: :func:`suction_debris_cleared_pins_zoom`'s scale: 5 mm in the observation's normalised units (workspace range
+#: 80 mm); tanh(offset / ZOOM) resolves the last few millimetres and saturates beyond about a centimetre.
+ZOOM = 0.005 / 0.08
+
+
+def suction_debris_cleared_pins_zoom(observation, *, cavities: int, debris: int, cavity_centres,
+                                     cavity_mouth_radius, cavity_targets_z, rim_z, blood_threshold_fraction):
+    """``(..., obs_dim)`` -> ``(..., 32)``: :func:`suction_debris_cleared_pins`'s 26, then ``tanh(to_clear_pin /
+    ZOOM)`` (3) and ``tanh(carry / ZOOM)`` (3): the same two offsets seen through a magnifier. Why: the grasp rule
+    asks for the tip within 3 mm of a pin's axis (a grasp a few millimetres off the pin's centre, toward the hand-off
+    side, can never be delivered) and delivery for the pin within 3 mm of the hand-off point, while the plain
+    offsets span the whole workspace: after the actor's normalisation 3 mm is about a tenth of their spread, a
+    detail a small tanh network resolves slowly. The zoomed copies give those millimetres the whole of a unit's
+    range (multi-scale inputs); they are functions of the actor's own observation, as every feature here."""
+    ops = _Ops(observation)
+    geometry = dict(cavity_centres=cavity_centres, cavity_mouth_radius=cavity_mouth_radius,
+                    cavity_targets_z=cavity_targets_z, rim_z=rim_z, blood_threshold_fraction=blood_threshold_fraction)
+    base = suction_debris_cleared_pins(observation, cavities=cavities, debris=debris, **geometry)
+    to_clear_pin, carry = base[..., 21:24], base[..., 5:8]
+    return ops.concatenate([base, ops.tanh(to_clear_pin / ZOOM), ops.tanh(carry / ZOOM)])
+
+
 #: Known feature sets and how many values each appends.
-FEATURES = {"suction_debris_targets": 14, "suction_debris_routes": 21, "suction_debris_cleared_pins": 26}
+FEATURES = {"suction_debris_targets": 14, "suction_debris_routes": 21, "suction_debris_cleared_pins": 26,
+            "suction_debris_cleared_pins_zoom": 32}
 _FUNCTIONS = {"suction_debris_targets": suction_debris_targets, "suction_debris_routes": suction_debris_routes,
-              "suction_debris_cleared_pins": suction_debris_cleared_pins}
+              "suction_debris_cleared_pins": suction_debris_cleared_pins,
+              "suction_debris_cleared_pins_zoom": suction_debris_cleared_pins_zoom}
 #: Feature sets that carry the scene's geometry in their spec (:func:`routes_geometry`).
-NEEDS_GEOMETRY = {"suction_debris_routes", "suction_debris_cleared_pins"}
+NEEDS_GEOMETRY = {"suction_debris_routes", "suction_debris_cleared_pins", "suction_debris_cleared_pins_zoom"}
 
 
 def apply(spec: dict, observation):
