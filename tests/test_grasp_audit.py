@@ -22,6 +22,10 @@ def test_the_scripted_surgeon_grasps_every_pin_by_its_centre():
     assert result["success_rate"] == 1.0 and result["mean_grasps"] == 3.0 and result["mean_debris_delivered"] == 3.0
     assert result["undeliverable_grasp_fraction"] == 0.0 and result["mean_drops"] == 0.0
     assert result["episodes_by_debris_delivered"] == [0, 0, 0, 3]
+    sides = result["pins_by_cavity"]
+    assert sides["near"]["pins"] + sides["far"]["pins"] == 9
+    for side in sides.values():
+        assert side["grasped"] == side["delivered"] == side["pins"]
 
 
 def test_a_grasper_that_opens_mid_carry_is_counted_dropping():
