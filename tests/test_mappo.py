@@ -535,6 +535,38 @@ def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
     assert grasp.potential(state)[0] == pytest.approx(plain.potential(state)[0])
 
 
+def test_trainer_runs_with_the_open_approach_and_zoomed_features(tmp_path):
+    """held_tool_logit and the zoomed feature set through a whole tiny run: the exported grasper computes both
+    (its numpy policy reads the plain observation) and leans its jaw by whether it holds a pin."""
+    text = TINY.format(algorithm="ippo", surgeon="none", seat="grasper") + (
+        "[model]\n" if "[model]" not in TINY else "")
+    text = text.replace("hidden = [16, 16]\n", 'hidden = [16, 16]\ntool_head = "switch"\n'
+                        'initial_tool_logit = { suction = 3.0, grasper = 2.0 }\nheld_tool_logit = { grasper = -10.0 }\n'
+                        'observation_features = "suction_debris_cleared_pins_zoom"\n')
+    path = tmp_path / "open_zoom.toml"
+    path.write_text(text)
+    config = mappo.load_config(path)
+    assert config.held_tool_logit == {"grasper": -10.0}
+    run = tmp_path / "run"
+    mappo.train(config, 0, run, progress=False, log=lambda *_: None)
+    grasper = policies.load(run / "policies" / "marl-grasper")
+    assert grasper.spec["features"]["name"] == "suction_debris_cleared_pins_zoom"
+    assert grasper.spec["layer_sizes"][1:3] == [17, 17]  # the hidden layers carry the "holding" unit
+    observation = np.zeros(30)
+    free = grasper(observation)
+    observation[9 + 3:9 + 5] = 1.0  # pin 0 visible and held
+    held = grasper(observation)
+    assert free[3] == 1.0 and held[3] == -1.0  # open on the way, closed while it carries
+    assert mappo.load_config(run / "config.toml").held_tool_logit == {"grasper": -10.0}
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "baselines" / "results" / "marl").glob("*.toml")), ids=lambda p: p.stem)
+def test_every_recorded_multi_agent_configuration_loads(path):
+    """The configurations of the recorded runs (baselines/results/marl) still read, so each can be rerun."""
+    config = mappo.load_config(path)
+    assert config.algorithm in mappo.ALGORITHMS and config.total_steps >= 1
+
+
 @pytest.mark.parametrize("path", sorted(p for pattern in ("suction_debris_mappo*.toml", "suction_debris_ippo*.toml")
                                        for p in (ROOT / "baselines" / "configs").glob(pattern)), ids=lambda p: p.stem)
 def test_every_shipped_multi_agent_configuration_loads(path):
