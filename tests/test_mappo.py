@@ -560,6 +560,34 @@ def test_trainer_runs_with_the_open_approach_and_zoomed_features(tmp_path):
     assert mappo.load_config(run / "config.toml").held_tool_logit == {"grasper": -10.0}
 
 
+def test_mappo_critic_on_the_agent_specific_state_trains_and_resumes(tmp_path):
+    """critic_input = "state_and_observation": each agent's value from the state and its own observation (and
+    features); a tiny run trains, its checkpoint resumes, and the critic's inputs reach the value."""
+    text = TINY.format(algorithm="mappo", surgeon="none", seat="grasper").replace(
+        "hidden = [16, 16]\n", 'hidden = [16, 16]\ncritic_input = "state_and_observation"\n'
+        'observation_features = "suction_debris_cleared_pins_zoom"\n')
+    path = tmp_path / "agent_specific.toml"
+    path.write_text(text)
+    config = mappo.load_config(path)
+    run = tmp_path / "run"
+    mappo.train(config, 0, run, total_steps=1024, progress=False, log=lambda *_: None)
+    final = mappo.train(config, 0, run, total_steps=2048, resume=True, progress=False, log=lambda *_: None)
+    assert final["steps"] == 2048
+    _, critic, _, norms = mappo._build_models(config, ["suction", "grasper"], 30, 33, 4)
+    assert set(norms) == {"observation", "state", "critic_observation"}
+    from tensordict import TensorDict
+
+    observation = torch.zeros(5, 2, 30)
+    td = TensorDict({"state": torch.zeros(5, 33), "agents": TensorDict({"observation": observation},
+                                                                        batch_size=[5, 2])}, batch_size=[5])
+    with torch.no_grad():
+        before = critic(td)["agents", "state_value"].clone()
+        td["agents", "observation"][:, 1, 0] = 1.0  # the grasper's own tip moves: only its value changes
+        after = critic(td)["agents", "state_value"]
+    assert before.shape == (5, 2, 1)
+    assert torch.equal(before[:, 0], after[:, 0]) and not torch.equal(before[:, 1], after[:, 1])
+
+
 @pytest.mark.parametrize("path", sorted((ROOT / "baselines" / "results" / "marl").glob("*.toml")), ids=lambda p: p.stem)
 def test_every_recorded_multi_agent_configuration_loads(path):
     """The configurations of the recorded runs (baselines/results/marl) still read, so each can be rerun."""

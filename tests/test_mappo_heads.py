@@ -343,6 +343,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
     ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = 'closed' }\n", "held_tool_logit.grasper must be a finite"),
     ("[model]\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit needs tool_head = \"switch\""),
+    ("[model]\ncritic_input = 'everything'\n", "critic_input must be one of"),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):
     path = tmp_path / "bad.toml"
