@@ -15,8 +15,8 @@
   folded into the exported actor's first layer).
 - **Loss**: TorchRL's ``ClipPPOLoss`` and ``GAE`` over the ``("agents", ...)`` keys, rewards scaled by a running
   standard deviation of the discounted return (per agent), a few epochs on large minibatches (Yu et al. 2022).
-- **What is meant to make the task learnable** (``[curriculum]``, ``[shaping]``; measured in
-  ``baselines/README.md``: with them both arms learn the task together from scratch): the env's dense reward (potential-based shaping
+- **What makes the task learnable** (``[curriculum]``, ``[shaping]``; measured in ``baselines/README.md``: with
+  them both arms learn the task together from scratch): the env's dense reward (potential-based shaping
   keeps the optimum; success is still the sparse rule), :class:`dvrl_marl.training.shaping.GraspPathShaping` and a curriculum over start
   states that ends on the default task. A fraction ``easy_fraction`` of the worlds that reset draws an easier
   episode: each cavity empty with ``empty_cavity_probability``, otherwise uniform in ``[0, blood_ml]`` (no blood
