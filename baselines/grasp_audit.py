@@ -37,8 +37,9 @@ def audit(suction: str, grasper: str, episodes: int, seed: int, noise: bool) -> 
 
     held_before = slots(observations["grasper"])[:, :, 4] > 0.5
     # which cavity each pin lies in, from the grasper's side: near (over the grasper's own side, x > 0) or far
-    near = observations["grasper"][:, debris_slice].reshape(episodes, count, 6)[:, :, 0] > 0.0
-    hidden = slots(observations["grasper"])[:, :, 3] < 0.5  # a hidden pin reads 0: learn its side once it shows
+    first = slots(observations["grasper"])
+    near = first[:, :, 0] > 0.0
+    hidden = first[:, :, 3] < 0.5  # a hidden pin reads 0: learn its side once it shows
     grasped_ever = np.zeros((episodes, count), dtype=bool)
     grasps, drops, carry_steps = np.zeros(episodes), np.zeros(episodes), np.zeros(episodes)
     delivered, success, done = np.zeros(episodes), np.zeros(episodes, dtype=bool), np.zeros(episodes, dtype=bool)

@@ -538,9 +538,8 @@ def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
 def test_trainer_runs_with_the_open_approach_and_zoomed_features(tmp_path):
     """held_tool_logit and the zoomed feature set through a whole tiny run: the exported grasper computes both
     (its numpy policy reads the plain observation) and leans its jaw by whether it holds a pin."""
-    text = TINY.format(algorithm="ippo", surgeon="none", seat="grasper") + (
-        "[model]\n" if "[model]" not in TINY else "")
-    text = text.replace("hidden = [16, 16]\n", 'hidden = [16, 16]\ntool_head = "switch"\n'
+    text = TINY.format(algorithm="ippo", surgeon="none", seat="grasper").replace(
+        "hidden = [16, 16]\n", 'hidden = [16, 16]\ntool_head = "switch"\n'
                         'initial_tool_logit = { suction = 3.0, grasper = 2.0 }\nheld_tool_logit = { grasper = -10.0 }\n'
                         'observation_features = "suction_debris_cleared_pins_zoom"\n')
     path = tmp_path / "open_zoom.toml"

@@ -190,7 +190,8 @@ def suction_debris_cleared_pins(observation, *, cavities: int, debris: int, cavi
 
 
 #: :func:`suction_debris_cleared_pins_zoom`'s scale: 5 mm in the observation's normalised units (workspace range
-#: 80 mm); tanh(offset / ZOOM) resolves the last few millimetres and saturates beyond about a centimetre.
+#: 80 mm, tasks/suction_debris.toml), fixed as every feature set's definition is; tanh(offset / ZOOM) resolves the
+#: last few millimetres and saturates beyond about a centimetre.
 ZOOM = 0.005 / 0.08
 
 

@@ -381,11 +381,9 @@ def observation_feature_spec(config: MappoConfig, obs_dim: int) -> dict | None:
     geometry (read from the env the configuration describes)."""
     if not config.observation_features:
         return None
-    from dvrl_marl import assets
     from dvrl_marl.policies import features
 
-    cavities = len(assets.CAVITY_CENTRES)  # the observation: 10 + cavities + 6 x debris values
-    debris = (obs_dim - 10 - cavities) // 6
+    cavities, debris = _observation_slots(obs_dim)
     spec = {"name": config.observation_features, "cavities": cavities, "debris": debris}
     if config.observation_features in features.NEEDS_GEOMETRY:
         env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled", **config.env)
@@ -394,13 +392,18 @@ def observation_feature_spec(config: MappoConfig, obs_dim: int) -> dict | None:
     return spec
 
 
+def _observation_slots(obs_dim: int) -> tuple[int, int]:
+    """(cavities, debris slots) of a collaborative agent's observation: 10 + cavities + 6 x debris values."""
+    from dvrl_marl import assets
+
+    cavities = len(assets.CAVITY_CENTRES)
+    return cavities, (obs_dim - 10 - cavities) // 6
+
+
 def held_flag_indices(obs_dim: int) -> list[int]:
     """Where a collaborative agent's observation says which pin is held (one flag per debris slot; at most one is
     set, so their sum is 1 while the arm holds a pin and 0 otherwise)."""
-    from dvrl_marl import assets
-
-    cavities = len(assets.CAVITY_CENTRES)  # the observation: 10 + cavities + 6 x debris values
-    debris = (obs_dim - 10 - cavities) // 6
+    cavities, debris = _observation_slots(obs_dim)
     return [7 + cavities + 6 * slot + 4 for slot in range(debris)]
 
 
@@ -513,7 +516,7 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
         and agent i's own observation with its features, one network per agent (..., A, 1). Why: the trainer's
         shaping potentials are functions of what the features compute (the pin to collect, the climb out of a
         cavity, the carry); IPPO's critics read those features and MAPPO's state-only critic had to rebuild them
-        from raw positions (measured: MAPPO 0.52 and 0.04 where IPPO reached 0.95 on the same recipe)."""
+        from raw positions (measured on the same recipe, test seeds: 0.52 and 0.47 against 1.00 x 3 with this critic)."""
 
         def __init__(self, state_norm, observation):
             super().__init__()
