@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import signal
 import sys
 from pathlib import Path
 
@@ -143,18 +146,35 @@ def _plot(args) -> int:
 
 
 def _demo(args) -> int:
-    import os
-
     from dvrl_marl.demo import format_summary, run_demo
 
     if args.surgeon == "keyboard" and not os.environ.get("DISPLAY"):
         raise ValueError("--surgeon keyboard needs a display (the scene's window takes the keys); on a headless "
                          "machine run it under xvfb-run")
-    metrics = run_demo(surgeon=args.surgeon, out=args.out, seed=args.seed, max_cycles=args.max_cycles,
-                       video=not args.no_video, progress=not args.no_progress, pipeline=args.pipeline,
-                       team=args.team, record=args.record)
+    with _sigterm_as_interrupt():  # `kill` ends the episode as Ctrl-C does: metrics and recording are written
+        metrics = run_demo(surgeon=args.surgeon, out=args.out, seed=args.seed, max_cycles=args.max_cycles,
+                           video=not args.no_video, progress=not args.no_progress, pipeline=args.pipeline,
+                           team=args.team, record=args.record)
     print(format_summary(metrics))
     return 0
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt while the block runs, so a session stopped with ``kill`` (or by a service
+    manager) takes the same path as Ctrl-C and writes what a person recorded before the process ends."""
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread (an embedding program): leave its signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _teleop(args) -> int:
@@ -169,7 +189,8 @@ def _teleop(args) -> int:
     if not args.no_record:
         print(f"every episode is recorded; the Minari dataset {session.dataset_id} (or its next free version) is "
               "written when you stop recording or the server stops", flush=True)
-    saved = server.run()
+    with _sigterm_as_interrupt():  # `kill` stops the server as Ctrl-C does: the recording is written first
+        saved = server.run()
     for dataset in saved:
         if dataset.get("id"):
             print(f"saved Minari dataset {dataset['id']}: {dataset['episodes']} episodes "
@@ -255,8 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--episodes", type=int, default=100)
     team.add_argument("--seed", type=int, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
-    team.add_argument("--task", choices=["suction_debris", "suction_debris_v1"],
-                      help="the scene's task (default: suction_debris, v0's; suction_debris_v1 for v1 policies)")
+    team.add_argument("--task", choices=["suction_debris", "suction_debris_v1", "suction_debris_v2"],
+                      help="the scene's task (default: suction_debris, v0's; suction_debris_v1 / _v2 for the newer "
+                           "scenes)")
     team.add_argument("--noise", action="store_true",
                       help="learned seats act with the exploration noise they trained with (seeded; their policy.json "
                            "records it), not their mean action")

@@ -154,15 +154,21 @@ def save_episodes(dataset_id: str, buffers, env, *, description: str, algorithm_
 
 
 def next_free_id(dataset_id: str) -> str:
-    """``dataset_id`` if no local dataset has it, else the same name at the first free version (``-v2``, ``-v3``...)."""
+    """``dataset_id`` if no local dataset has it, else the same name at the first free version (``-v2``, ``-v3``...).
+
+    A version is taken when Minari lists it or when anything lies at its path: a damaged dataset folder (an
+    interrupted write, a hand-edited metadata file) is not listed by Minari, yet writing there fails, and a person's
+    recording must never be lost to it."""
     minari = _minari()
     _check_id(dataset_id)
     from minari.dataset.minari_dataset import gen_dataset_id, parse_dataset_id
+    from minari.storage.datasets_root_dir import get_dataset_path
 
     namespace, name, version = parse_dataset_id(dataset_id)
     taken = set(minari.list_local_datasets())
     version = 1 if version is None else int(version)
-    while gen_dataset_id(namespace, name, version) in taken:
+    while (gen_dataset_id(namespace, name, version) in taken
+           or get_dataset_path(gen_dataset_id(namespace, name, version)).exists()):
         version += 1
     return gen_dataset_id(namespace, name, version)
 

@@ -34,6 +34,7 @@ _VECTOR_ENTRY_POINTS = {
 #: One seat of the collaborative scene as a Gymnasium env, the partner inside (datasets, behaviour cloning).
 SEAT_ENV_IDS = {
     "dvrl_marl/SurgeonSeat-v1": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper", "version": "v1"}),
+    "dvrl_marl/SurgeonSeat-v2": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper", "version": "v2"}),
 }
 
 #: PettingZoo ids -> (parallel entry point, AEC entry point)
@@ -45,6 +46,10 @@ MULTI_AGENT_ENV_IDS = {
     "dvrl_marl/suction_debris-v1": (
         "dvrl_marl.envs.suction_debris_v1:parallel_env",
         "dvrl_marl.envs.suction_debris_v1:env",
+    ),
+    "dvrl_marl/suction_debris-v2": (
+        "dvrl_marl.envs.suction_debris_v2:parallel_env",
+        "dvrl_marl.envs.suction_debris_v2:env",
     ),
 }
 

@@ -33,7 +33,7 @@ class SceneRenderer:
 
     def __init__(self, model, data, render_mode: str | None, camera: str = "endoscope", width: int = 640,
                  height: int = 480, key_listener=None, overlay=None, title: str = "dvrl-marl",
-                 frame_budget: float | None = None):
+                 frame_budget: float | None = None, decorate=None):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
         if render_mode == "human":
@@ -43,6 +43,8 @@ class SceneRenderer:
         # "human" only: key events in the window go to key_listener (e.g. a KeyboardDevice); overlay() returns
         # the text drawn over the scene; frame_budget lets the window drop shadows when frames cost more.
         self.key_listener, self.overlay, self.title, self.frame_budget = key_listener, overlay, title, frame_budget
+        # decorate(scene) adds marks to the updated MjvScene of every frame (e.g. the seat's drop lines)
+        self.decorate = decorate
         self._renderer = None
         self._viewer = None
         # With a frame_budget, offscreen frames that cost more give up shadows, then multisampling (look only: the
@@ -61,6 +63,8 @@ class SceneRenderer:
             self._renderer = self._offscreen_renderer()
         began = time.perf_counter()
         self._renderer.update_scene(self.data, camera=self.camera)
+        if self.decorate is not None:
+            self.decorate(self._renderer.scene)
         if not self.shadows:
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         frame = self._renderer.render()
@@ -117,10 +121,15 @@ class SceneRenderer:
             from dvrl_marl.viewer import ViewerWindow
 
             self._viewer = ViewerWindow(self.model, self.data, title=self.title, camera=self.camera, width=self.width,
-                                        height=self.height, frame_budget=self.frame_budget)
+                                        height=self.height, frame_budget=self.frame_budget, decorate=self.decorate)
             if self.key_listener is not None:
                 self._viewer.add_key_listener(self.key_listener)
         return self._viewer
+
+    def forward(self) -> None:
+        """Bring the model's derived quantities (body poses, lights) up to date with ``data`` before a window draws
+        it outside :meth:`render` (a window waiting for ENTER): without it the first frame of an episode is dark."""
+        mujoco.mj_forward(self.model, self.data)
 
     @property
     def window_closed(self) -> bool:

@@ -31,6 +31,8 @@ _GRID = {
     "top": mujoco.mjtGridPos.mjGRID_TOP, "bottom": mujoco.mjtGridPos.mjGRID_BOTTOM,
 }
 _COST_SMOOTHING = 0.2  # weight of the newest frame in the running frame cost
+#: mjv_moveCamera(m, action, dx, dy, scn, cam) before MuJoCo 4; (m, action, dx, dy, cam) from 4.0 on.
+_MOVE_CAMERA_TAKES_SCENE = int(mujoco.__version__.split(".")[0]) < 4
 
 
 class ViewerWindow:
@@ -41,7 +43,7 @@ class ViewerWindow:
     """
 
     def __init__(self, model, data, title: str = "dvrl-marl", camera: str | None = "endoscope", width: int = 640,
-                 height: int = 480, frame_budget: float | None = None):
+                 height: int = 480, frame_budget: float | None = None, decorate=None):
         require_display()
         import glfw
 
@@ -54,6 +56,7 @@ class ViewerWindow:
         glfw.make_context_current(window)
         glfw.swap_interval(0)  # the caller paces; waiting for vertical sync would add up to a frame of lag
         self.model, self.data, self.title = model, data, title
+        self.decorate = decorate  # decorate(scene): marks added to each frame's updated scene
         self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         self._scene = mujoco.MjvScene(model, maxgeom=4000)
         self._option = mujoco.MjvOption()
@@ -104,6 +107,8 @@ class ViewerWindow:
         viewport = mujoco.MjrRect(0, 0, width, height)
         mujoco.mjv_updateScene(self.model, self.data, self._option, None, self._camera,
                                mujoco.mjtCatBit.mjCAT_ALL, self._scene)
+        if self.decorate is not None:
+            self.decorate(self._scene)
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = self.shadows
         mujoco.mjr_render(viewport, self._scene, self._context)
         for position, left, right in overlays:
@@ -182,10 +187,15 @@ class ViewerWindow:
         height = max(self._glfw.get_window_size(window)[1], 1)
         action = (mujoco.mjtMouse.mjMOUSE_ROTATE_V if button == self._glfw.MOUSE_BUTTON_LEFT
                   else mujoco.mjtMouse.mjMOUSE_MOVE_V)
-        mujoco.mjv_moveCamera(self.model, action, (x - last_x) / height, (y - last_y) / height, self._scene,
-                              self._free_camera)
+        self._move_camera(action, (x - last_x) / height, (y - last_y) / height)
 
     def _on_scroll(self, window, x_offset, y_offset) -> None:
         if self._camera is self._free_camera:
-            mujoco.mjv_moveCamera(self.model, mujoco.mjtMouse.mjMOUSE_ZOOM, 0.0, -0.05 * y_offset, self._scene,
-                                  self._free_camera)
+            self._move_camera(mujoco.mjtMouse.mjMOUSE_ZOOM, 0.0, -0.05 * y_offset)
+
+    def _move_camera(self, action, dx: float, dy: float) -> None:
+        """Move the free camera; MuJoCo 4 dropped the scene argument that 3.x takes (both are accepted versions)."""
+        if _MOVE_CAMERA_TAKES_SCENE:
+            mujoco.mjv_moveCamera(self.model, action, dx, dy, self._scene, self._free_camera)
+        else:
+            mujoco.mjv_moveCamera(self.model, action, dx, dy, self._free_camera)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v1
+from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -246,6 +246,13 @@ def test_batched_v1_equals_single_env_while_cavities_bleed():
     assert_batched_collaborative_matches(3, seed=22, steps=1000, action_seed=6, scripted=True, reward_type="dense",
                                          max_cycles=300, module=suction_debris_v1, bleeding_ml_s=0.4,
                                          bleeding_onset_s=2.0)
+
+
+def test_batched_v2_equals_single_env_grip_handoff_and_drops_kept_on_the_phantom():
+    # Noisy experts grasp off centre and now and then drop a carried pin, many of them beyond the phantom on the
+    # way to the hand-off point: v2's hand-off at the grip and its edge landing, world by world.
+    assert_batched_collaborative_matches(3, seed=23, steps=1250, action_seed=7, scripted=True, reward_type="dense",
+                                         max_cycles=600, module=suction_debris_v2, drop_probability=0.03)
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -329,8 +329,10 @@ def test_the_window_overlay_tells_a_person_what_to_do(x_display, monkeypatch):
     env = suction_debris_v0.parallel_env(surgeon=KeyboardDevice(), render_mode="human", max_cycles=5)
     assert env.surgeon_label == "keyboard" and env.human_seat
     texts = {position: left + "|" + right for position, left, right in env.overlay()}
-    assert "Blood left" in texts["top left"] and "8.0 + 8.0" in texts["top left"]
+    assert "Blood left" in texts["top left"] and "8.0 ml + 8.0 ml" in texts["top left"]
     assert "grasper (keyboard)" in texts["top left"] and "0 / 3" in texts["top left"]
+    assert "of 0.1 s" in texts["top left"]  # the time limit
+    assert "Tip height" in texts["top left"] and "Jaw" in texts["top left"] and "open" in texts["top left"]
     assert "SPACE" in texts["bottom right"] and "jaw" in texts["bottom right"]
     env.window.draw(env.overlay())
     with_overlay = env.window.screenshot()
@@ -339,3 +341,89 @@ def test_the_window_overlay_tells_a_person_what_to_do(x_display, monkeypatch):
     changed = np.any(with_overlay != without, axis=2)
     assert changed[:120, :300].mean() > 0.05 and changed[-200:, -200:].mean() > 0.05  # both panels are drawn
     env.close()
+
+
+# --- v2's seat: cues, an off-centre grasp delivered, the free camera, SIGTERM ---------------------------------------
+class _WindowKeys(KeyboardDevice):
+    human_operated = False  # the test sets the scene up first; the keys still come from the window
+
+
+def _focus(display, name):
+    environment = {**os.environ, "DISPLAY": display}
+    window = _xdotool(display, "search", "--sync", "--name", name).split()[0]
+    for _ in range(100):
+        subprocess.run(["xdotool", "windowfocus", window], env=environment, capture_output=True, timeout=30)
+        if _xdotool(display, "getwindowfocus").strip() == window:
+            return window
+        time.sleep(0.1)
+    raise AssertionError(f"the window {name!r} never took the keyboard focus")
+
+
+def _overlay_text(env):
+    return "\n".join(left + "|" + right for _, left, right in env.overlay())
+
+
+def test_the_desktop_seat_shows_the_cues_and_delivers_a_pin_gripped_off_centre(desktop, monkeypatch):
+    from dvrl_marl.core.collaborative import PIN_RADIUS
+    from dvrl_marl.envs import suction_debris_v2
+
+    monkeypatch.setenv("DISPLAY", desktop)
+    keys = _WindowKeys()
+    env = suction_debris_v2.parallel_env(surgeon=keys, render_mode="human", blood_ml=[0.0, 0.0], max_cycles=3000)
+    env.reset(seed=0)
+    height = env.phantom.top_z + PIN_RADIUS
+    tips = {"suction": np.array(env.arms["suction"].tip_world()), "grasper": np.array([0.049, 0.02, height])}
+    env.set_state(tips={agent: env.arms[agent].to_base(tip) for agent, tip in tips.items()}, jaw=1.0,
+                  valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.04, 0.02, height]] * 3,
+                  debris_yaws=[0.0] * 3, visible=[True] * 3, delivered=[False, True, True])
+    env.step({"suction": np.zeros(4)})
+    _focus(desktop, "dvrl-marl: suction")
+    assert "pin IN REACH" in _overlay_text(env) and "Tip height" in _overlay_text(env)
+    _xdotool(desktop, "key", "space")  # a person closes the jaw: 9 mm from the pin's centre
+    for _ in range(10):
+        env.step({"suction": np.zeros(4)})
+    assert env.cues("grasper")["holding"], _overlay_text(env)
+    assert "holding a pin" in _overlay_text(env) and "mm to the hand-off" in _overlay_text(env)
+    window_keys = (("a", "d"), ("s", "w"), ("f", "r"))
+    down = set()
+    for _ in range(600):  # hold the keys that point at the hand-off point, as a person reading the overlay would
+        if not env.agents:
+            break
+        tip = np.asarray(env.arms["grasper"].tip_world())
+        wanted = {plus if offset > 0 else minus for (minus, plus), offset in zip(window_keys, np.subtract(env.handoff, tip))
+                  if abs(offset) > 0.0008}
+        for key in down - wanted:
+            _xdotool(desktop, "keyup", key)
+        for key in wanted - down:
+            _xdotool(desktop, "keydown", key)
+        down = wanted
+        env.step({"suction": np.zeros(4)})
+    for key in down:
+        _xdotool(desktop, "keyup", key)
+    assert env.debris[0].delivered and not env.agents, _overlay_text(env)
+    assert "SUCCESS" in _overlay_text(env)
+    env.close()
+
+
+def test_the_free_camera_drags_and_scrolls_and_sigterm_keeps_the_recording(desktop, tmp_path):
+    process, window = _start_demo(desktop, tmp_path, max_cycles=3000)
+    _xdotool(desktop, "key", "Return")
+    _xdotool(desktop, "keydown", "w")
+    time.sleep(0.5)
+    _xdotool(desktop, "keyup", "w")
+    _xdotool(desktop, "key", "Tab")  # the free camera
+    _xdotool(desktop, "mousemove", "--window", window, "300", "200")
+    _xdotool(desktop, "mousedown", "1")
+    for x in range(310, 400, 15):  # a drag rotates it
+        _xdotool(desktop, "mousemove", "--window", window, str(x), "220")
+        time.sleep(0.05)
+    _xdotool(desktop, "mouseup", "1")
+    _xdotool(desktop, "click", "--repeat", "3", "4")  # the wheel zooms
+    time.sleep(1.0)
+    assert process.poll() is None, process.communicate()[0]  # (MuJoCo 4's camera call once ended the demo here)
+    process.send_signal(15)  # SIGTERM, as `kill` sends: the episode ends and nothing is lost
+    output, metrics = _finish(process, tmp_path)
+    assert metrics["interrupted"] and "interrupted" in output and 10 < metrics["steps"] < 3000
+    _, actions, _ = load_demonstration(tmp_path / "seat.npz")
+    # (the signal may land inside a step whose action the recorder already kept)
+    assert metrics["steps"] <= len(actions) <= metrics["steps"] + 1 and actions[:, 1].max() == 1.0

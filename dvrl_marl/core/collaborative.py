@@ -36,6 +36,9 @@ PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28
 PIN_SLOTS = (0.0, -0.004, 0.004, -0.008, 0.008)
 #: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
 PIN_SENSOR_RANGE = PIN_RADIUS + 0.0015
+#: suction_debris_v2: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
+#: radius and a jaw's width: it lies wholly on the top, in the endoscope's view, where the grasper can take it again).
+PHANTOM_EDGE_MARGIN = 0.005
 #: Tip start positions (world) before the seeded jitter.
 STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
@@ -88,13 +91,12 @@ def segment_distance(p1, q1, p2, q2) -> np.ndarray:
     return np.sqrt(_dot(difference, difference))
 
 
-def _point_segment_distance(point, start, end) -> np.ndarray:
+def _closest_on_segment(point, start, end) -> np.ndarray:
     d, v = end - start, point - start
     length2 = _dot(d, d)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(length2 > 0, np.minimum(np.maximum(_dot(v, d) / length2, 0.0), 1.0), 0.0)
-    offset = point - (start + t[..., None] * d)
-    return np.sqrt(_dot(offset, offset))
+    return start + t[..., None] * d
 
 
 def _distance(u, v) -> np.ndarray:
@@ -130,6 +132,15 @@ class _Cavities:
         depth = np.maximum(depth.max(axis=-1), 0.0)
         outside = (np.abs(x - p.centre_x) > p.half_x) | (np.abs(y - p.centre_y) > p.half_y)
         return np.where(outside, p.table_z, p.top_z - depth)
+
+    def nearest_on_top(self, x, y, margin: float):
+        """:meth:`Phantom.nearest_on_top` element-wise."""
+        p = self.phantom
+        dx, dy = x - p.centre_x, y - p.centre_y
+        over = (np.abs(dx) <= p.half_x) & (np.abs(dy) <= p.half_y)
+        reach_x, reach_y = p.half_x - margin, p.half_y - margin
+        return (np.where(over, x, p.centre_x + np.minimum(np.maximum(dx, -reach_x), reach_x)),
+                np.where(over, y, p.centre_y + np.minimum(np.maximum(dy, -reach_y), reach_y)))
 
     def cavity_at(self, x, y) -> np.ndarray:
         """Index of the first cavity whose mouth contains (x, y), or -1."""
@@ -201,6 +212,7 @@ class CollaborativeCore:
         self.bleed_rate = np.zeros((n, c))  # ml/s
         self.holding = np.full(n, -1, dtype=np.int64)  # index of the held pin, -1 for none
         self.hold_offset = np.zeros((n, 3))
+        self.grip_offset = np.zeros((n, 3))  # where the jaws hold the held pin, from the tip (v2's hand-off)
         self.elapsed = np.zeros(n, dtype=np.int64)
         self.contact = np.zeros(n, dtype=bool)
         self.complete = np.zeros(n, dtype=bool)
@@ -436,6 +448,10 @@ class CollaborativeCore:
         if release.any():  # released away from the assistant: it drops onto the surface below it
             worlds = np.flatnonzero(release)
             pins = self.holding[worlds]
+            if self.params.pins_stay_on_phantom:  # v2: beyond the phantom, it lands on the nearest edge (in view)
+                position = self.debris_position[worlds, pins]
+                x, y = self.cavities.nearest_on_top(position[:, 0], position[:, 1], PHANTOM_EDGE_MARGIN)
+                self.debris_position[worlds, pins, 0], self.debris_position[worlds, pins, 1] = x, y
             if self.params.pins_fall:  # it falls (see _fall)
                 self.fall_speed[worlds, pins] = 0.0
             else:  # v0: it appears on the surface below it at once
@@ -451,7 +467,8 @@ class CollaborativeCore:
             axis = np.zeros(position.shape)
             axis[..., 0] = PIN_HALF_LENGTH * np.cos(yaw)
             axis[..., 1] = PIN_HALF_LENGTH * np.sin(yaw)
-            distance = _point_segment_distance(tip[worlds, None, :], position - axis, position + axis)
+            grip = _closest_on_segment(tip[worlds, None, :], position - axis, position + axis)
+            distance = _distance(tip[worlds, None, :], grip)
             seen = self.visible[worlds] & ~self.delivered[worlds] & (distance <= PIN_SENSOR_RANGE)
             found = seen.any(axis=1)
             worlds, pins = worlds[found], np.argmax(seen[found], axis=1)
@@ -459,6 +476,7 @@ class CollaborativeCore:
             self.held[worlds, pins] = True
             self.fall_speed[worlds, pins] = np.nan  # caught
             self.hold_offset[worlds] = self.debris_position[worlds, pins] - tip[worlds]
+            self.grip_offset[worlds] = grip[found][np.arange(len(worlds)), pins] - tip[worlds]
             first = ~self.lifted[worlds, pins]
             self.lifted[worlds, pins] = True
             lifted[worlds] = first.astype(np.float64)
@@ -468,6 +486,8 @@ class CollaborativeCore:
             pins = self.holding[worlds]
             position = tip[worlds] + self.hold_offset[worlds]
             self.debris_position[worlds, pins] = position
+            if self.params.deliver_at_grip:  # v2: judged where the jaws hold the pin
+                position = tip[worlds] + self.grip_offset[worlds]
             arrived = _distance(position, self.handoff) <= self.params.distance_threshold
             worlds, pins = worlds[arrived], pins[arrived]
             self.held[worlds, pins] = False

@@ -98,6 +98,14 @@ class Phantom:
             depth = max(depth, cavity.floor_depth_at(x, y))
         return self.top_z - depth
 
+    def nearest_on_top(self, x: float, y: float, margin: float) -> tuple[float, float]:
+        """(x, y) when it is over the phantom; else the nearest point ``margin`` inside its top's edge."""
+        dx, dy = x - self.centre_x, y - self.centre_y
+        if abs(dx) <= self.half_x and abs(dy) <= self.half_y:
+            return x, y
+        reach_x, reach_y = self.half_x - margin, self.half_y - margin
+        return (self.centre_x + min(max(dx, -reach_x), reach_x), self.centre_y + min(max(dy, -reach_y), reach_y))
+
     def cavity_at(self, x: float, y: float) -> int:
         """Index of the cavity whose mouth contains (x, y), or -1."""
         for index, cavity in enumerate(self.cavities):

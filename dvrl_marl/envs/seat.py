@@ -24,10 +24,12 @@ info for the seat plus ``partner_action``: what the partner did this step (zeros
 ## Arguments
 ``seat`` (``"grasper"``, default, or ``"suction"``); ``partner``: ``"pipeline"`` (default: the learned_team
 pipeline's arm, the learned Reach policy for the suction), ``"scripted"`` (the built-in expert), a shipped policy
-name or a policy folder, or any ``policy(observation) -> action``; ``version`` (``"v1"``, default, or ``"v0"``);
+name or a policy folder, or any ``policy(observation) -> action``; ``version`` (``"v1"``, default, ``"v2"`` or
+``"v0"``: the scene's version; ``dvrl_marl/SurgeonSeat-v2`` sets ``"v2"``);
 ``render_mode`` ("rgb_array"); every other keyword goes to the scene (``bleeding_ml_s=``, ``max_cycles=``...).
 
 ## Version History
+- v2: on suction_debris_v2 (the hand-off judged at the grip, dropped pins stay in view); the seats a person uses.
 - v1: on suction_debris_v1.
 """
 
@@ -48,9 +50,9 @@ class SeatEnv(gym.Env):
 
     def __init__(self, seat: str = "grasper", partner="pipeline", version: str = "v1", render_mode=None,
                  **scene_kwargs):
-        from dvrl_marl.envs import suction_debris_v0, suction_debris_v1
+        from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
 
-        modules = {"v0": suction_debris_v0, "v1": suction_debris_v1}
+        modules = {"v0": suction_debris_v0, "v1": suction_debris_v1, "v2": suction_debris_v2}
         if version not in modules:
             raise ValueError(f"SeatEnv: version must be one of {sorted(modules)}, got {version!r}")
         if seat not in suction_debris_v0.AGENTS:

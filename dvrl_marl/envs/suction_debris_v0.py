@@ -116,6 +116,7 @@ from dvrl_marl.core.collaborative import (
     PIN_HALF_LENGTH as _PIN_HALF_LENGTH,
     PIN_RADIUS as _PIN_RADIUS,
     PIN_SENSOR_RANGE as _PIN_SENSOR_RANGE,
+    PHANTOM_EDGE_MARGIN as _PHANTOM_EDGE_MARGIN,
     PIN_SLOTS as _PIN_SLOTS,
     SHAFT_RADIUS as _SHAFT_RADIUS,
     START_JITTER as _START_JITTER,
@@ -124,6 +125,7 @@ from dvrl_marl.core.collaborative import (
     sample_debris,
 )
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
+from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
 from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.teleop.pacing import PacedDisplay
 from dvrl_marl.scene import geom_top, load_model, object_id
@@ -160,6 +162,9 @@ class SuctionDebrisParams:
     suction_reach: float = 0.0  # flow falls linearly to none this far above the surface (m; 0: v0's on/off)
     bleeding_ml_s: float = 0.0  # largest bleeding rate per cavity (0: no bleeding)
     bleeding_onset_s: float = 0.0  # each cavity starts bleeding at a seeded time in [0, this] (s)
+    # Added with suction_debris_v2 (defaults: v0's and v1's behaviour; tasks/suction_debris_v2.toml sets v2's):
+    deliver_at_grip: bool = False  # hand-off judged where the jaws hold the pin (v0/v1: at the pin's centre)
+    pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
 
     @classmethod
     def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
@@ -186,8 +191,9 @@ class SuctionDebrisParams:
         values["blood_ml"] = check_vector(owner, "blood_ml", self.blood_ml, len(assets.CAVITY_CENTRES), low=0.0)
         values["debris_count"] = check_integer(owner, "debris_count", self.debris_count, low=1, high=2 * len(_PIN_SLOTS))
         values["max_cycles"] = check_integer(owner, "max_cycles", self.max_cycles, low=1)
-        if not isinstance(self.pins_fall, bool):
-            raise ValueError(f"{owner}: pins_fall must be true or false, got {self.pins_fall!r}")
+        for key in ("pins_fall", "deliver_at_grip", "pins_stay_on_phantom"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"{owner}: {key} must be true or false, got {getattr(self, key)!r}")
         values.update({key: check_number(owner, key, getattr(self, key), low=0.0)
                        for key in ("suction_reach", "bleeding_ml_s", "bleeding_onset_s")})
         return replace(self, **values)
@@ -231,12 +237,16 @@ def _segment_distance(p1, q1, p2, q2) -> float:
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-def _point_segment_distance(point, start, end) -> float:
+def _closest_on_segment(point, start, end) -> tuple[float, float, float]:
     d = (end[0] - start[0], end[1] - start[1], end[2] - start[2])
     v = (point[0] - start[0], point[1] - start[1], point[2] - start[2])
     length2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     t = min(max((v[0] * d[0] + v[1] * d[1] + v[2] * d[2]) / length2, 0.0), 1.0) if length2 > 0 else 0.0
-    return math.dist(point, (start[0] + t * d[0], start[1] + t * d[1], start[2] + t * d[2]))
+    return (start[0] + t * d[0], start[1] + t * d[1], start[2] + t * d[2])
+
+
+def _point_segment_distance(point, start, end) -> float:
+    return math.dist(point, _closest_on_segment(point, start, end))
 
 
 class _Debris:
@@ -350,6 +360,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self.human_seat = bool(getattr(device, "human_operated", False))
         self._renderer = SceneRenderer(self.model, self.data, render_mode, width=width, height=height,
                                        key_listener=getattr(device, "key_event", None), overlay=self.overlay,
+                                       decorate=self.draw_marks,
                                        title="dvrl-marl: suction & debris",
                                        frame_budget=0.5 * p.control_dt if render_mode == "human" else None)
         self._display = PacedDisplay(self._renderer, p.control_dt) if render_mode == "human" else None
@@ -359,6 +370,10 @@ class SuctionDebrisEnv(ParallelEnv):
         self._step_count = 0
         self.valve_open = False
         self.bleeding = []
+        self._blocked = {agent: False for agent in AGENTS}  # the last move was refused: the other instrument
+        self._drawn_ml = 0.0  # blood the suction drew in the last step
+        self._held = None  # the held pin's index (cues and renders may come before the first reset)
+        self._hold_offset = self._grip_offset = (0.0, 0.0, 0.0)
 
     # --- construction helpers -----------------------------------------------------------------------------
     def _hide_unused_debris(self) -> None:
@@ -449,8 +464,11 @@ class SuctionDebrisEnv(ParallelEnv):
         self.bleeding = self._draw_bleeding(rng)
         self._held = None
         self._hold_offset = (0.0, 0.0, 0.0)
+        self._grip_offset = (0.0, 0.0, 0.0)
         self._step_count = 0
         self._contact = False
+        self._blocked = {agent: False for agent in AGENTS}
+        self._drawn_ml = 0.0
         self.agents = list(self.possible_agents)
         self._work_distances = {agent: self._work_distance(agent) for agent in AGENTS}
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
@@ -482,7 +500,7 @@ class SuctionDebrisEnv(ParallelEnv):
                     self.valve_open = tool_value > 0.0
             elif tool_value is not None:
                 self.arms["grasper"].set_jaw((tool_value + 1.0) * 0.5)
-        removed = self._suction()
+        removed = self._drawn_ml = self._suction()
         self._bleed()
         lifted, delivered = self._grasping()
         self._fall()
@@ -564,24 +582,122 @@ class SuctionDebrisEnv(ParallelEnv):
             "valve_open": bool(self.valve_open),
         }
 
+    def blood_text(self) -> list[str]:
+        """Each cavity's blood as a person reads it: ml left, or "clear" once below ``blood_threshold_ml`` (a
+        cleared cavity may still hold a few tenths of a millilitre, which rounded reads like the threshold)."""
+        threshold = self.params.blood_threshold_ml
+        return ["clear" if v < threshold or v <= 0.0 else f"{v:.1f} ml" for v in self.blood.remaining_ml]
+
+    def cues(self, agent: str) -> dict:
+        """What a person working ``agent``'s arm cannot read from one endoscope view: the tip's height above the
+        surface below it (mm) and above the blood there (suction); whether its last move was refused because the
+        other instrument is in the way (``blocked``); for the grasper, the nearest pin's distance from the jaws
+        (mm), whether closing now takes it (``in_reach``), whether it holds one and how far that is from the hand-off
+        (mm, judged as the scene judges it); for the suction, whether it drew blood in the last step."""
+        if agent not in AGENTS:
+            raise ValueError(f"suction_debris_v0: unknown agent {agent!r}; agents are {list(AGENTS)}")
+        x, y, z = self.arms[agent].tip_world()
+        cues = {"tip_height_mm": 1000.0 * (z - self.phantom.surface_height(x, y)), "blocked": self._blocked[agent]}
+        if agent == "suction":
+            cavity = self.phantom.cavity_at(x, y)
+            wet = cavity >= 0 and self.blood.remaining_ml[cavity] > 0.0
+            cues["above_blood_mm"] = 1000.0 * (z - self.blood.surface_z[cavity]) if wet else None
+            cues["drawing"] = self.valve_open and self._drawn_ml > 0.0
+            return cues
+        tip = (x, y, z)
+        held = self._held is not None
+        cues["holding"] = held
+        cues["handoff_mm"] = (1000.0 * math.dist(self._judged_point(tip, self.debris[self._held]), self.handoff)
+                              if held else None)
+        reachable = [_point_segment_distance(tip, *pin.axis_ends()) for pin in self.debris
+                     if pin.visible and not pin.delivered and not pin.held]
+        nearest = min(reachable, default=None)
+        cues["pin_mm"] = None if nearest is None else 1000.0 * nearest
+        cues["in_reach"] = not held and nearest is not None and nearest <= _PIN_SENSOR_RANGE
+        return cues
+
+    def outline(self) -> dict:
+        """The scene's fixed geometry in millimetres (world frame), for a person's top and side views: the
+        phantom's top (x, y half extents about its centre, height), each cavity (centre, mouth radius, floor), the
+        hand-off point and the workspace box."""
+        phantom = self.phantom
+        mm = 1000.0
+        return {
+            "phantom": {"centre": [mm * phantom.centre_x, mm * phantom.centre_y], "half": [mm * phantom.half_x,
+                        mm * phantom.half_y], "top": mm * phantom.top_z, "table": mm * phantom.table_z},
+            "cavities": [{"centre": [mm * c.centre_x, mm * c.centre_y], "radius": mm * c.mouth_radius,
+                          "floor": mm * c.floor_z} for c in phantom.cavities],
+            "handoff": [mm * v for v in self.handoff],
+            "workspace": {"low": [mm * v for v in self._low], "high": [mm * v for v in self._high]},
+        }
+
+    def pins(self) -> list[dict]:
+        """The pins a person can see (uncovered, not yet delivered): position (mm, world) and whether held."""
+        return [{"mm": [1000.0 * v for v in pin.position], "held": pin.held} for pin in self.debris
+                if pin.visible and not pin.delivered]
+
+    def marks(self) -> list:
+        """The drop lines drawn into the scene (:mod:`dvrl_marl.envs.marks`): one per arm, tip to surface."""
+        reach = self.cues("grasper")["in_reach"]
+        marks = []
+        for agent in AGENTS:
+            x, y, z = self.arms[agent].tip_world()
+            colour = COLOURS["in_reach"] if agent == "grasper" and reach else COLOURS[agent]
+            marks.append(Mark((x, y, z), (x, y, self.phantom.surface_height(x, y)), colour))
+        return marks
+
+    def draw_marks(self, scene) -> None:
+        """Add the marks to an updated ``MjvScene`` (the renderers call this for every frame)."""
+        add_marks(scene, self.marks(), self.handoff)
+
     def overlay(self) -> list[tuple[str, str, str]]:
         """What the window draws over the scene (``render_mode="human"``): ``(position, labels, values)`` panels."""
         progress = self.progress()
-        blood = " + ".join(f"{v:.1f}" for v in progress["blood_ml"])
         total = progress["debris_total"]
         seat = f"{self.surgeon_seat} ({self.surgeon_label})" if self.surgeon_seat else "none"
-        overlays = [("top left",
-                     "Blood left (ml)\nDebris found\nDebris delivered\nTime\nSurgeon seat",
-                     f"{blood}\n{progress['debris_found']} / {total}\n{progress['debris_delivered']} / {total}\n"
-                     f"{progress['time_s']:.1f} s\n{seat}")]
+        limit = self.params.max_cycles * self.params.control_dt
+        labels = ["Blood left", "Debris found", "Debris delivered", "Time", "Surgeon seat"]
+        values = [" + ".join(self.blood_text()), f"{progress['debris_found']} / {total}",
+                  f"{progress['debris_delivered']} / {total}", f"{progress['time_s']:.1f} s of {limit:.4g} s", seat]
+        if self.surgeon_seat is not None:
+            labels_, values_ = self._cue_rows(self.surgeon_seat)
+            labels += labels_
+            values += values_
+        overlays = [("top left", "\n".join(labels), "\n".join(values))]
         help_rows = getattr(self._surgeon, "KEY_HELP", None) if self._surgeon_is_device else None
         if help_rows:
             overlays.append(("bottom right", "\n".join(k for k, _ in help_rows), "\n".join(v for _, v in help_rows)))
         if self._display is not None and self._display.waiting:
             overlays.append(("top", "Press ENTER to start", ""))
         elif self.agents == [] and self._step_count > 0:
-            overlays.append(("top", "SUCCESS: the field is clear" if self._complete() else "Episode over", ""))
+            overlays.append(("top", "SUCCESS: the field is clear" if self._complete()
+                             else f"Episode over: {progress['debris_delivered']} of {total} debris delivered", ""))
         return overlays
+
+    def _cue_rows(self, agent) -> tuple[list[str], list[str]]:
+        """The seat's cues as overlay rows (labels, values)."""
+        cues = self.cues(agent)
+        labels, values = ["Tip height"], [f"{cues['tip_height_mm']:.1f} mm above the surface"]
+        if agent == "grasper":
+            labels.append("Jaw")
+            if cues["holding"]:
+                values.append(f"closed, holding a pin: {cues['handoff_mm']:.1f} mm to the hand-off")
+            else:
+                pin = "no pin in sight" if cues["pin_mm"] is None else (
+                    f"pin IN REACH ({cues['pin_mm']:.1f} mm): close" if cues["in_reach"]
+                    else f"nearest pin {cues['pin_mm']:.1f} mm")
+                values.append(("open" if self.arms["grasper"].jaw >= self.params.grasp_threshold else "closed")
+                              + f", {pin}")
+        else:
+            labels.append("Valve")
+            depth = ("not over blood" if cues["above_blood_mm"] is None
+                     else f"{cues['above_blood_mm']:.1f} mm above the blood")
+            values.append(("open" if self.valve_open else "closed") + (", drawing" if cues["drawing"] else "")
+                          + f", {depth}")
+        if cues["blocked"]:
+            labels.append("BLOCKED")
+            values.append("the other instrument is in the way")
+        return labels, values
 
     def set_state(self, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible, delivered) -> None:
         """Put the scene in a given state (tips in each arm's base frame), e.g. to render a batched world."""
@@ -703,7 +819,8 @@ class SuctionDebrisEnv(ParallelEnv):
         previous = list(arm.tip)
         arm.move(x - old[0], y - old[1], z - old[2], (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
         clearance = self._instrument_distance()
-        if clearance < 0.0:
+        self._blocked[agent] = blocked = clearance < 0.0
+        if blocked:
             arm.set_tip(*previous)  # instruments never pass through each other
             return True
         return clearance < _CONTACT_MARGIN
@@ -812,6 +929,9 @@ class SuctionDebrisEnv(ParallelEnv):
         if self._held is not None and not closed:
             pin = self.debris[self._held]
             pin.held = False
+            if self.params.pins_stay_on_phantom:  # v2: beyond the phantom, it lands on the nearest edge (in view)
+                pin.position[0], pin.position[1] = self.phantom.nearest_on_top(pin.position[0], pin.position[1],
+                                                                               _PHANTOM_EDGE_MARGIN)
             if self.params.pins_fall:  # released away from the assistant: it falls (see _fall)
                 pin.fall_speed = 0.0
             else:  # v0: it appears on the surface below it at once
@@ -827,6 +947,8 @@ class SuctionDebrisEnv(ParallelEnv):
                         pin.held = True
                         pin.fall_speed = None  # caught
                         self._hold_offset = tuple(pin.position[i] - tip[i] for i in range(3))
+                        grip = _closest_on_segment(tip, start, end)  # where the jaws hold the pin
+                        self._grip_offset = tuple(grip[i] - tip[i] for i in range(3))
                         if not pin.lifted:
                             pin.lifted = True
                             lifted = 1
@@ -834,12 +956,19 @@ class SuctionDebrisEnv(ParallelEnv):
         if self._held is not None:
             pin = self.debris[self._held]
             pin.position = [tip[i] + self._hold_offset[i] for i in range(3)]
-            if math.dist(pin.position, self.handoff) <= self.params.distance_threshold:
+            if math.dist(self._judged_point(tip, pin), self.handoff) <= self.params.distance_threshold:
                 pin.held, pin.delivered = False, True
                 self._held = None
                 delivered = 1
             self._sync_debris(self.debris.index(pin))
         return lifted, delivered
+
+    def _judged_point(self, tip, pin):
+        """Where the hand-off is judged: the pin's centre (v0, v1) or where the jaws hold it (v2's deliver_at_grip:
+        a pin held off its centre can still reach the assistant, whose point lies 2 mm inside the workspace)."""
+        if self.params.deliver_at_grip:
+            return [tip[i] + self._grip_offset[i] for i in range(3)]
+        return pin.position
 
     def _complete(self) -> bool:
         threshold = self.params.blood_threshold_ml

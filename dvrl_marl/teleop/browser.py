@@ -52,7 +52,8 @@ class BrowserDevice:
 
     ``silence_timeout``: seconds without a message after which the page counts as gone. ``speed`` and
     ``precision_speed`` as for :class:`KeyboardDevice`, whose key semantics (held keys, SHIFT, SPACE toggles) this
-    device shares; gamepad sticks add to the keys and are clipped with them to [-1, 1].
+    device shares; gamepad sticks add to the keys and are clipped with them to [-1, 1]. ``initial_tool``: the jaw or
+    valve at each reset (+1 open: the LND's jaw; -1 closed: the suction valve).
     """
 
     human_operated = True
@@ -60,11 +61,13 @@ class BrowserDevice:
     KEY_HELP = tuple(row for row in KeyboardDevice.KEY_HELP if row[0] not in ("TAB", "ESC"))
 
     def __init__(self, silence_timeout: float = 1.0, action_dim: int = 4, speed: float = 1.0,
-                 precision_speed: float = 0.25, clock: Callable[[], float] = time.monotonic):
+                 precision_speed: float = 0.25, clock: Callable[[], float] = time.monotonic,
+                 initial_tool: float = 1.0):
         if not silence_timeout > 0:
             raise ValueError(f"BrowserDevice: silence_timeout must be positive, got {silence_timeout!r}")
         self.silence_timeout = float(silence_timeout)
-        self._keyboard = KeyboardDevice(action_dim=action_dim, speed=speed, precision_speed=precision_speed)
+        self._keyboard = KeyboardDevice(action_dim=action_dim, speed=speed, precision_speed=precision_speed,
+                                        initial_tool=initial_tool)
         self._clock = clock
         self._lock = threading.Lock()
         self._connected = False

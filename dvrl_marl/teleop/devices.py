@@ -74,7 +74,8 @@ class KeyboardDevice:
     ``A``/``D``: -x/+x, ``S``/``W``: -y/+y, ``F``/``R``: down/up (keys held together combine; opposite keys cancel),
     ``SPACE``: toggle the jaw (LND: open <-> closed) or the suction valve, ``SHIFT`` held: move at
     ``precision_speed`` for fine work near a pin. The seat moves ``eta * speed`` per 20 ms step along each held axis
-    (50 mm/s at full speed with eta = 1 mm). The jaw (or valve) starts at +1: open.
+    (50 mm/s at full speed with eta = 1 mm). The jaw (or valve) starts at ``initial_tool``: +1, open (the LND's jaw
+    at reset), by default; -1 closed for the suction valve, which a seat must not open by itself.
 
     In ``render_mode="human"`` the environment opens its window (:mod:`dvrl_marl.viewer`) and feeds
     :meth:`key_event` every key down, repeat and up; because the device is ``human_operated`` the environment waits
@@ -93,11 +94,15 @@ class KeyboardDevice:
     KEY_HELP = (("A / D", "-x / +x"), ("S / W", "-y / +y"), ("F / R", "down / up"), ("SPACE", "jaw / valve"),
                 ("SHIFT", "slow, precise"), ("TAB", "free camera"), ("ESC", "quit"))
 
-    def __init__(self, repeat: int = 5, action_dim: int = 4, speed: float = 1.0, precision_speed: float = 0.25):
+    def __init__(self, repeat: int = 5, action_dim: int = 4, speed: float = 1.0, precision_speed: float = 0.25,
+                 initial_tool: float = 1.0):
         for name, value in (("speed", speed), ("precision_speed", precision_speed)):
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"KeyboardDevice: {name} must be in (0, 1] (a fraction of the action range), "
                                  f"got {value!r}")
+        if initial_tool not in (-1.0, 1.0):
+            raise ValueError(f"KeyboardDevice: initial_tool must be 1 (open) or -1 (closed), got {initial_tool!r}")
+        self.initial_tool = float(initial_tool)
         self.repeat = int(repeat)
         self.action_dim = int(action_dim)
         self.speed, self.precision_speed = float(speed), float(precision_speed)
@@ -110,7 +115,7 @@ class KeyboardDevice:
             self._precise = False
             self._pending = np.zeros(3)
             self._remaining = 0
-            self._last = 1.0
+            self._last = self.initial_tool
 
     def key_event(self, key: int, action: int, mods: int = 0) -> None:
         """One key event in GLFW's terms: ``action`` 1 press, 2 auto-repeat, 0 release; ``mods`` bit 1 = SHIFT."""

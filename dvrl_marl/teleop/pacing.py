@@ -108,6 +108,7 @@ class PacedDisplay:
         """Show the first frame; with ``wait_for_enter``, hold until the person presses ENTER. False if the window
         was closed instead."""
         window = self.window
+        self.renderer.forward()  # the waiting screen shows the scene lit and posed, not dark
         if wait_for_enter and not window.closed:
             self.waiting = True
             try:

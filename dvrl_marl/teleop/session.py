@@ -1,6 +1,6 @@
 """A person's episodes in the surgeon seat, run in real time in a thread of their own: what the web seat serves.
 
-:class:`TeleopSession` owns one seat of ``suction_debris_v1`` (``dvrl_marl/SurgeonSeat-v1``, the partner arm driven
+:class:`TeleopSession` owns one seat of ``suction_debris_v2`` (``dvrl_marl/SurgeonSeat-v2``, the partner arm driven
 inside it), a :class:`~dvrl_marl.teleop.browser.BrowserDevice` in the seat, and a loop that steps at the 50 Hz
 control rate once the person starts, draws the endoscope view (JPEG) at ``frames_per_second`` and publishes each
 frame with the episode's status. It records every episode it runs as a Minari episode (the seat's observations,
@@ -28,7 +28,7 @@ import numpy as np
 from dvrl_marl.teleop.browser import BrowserDevice
 from dvrl_marl.teleop.pacing import RealTimePacer
 
-__all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "pack_frame", "unpack_frame"]
+__all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "TELEOP_ENV_ID", "scene_view", "pack_frame", "unpack_frame"]
 
 #: ``learned`` is the learned_team pipeline's arm (the learned Reach policy for the suction, Reach + Pick for the
 #: LND); a shipped policy name or folder also works.
@@ -36,6 +36,8 @@ PARTNERS = ("scripted", "learned", "pipeline")
 #: A person gets 2 minutes (6,000 steps at 50 Hz); the task's 1,500 steps (30 s) suit a script, not a newcomer.
 TELEOP_MAX_CYCLES = 6000
 DEFAULT_DATASET_ID = "dvrl_marl/surgeon-teleop-v1"
+#: The seat a person works: suction_debris_v2, whose hand-off is judged at the grip and whose dropped pins stay in view.
+TELEOP_ENV_ID = "dvrl_marl/SurgeonSeat-v2"
 _TOOLS = {"grasper": "Large Needle Driver (grasper)", "suction": "Suction & Irrigation"}
 _IDLE_PUBLISH_S = 0.1  # frames while nobody moves anything (waiting to start, episode over): 10 per second
 
@@ -50,6 +52,38 @@ def unpack_frame(payload: bytes) -> tuple[dict, bytes]:
     """The inverse of :func:`pack_frame`."""
     (length,) = struct.unpack(">I", payload[:4])
     return json.loads(payload[4:4 + length]), payload[4 + length:]
+
+
+def _rounded(value, digits: int = 1):
+    """``value`` with every float rounded (to 0.1 mm for the cues and outlines the page draws), JSON-ready."""
+    if isinstance(value, dict):
+        return {key: _rounded(item, digits) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_rounded(item, digits) for item in value]
+    if isinstance(value, (bool, type(None), str)):
+        return value
+    return round(float(value), digits)
+
+
+def scene_view(scene, seat: str, outline: dict | None = None) -> dict:
+    """What the page shows of ``scene`` (a ``suction_debris`` parallel env) to the person in ``seat``: blood (ml and
+    as read: "clear"), debris found and delivered, time, both tips (mm, world), the visible pins, the seat's cues
+    (:meth:`~dvrl_marl.envs.suction_debris_v0.SuctionDebrisEnv.cues`), the jaw and valve, and the scene's outline
+    for the top and side views (pass it in to reuse it: it never changes). A person-like script reads this and
+    nothing else (:mod:`dvrl_marl.teleop.person`)."""
+    progress = scene.progress()
+    return {
+        "time_s": round(progress["time_s"], 2),
+        "blood_ml": [round(v, 2) for v in progress["blood_ml"]], "blood_text": scene.blood_text(),
+        "debris_found": progress["debris_found"], "debris_delivered": progress["debris_delivered"],
+        "debris_total": progress["debris_total"],
+        "seat": seat, "seat_tool": _TOOLS[seat],
+        "tip_mm": [round(1000.0 * v, 2) for v in progress["tips"][seat]],
+        "tips_mm": {agent: [round(1000.0 * v, 1) for v in tip] for agent, tip in progress["tips"].items()},
+        "cues": _rounded(scene.cues(seat)), "pins": _rounded(scene.pins()),
+        "outline": outline if outline is not None else _rounded(scene.outline()),
+        "jaw": round(progress["jaw"], 3), "valve_open": progress["valve_open"],
+    }
 
 
 class TeleopSession:
@@ -70,7 +104,6 @@ class TeleopSession:
         import gymnasium as gym
 
         import dvrl_marl  # noqa: F401  (registration)
-        from dvrl_marl.datasets import SEAT_ENV_ID
 
         if seat not in _TOOLS:
             raise ValueError(f"TeleopSession: seat must be one of {sorted(_TOOLS)}, got {seat!r}")
@@ -90,9 +123,12 @@ class TeleopSession:
         self.max_cycles = int(max_cycles or TELEOP_MAX_CYCLES)
         self.realtime = bool(realtime)
         self.jpeg_quality = int(jpeg_quality)
-        self.device = device or BrowserDevice(silence_timeout=silence_timeout)
+        # The seat's tool starts as the scene's reset leaves it: the jaw open, the valve closed (a valve that opened by
+        # itself once the page spoke was a device defaulting to "open" in the suction seat).
+        self.device = device or BrowserDevice(silence_timeout=silence_timeout,
+                                              initial_tool=1.0 if seat == "grasper" else -1.0)
         env_partner = "pipeline" if partner == "learned" else partner
-        self.env = gym.make(SEAT_ENV_ID, seat=seat, partner=env_partner, max_cycles=self.max_cycles, **scene_kwargs)
+        self.env = gym.make(TELEOP_ENV_ID, seat=seat, partner=env_partner, max_cycles=self.max_cycles, **scene_kwargs)
         self.scene = self.env.unwrapped.scene
         self.control_dt = float(self.scene.params.control_dt)
         self.frame_every = max(1, round(1.0 / (frames_per_second * self.control_dt)))
@@ -113,6 +149,7 @@ class TeleopSession:
         self._state, self._episode, self._episode_seed, self._steps = "starting", -1, self.seed, 0
         self._lost, self._success, self._recording = True, False, self.record_default
         self._recorder, self._buffers = None, []
+        self._outline = _rounded(self.scene.outline())  # fixed: the page's top and side views
         self._thread = threading.Thread(target=self._run, name="teleop-session", daemon=True)
         self._started = False
 
@@ -173,7 +210,8 @@ class TeleopSession:
         from dvrl_marl.rendering import SceneRenderer
 
         renderer = SceneRenderer(self.scene.model, self.scene.data, "rgb_array", width=self.width,
-                                 height=self.height, frame_budget=0.5 * self.frame_every * self.control_dt)
+                                 height=self.height, frame_budget=0.5 * self.frame_every * self.control_dt,
+                                 decorate=self.scene.draw_marks)
         self._renderer = renderer
         try:
             self._new_episode()
@@ -279,7 +317,7 @@ class TeleopSession:
                 dataset_id = next_free_id(self.dataset_id)
                 dataset = save_episodes(
                     dataset_id, buffers, self.env, algorithm_name="dvrl-marl teleop (a person in the browser)",
-                    description=f"{len(buffers)} episodes of a person in the {self.seat} seat of suction_debris_v1 "
+                    description=f"{len(buffers)} episodes of a person in the {self.seat} seat of suction_debris_v2 "
                                 f"beside the {self.partner_name} partner, recorded by dvrl-marl teleop")
                 self.saved.append({"id": dataset_id, "episodes": len(buffers),
                                    "successes": sum(bool(b.infos["is_success"][-1]) for b in buffers),
@@ -289,21 +327,15 @@ class TeleopSession:
 
     # --- frames -------------------------------------------------------------------------------------------------
     def status(self) -> dict:
-        """What the page shows (see :meth:`dvrl_marl.envs.suction_debris_v0.SuctionDebrisEnv.progress`)."""
-        progress = self.scene.progress()
+        """What the page shows: the scene as :func:`scene_view` gives it, and the session's state."""
         now = time.monotonic()
         served = [t for t in self._served if now - t <= 1.0]
         return {
+            **scene_view(self.scene, self.seat, self._outline),
             "state": self._state, "error": self.error,
             "episode": self._episode, "seed": self._episode_seed,
-            "step": self._steps, "max_steps": self.max_cycles,
-            "time_s": round(progress["time_s"], 2), "max_time_s": round(self.max_cycles * self.control_dt, 2),
-            "blood_ml": [round(v, 2) for v in progress["blood_ml"]],
-            "debris_found": progress["debris_found"], "debris_delivered": progress["debris_delivered"],
-            "debris_total": progress["debris_total"], "success": self._success or progress["success"],
-            "seat": self.seat, "seat_tool": _TOOLS[self.seat], "partner": self.partner_name,
-            "tip_mm": [round(1000.0 * v, 2) for v in progress["tips"][self.seat]],
-            "jaw": round(progress["jaw"], 3), "valve_open": progress["valve_open"],
+            "step": self._steps, "max_steps": self.max_cycles, "max_time_s": round(self.max_cycles * self.control_dt, 2),
+            "success": self._success or self.scene.progress()["success"], "partner": self.partner_name,
             "teleop_lost": bool(self._lost if self._state == "running" else self.device.lost),
             "input_seq": int(self.device.applied_seq),
             "recording": self._recording, "recorded_steps": len(self._recorder) if self._recorder else 0,

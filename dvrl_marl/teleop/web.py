@@ -149,16 +149,23 @@ class _Hub:
             return
         try:
             data = json.loads(text)
-        except ValueError:
-            self._drop("not JSON")
+        except (ValueError, RecursionError):  # a few kB of nested brackets exhaust the parser's recursion
+            self._drop("not JSON (or nested too deeply)")
             return
+        try:
+            await self._act(client, data)
+        except Exception as error:  # noqa: BLE001  (no message may end the connection: drop it, count it)
+            self._drop(f"message not usable: {type(error).__name__}")
+
+    async def _act(self, client: _Client, data) -> None:
         kind = data.get("type") if isinstance(data, dict) else None
         if kind == "take":
             if self.controller is None:
                 await self._set_role(client, "controller")
             return
         if client is not self.controller:
-            self._drop("a spectator's input (only the page that drives the seat is heard)")
+            if kind != "ping":  # a spectator's page pings like any other: that is no dropped input
+                self._drop("a spectator's input (only the page that drives the seat is heard)")
             return
         if kind in _CONTROL:
             getattr(self.session, _CONTROL[kind])()

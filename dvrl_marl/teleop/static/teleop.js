@@ -69,23 +69,130 @@ function frameDrawn(status) {
 
 function showBadge(kind, text) { const badge = $("badge"); badge.className = kind; badge.textContent = text; }
 
+// Spectators see no controls they cannot use: Start, Reset and Record belong to the driver; "Take the seat" shows
+// only while nobody drives it.
 function showRole() {
   const driving = dvrl.role === "controller";
-  $("role").textContent = driving ? "you drive the seat" : "you are watching (spectator)";
-  $("take").style.display = driving ? "none" : "";
-  for (const id of ["start", "reset", "record"]) $(id).disabled = !driving;
+  $("role").textContent = driving ? "you drive the seat" : dvrl.role ? "you are watching (spectator)" : "";
+  const free = dvrl.status ? !dvrl.status.controller : false;
+  $("take").style.display = !driving && dvrl.role && free ? "" : "none";
+  for (const id of ["start", "reset", "record"]) {
+    $(id).disabled = !driving;
+    $(id).style.display = dvrl.role && !driving ? "none" : "";
+  }
+}
+
+const TASKS = {
+  grasper: "You work the grasper (Large Needle Driver); a partner works the suction arm, which clears the blood " +
+    "from the two cavities and so uncovers the debris (pins). Grasp each pin and bring it to the hand-off point " +
+    "(the green marker and its post), where the first assistant takes it. The episode succeeds when the blood is " +
+    "gone and every pin is delivered.",
+  suction: "You work the suction arm (Suction & Irrigation); a partner works the grasper. Open the valve (Space) " +
+    "with the tip at the blood's surface in each cavity: it draws only there. As the blood goes down it uncovers " +
+    "pins, which your partner takes to the hand-off point. Keep out of your partner's way. The episode succeeds " +
+    "when the blood is gone and every pin is delivered.",
+};
+
+// The top and side views: the phantom, its cavities, the hand-off point, both tips and the visible pins, drawn from
+// the status (millimetres, world frame). The side view shows what the endoscope cannot: forward against up.
+function drawViews(s) {
+  const o = s.outline;
+  if (!o) return;
+  const low = o.workspace.low, high = o.workspace.high;
+  const views = [
+    { canvas: $("top"), h: 0, v: 1 },   // x right, y up
+    { canvas: $("side"), h: 1, v: 2 },  // y right, z up
+  ];
+  const seatColour = s.seat === "grasper" ? "#ffd633" : "#59d9ff";
+  const otherColour = s.seat === "grasper" ? "#59d9ff" : "#ffd633";
+  for (const view of views) {
+    const c = view.canvas.getContext("2d"), W = view.canvas.width, H = view.canvas.height;
+    const pad = 8, scale = Math.min((W - 2 * pad) / (high[view.h] - low[view.h]), (H - 2 * pad) / (high[view.v] - low[view.v]));
+    const px = (p) => pad + (p[view.h] - low[view.h]) * scale;
+    const py = (p) => H - pad - (p[view.v] - low[view.v]) * scale;
+    c.fillStyle = "#15171c"; c.fillRect(0, 0, W, H);
+    c.strokeStyle = "#444"; c.strokeRect(pad, pad, (high[view.h] - low[view.h]) * scale, (high[view.v] - low[view.v]) * scale);
+    const ph = o.phantom;
+    c.fillStyle = "#d9a58f";
+    if (view.v === 1) {
+      c.fillRect(px([ph.centre[0] - ph.half[0], 0]), py([0, ph.centre[1] + ph.half[1]]), 2 * ph.half[0] * scale, 2 * ph.half[1] * scale);
+      for (const cav of o.cavities) {
+        c.beginPath(); c.arc(px(cav.centre), py(cav.centre), cav.radius * scale, 0, 2 * Math.PI);
+        c.fillStyle = "#b07a68"; c.fill();
+      }
+    } else {
+      c.fillRect(px([0, ph.centre[1] - ph.half[1]]), py([0, 0, ph.top]), 2 * ph.half[1] * scale, (ph.top - ph.table) * scale);
+      for (const cav of o.cavities) {
+        c.fillStyle = "#b07a68";
+        c.fillRect(px([0, cav.centre[1] - cav.radius]), py([0, 0, ph.top]), 2 * cav.radius * scale, (ph.top - cav.floor) * scale);
+      }
+    }
+    const dot = (p, r, colour, ring) => {
+      c.beginPath(); c.arc(px(p), py(p), r, 0, 2 * Math.PI);
+      if (ring) { c.strokeStyle = colour; c.lineWidth = 2; c.stroke(); c.lineWidth = 1; } else { c.fillStyle = colour; c.fill(); }
+    };
+    dot(o.handoff, 6, "#1ae65a", true);
+    for (const pin of s.pins || []) dot(pin.mm, 3, pin.held ? "#ffffff" : "#e0e0e0");
+    const other = s.tips_mm[s.seat === "grasper" ? "suction" : "grasper"];
+    dot(other, 4, otherColour);
+    dot(s.tips_mm[s.seat], 5, seatColour);
+    if (view.v === 2) {  // the drop line: the tip's height over what lies below it
+      const tip = s.tips_mm[s.seat], below = [tip[0], tip[1], tip[2] - s.cues.tip_height_mm];
+      c.strokeStyle = seatColour; c.setLineDash([3, 3]); c.beginPath();
+      c.moveTo(px(tip), py(tip)); c.lineTo(px(below), py(below)); c.stroke(); c.setLineDash([]);
+    }
+  }
+}
+
+function showCues(s) {
+  const q = s.cues;
+  $("height").textContent = `${q.tip_height_mm.toFixed(1)} mm above the surface below`;
+  let cue = "";
+  if (s.seat === "grasper") {
+    $("tool-label").textContent = "Jaw";
+    $("reach-label").textContent = q.holding ? "Holding a pin" : "Nearest pin";
+    $("tool").textContent = s.jaw > 0.5 ? "open" : "closed";
+    if (q.holding) {
+      $("reach").textContent = `${q.handoff_mm.toFixed(1)} mm to the hand-off (delivered within 3 mm)`;
+      $("reach-row").className = "good";
+      cue = `<span class="holding">Holding a pin: ${q.handoff_mm.toFixed(0)} mm to the hand-off</span>`;
+    } else if (q.pin_mm === null) {
+      $("reach").textContent = "none uncovered yet"; $("reach-row").className = "";
+    } else if (q.in_reach) {
+      $("reach").textContent = `IN REACH (${q.pin_mm.toFixed(1)} mm): close the jaw (Space)`;
+      $("reach-row").className = "good";
+      cue = `<span class="reach">Pin in reach: close the jaw (Space)</span>`;
+    } else {
+      $("reach").textContent = `${q.pin_mm.toFixed(1)} mm from the jaws (in reach within 3 mm)`;
+      $("reach-row").className = "";
+    }
+  } else {
+    $("tool-label").textContent = "Valve";
+    $("reach-label").textContent = "Blood surface";
+    $("tool").textContent = (s.valve_open ? "open" : "closed") + (q.drawing ? ", drawing blood" : "");
+    $("reach").textContent = q.above_blood_mm === null ? "not over blood"
+      : q.above_blood_mm > 0 ? `${q.above_blood_mm.toFixed(1)} mm above it (draws within 2 mm)` : "tip in the blood";
+    $("reach-row").className = q.drawing ? "good" : "";
+  }
+  $("blocked").textContent = q.blocked ? "IN THE WAY: your move was refused" : "clear";
+  $("blocked-row").className = q.blocked ? "warn" : "";
+  if (q.blocked) cue = `<span class="blocked">Blocked by the other instrument: move around it</span>`;
+  $("cue").innerHTML = s.state === "running" ? cue : "";
 }
 
 function showStatus(s) {
-  const blood = s.blood_ml.map((ml) => `<span class="bar" style="width:${Math.min(60, 5 * ml)}px"></span>${ml.toFixed(1)}`);
+  const blood = s.blood_ml.map((ml, i) => `<span class="bar" style="width:${s.blood_text[i] === "clear" ? 0 : Math.min(60, 5 * ml)}px"></span>` +
+    (s.blood_text[i] === "clear" ? "clear" : ml.toFixed(1)));
   $("blood").innerHTML = blood.join("<br>");
   $("found").textContent = `${s.debris_found} / ${s.debris_total}`;
   $("delivered").textContent = `${s.debris_delivered} / ${s.debris_total}`;
   $("time").textContent = `${s.time_s.toFixed(1)} s of ${s.max_time_s.toFixed(0)} s (episode ${s.episode}, seed ${s.seed})`;
   $("seat").textContent = s.seat_tool;
+  $("task").textContent = TASKS[s.seat] || "";
+  showCues(s);
+  drawViews(s);
+  showRole();
   $("partner").textContent = `${s.partner} (${s.seat === "grasper" ? "suction arm" : "grasper arm"})`;
-  $("tool").textContent = s.seat === "grasper" ? (s.jaw > 0.5 ? "jaw open" : "jaw closed")
-                                               : (s.valve_open ? "valve open" : "valve closed");
   $("recording").textContent = s.recording
     ? `on: ${s.recorded_episodes} episode(s) kept, this one ${s.recorded_steps} steps`
     : "off (Record starts with the next episode)";
