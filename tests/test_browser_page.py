@@ -196,7 +196,9 @@ def test_an_episode_recorded_in_the_browser_loads_with_minari_replays_and_trains
     episode = next(dataset.iterate_episodes())
     assert len(episode.actions) >= 40 and bool(episode.truncations[-1])
     assert np.any(episode.actions[:, 1] > 0) and np.any(episode.actions[:, 2] < 0) and np.any(episode.actions[:, 3] < 0)
-    assert dataset.spec.env_spec.id == datasets.SEAT_ENV_ID
+    from dvrl_marl.teleop.session import TELEOP_ENV_ID
+
+    assert dataset.spec.env_spec.id == TELEOP_ENV_ID == "dvrl_marl/SurgeonSeat-v2"
     replayed = datasets.replay(dataset, 0)
     assert replayed["max_observation_difference"] == 0.0
 
@@ -212,13 +214,17 @@ def test_an_episode_recorded_in_the_browser_loads_with_minari_replays_and_trains
     env.step({"suction": np.zeros(4, np.float32)})
 
 
-def test_the_cli_prints_a_url_that_opens_the_page(browser, tmp_path):
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])
+def test_the_cli_prints_a_url_that_opens_the_page_and_a_stop_writes_the_dataset(browser, tmp_path, stop):
     import re
     import signal
     import subprocess
     import sys
 
     env = {**os.environ, "MINARI_DATASETS_PATH": str(tmp_path / "minari")}
+    damaged = tmp_path / "minari" / "dvrl_marl" / "surgeon-teleop-v1"  # a folder Minari cannot read...
+    damaged.mkdir(parents=True)
+    (damaged / "metadata.json").write_text("{ truncated")
     process = subprocess.Popen([sys.executable, "-m", "dvrl_marl.cli", "teleop", "--port", "0", "--partner", "learned",
                                 "--seed", "3"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
@@ -237,50 +243,125 @@ def test_the_cli_prints_a_url_that_opens_the_page(browser, tmp_path):
         wait_status(page, "s.step >= 25")
         page.close()
     finally:
-        process.send_signal(signal.SIGINT)
+        process.send_signal(getattr(signal, stop))  # Ctrl-C, or `kill` as a service manager stops it
         output = process.communicate(timeout=60)[0]
     assert process.returncode == 0, output
-    assert "saved Minari dataset dvrl_marl/surgeon-teleop-v1: 1 episodes" in output
+    # ...is never where a person's episodes go: they go to the next free version
+    assert "saved Minari dataset dvrl_marl/surgeon-teleop-v2: 1 episodes" in output, output
+    assert (damaged / "metadata.json").read_text() == "{ truncated"
 
 
-KEYS_OF_AXES = (("KeyA", "KeyD"), ("KeyS", "KeyW"), ("KeyF", "KeyR"))  # (minus, plus) of x, y, z
+def test_a_person_like_operator_finishes_from_what_the_page_shows(browser, served):
+    """A stand-in for a person: it reads only what the page shows (its status, 200 ms old), decides at a person's pace
+    and presses the page's keys in real time (dvrl_marl.teleop.person). On the way the page's cues must say what the
+    endoscope cannot: the tip's height, a pin in reach, a pin held and its distance to the hand-off."""
+    from dvrl_marl.teleop.person import PersonLikeOperator, drive_page
+
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    page.goto(served.url)
+    page.wait_for_function("window.dvrl.frames >= 1", timeout=20000)
+    seen = {"heights": set(), "reach": False, "holding": False, "banner_reach": False, "banner_holding": False}
+
+    def read_cues(view, page):
+        if view["cues"]["in_reach"] and not seen["reach"]:
+            seen["reach"] = "IN REACH" in page.inner_text("#reach")
+            seen["banner_reach"] = "Pin in reach" in page.inner_text("#cue")
+        if view["cues"]["holding"] and not seen["holding"]:
+            seen["holding"] = "mm to the hand-off" in page.inner_text("#reach")
+            seen["banner_holding"] = "Holding a pin" in page.inner_text("#cue")
+        if len(seen["heights"]) < 5:
+            seen["heights"].add(page.inner_text("#height"))
+
+    final = drive_page(page, PersonLikeOperator(seed=4), timeout_s=120.0, on_view=read_cues)
+    final = wait_status(page, "s.state === 'over'")
+    assert final["success"] and final["debris_delivered"] == final["debris_total"], final
+    assert final["time_s"] <= 90.0
+    assert page.inner_text("#badge") == "SUCCESS" and "SUCCESS" in page.inner_text("#banner")
+    assert seen["reach"] and seen["holding"] and seen["banner_reach"] and seen["banner_holding"], seen
+    assert len(seen["heights"]) >= 3 and all("mm above the surface below" in text for text in seen["heights"])
+    for view in ("#top", "#side"):  # the top and side views are drawn
+        drawn = page.evaluate(f"""(() => {{ const c = document.querySelector('{view}');
+            const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+            const colours = new Set(); for (let i = 0; i < d.length; i += 40) colours.add(d[i] + ',' + d[i+1] + ',' + d[i+2]);
+            return colours.size; }})()""")
+        assert drawn >= 5, f"{view} shows {drawn} colours"
+    page.click("#record")  # the episode the person finished, as a dataset
+    saved = wait_status(page, "s.saved.length === 1")["saved"][0]
+    assert saved["episodes"] == 1 and saved["successes"] == 1
+    page.close()
 
 
-def test_a_person_pressing_keys_in_the_page_finishes_an_episode(browser, served):
-    """A stand-in for a person: it looks at what the seat sees and presses, in the page, the keys that point where
-    the scripted surgeon would move (SHIFT for small moves, SPACE to open or close the jaw), in real time."""
-    from dvrl_marl.agents.collaborative import ScriptedSurgeon
-    from dvrl_marl.envs import suction_debris_v1
-    from dvrl_marl.teleop.session import unpack_frame
-
-    expert = ScriptedSurgeon.for_env(suction_debris_v1.parallel_env())
+def test_the_page_says_when_the_other_instrument_blocks_a_move(browser, served):
     page = browser.new_page()
     page.goto(served.url)
     page.wait_for_function("window.dvrl.frames >= 1", timeout=20000)
     page.keyboard.press("Enter")
     wait_status(page, "s.state === 'running'")
-    held, precise, jaw = set(), False, 1.0
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and unpack_frame(served.session.latest()[1])[0]["state"] == "running":
-        wanted = expert(served.session.observation)
-        keys = {plus if wanted[axis] > 0 else minus
-                for axis, (minus, plus) in enumerate(KEYS_OF_AXES) if abs(wanted[axis]) >= 0.12}
+    held = set()
+    deadline = time.monotonic() + 40
+    blocked = False
+    while time.monotonic() < deadline and not blocked:  # steer the LND at the suction's tip, as a careless person
+        s = status(page)
+        offset = np.subtract(s["tips_mm"]["suction"], s["tips_mm"]["grasper"])
+        keys = {plus if value > 0 else minus for (minus, plus), value in zip(KEYS_OF_AXES, offset) if abs(value) > 1.0}
         for key in held - keys:
             page.keyboard.up(key)
         for key in keys - held:
             page.keyboard.down(key)
         held = keys
-        if any(0.12 <= abs(value) < 0.6 for value in wanted[:3]) != precise:
-            precise = not precise
-            (page.keyboard.down if precise else page.keyboard.up)("ShiftLeft")
-        if wanted[3] * jaw < 0:
-            page.keyboard.press("Space")
-            jaw = -jaw
-        time.sleep(0.01)
-    final = wait_status(page, "s.state === 'over'")
-    assert final["success"] and final["debris_delivered"] == final["debris_total"], final
-    assert page.inner_text("#badge") == "SUCCESS" and "SUCCESS" in page.inner_text("#banner")
-    page.click("#record")  # the episode the person finished, as a dataset
-    saved = wait_status(page, "s.saved.length === 1")["saved"][0]
-    assert saved["episodes"] == 1 and saved["successes"] == 1
+        blocked = s["cues"]["blocked"]
+        time.sleep(0.03)
+    assert blocked
+    page.wait_for_function("document.querySelector('#cue').innerText.includes('Blocked by the other instrument')",
+                           timeout=5000)
+    assert "IN THE WAY" in page.inner_text("#blocked")
+    for key in held:
+        page.keyboard.up(key)
     page.close()
+
+
+KEYS_OF_AXES = (("KeyA", "KeyD"), ("KeyS", "KeyW"), ("KeyF", "KeyR"))  # (minus, plus) of x, y, z
+
+
+def test_the_suction_seat_keeps_its_valve_closed_until_space_and_tells_its_own_task(browser, tmp_path, monkeypatch):
+    from dvrl_marl.teleop.session import TeleopSession
+    from dvrl_marl.teleop.web import TeleopServer
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    server = TeleopServer(TeleopSession(seat="suction", partner="scripted", seed=2, record=False), port=0).start()
+    try:
+        page = browser.new_page()
+        page.goto(server.url)
+        page.wait_for_function("window.dvrl.frames >= 1", timeout=20000)
+        assert "You work the suction arm" in page.inner_text("#task")
+        page.keyboard.press("Enter")
+        start = wait_status(page, "s.state === 'running'")["step"]
+        hold(page, "KeyF", steps=10)
+        after = wait_status(page, f"s.step >= {start + 60}")  # over a second of running and of pings
+        assert not after["valve_open"] and page.inner_text("#tool").startswith("closed")
+        page.keyboard.press("Space")
+        opened = wait_status(page, "s.valve_open")
+        assert opened["cues"]["above_blood_mm"] is None or "above" in page.inner_text("#reach") \
+            or "in the blood" in page.inner_text("#reach")
+        page.wait_for_function("document.querySelector('#tool').innerText.startsWith('open')", timeout=5000)
+        page.close()
+    finally:
+        server.stop()
+
+
+def test_a_spectator_sees_no_controls_it_cannot_use(browser, served):
+    page = browser.new_page()
+    page.goto(served.url)
+    page.wait_for_function("window.dvrl.role === 'controller' && window.dvrl.frames >= 1", timeout=20000)
+    watcher = browser.new_page()
+    watcher.goto(served.url)
+    watcher.wait_for_function("window.dvrl.role === 'spectator' && window.dvrl.frames >= 1", timeout=20000)
+    for control in ("#start", "#reset", "#record", "#take"):  # the seat is taken: nothing to press
+        assert not watcher.is_visible(control), control
+    assert page.is_visible("#reset") and not page.is_visible("#take")
+    page.close()  # the seat is free: now the spectator is offered it
+    watcher.wait_for_function("getComputedStyle(document.querySelector('#take')).display !== 'none'", timeout=20000)
+    watcher.click("#take")
+    watcher.wait_for_function("window.dvrl.role === 'controller'", timeout=10000)
+    watcher.wait_for_function("getComputedStyle(document.querySelector('#reset')).display !== 'none'", timeout=10000)
+    watcher.close()

@@ -358,12 +358,16 @@ def test_first_page_drives_a_second_watches_and_bad_messages_are_counted_not_fat
         status = status_until(watcher, lambda s: s["spectators"] == 1 and s["controller"], ping=False)
         assert status["state"] == "waiting"
         watcher.send(json.dumps({"type": "start"}))  # a spectator is not heard
+        for _ in range(3):
+            watcher.send(json.dumps({"type": "ping"}))  # its page's pings are no dropped input
         driver.send("not json")
         driver.send(b"\x00\x01")
         driver.send(json.dumps({"type": "ping", "pad": "x" * 5000}))
         driver.send(json.dumps({"type": "key", "code": "KeyD", "down": "maybe"}))
-        status = status_until(driver, lambda s: s["dropped_messages"] >= 5)
-        assert status["dropped_messages"] == 5 and status["state"] == "waiting"
+        driver.send("[" * 1500 + "]" * 1500)  # 3 kB of nesting: once it ended the driver's connection
+        status = status_until(driver, lambda s: s["dropped_messages"] >= 6)
+        assert status["dropped_messages"] == 6 and status["state"] == "waiting"
+        assert "nested" in status["last_drop"]
         driver.send(json.dumps({"type": "start"}))
         driver.send(json.dumps({"type": "key", "code": "KeyW", "down": True, "seq": 3}))
         before = status_until(driver, lambda s: s["state"] == "running" and s["input_seq"] == 3)

@@ -427,3 +427,30 @@ def test_the_free_camera_drags_and_scrolls_and_sigterm_keeps_the_recording(deskt
     _, actions, _ = load_demonstration(tmp_path / "seat.npz")
     # (the signal may land inside a step whose action the recorder already kept)
     assert metrics["steps"] <= len(actions) <= metrics["steps"] + 1 and actions[:, 1].max() == 1.0
+
+
+def _window_pixels(display, window):
+    """The window's pixels as the X server shows them, (height, width, 3)."""
+    from Xlib import X, display as xdisplay
+
+    connection = xdisplay.Display(display)
+    target = connection.create_resource_object("window", int(window))
+    geometry = target.get_geometry()
+    image = target.get_image(0, 0, geometry.width, geometry.height, X.ZPixmap, 0xFFFFFFFF)
+    connection.close()
+    pixels = np.frombuffer(image.data, dtype=np.uint8).reshape(geometry.height, geometry.width, 4)
+    return pixels[..., 2::-1]  # BGRX -> RGB
+
+
+def test_the_waiting_screen_shows_the_scene_lit(desktop, tmp_path):
+    pytest.importorskip("Xlib", reason="python-xlib (the test extra) reads the window's pixels")
+    process, window = _start_demo(desktop, tmp_path, max_cycles=100)
+    try:
+        time.sleep(2.0)  # waiting for ENTER
+        assert process.poll() is None
+        pixels = _window_pixels(desktop, window)
+        assert pixels.mean() > 60, f"the waiting screen is dark (mean {pixels.mean():.0f} of 255)"
+        assert pixels.std() > 20  # the scene, not a flat colour
+    finally:
+        _xdotool(desktop, "key", "Escape")
+        _finish(process, tmp_path)

@@ -7,9 +7,8 @@ top and side views; :func:`dvrl_marl.teleop.session.scene_view`), with the keys 
 How it acts, after the human-in-the-seat figures in the project's reference notes (a person reacts to what they
 saw about 200 ms earlier and moves more slowly than the script):
 
-- **Look, then move.** It decides only on a view at least ``reaction_s`` old, and only once the tip has come to
-  rest in that view after its last move (a ballistic move, a look, a correction), never faster than
-  ``decision_s`` (jittered).
+- **Look, then move.** It sees the page as it was ``reaction_s`` earlier and decides only on a view taken after
+  its last move ended (a ballistic move, a look, a correction), never faster than ``decision_s`` (jittered).
 - **Keys held for a time.** A move holds the axis keys for distance / speed (``KeyD`` ... ``KeyR``; with
   ``ShiftLeft`` for short moves, at the page's precise speed), each released on its own, with motor noise: every
   hold lasts ``1 + N(0, motor_noise)`` times what was meant. Now and then (``pause_probability`` per decision) it
@@ -20,7 +19,8 @@ saw about 200 ms earlier and moves more slowly than the script):
   (the page's "blocked") makes it wait and go round above.
 
 :func:`run_episode` seats it in ``dvrl_marl/SurgeonSeat-v2`` through :class:`~dvrl_marl.teleop.browser.BrowserDevice`
-(the page's messages, in simulated time); ``benchmarks/person_like_seat.py`` also drives the real page in Chromium.
+(the page's messages, in simulated time); :func:`drive_page` puts it in front of the real page (a Playwright page
+in Chromium, in real time): it reads ``window.dvrl.status`` and presses the keys.
 """
 
 from __future__ import annotations
@@ -30,13 +30,13 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["PersonLikeOperator", "run_episode", "AXIS_KEYS"]
+__all__ = ["PersonLikeOperator", "run_episode", "drive_page", "AXIS_KEYS"]
 
 #: Page key codes per axis: (minus, plus).
 AXIS_KEYS = (("KeyA", "KeyD"), ("KeyS", "KeyW"), ("KeyF", "KeyR"))
 _SAFE_HEIGHT_MM = 10.0  # above the phantom's top while travelling (the scripted surgeon's safe height)
 _PRECISE_BELOW_MM = 6.0  # moves shorter than this are made with SHIFT held
-_SETTLED_MM = 0.3  # the tip has come to rest: it moved less than this between two views
+_FRAME_S = 0.08  # a view counts as taken after a move once it is this much younger than the move's end (2 frames)
 _PARTNER_CLEARANCE_MM = 25.0  # keep away from a pin while the suction tip is this close to it, and low
 
 
@@ -49,7 +49,7 @@ class PersonLikeOperator:
     50 mm/s and a quarter of it).
     """
 
-    def __init__(self, seed: int = 0, *, decision_s: float = 0.25, motor_noise: float = 0.1,
+    def __init__(self, seed: int = 0, *, reaction_s: float = 0.2, decision_s: float = 0.25, motor_noise: float = 0.1,
                  pause_probability: float = 0.03, pause_s: float = 0.6, speed_mm_s: float = 50.0,
                  precise_mm_s: float = 12.5):
         if not decision_s > 0 or not speed_mm_s > 0 or not precise_mm_s > 0:
@@ -57,7 +57,7 @@ class PersonLikeOperator:
         if not 0 <= motor_noise < 1 or not 0 <= pause_probability <= 1 or pause_s < 0:
             raise ValueError("PersonLikeOperator: motor_noise in [0, 1), pause_probability in [0, 1], pause_s >= 0")
         self.rng = np.random.default_rng(seed)
-        self.decision_s, self.motor_noise = float(decision_s), float(motor_noise)
+        self.reaction_s, self.decision_s, self.motor_noise = float(reaction_s), float(decision_s), float(motor_noise)
         self.pause_probability, self.pause_s = float(pause_probability), float(pause_s)
         self.speed, self.precise = float(speed_mm_s), float(precise_mm_s)
         self.reset()
@@ -65,16 +65,15 @@ class PersonLikeOperator:
     def reset(self) -> None:
         self._release_at: dict[str, float] = {}  # held key -> when to let it go
         self._next_decision = 0.0
-        self._last_tip = None
-        self._moved_until = -math.inf  # the end of the last move (its keys released)
+        self._moved_until = -math.inf  # the end of the last move (its keys released) or jaw press
         self.presses = 0  # key presses made (a person's effort)
 
     # --- what a driver calls -------------------------------------------------------------------------------------
     def act(self, status: dict, now_s: float) -> list[dict]:
         messages = self._releases(now_s)
         tip = np.asarray(status["tip_mm"], dtype=float)
-        settled = self._last_tip is not None and float(np.max(np.abs(tip - self._last_tip))) < _SETTLED_MM
-        self._last_tip = tip
+        # It looks again only at a view taken after its last move ended (the view is reaction_s old, plus a frame).
+        settled = now_s - self.reaction_s >= self._moved_until + _FRAME_S
         if self._release_at or now_s < self._next_decision or not settled:
             return messages
         self._next_decision = now_s + self.decision_s * float(self.rng.uniform(0.8, 1.4))
@@ -83,7 +82,7 @@ class PersonLikeOperator:
             return messages
         target, jaw = self._plan(status, tip)
         if jaw is not None:  # the jaw first: one press of Space toggles it
-            return messages + self._tap("Space")
+            return messages + self._tap("Space", now_s)
         if target is not None:
             messages += self._move(target - tip, now_s)
         return messages
@@ -144,11 +143,13 @@ class PersonLikeOperator:
 
     def _press(self, code: str, until_s: float) -> list[dict]:
         self._release_at[code] = until_s
+        self._moved_until = max(self._moved_until, until_s)
         self.presses += 1
         return [{"type": "key", "code": code, "down": True}]
 
-    def _tap(self, code: str) -> list[dict]:
+    def _tap(self, code: str, now_s: float) -> list[dict]:
         self.presses += 1
+        self._moved_until = max(self._moved_until, now_s)
         return [{"type": "key", "code": code, "down": True}, {"type": "key", "code": code, "down": False}]
 
     def _releases(self, now_s: float) -> list[dict]:
@@ -174,7 +175,7 @@ def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partne
     from dvrl_marl.teleop.browser import BrowserDevice
     from dvrl_marl.teleop.session import TELEOP_ENV_ID, scene_view
 
-    operator = operator or PersonLikeOperator(seed)
+    operator = operator or PersonLikeOperator(seed, reaction_s=reaction_s)
     operator.reset()
     env = gym.make(TELEOP_ENV_ID, seat="grasper", partner=partner, max_cycles=int(round(max_seconds / 0.02)))
     scene = env.unwrapped.scene
@@ -204,3 +205,37 @@ def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partne
         env.close()
     return {"seed": seed, "success": success, "delivered": delivered, "steps": steps,
             "seconds": round(steps * dt, 2) if success else None, "presses": operator.presses}
+
+
+def drive_page(page, operator: PersonLikeOperator, *, reaction_s: float = 0.2, timeout_s: float = 120.0,
+               on_view=None) -> dict:
+    """Work the seat in an open page (a Playwright ``Page`` showing ``dvrl-marl teleop``) until the episode is over:
+    start it, then look at the status the page drew ``reaction_s`` ago and press the page's keys. ``on_view(status,
+    page)`` runs at every look (a test reads the page's cues there). Returns the page's last status."""
+    import time
+
+    keyboard = page.keyboard
+    page.keyboard.press("Enter")
+    seen: deque = deque()
+    began = time.monotonic()
+    status = page.evaluate("window.dvrl.status")
+    while time.monotonic() - began < timeout_s:
+        now = time.monotonic() - began
+        status = page.evaluate("window.dvrl.status")
+        seen.append((now, status))
+        while len(seen) > 1 and seen[1][0] <= now - reaction_s:
+            seen.popleft()
+        if status["state"] == "over":
+            break
+        if status["state"] != "running":
+            time.sleep(0.02)
+            continue
+        view = seen[0][1]
+        if on_view is not None:
+            on_view(view, page)
+        for message in operator.act(view, now):
+            (keyboard.down if message["down"] else keyboard.up)(message["code"])
+        time.sleep(0.02)
+    for code in ("KeyA", "KeyD", "KeyS", "KeyW", "KeyF", "KeyR", "ShiftLeft"):
+        keyboard.up(code)
+    return status
