@@ -705,3 +705,16 @@ def test_off_centre_grasps_charge_a_grasp_in_proportion_to_its_distance_from_the
     assert charge[0.006] == pytest.approx(2.0 * charge[0.003], rel=0.15)
     with pytest.raises(ValueError, match="off_centre"):
         shaping.GraspPathShaping(env, 10.0, ["suction", "grasper"], off_centre=-1.0)
+
+
+def test_the_trainer_runs_on_suction_debris_v2(tmp_path):
+    # The scene a person uses (hand-off at the grip, dropped pins kept in view) is a task option of the trainer's env.
+    path = tmp_path / "tiny_v2.toml"
+    path.write_text(TINY.format(algorithm="mappo", surgeon="none", seat="grasper").replace(
+        '[env]\n', '[env]\ntask = "suction_debris_v2"\n'))
+    config = mappo.load_config(path)
+    assert config.env["task"] == "suction_debris_v2"
+    run = tmp_path / "run"
+    final = mappo.train(config, 0, run, progress=False, log=lambda *_: None)
+    assert final["steps"] == 2048
+    assert suction_debris_v0.batched_env(num_envs=1, **config.env).template.params.deliver_at_grip
