@@ -365,3 +365,43 @@ def test_a_spectator_sees_no_controls_it_cannot_use(browser, served):
     watcher.wait_for_function("window.dvrl.role === 'controller'", timeout=10000)
     watcher.wait_for_function("getComputedStyle(document.querySelector('#reset')).display !== 'none'", timeout=10000)
     watcher.close()
+
+
+def test_a_pin_gripped_off_centre_is_delivered_from_the_page(browser, served):
+    """The scene's old trap, met as a person meets it: the jaws close 9 mm from a pin's centre on the assistant's
+    side, and the keys bring it to the hand-off point, which takes it (suction_debris_v2 judges the grip)."""
+    from dvrl_marl.core.collaborative import PIN_RADIUS
+
+    page = browser.new_page()
+    page.goto(served.url)
+    page.wait_for_function("window.dvrl.frames >= 1 && window.dvrl.status.state === 'waiting'", timeout=20000)
+    scene = served.session.scene  # (the test arranges the scene; the loop only draws while it waits)
+    height = scene.phantom.top_z + PIN_RADIUS
+    tips = {"suction": np.array(scene.arms["suction"].tip_world()), "grasper": np.array([0.049, 0.02, height])}
+    scene.set_state(tips={agent: scene.arms[agent].to_base(tip) for agent, tip in tips.items()}, jaw=1.0,
+                    valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.04, 0.02, height]] * 3,
+                    debris_yaws=[0.0] * 3, visible=[True] * 3, delivered=[False, True, True])
+    wait_status(page, "s.cues.in_reach")
+    assert "IN REACH" in page.inner_text("#reach")
+    page.keyboard.press("Enter")
+    page.keyboard.press("Space")
+    wait_status(page, "s.cues.holding")
+    held = set()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:  # steer by what the page says: the tip and the hand-off point
+        s = status(page)
+        if s["state"] == "over":
+            break
+        offset = np.subtract(s["outline"]["handoff"], s["tip_mm"])
+        keys = {plus if value > 0 else minus for (minus, plus), value in zip(KEYS_OF_AXES, offset) if abs(value) > 1.0}
+        for key in held - keys:
+            page.keyboard.up(key)
+        for key in keys - held:
+            page.keyboard.down(key)
+        held = keys
+        time.sleep(0.02)
+    for key in held:
+        page.keyboard.up(key)
+    final = wait_status(page, "s.state === 'over'")
+    assert final["success"] and final["debris_delivered"] == 3, final
+    page.close()
