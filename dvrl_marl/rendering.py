@@ -38,6 +38,11 @@ class SceneRenderer:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
         if render_mode == "human":
             require_display()  # fail here, in Python, not later in GLFW
+        from dvrl_marl.schemas import PositiveInt, validated
+
+        # a bad size names itself here, not later as "no OpenGL context"
+        width, height = (validated(PositiveInt, value, f"render {name}") for name, value in (("width", width),
+                                                                                               ("height", height)))
         self.model, self.data, self.render_mode = model, data, render_mode
         self.camera, self.width, self.height = camera, width, height
         # "human" only: key events in the window go to key_listener (e.g. a KeyboardDevice); overlay() returns

@@ -7,11 +7,10 @@ value can be overridden by keyword. Adding a task is adding a file.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 from dvrl_marl.assets import tasks_dir
-from dvrl_marl.validation import check_integer, check_number, check_vector
 
 __all__ = ["TaskSpec", "load_task", "load_task_table", "available_tasks", "DISTRIBUTIONS"]
 
@@ -41,7 +40,6 @@ class TaskSpec:
     start_distribution: str = "uniform"  # Reach p_0: "uniform" in the workspace (paper) or "original" (p_c)
     goal_distribution: str = "uniform"  # "uniform" in the workspace (paper) or "original" (the original's box)
     original_goal_floor: float | None = None  # "original" goals start this far above the table (original code)
-    extra: dict = field(default_factory=dict)
 
     def with_overrides(self, **overrides) -> "TaskSpec":
         """A copy with some parameters replaced; ``None`` values are ignored."""
@@ -52,30 +50,19 @@ class TaskSpec:
             raise TypeError(f"{self.name}() got an unexpected keyword argument {sorted(unknown)[0]!r}")
         return replace(self, **{k: v for k, v in overrides.items() if v is not None})
 
-    def validate(self) -> "TaskSpec":
-        """Check every parameter (finite numbers in range); returns a copy with the numbers as Python numbers."""
-        owner = f"task {self.name!r}"
-        number = functools.partial(check_number, owner)
-        values = {key: number(key, getattr(self, key), low=0.0, low_open=True)
-                  for key in ("workspace_range", "step_size", "distance_threshold", "control_dt")}
-        values["max_episode_steps"] = check_integer(owner, "max_episode_steps", self.max_episode_steps, low=1)
-        values["tip_clearance"] = number("tip_clearance", self.tip_clearance, low=0.0)
-        values["workspace_centre"] = check_vector(owner, "workspace_centre", self.workspace_centre, 3)
-        if self.grasp_threshold is not None:
-            values["grasp_threshold"] = number("grasp_threshold", self.grasp_threshold, low=0.0, low_open=True,
-                                               high=1.0)
-        if self.initial_jaw is not None:
-            values["initial_jaw"] = number("initial_jaw", self.initial_jaw, low=0.0, high=1.0)
-        values["dense_scale"] = number("dense_scale", self.dense_scale, low=0.0, low_open=True)
-        values["workspace_margin"] = number("workspace_margin", self.workspace_margin, low=0.0)
-        for key in ("start_distribution", "goal_distribution"):
-            if getattr(self, key) not in DISTRIBUTIONS:
-                raise ValueError(f"{owner}: {key} must be one of {DISTRIBUTIONS}, got {getattr(self, key)!r}")
-        if self.original_goal_floor is not None:
-            values["original_goal_floor"] = number("original_goal_floor", self.original_goal_floor, low=0.0)
-        elif self.goal_distribution == "original":
-            raise ValueError(f"{owner}: goal_distribution='original' needs original_goal_floor in the task file")
-        return replace(self, **values)
+    def validate(self, source: str | None = None) -> "TaskSpec":
+        """Every parameter checked against the declared schema (:class:`dvrl_marl.schemas.SingleArmTask`: finite
+        numbers in range, known distributions); returns a copy with the checked values."""
+        from dvrl_marl.schemas import SingleArmTask, validated
+
+        values = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "name"}
+        values["workspace_centre"] = tuple(values["workspace_centre"]) if isinstance(
+            values["workspace_centre"], (list, tuple)) else values["workspace_centre"]
+        checked = validated(SingleArmTask, values, source or f"task {self.name!r}", table="task" if source else None)
+        if checked.goal_distribution == "original" and checked.original_goal_floor is None:
+            raise ValueError(f"task {self.name!r}: goal_distribution='original' needs original_goal_floor in the "
+                             "task file")
+        return replace(self, **{key: getattr(checked, key) for key in values})
 
 
 def available_tasks() -> list[str]:
@@ -105,8 +92,8 @@ def load_task_table(name: str | Path) -> tuple[str, dict]:
 def load_task(name: str | Path) -> TaskSpec:
     """Read a single-arm task by name (``"psm_reach"``) or from a TOML file path."""
     task_name, table = load_task_table(name)
-    known = {f.name for f in fields(TaskSpec)} - {"name", "extra"}
-    values = {k: v for k, v in table.items() if k in known}
-    values["workspace_centre"] = tuple(float(v) for v in values["workspace_centre"])
-    extra = {k: v for k, v in table.items() if k not in known}
-    return TaskSpec(name=task_name, extra=extra, **values).validate()
+    from dvrl_marl.schemas import SingleArmTask, validated
+
+    path = Path(name) if Path(name).suffix == ".toml" else tasks_dir() / f"{name}.toml"
+    checked = validated(SingleArmTask, table, str(path), table="task")  # unknown keys (typos) included
+    return TaskSpec(name=task_name, **checked.model_dump()).validate()

@@ -225,7 +225,7 @@ class CollaborativeCore:
         return (position - self.centre) * self.inverse_range
 
     def worlds_of(self, worlds) -> np.ndarray:
-        return world_indices(worlds, self.num_worlds, "suction_debris_v0")
+        return world_indices(worlds, self.num_worlds, self.template.name)
 
     def _update_surfaces(self, worlds, cavity) -> None:
         self.surface_z[worlds, cavity] = self.cavities.floor_z[cavity] + self.cavities.fill_depth(
@@ -236,9 +236,9 @@ class CollaborativeCore:
         volumes = np.asarray(blood_ml, dtype=np.float64)
         c = self.cavities.count
         if volumes.shape[-1:] != (c,) or volumes.ndim > 2:
-            raise ValueError(f"suction_debris_v0: blood_ml needs one volume per cavity ({c}), got {volumes.tolist()}")
+            raise ValueError(f"{self.template.name}: blood_ml needs one volume per cavity ({c}), got {volumes.tolist()}")
         if not np.all(np.isfinite(volumes)) or np.any(volumes < 0.0) or np.any(volumes > self.cavities.capacity_ml):
-            raise ValueError(f"suction_debris_v0: blood volumes {volumes.tolist()} ml must lie in "
+            raise ValueError(f"{self.template.name}: blood volumes {volumes.tolist()} ml must lie in "
                              f"[0, {self.cavities.capacity_ml.tolist()}] ml (the cavities' capacity)")
         self.initial_ml[worlds] = volumes
 
@@ -299,7 +299,7 @@ class CollaborativeCore:
             clearance = self._instrument_distance()[indices]
             if np.any(clearance < 0.0):
                 row = int(np.argmax(clearance < 0.0))
-                raise ValueError(f"suction_debris_v0: tip positions make the instruments intersect "
+                raise ValueError(f"{self.template.name}: tip positions make the instruments intersect "
                                  f"(world {int(indices[row])})")
         except ValueError:  # a refused placement leaves every tip where it was, whichever agent failed
             for agent, (tip, q) in previous.items():
@@ -310,23 +310,23 @@ class CollaborativeCore:
 
     def _place_one(self, agent: str, indices: np.ndarray, positions) -> None:
         if agent not in AGENTS:
-            raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
+            raise ValueError(f"{self.template.name}: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
         positions = np.asarray(positions, dtype=np.float64)
         if positions.shape != (len(indices), 3) or not np.all(np.isfinite(positions)):
-            raise ValueError(f"suction_debris_v0: tip positions of {agent!r} must be finite, shape "
+            raise ValueError(f"{self.template.name}: tip positions of {agent!r} must be finite, shape "
                              f"({len(indices)}, 3), got shape {positions.shape}")
         outside = np.any((positions < self.low - 1e-12) | (positions > self.high + 1e-12), axis=1)
         below = positions[:, 2] < self._floor(positions[:, 0], positions[:, 1]) - 1e-12
         bad = outside | below
         if bad.any():
             row = int(np.argmax(bad))
-            raise ValueError(f"suction_debris_v0: tip position {positions[row].tolist()} of {agent!r} (world "
+            raise ValueError(f"{self.template.name}: tip position {positions[row].tolist()} of {agent!r} (world "
                              f"{int(indices[row])}) is {'outside the workspace box' if outside[row] else 'below the surface'}")
         arm = self.arms[agent]
         try:
             arm.set_tips(indices, positions - arm.base_position)
         except kinematics.UnreachableError as error:
-            raise ValueError(f"suction_debris_v0: a tip position of {agent!r} is unreachable: {error}") from None
+            raise ValueError(f"{self.template.name}: a tip position of {agent!r} is unreachable: {error}") from None
 
     def limit_debris(self, worlds, count) -> None:
         """Keep only the first ``count`` debris (per world in ``worlds``) in play this episode: the others start
@@ -334,7 +334,7 @@ class CollaborativeCore:
         indices = self.worlds_of(worlds)
         count = np.broadcast_to(np.asarray(count), (len(indices),))
         if not np.issubdtype(count.dtype, np.integer) or np.any(count < 0) or np.any(count > self.params.debris_count):
-            raise ValueError(f"suction_debris_v0: debris_count must be integers in 0..{self.params.debris_count}, "
+            raise ValueError(f"{self.template.name}: debris_count must be integers in 0..{self.params.debris_count}, "
                              f"got {count.tolist()}")
         out = np.arange(self.params.debris_count)[None, :] >= count[:, None]
         self.delivered[indices] |= out
@@ -641,13 +641,13 @@ class CollaborativeCore:
     def read_commands(self, actions, agents) -> dict:
         """Validate ``{agent: (N, 4)}`` for ``agents`` (ValueError naming agent and world)."""
         if not isinstance(actions, dict):
-            raise ValueError(f"suction_debris_v0: actions must be a dict keyed by agent, got {type(actions).__name__}")
+            raise ValueError(f"{self.template.name}: actions must be a dict keyed by agent, got {type(actions).__name__}")
         for agent in actions:
             if agent not in agents:
-                raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in actions; agents are {list(agents)}")
+                raise ValueError(f"{self.template.name}: unknown agent {agent!r} in actions; agents are {list(agents)}")
         commands = {}
         for agent in agents:
             if agent not in actions:
-                raise ValueError(f"suction_debris_v0: no action for agent {agent!r}")
-            commands[agent] = check_action_batch(actions[agent], self.num_worlds, 4, f"suction_debris_v0: agent {agent!r}")
+                raise ValueError(f"{self.template.name}: no action for agent {agent!r}")
+            commands[agent] = check_action_batch(actions[agent], self.num_worlds, 4, f"{self.template.name}: agent {agent!r}")
         return commands

@@ -29,14 +29,14 @@ class WorldRandom:
         if seed is None:
             self.generators = [np.random.default_rng() for _ in range(self.num_worlds)]
             return
-        if isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(self.num_worlds)]
+        from dvrl_marl.schemas import Seed, validated
+
+        if isinstance(seed, (str, bytes)) or not hasattr(seed, "__iter__"):  # one seed (a string is no seed list)
+            seeds = [validated(Seed, seed, "reset(seed=...)") + i for i in range(self.num_worlds)]
         else:
-            seeds = [int(s) for s in seed]
+            seeds = validated(list[Seed], list(seed), "reset(seed=[...]): one seed per world")
             if len(seeds) != self.num_worlds:
                 raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
-        if any(s < 0 for s in seeds):
-            raise ValueError(f"seed must be non-negative, got {seed!r}")
         self.generators = [np.random.default_rng(s) for s in seeds]
 
     def __getitem__(self, world: int) -> np.random.Generator:
@@ -52,7 +52,16 @@ def world_indices(worlds, num_worlds: int, who: str) -> np.ndarray:
         if worlds.shape != (num_worlds,):
             raise ValueError(f"{who}: reset mask must have shape ({num_worlds},), got {worlds.shape}")
         return np.flatnonzero(worlds)
-    return worlds.astype(np.int64).reshape(-1)
+    if worlds.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if not np.issubdtype(worlds.dtype, np.integer):  # 1.5 is no world, and 1.0 is likely a mistaken mask
+        raise ValueError(f"{who}: reset mask must be booleans of shape ({num_worlds},) or world indices "
+                         f"(integers), got {worlds.dtype} values {worlds.reshape(-1)[:5].tolist()}")
+    indices = worlds.astype(np.int64).reshape(-1)
+    outside = (indices < 0) | (indices >= num_worlds)
+    if outside.any():  # a negative index would wrap to another world, a large one raise IndexError later
+        raise ValueError(f"{who}: world index {int(indices[outside][0])} is outside [0, {num_worlds})")
+    return indices
 
 
 def check_action_batch(actions, num_worlds: int, width: int, who: str) -> np.ndarray:

@@ -46,11 +46,13 @@ environment's MuJoCo scene.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from dvrl_marl.core.collaborative import AGENTS, CollaborativeCore
 from dvrl_marl.core.worlds import check_action_batch
-from dvrl_marl.envs.suction_debris_v0 import SuctionDebrisEnv
+from dvrl_marl.envs.suction_debris_v0 import SuctionDebrisEnv, env_name
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES"]
 
@@ -65,12 +67,14 @@ class SuctionDebrisBatchedEnv:
     def __init__(self, num_envs: int = 1, surgeon=None, surgeon_seat: str = "grasper", reward_type: str = "sparse",
                  render_mode: str | None = None, max_cycles: int | None = None, autoreset_mode: str = "same_step",
                  render_world: int = 0, **kwargs):
+        self.name = env_name(Path(str(kwargs.get("task", "suction_debris"))).stem)
+        self.metadata = {**self.metadata, "name": self.name}
         if autoreset_mode not in AUTORESET_MODES:
-            raise ValueError(f"suction_debris_v0: autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
+            raise ValueError(f"{self.name}: autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"suction_debris_v0: the batched env renders 'rgb_array' only, got {render_mode!r}")
+            raise ValueError(f"{self.name}: the batched env renders 'rgb_array' only, got {render_mode!r}")
         if hasattr(surgeon, "action") and callable(surgeon.action):
-            raise ValueError("suction_debris_v0: a teleop device drives one world; use parallel_env(surgeon=device)")
+            raise ValueError(f"{self.name}: a teleop device drives one world; use parallel_env(surgeon=device)")
         # The single env validates every argument and holds the scene (for rendering and the layout).
         self.template = SuctionDebrisEnv(surgeon=None, surgeon_seat=surgeon_seat, reward_type=reward_type,
                                          render_mode=render_mode, max_cycles=max_cycles, **kwargs)
@@ -83,7 +87,7 @@ class SuctionDebrisBatchedEnv:
         self.autoreset_mode = autoreset_mode
         self.render_mode = render_mode
         if not 0 <= int(render_world) < self.num_envs:
-            raise ValueError(f"suction_debris_v0: render_world must be in [0, {self.num_envs}), got {render_world!r}")
+            raise ValueError(f"{self.name}: render_world must be in [0, {self.num_envs}), got {render_world!r}")
         self.render_world = int(render_world)
         self.params = self.template.params
         self.observation_layout = self.template.observation_layout
@@ -97,13 +101,13 @@ class SuctionDebrisBatchedEnv:
             return None
         if isinstance(surgeon, str):
             if surgeon != "scripted":
-                raise ValueError(f"suction_debris_v0: surgeon must be None, 'scripted' or a callable, got {surgeon!r}")
+                raise ValueError(f"{self.name}: surgeon must be None, 'scripted' or a callable, got {surgeon!r}")
             from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon  # agents build on envs
 
             return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self.template)
         if callable(surgeon):
             return surgeon
-        raise ValueError(f"suction_debris_v0: surgeon {surgeon!r} is not callable")
+        raise ValueError(f"{self.name}: surgeon {surgeon!r} is not callable")
 
     # --- spaces and facts ---------------------------------------------------------------------------------
     def observation_space(self, agent):
@@ -123,14 +127,14 @@ class SuctionDebrisBatchedEnv:
     # --- API ----------------------------------------------------------------------------------------------
     def reset(self, seed=None, options=None):
         if options is not None and not isinstance(options, dict):
-            raise ValueError(f"suction_debris_v0: options must be a dict or None, got {type(options).__name__}")
+            raise ValueError(f"{self.name}: options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         blood_ml = options.pop("blood_ml", None)
         tips = options.pop("tip_positions", None)
         debris_count = options.pop("debris_count", None)
         if options:
-            raise ValueError(f"suction_debris_v0: unknown reset option(s) {sorted(options)}; "
+            raise ValueError(f"{self.name}: unknown reset option(s) {sorted(options)}; "
                              "known: ['blood_ml', 'debris_count', 'reset_mask', 'tip_positions']")
         worlds = self.core.worlds_of(mask)
         if blood_ml is not None and np.ndim(blood_ml) == 2 and np.shape(blood_ml)[0] == self.num_envs:
@@ -141,7 +145,7 @@ class SuctionDebrisBatchedEnv:
             self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
         if tips is not None:
             if not isinstance(tips, dict):
-                raise ValueError("suction_debris_v0: tip_positions must be a dict {agent: (num_envs, 3) metres}")
+                raise ValueError(f"{self.name}: tip_positions must be a dict {agent: (num_envs, 3) metres}")
             self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip_positions[{agent!r}]")
                                           for agent, value in tips.items()})
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
@@ -155,14 +159,14 @@ class SuctionDebrisBatchedEnv:
         a mask or indices (default all). The same checks as the ``tip_positions`` reset option."""
         worlds = self.core.worlds_of(worlds)
         if not isinstance(tips, dict):
-            raise ValueError("suction_debris_v0: tip positions must be a dict {agent: (num_envs, 3) metres}")
+            raise ValueError(f"{self.name}: tip positions must be a dict {agent: (num_envs, 3) metres}")
         self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip positions of {agent!r}")
                                       for agent, value in tips.items()})
 
     def _rows(self, value, worlds, name):
         value = np.asarray(value, dtype=np.float64)
         if value.ndim != 2 or value.shape[0] != self.num_envs:
-            raise ValueError(f"suction_debris_v0: {name} needs one row per world ({self.num_envs}), got shape {value.shape}")
+            raise ValueError(f"{self.name}: {name} needs one row per world ({self.num_envs}), got shape {value.shape}")
         return value[worlds]
 
     def step(self, actions):
@@ -171,7 +175,7 @@ class SuctionDebrisBatchedEnv:
         if self._surgeon is not None:
             seat = self.surgeon_seat
             commands[seat] = check_action_batch(self._surgeon(core.observation(seat)), self.num_envs, 4,
-                                                f"suction_debris_v0: surgeon in seat {seat!r}")
+                                                f"{self.name}: surgeon in seat {seat!r}")
         rewards, terminated, truncated = core.step(commands)
         observations = self.observations()
         info = core.info()
@@ -201,7 +205,7 @@ class SuctionDebrisBatchedEnv:
         """World ``world`` (default :attr:`render_world`) from the endoscope, through the single env's scene."""
         world = self.render_world if world is None else int(world)
         if not 0 <= world < self.num_envs:
-            raise ValueError(f"suction_debris_v0: world must be in [0, {self.num_envs}), got {world}")
+            raise ValueError(f"{self.name}: world must be in [0, {self.num_envs}), got {world}")
         self.template.set_state(**self.core.world_state(world))
         return self.template.render()
 

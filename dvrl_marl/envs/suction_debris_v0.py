@@ -98,6 +98,7 @@ from __future__ import annotations
 import concurrent.futures
 import math
 import warnings
+from pathlib import Path
 from dataclasses import dataclass, fields, replace
 
 import mujoco
@@ -130,9 +131,9 @@ from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.teleop.pacing import PacedDisplay
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import load_task_table
-from dvrl_marl.validation import check_integer, check_number, check_vector
 
-__all__ = ["parallel_env", "env", "raw_env", "batched_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS"]
+__all__ = ["parallel_env", "env", "raw_env", "batched_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS",
+           "env_name"]
 
 _TOOLS = TOOLS
 _PREFIX = {"suction": "suction/", "grasper": "grasper/"}
@@ -168,35 +169,45 @@ class SuctionDebrisParams:
 
     @classmethod
     def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
-        _, table = load_task_table(task)
+        """The task file's values (checked against :class:`dvrl_marl.schemas.CollaborativeTask`: a misspelt key in
+        the file is an error naming it), keyword by keyword overridden, then checked as :meth:`validated`."""
+        from dvrl_marl.schemas import CollaborativeTask, validated
+
+        task_name, table = load_task_table(task)
+        owner = env_name(task_name)
         names = {f.name for f in fields(cls)}
         unknown = set(overrides) - names
         if unknown:
-            raise TypeError(f"suction_debris_v0() got an unexpected keyword argument {sorted(unknown)[0]!r}")
-        values = {k: v for k, v in table.items() if k in names}
+            raise TypeError(f"{owner}() got an unexpected keyword argument {sorted(unknown)[0]!r}")
+        path = task if str(task).endswith(".toml") else f"tasks/{task_name}.toml"
+        values = validated(CollaborativeTask, table, path, table="task").model_dump(exclude={"description"})
         values.update({k: v for k, v in overrides.items() if v is not None})
-        return cls(**values).validated()
+        return cls(**values).validated(owner)
 
-    def validated(self) -> "SuctionDebrisParams":
-        """Check every parameter (finite numbers in range); returns a copy with the numbers as Python numbers."""
-        owner = "suction_debris_v0"
-        values = {key: check_number(owner, key, getattr(self, key), low=0.0, low_open=True)
-                  for key in ("workspace_range", "step_size", "distance_threshold", "control_dt", "suction_rate_ml_s")}
-        values.update({key: check_number(owner, key, getattr(self, key), low=0.0)
-                       for key in ("blood_threshold_ml", "contact_penalty", "tip_clearance")})
-        values["grasp_threshold"] = check_number(owner, "grasp_threshold", self.grasp_threshold, low=0.0,
-                                                 low_open=True, high=1.0)
-        values["workspace_centre"] = check_vector(owner, "workspace_centre", self.workspace_centre, 3)
-        # (each cavity's capacity is checked by BloodState, which knows the cavities)
-        values["blood_ml"] = check_vector(owner, "blood_ml", self.blood_ml, len(assets.CAVITY_CENTRES), low=0.0)
-        values["debris_count"] = check_integer(owner, "debris_count", self.debris_count, low=1, high=2 * len(_PIN_SLOTS))
-        values["max_cycles"] = check_integer(owner, "max_cycles", self.max_cycles, low=1)
-        for key in ("pins_fall", "deliver_at_grip", "pins_stay_on_phantom"):
-            if not isinstance(getattr(self, key), bool):
-                raise ValueError(f"{owner}: {key} must be true or false, got {getattr(self, key)!r}")
-        values.update({key: check_number(owner, key, getattr(self, key), low=0.0)
-                       for key in ("suction_reach", "bleeding_ml_s", "bleeding_onset_s")})
-        return replace(self, **values)
+    def validated(self, owner: str = "suction_debris_v0") -> "SuctionDebrisParams":
+        """Every parameter checked against :class:`dvrl_marl.schemas.CollaborativeTask` (finite numbers in range,
+        true/false flags), one blood volume per cavity, at most two pins per slot; a copy with the checked values.
+        (Each cavity's capacity is checked by BloodState, which knows the cavities.)"""
+        from dvrl_marl.schemas import CollaborativeTask, validated
+
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        for key in ("workspace_centre", "blood_ml"):  # any sequence (a numpy array too) of numbers
+            if isinstance(values[key], np.ndarray) or (hasattr(values[key], "__iter__")
+                                                       and not isinstance(values[key], (str, bytes, dict))):
+                values[key] = tuple(values[key])
+        checked = validated(CollaborativeTask, values, owner)
+        if len(checked.blood_ml) != len(assets.CAVITY_CENTRES):
+            raise ValueError(f"{owner}: blood_ml needs {len(assets.CAVITY_CENTRES)} values (one per cavity), "
+                             f"got {self.blood_ml!r}")
+        if checked.debris_count > 2 * len(_PIN_SLOTS):
+            raise ValueError(f"{owner}: debris_count must be <= {2 * len(_PIN_SLOTS)} (the cavities' slots), "
+                             f"got {self.debris_count!r}")
+        return replace(self, **{key: getattr(checked, key) for key in values})
+
+
+def env_name(task: str) -> str:
+    """The environment's name for a task file: ``suction_debris`` is v0's, ``suction_debris_vN`` names itself."""
+    return "suction_debris_v0" if task == "suction_debris" else task
 
 
 @dataclass(frozen=True)
@@ -293,16 +304,23 @@ class SuctionDebrisEnv(ParallelEnv):
         task: str = "suction_debris",
         **params,
     ):
+        #: The environment's name (its version), as its messages say it.
+        self.name = env_name(Path(task).stem)
+        self.metadata = {**self.metadata, "name": self.name}
         if reward_type not in ("sparse", "dense"):
-            raise ValueError(f"suction_debris_v0: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+            raise ValueError(f"{self.name}: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"suction_debris_v0: render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+            raise ValueError(f"{self.name}: render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if surgeon_seat not in AGENTS:
-            raise ValueError(f"suction_debris_v0: surgeon_seat must be one of {AGENTS}, got {surgeon_seat!r}")
+            raise ValueError(f"{self.name}: surgeon_seat must be one of {AGENTS}, got {surgeon_seat!r}")
         self.params = SuctionDebrisParams.from_task(task, max_cycles=max_cycles, **params)
         p = self.params
         self.reward_type = reward_type
         self.render_mode = render_mode
+        if teleop_timeout is not None:  # -1 once made a seat that never moved
+            from dvrl_marl.schemas import Positive, validated
+
+            teleop_timeout = validated(Positive, teleop_timeout, f"{self.name}: teleop_timeout (seconds, or None)")
         self.teleop_timeout = teleop_timeout
 
         self.model = load_model(p.scene)
@@ -311,12 +329,13 @@ class SuctionDebrisEnv(ParallelEnv):
         self.arms = {agent: Arm(self.model, self.data, _PREFIX[agent], _TOOLS[agent]) for agent in AGENTS}
         for arm in self.arms.values():
             if not np.allclose(arm.base_rotation, np.eye(3)):
-                raise ValueError("suction_debris_v0 needs upright, unrotated PSM bases in its scene")
+                raise ValueError(f"{self.name} needs upright, unrotated PSM bases in its scene")
         self.phantom = self._phantom_from_model()
         self.blood = BloodState(self.phantom, p.blood_ml, p.suction_rate_ml_s)
         self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.phantom.cavities))]
         self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
         self.handoff = tuple(float(v) for v in self.data.site_xpos[object_id(self.model, "site", "handoff")])
+        self._check_scene_fits()
         self._debris_bodies = [object_id(self.model, "body", f"debris_{i}") for i in range(p.debris_count)]
         self._debris_qpos = [int(self.model.jnt_qposadr[self.model.body_jntadr[b]]) for b in self._debris_bodies]
         self.debris = [_Debris() for _ in range(p.debris_count)]
@@ -372,6 +391,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self.bleeding = []
         self._blocked = {agent: False for agent in AGENTS}  # the last move was refused: the other instrument
         self._drawn_ml = 0.0  # blood the suction drew in the last step
+        self._episodes = 0  # episodes begun (reset() calls)
         self._held = None  # the held pin's index (cues and renders may come before the first reset)
         self._hold_offset = self._grip_offset = (0.0, 0.0, 0.0)
 
@@ -395,6 +415,21 @@ class SuctionDebrisEnv(ParallelEnv):
             self.model.qpos0[self.model.jnt_qposadr[self.model.body_jntadr[body]] + 2] = -1.0
             index += 1
 
+    def _check_scene_fits(self) -> None:
+        """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
+        must normalise inside the observation space's bound: a tiny workspace_range would put them outside it."""
+        p, phantom = self.params, self.phantom
+        points = [self.handoff] + [(c.centre_x + dx, c.centre_y + dy, c.floor_z) for c in phantom.cavities
+                                   for dx, dy in ((-c.mouth_radius, 0.0), (c.mouth_radius, 0.0), (0.0, -c.mouth_radius),
+                                                  (0.0, c.mouth_radius))]
+        farthest = max(abs(v - c) for point in points for v, c in zip(point, p.workspace_centre)) / p.workspace_range
+        if farthest > _OBS_POSITION_BOUND:
+            raise ValueError(f"{self.name}: workspace_range {p.workspace_range!r} (m) with workspace_centre "
+                             f"{p.workspace_centre!r} puts the scene's cavities or hand-off point {farthest:.3g} "
+                             f"ranges from the centre, outside the observation space's bound of "
+                             f"{_OBS_POSITION_BOUND:g}; the scene needs workspace_range >= "
+                             f"{farthest * p.workspace_range / _OBS_POSITION_BOUND:.3g} m")
+
     def _phantom_from_model(self) -> Phantom:
         geom = object_id(self.model, "geom", "phantom")
         hfield = self.model.geom_dataid[geom]
@@ -412,7 +447,7 @@ class SuctionDebrisEnv(ParallelEnv):
             return None, False
         if isinstance(surgeon, str):
             if surgeon != "scripted":
-                raise ValueError(f"suction_debris_v0: surgeon must be None, 'scripted', a callable or a teleop device, got {surgeon!r}")
+                raise ValueError(f"{self.name}: surgeon must be None, 'scripted', a callable or a teleop device, got {surgeon!r}")
             from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon  # agents build on this env
 
             return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self), False
@@ -420,30 +455,30 @@ class SuctionDebrisEnv(ParallelEnv):
             return surgeon, True
         if callable(surgeon):
             return surgeon, False
-        raise ValueError(f"suction_debris_v0: surgeon {surgeon!r} is neither callable nor a teleop device")
+        raise ValueError(f"{self.name}: surgeon {surgeon!r} is neither callable nor a teleop device")
 
     # --- PettingZoo API -------------------------------------------------------------------------------------
     def observation_space(self, agent):
         try:
             return self._observation_spaces[agent]
         except KeyError:
-            raise ValueError(f"suction_debris_v0: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
+            raise ValueError(f"{self.name}: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
 
     def action_space(self, agent):
         try:
             return self._action_spaces[agent]
         except KeyError:
-            raise ValueError(f"suction_debris_v0: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
+            raise ValueError(f"{self.name}: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
 
     def reset(self, seed=None, options=None):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         if options is not None and not isinstance(options, dict):
-            raise ValueError(f"suction_debris_v0: options must be a dict or None, got {type(options).__name__}")
+            raise ValueError(f"{self.name}: options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
         blood_ml = options.pop("blood_ml", None)
         if options:  # PettingZoo's own API test passes arbitrary options, so unknown ones warn rather than raise
-            warnings.warn(f"suction_debris_v0: ignoring unknown reset option(s) {sorted(options)}; known: ['blood_ml']",
+            warnings.warn(f"{self.name}: ignoring unknown reset option(s) {sorted(options)}; known: ['blood_ml']",
                           stacklevel=2)
         if blood_ml is not None:
             self.blood = BloodState(self.phantom, [float(v) for v in np.atleast_1d(blood_ml)], self.params.suction_rate_ml_s)
@@ -470,6 +505,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._blocked = {agent: False for agent in AGENTS}
         self._drawn_ml = 0.0
         self.agents = list(self.possible_agents)
+        self._episodes += 1
         self._work_distances = {agent: self._work_distance(agent) for agent in AGENTS}
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
@@ -481,7 +517,8 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def step(self, actions):
         if not self.agents:
-            raise ValueError("suction_debris_v0: step() called after the episode ended; call reset()")
+            raise ValueError(f"{self.name}: step() called " + ("after the episode ended" if self._episodes
+                                                                 else "before reset()") + "; call reset()")
         commands = self._read_actions(actions)
         if self._display is not None:
             self._display.before_step()  # the key events since the last step reach the seat's device now
@@ -595,7 +632,7 @@ class SuctionDebrisEnv(ParallelEnv):
         (mm), whether closing now takes it (``in_reach``), whether it holds one and how far that is from the hand-off
         (mm, judged as the scene judges it); for the suction, whether it drew blood in the last step."""
         if agent not in AGENTS:
-            raise ValueError(f"suction_debris_v0: unknown agent {agent!r}; agents are {list(AGENTS)}")
+            raise ValueError(f"{self.name}: unknown agent {agent!r}; agents are {list(AGENTS)}")
         x, y, z = self.arms[agent].tip_world()
         cues = {"tip_height_mm": 1000.0 * (z - self.phantom.surface_height(x, y)), "blocked": self._blocked[agent]}
         if agent == "suction":
@@ -744,29 +781,28 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _read_actions(self, actions) -> dict:
         if not isinstance(actions, dict):
-            raise ValueError(f"suction_debris_v0: actions must be a dict keyed by agent, got {type(actions).__name__}")
+            raise ValueError(f"{self.name}: actions must be a dict keyed by agent, got {type(actions).__name__}")
         for agent in actions:
             if agent not in self.agents:
-                raise ValueError(f"suction_debris_v0: unknown agent {agent!r} in actions; live agents are {self.agents}")
+                raise ValueError(f"{self.name}: unknown agent {agent!r} in actions; live agents are {self.agents}")
         commands = {}
         for agent in self.agents:
             if agent not in actions:
-                raise ValueError(f"suction_debris_v0: no action for agent {agent!r}")
+                raise ValueError(f"{self.name}: no action for agent {agent!r}")
             commands[agent] = self._validate(agent, actions[agent])
         return commands
 
-    @staticmethod
-    def _validate(agent, action):
+    def _validate(self, agent, action):
         try:
             array = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as error:
-            raise ValueError(f"suction_debris_v0: action for {agent!r} is not numeric: {action!r}") from error
+            raise ValueError(f"{self.name}: action for {agent!r} is not numeric: {action!r}") from error
         if array.shape != (4,):
-            raise ValueError(f"suction_debris_v0: action for {agent!r} must have shape (4,), got {array.shape}")
+            raise ValueError(f"{self.name}: action for {agent!r} must have shape (4,), got {array.shape}")
         values = array.tolist()
         for value in values:
             if not math.isfinite(value):
-                raise ValueError(f"suction_debris_v0: action for {agent!r} contains NaN or inf: {values}")
+                raise ValueError(f"{self.name}: action for {agent!r} contains NaN or inf: {values}")
         return [-1.0 if v < -1.0 else 1.0 if v > 1.0 else v for v in values]
 
     def _seat_command(self):

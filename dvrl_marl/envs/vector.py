@@ -61,6 +61,11 @@ class GoalVectorEnv(gym.vector.VectorEnv):
                  autoreset_mode: str = "next_step", render_world: int = 0):
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
+        from dvrl_marl.schemas import PositiveInt, validated
+
+        if max_episode_steps is not None:  # 0 would end every episode before its first step
+            max_episode_steps = validated(PositiveInt, max_episode_steps, "make_vec: max_episode_steps")
+        num_envs = validated(PositiveInt, num_envs, "make_vec: num_envs")
         self.core = core_class(template, num_envs, max_episode_steps)
         self.template = template
         self.num_envs = self.core.num_worlds

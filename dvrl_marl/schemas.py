@@ -1,0 +1,268 @@
+"""The declared schemas of what the library reads: task files, training configurations, pipeline specs, policy files
+and the command line's numbers, each a pydantic model (or a dataclass pydantic validates) that forbids unknown keys,
+checks types strictly (``"0.99"`` is not a number, ``true`` is not 1) and checks ranges.
+
+:func:`validated` is the one way in: it returns the checked values or raises a ``ValueError`` that names the source
+(a file, or the object a keyword went to), the table and the field, and says what was wrong, e.g.
+``baselines/configs/x.toml: [ppo] gamma: must be <= 1, got 2.0``. Modules declare their own schema beside the code
+that uses it when the schema is that code's dataclass (the trainers' configurations); the file kinds that have no
+dataclass of their own are declared here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, StrictBool, StrictStr, TypeAdapter,
+                      ValidationError)
+
+__all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
+           "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
+           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicySpecBounds", "cli_number", "Seed",
+           "Integer", "Text", "Flag"]
+
+#: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
+STRICT = ConfigDict(extra="forbid")
+
+
+
+def _plain(value):
+    """numpy scalars as the Python numbers they hold (np.int64(3) is an integer; "3" and True are not numbers)."""
+    if type(value).__module__ == "numpy" and hasattr(value, "item") and getattr(value, "ndim", 1) == 0:
+        item = value.item()
+        return item if not isinstance(item, bool) else value
+    return value
+
+
+_NUMBER = BeforeValidator(_plain)
+Finite = Annotated[float, _NUMBER, Strict(), Field(allow_inf_nan=False)]
+Positive = Annotated[float, _NUMBER, Strict(), Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, _NUMBER, Strict(), Field(ge=0, allow_inf_nan=False)]
+Fraction = Annotated[float, _NUMBER, Strict(), Field(ge=0, le=1, allow_inf_nan=False)]
+Integer = Annotated[int, _NUMBER, Strict()]
+PositiveInt = Annotated[int, _NUMBER, Strict(), Field(ge=1)]
+NonNegativeInt = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
+#: numpy's generators take seeds >= 0.
+Seed = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
+Vector3 = tuple[Finite, Finite, Finite]
+Text = StrictStr
+Flag = StrictBool
+
+
+def describe(error: ValidationError, source: str, table: str | None = None, tables: dict | None = None) -> str:
+    """One line per problem: ``source: [table] field: what was wrong, got value``. ``tables`` maps a field to the
+    table it came from (flattened configurations)."""
+    lines = []
+    for problem in error.errors(include_url=False):
+        location = list(problem["loc"])
+        name = "".join(f"[{part}]" if isinstance(part, int) else (f".{part}" if index else str(part))
+                       for index, part in enumerate(location))
+        where = (tables or {}).get(location[0], table) if location else table
+        prefix = f"[{where}] " if where else ""
+        lines.append(f"{source}: {prefix}{name + ': ' if name else ''}{_requirement(problem)}")
+    return "\n".join(lines)
+
+
+def _requirement(problem: dict) -> str:
+    kind, context, value = problem["type"], problem.get("ctx") or {}, problem.get("input")
+    got = f", got {value!r}"
+    if isinstance(value, float) and not math.isfinite(value):  # NaN fails every bound; say what is wrong with it
+        return "must be finite" + got
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):
+        return "unknown key (a typo?)" + got
+    if kind == "missing":
+        return "missing"
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+        sign = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}[kind]
+        bound = next(iter(context.values()))
+        return f"must be {sign} {bound}{got}"
+    if kind == "finite_number":
+        return "must be finite" + got
+    if kind in ("float_type", "float_parsing"):
+        return "must be a number" + got
+    if kind in ("int_type", "int_parsing", "int_from_float"):
+        return "must be an integer" + got
+    if kind == "bool_type":
+        return "must be true or false" + got
+    if kind in ("string_type",):
+        return "must be a string" + got
+    if kind == "literal_error":
+        return f"must be one of {context.get('expected')}{got}"
+    if kind in ("too_short", "too_long"):
+        return f"{problem['msg'].lower()}{got}"
+    return f"{problem['msg']}{got}"
+
+
+def validated(schema, data: Any, source: str, table: str | None = None, tables: dict | None = None):
+    """``data`` checked against ``schema`` (a model class, or any type pydantic validates: a dataclass, an
+    ``Annotated`` number); a ``ValueError`` naming ``source``, the table and the field otherwise."""
+    try:
+        if isinstance(schema, type) and issubclass(schema, BaseModel):
+            return schema.model_validate(data)
+        return _adapter(schema).validate_python(data)
+    except ValidationError as error:
+        raise ValueError(describe(error, source, table, tables)) from None
+
+
+_ADAPTERS: dict = {}
+
+
+def _adapter(schema) -> TypeAdapter:
+    key = id(schema)
+    if key not in _ADAPTERS:
+        _ADAPTERS[key] = (schema, TypeAdapter(schema))
+    return _ADAPTERS[key][1]
+
+
+# --- task files (tasks/*.toml, the [task] table) ---------------------------------------------------------------------
+class SingleArmTask(BaseModel):
+    """A single-arm task (PSM Reach, PSM Pick): the paper's parameters, positions in metres (PSM base frame)."""
+
+    model_config = STRICT
+    description: Text
+    scenes: dict[Text, Text]
+    workspace_centre: Vector3
+    workspace_range: Positive
+    step_size: Positive
+    distance_threshold: Positive
+    max_episode_steps: PositiveInt
+    control_dt: Positive
+    tip_clearance: NonNegative
+    grasp_threshold: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)] | None = None
+    initial_jaw: Fraction | None = None
+    dense_scale: Positive = 1.0
+    workspace_margin: NonNegative = 0.0
+    start_distribution: Literal["uniform", "original"] = "uniform"
+    goal_distribution: Literal["uniform", "original"] = "uniform"
+    original_goal_floor: NonNegative | None = None
+
+
+class CollaborativeTask(BaseModel):
+    """The collaborative scene's task (suction_debris and its versions)."""
+
+    model_config = STRICT
+    description: Text = ""
+    scene: Text
+    workspace_centre: Vector3
+    workspace_range: Positive
+    step_size: Positive
+    distance_threshold: Positive
+    grasp_threshold: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)]
+    control_dt: Positive
+    tip_clearance: NonNegative
+    blood_ml: tuple[NonNegative, ...]
+    blood_threshold_ml: NonNegative
+    suction_rate_ml_s: Positive
+    debris_count: PositiveInt
+    contact_penalty: NonNegative
+    max_cycles: PositiveInt
+    pins_fall: Flag = False
+    suction_reach: NonNegative = 0.0
+    bleeding_ml_s: NonNegative = 0.0
+    bleeding_onset_s: NonNegative = 0.0
+    deliver_at_grip: Flag = False
+    pins_stay_on_phantom: Flag = False
+
+
+# --- training configurations without a dataclass of their own --------------------------------------------------------
+class Sb3PpoRun(BaseModel):
+    """``[run]`` of the collaborative env's SB3 PPO configurations (``dvrl_marl.training.marl``)."""
+
+    model_config = STRICT
+    algorithm: Literal["ppo"] = "ppo"
+    total_timesteps: PositiveInt = 100_000
+    n_envs: PositiveInt = 4
+    eval_episodes: PositiveInt = 10
+    surgeon: Literal["none", "scripted"] = "none"
+
+
+class CloneRun(BaseModel):
+    """``[run]`` of a behaviour-cloning configuration (``dvrl_marl.training.clone``)."""
+
+    model_config = STRICT
+    algorithm: Literal["bc"]
+    dataset: Annotated[str, Strict(), Field(min_length=1)]
+
+
+class CloneBc(BaseModel):
+    """``[bc]``: the network and its fit (defaults: :class:`dvrl_marl.training.clone.CloneConfig`)."""
+
+    model_config = STRICT
+    hidden: Annotated[tuple[PositiveInt, ...], Field(min_length=1)] | None = None
+    epochs: PositiveInt | None = None
+    batch_size: PositiveInt | None = None
+    learning_rate: Positive | None = None
+    cleared_features: Flag | None = None
+    anneal_lr: Flag | None = None
+    action_weights: tuple[NonNegative, NonNegative, NonNegative, NonNegative] | None = None
+
+
+class CloneDagger(BaseModel):
+    """``[dagger]``: rounds in which the clone drives and the expert labels."""
+
+    model_config = STRICT
+    rounds: PositiveInt
+    episodes: PositiveInt
+    seed: Seed = 0
+
+
+class CloneRecord(BaseModel):
+    """``[record]``: how the dataset is made when it is not in the local Minari store."""
+
+    model_config = STRICT
+    policy: Annotated[str, Strict(), Field(min_length=1)]
+    episodes: PositiveInt
+    seed: Seed = 0
+    action_noise: NonNegative = 0.0
+    env_kwargs: dict[Text, Any] | None = None
+
+
+class CloneEvaluate(BaseModel):
+    """``[evaluate]``: the clone beside a partner on held-out seeds."""
+
+    model_config = STRICT
+    partner: Annotated[str, Strict(), Field(min_length=1)] = "pipeline"
+    episodes: PositiveInt = 100
+
+
+# --- policy files --------------------------------------------------------------------------------
+class PolicySpecBounds(BaseModel):
+    """The action bounds of a policy file (``policy.json``): finite, as long as each other, low below high."""
+
+    model_config = ConfigDict(extra="ignore", strict=False)
+    action_low: list[Finite]
+    action_high: list[Finite]
+
+    def model_post_init(self, context) -> None:
+        if len(self.action_low) != len(self.action_high):
+            raise ValueError("action_low and action_high differ in length")
+        for index, (low, high) in enumerate(zip(self.action_low, self.action_high)):
+            if not low < high:
+                raise ValueError(f"action_low[{index}] = {low} is not below action_high[{index}] = {high}")
+
+
+# --- the command line ------------------------------------------------------------------------------------------------
+def cli_number(kind: type, *, low=None, high=None, name: str = "value"):
+    """An ``argparse`` type: the text as ``kind`` (int or float) in ``[low, high]``, checked by pydantic; argparse
+    prints the error with the flag's name."""
+    import argparse
+
+    constraints = {k: v for k, v in (("ge", low), ("le", high)) if v is not None}
+    schema = Annotated[kind, Field(**constraints, allow_inf_nan=False) if kind is float else Field(**constraints)]
+    adapter = TypeAdapter(schema)
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        try:
+            return adapter.validate_python(value)
+        except ValidationError as error:
+            raise argparse.ArgumentTypeError(_requirement(error.errors(include_url=False)[0])) from None
+
+    parse.__name__ = name  # argparse names the type in its messages
+    return parse
