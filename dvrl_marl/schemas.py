@@ -20,7 +20,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
            "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicySpecBounds", "cli_number", "Seed",
-           "Integer", "Text", "Flag"]
+           "Integer", "Text", "Flag", "UnitInterval"]
 
 #: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
 STRICT = ConfigDict(extra="forbid")
@@ -40,6 +40,7 @@ Finite = Annotated[float, _NUMBER, Strict(), Field(allow_inf_nan=False)]
 Positive = Annotated[float, _NUMBER, Strict(), Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, _NUMBER, Strict(), Field(ge=0, allow_inf_nan=False)]
 Fraction = Annotated[float, _NUMBER, Strict(), Field(ge=0, le=1, allow_inf_nan=False)]
+UnitInterval = Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)]  # (0, 1]
 Integer = Annotated[int, _NUMBER, Strict()]
 PositiveInt = Annotated[int, _NUMBER, Strict(), Field(ge=1)]
 NonNegativeInt = Annotated[int, _NUMBER, Strict(), Field(ge=0)]

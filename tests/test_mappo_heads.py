@@ -334,16 +334,16 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("[model]\ntool_head = 'dice'\n", "tool_head must be one of"),
+    ("[model]\ntool_head = 'dice'\n", "[model] tool_head: must be one of"),
     ("[run]\ndevice = 'tpu'\n", "device must be"),
     ("[model]\nobservation_features = 'everything'\n", "observation_features must be one of"),
-    ("[shaping]\nroute_to_park = 'yes'\n", "route_to_park must be true or false"),
-    ("[shaping]\ncentred_grasps = 1\n", "centred_grasps must be true or false"),
-    ("[ppo]\nbounds_loss_coef = -1.0\n", "bounds_loss_coef must be >= 0"),
-    ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "unknown agents ['scalpel']"),
-    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = 'closed' }\n", "held_tool_logit.grasper must be a finite"),
+    ("[shaping]\nroute_to_park = 'yes'\n", "[shaping] route_to_park: must be true or false"),
+    ("[shaping]\ncentred_grasps = 1\n", "[shaping] centred_grasps: must be true or false"),
+    ("[ppo]\nbounds_loss_coef = -1.0\n", "[ppo] bounds_loss_coef: must be >= 0"),
+    ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "[model] initial_tool_logit.scalpel"),
+    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = 'closed' }\n", "[model] held_tool_logit.grasper: must be a number"),
     ("[model]\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit needs tool_head = \"switch\""),
-    ("[model]\ncritic_input = 'everything'\n", "critic_input must be one of"),
+    ("[model]\ncritic_input = 'everything'\n", "[model] critic_input: must be one of"),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):
     path = tmp_path / "bad.toml"

@@ -77,10 +77,13 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 
 from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
+                               UnitInterval)
 from dvrl_marl.training import teams
 from dvrl_marl.training.teams import evaluate_team_batched
 
@@ -99,95 +102,98 @@ SWITCH_EXPORT_GAIN = 1e6
 
 @dataclass
 class MappoConfig:
-    """A run's settings (the TOML's tables flattened; see ``baselines/configs/suction_debris_mappo.toml``)."""
+    """A run's settings (the TOML's tables flattened; see ``baselines/configs/suction_debris_mappo.toml``). The
+    annotations are the configuration's schema: pydantic checks every value against them (:func:`load_config`)."""
 
-    name: str = "suction_debris_mappo"
-    algorithm: str = "mappo"
-    total_steps: int = 20_000_000  # parallel env steps (one per world per step)
-    num_envs: int = 512
-    rollout_steps: int = 64
-    eval_every: int = 2_000_000
-    eval_episodes: int = 100
-    checkpoint_every: int = 2_000_000
+    __pydantic_config__ = STRICT
+
+    name: Text = "suction_debris_mappo"
+    algorithm: Literal["mappo", "ippo"] = "mappo"
+    total_steps: PositiveInt = 20_000_000  # parallel env steps (one per world per step)
+    num_envs: PositiveInt = 512
+    rollout_steps: PositiveInt = 64
+    eval_every: PositiveInt = 2_000_000
+    eval_episodes: PositiveInt = 100
+    checkpoint_every: PositiveInt = 2_000_000
     # who fills surgeon_seat while the other seat learns: "none" (both learn), "scripted" (the built-in expert), a
     # policy (a shipped name or a folder), or a list of these (teams.Partners: a share of the worlds each, in
     # training, demonstrations and validation alike; learned partners act with their recorded noise)
-    surgeon: str | list = "none"
-    surgeon_seat: str = "grasper"
-    env: dict = field(default_factory=lambda: {"reward_type": "dense"})
+    surgeon: Text | list[Text] = "none"
+    surgeon_seat: Literal["grasper", "suction"] = "grasper"
+    env: dict[Text, Any] = field(default_factory=lambda: {"reward_type": "dense"})
     # PPO
-    learning_rate: float = 3e-4
-    anneal_lr: bool = True  # linear decay to 0 over the run (PPO's usual schedule; the last policies are steadier)
-    epochs: int = 5
-    minibatches: int = 2
-    clip_epsilon: float = 0.2
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    entropy_coef: float = 0.0
-    value_coef: float = 1.0
-    max_grad_norm: float = 1.0
+    learning_rate: Positive = 3e-4
+    anneal_lr: Flag = True  # linear decay to 0 over the run (PPO's usual schedule; the last policies are steadier)
+    epochs: PositiveInt = 5
+    minibatches: PositiveInt = 2
+    clip_epsilon: UnitInterval = 0.2
+    gamma: UnitInterval = 0.99
+    gae_lambda: Fraction = 0.95
+    entropy_coef: NonNegative = 0.0
+    value_coef: NonNegative = 1.0
+    max_grad_norm: Positive = 1.0
     # > 0: adds this x sum((|mean| - 1)+^2) over the motion dimensions to the loss (see bounds_loss)
-    bounds_loss_coef: float = 0.0
-    hidden: list = field(default_factory=lambda: [128, 128])
-    initial_std: float = 0.6
+    bounds_loss_coef: NonNegative = 0.0
+    hidden: list[PositiveInt] = field(default_factory=lambda: [128, 128])
+    initial_std: Positive = 0.6
     # 0: the standard deviation is learnt (PPO's usual). > 0: it follows a schedule, initial_std at the start to
     # final_std at the end of the run, linearly (see exploration_std): the deterministic policy users get is then
     # the one training ended with, not one that leant on noise to get past the cavities' rims
-    final_std: float = 0.0
+    final_std: NonNegative = 0.0
     # "gaussian": the tool value (valve / jaw) is a fourth Gaussian dimension; "switch": an open/closed decision
     # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
-    tool_head: str = "gaussian"
-    initial_tool_logit: dict = field(default_factory=dict)
+    tool_head: Literal["gaussian", "switch"] = "gaussian"
+    initial_tool_logit: dict[Literal["suction", "grasper"], Finite] = field(default_factory=dict)
     # with the switch head, a fixed offset added to an agent's tool logit while its observation says it holds a pin
     # (see held_pin_prior): the grasper's jaw can lean open while it approaches and closed while it carries
-    held_tool_logit: dict = field(default_factory=dict)
+    held_tool_logit: dict[Literal["suction", "grasper"], Finite] = field(default_factory=dict)
     # "": the actors read the observation; a name in dvrl_marl.policies.features.FEATURES: they also read features
     # computed from it (relative targets), and the exported policies compute the same
-    observation_features: str = ""
+    observation_features: Text = ""
     # MAPPO's critic input: "state" (the env's state()), or "state_and_observation": the state and the agent's own
     # observation (with its features), one value network per agent (Yu et al. 2022's agent-specific global state)
-    critic_input: str = "state"
+    critic_input: Literal["state", "state_and_observation"] = "state"
     # curriculum
-    easy_start: float = 0.0
-    anneal_begin: float = 0.0
-    anneal_end: float = 0.5
-    near_debris: float = 0.0
-    random_start: float = 0.0
-    easy_episode_steps: int = 0  # > 0: easy episodes are cut (bootstrapped) after this many steps
+    easy_start: Fraction = 0.0
+    anneal_begin: Fraction = 0.0
+    anneal_end: Fraction = 0.5
+    near_debris: Fraction = 0.0
+    random_start: Fraction = 0.0
+    easy_episode_steps: NonNegativeInt = 0  # > 0: easy episodes are cut (bootstrapped) after this many steps
     # > 0: near-debris starts recede along the way from the pin back to the grasper's ordinary start, reaching it
     # at this fraction of the run (a reverse curriculum; 0: always just above the pin)
-    receding_starts: float = 0.0
-    empty_cavity_probability: float = 0.5  # each cavity of an easy episode starts empty this often
+    receding_starts: Fraction = 0.0
+    empty_cavity_probability: Fraction = 0.5  # each cavity of an easy episode starts empty this often
     # trainer-side potential-based shaping (see dvrl_marl.training.shaping)
-    grasp_path_shaping: float = 0.0
-    hold_bonus: float = 0.0
-    wait_at_home: bool = False  # the grasper's shaping leads it to the scripted surgeon's waiting place when idle
-    cleared_pins_only: bool = False  # the grasper's shaping collects only pins in cleared cavities (the expert's rule)
-    centred_grasps: bool = False  # the grasper's shaping: pins approached from above, undeliverable grasps cost
-    off_centre_grasps: float = 0.0  # the grasper's shaping: a held pin costs this x weight per metre off the tip
-    suction_route_shaping: float = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
-    clear_bonus: float = 0.0
-    route_to_park: bool = False  # the suction's route ends at its parking place (out of the surgeon's way)
-    shaping_over_rims: bool = False  # both shapings measure paths around the phantom (see shaping.OverRims)
-    contact_penalty: float | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
-    torch_threads: int = 0  # 0: torch's default
+    grasp_path_shaping: NonNegative = 0.0
+    hold_bonus: NonNegative = 0.0
+    wait_at_home: Flag = False  # the grasper's shaping leads it to the scripted surgeon's waiting place when idle
+    cleared_pins_only: Flag = False  # the grasper's shaping collects only pins in cleared cavities (the expert's rule)
+    centred_grasps: Flag = False  # the grasper's shaping: pins approached from above, undeliverable grasps cost
+    off_centre_grasps: NonNegative = 0.0  # the grasper's shaping: a held pin costs this x weight per metre off the tip
+    suction_route_shaping: NonNegative = 0.0  # see dvrl_marl.training.shaping.SuctionRouteShaping
+    clear_bonus: NonNegative = 0.0
+    route_to_park: Flag = False  # the suction's route ends at its parking place (out of the surgeon's way)
+    shaping_over_rims: Flag = False  # both shapings measure paths around the phantom (see shaping.OverRims)
+    contact_penalty: NonNegative | None = None  # training reward only; None: the env's value. Evaluation uses the env's.
+    torch_threads: NonNegativeInt = 0  # 0: torch's default
     # validation (and so the best checkpoint) with the policies acting with their exploration noise, seeded
     # (PPO optimises the noisy policy; see NumpyPolicy.with_noise); the deterministic figure is measured after
-    evaluate_with_noise: bool = False
+    evaluate_with_noise: Flag = False
     # behaviour cloning before PPO (see dvrl_marl.training.pretrain): "" off, "scripted": the scripted experts of
     # the learning seats, recorded over bc_episodes episodes with DART noise bc_action_noise. A run that uses it
     # learns from demonstrations (reported apart from the runs from scratch).
-    bc_expert: str = ""
-    bc_episodes: int = 256
-    bc_action_noise: float = 0.3
-    bc_epochs: int = 30
-    bc_learning_rate: float = 1e-3
-    bc_dagger_rounds: int = 0  # then this many DAgger rounds: the clone drives, the expert labels, the clone refits
+    bc_expert: Literal["", "scripted"] = ""
+    bc_episodes: PositiveInt = 256
+    bc_action_noise: NonNegative = 0.3
+    bc_epochs: PositiveInt = 30
+    bc_learning_rate: Positive = 1e-3
+    bc_dagger_rounds: NonNegativeInt = 0  # then this many DAgger rounds: the clone drives, the expert labels, the clone refits
     # PPO steps (parallel env steps) at the start of the run during which only the critic learns, the actor frozen
-    critic_warmup_steps: int = 0
+    critic_warmup_steps: NonNegativeInt = 0
     # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
     # Collection always runs on CPU (the env is numpy; a few hundred worlds per step are latency-bound on a GPU).
-    device: str = "cpu"
+    device: Text = "cpu"
 
     def exploration_std(self, progress: float) -> float:
         """The motion's standard deviation at ``progress`` in [0, 1] of the run (with ``final_std`` > 0)."""
@@ -203,59 +209,63 @@ class MappoConfig:
         return self.easy_start * (self.anneal_end - progress) / (self.anneal_end - self.anneal_begin)
 
 
-_TABLES = {"run": None, "ppo": None, "model": None, "curriculum": None, "shaping": None, "pretrain": None}
+#: The configuration's tables and the keys each holds; [run] takes every key (the flat form of the first records),
+#: [env] the scene's keyword arguments.
+_TABLE_KEYS = {
+    "run": None,
+    "env": None,
+    "ppo": ("learning_rate", "anneal_lr", "epochs", "minibatches", "clip_epsilon", "gamma", "gae_lambda",
+            "entropy_coef", "value_coef", "max_grad_norm", "bounds_loss_coef"),
+    "model": ("hidden", "initial_std", "final_std", "tool_head", "initial_tool_logit", "held_tool_logit",
+              "observation_features", "critic_input"),
+    "curriculum": ("easy_start", "anneal_begin", "anneal_end", "near_debris", "random_start", "easy_episode_steps",
+                   "receding_starts", "empty_cavity_probability"),
+    "shaping": ("grasp_path_shaping", "hold_bonus", "wait_at_home", "cleared_pins_only", "centred_grasps",
+                "off_centre_grasps", "suction_route_shaping", "clear_bonus", "route_to_park", "shaping_over_rims",
+                "contact_penalty"),
+    "pretrain": ("bc_expert", "bc_episodes", "bc_action_noise", "bc_epochs", "bc_learning_rate", "bc_dagger_rounds",
+                 "critic_warmup_steps"),
+}
+_FIELDS = {f.name for f in fields(MappoConfig)}
+
+
+def _check_env(path, config: MappoConfig) -> None:
+    """``[env]``: the scene's keyword arguments, checked by building the scene once (its own schema)."""
+    try:
+        suction_debris_v0.parallel_env(**config.env).close()
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: [env] {error}") from None
 
 
 def load_config(path) -> MappoConfig:
-    """Read a configuration TOML; unknown tables or keys raise ``ValueError`` naming the file and the key."""
+    """Read a configuration TOML, checked against :class:`MappoConfig`'s declared schema: an unknown table or key, a
+    key in a table it does not belong to, a value of the wrong type or out of range, and ``[env]`` keyword arguments
+    the scene refuses each raise ``ValueError`` naming the file, the table and the field."""
     from dvrl_marl.files import read_toml
+    from dvrl_marl.schemas import validated
 
     path = Path(path)
     table = read_toml(path)
-    known = {f.name for f in fields(MappoConfig)}
-    values = {"name": path.stem}
+    values: dict = {"name": path.stem}
+    where: dict = {}  # key -> the table it came from, for the messages
     for section, content in table.items():
+        if section not in _TABLE_KEYS or not isinstance(content, dict):
+            raise ValueError(f"{path}: unknown table [{section}] (known: {', '.join(_TABLE_KEYS)})")
         if section == "env":
-            values["env"] = dict(content)
+            values["env"], where["env"] = dict(content), "env"
             continue
-        if section not in _TABLES or not isinstance(content, dict):
-            raise ValueError(f"{path}: unknown table [{section}] (known: env, {', '.join(_TABLES)})")
         for key, value in content.items():
-            if key not in known or key in ("name", "env"):
-                raise ValueError(f"{path}: unknown key {key!r} in [{section}]")
-            values[key] = value
-    config = MappoConfig(**values)
-    for key in ("evaluate_with_noise", "shaping_over_rims", "route_to_park", "wait_at_home", "cleared_pins_only",
-                "centred_grasps"):
-        if not isinstance(getattr(config, key), bool):
-            raise ValueError(f"{path}: {key} must be true or false, got {getattr(config, key)!r}")
-    if config.algorithm not in ALGORITHMS:
-        raise ValueError(f"{path}: algorithm must be one of {ALGORITHMS}, got {config.algorithm!r}")
+            allowed = _TABLE_KEYS[section]
+            if key in ("name", "env") or (allowed is not None and key not in allowed) or key not in _FIELDS:
+                home = next((name for name, keys in _TABLE_KEYS.items() if keys and key in keys), None)
+                hint = f" (it belongs in [{home}])" if home and key in _FIELDS else ""
+                raise ValueError(f"{path}: [{section}] {key}: unknown key{hint}")
+            if key in values:
+                raise ValueError(f"{path}: [{section}] {key}: set twice (also in [{where[key]}])")
+            values[key], where[key] = value, section
+    config = validated(MappoConfig, values, str(path), tables=where)
+    _check_env(path, config)
     _check_surgeon(path, config)
-    if not (isinstance(config.off_centre_grasps, (int, float)) and not isinstance(config.off_centre_grasps, bool)
-            and 0.0 <= config.off_centre_grasps < float("inf")):
-        raise ValueError(f"{path}: off_centre_grasps must be a number >= 0, got {config.off_centre_grasps!r}")
-    for key in ("total_steps", "num_envs", "rollout_steps", "eval_every", "eval_episodes", "epochs", "minibatches"):
-        if int(getattr(config, key)) < 1:
-            raise ValueError(f"{path}: {key} must be >= 1, got {getattr(config, key)!r}")
-    if config.bc_expert not in ("", "scripted"):
-        raise ValueError(f"{path}: bc_expert must be \"\" (no cloning) or \"scripted\", got {config.bc_expert!r}")
-    if config.bc_expert and (int(config.bc_episodes) < 1 or int(config.bc_epochs) < 1
-                             or not config.bc_action_noise >= 0.0 or not config.bc_learning_rate > 0.0
-                             or int(config.bc_dagger_rounds) < 0):
-        raise ValueError(f"{path}: bc_episodes and bc_epochs must be >= 1, bc_action_noise >= 0, "
-                         "bc_learning_rate > 0 and bc_dagger_rounds >= 0")
-    if not int(config.critic_warmup_steps) >= 0:
-        raise ValueError(f"{path}: critic_warmup_steps must be >= 0, got {config.critic_warmup_steps!r}")
-    if not config.bounds_loss_coef >= 0.0:
-        raise ValueError(f"{path}: bounds_loss_coef must be >= 0, got {config.bounds_loss_coef!r}")
-    if not config.initial_std > 0.0 or not config.final_std >= 0.0:
-        raise ValueError(f"{path}: initial_std must be > 0 and final_std >= 0 (0: learnt)")
-    if not 0.0 <= config.easy_start <= 1.0 or not 0.0 <= config.near_debris <= 1.0:
-        raise ValueError(f"{path}: easy_start and near_debris must lie in [0, 1]")
-    if not 0.0 <= config.receding_starts <= 1.0:
-        raise ValueError(f"{path}: receding_starts must lie in [0, 1] (a fraction of the run), "
-                         f"got {config.receding_starts!r}")
     if config.observation_features:
         from dvrl_marl.policies import features
 
@@ -264,23 +274,8 @@ def load_config(path) -> MappoConfig:
                              f"got {config.observation_features!r}")
     if not (config.device in ("cpu", "auto") or str(config.device).startswith("cuda")):
         raise ValueError(f"{path}: device must be \"cpu\", \"auto\" or \"cuda\" (\"cuda:N\"), got {config.device!r}")
-    if config.critic_input not in CRITIC_INPUTS:
-        raise ValueError(f"{path}: critic_input must be one of {CRITIC_INPUTS}, got {config.critic_input!r}")
     if config.critic_input != "state" and config.algorithm != "mappo":
         raise ValueError(f"{path}: critic_input is MAPPO's (IPPO's critics read each agent's own observation)")
-    if config.tool_head not in TOOL_HEADS:
-        raise ValueError(f"{path}: tool_head must be one of {TOOL_HEADS}, got {config.tool_head!r}")
-    for key in ("initial_tool_logit", "held_tool_logit"):
-        leaning = getattr(config, key)
-        if not isinstance(leaning, dict):
-            raise ValueError(f"{path}: {key} must be a table of agent = logit, got {leaning!r}")
-        unknown = set(leaning) - set(suction_debris_v0.AGENTS)
-        if unknown:
-            raise ValueError(f"{path}: {key} names unknown agents {sorted(unknown)} "
-                             f"(agents: {', '.join(suction_debris_v0.AGENTS)})")
-        for agent, value in leaning.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{path}: {key}.{agent} must be a finite number, got {value!r}")
     if any(config.held_tool_logit.values()) and config.tool_head != "switch":
         raise ValueError(f"{path}: held_tool_logit needs tool_head = \"switch\" (it leans the open/closed "
                          f"decision), got tool_head = {config.tool_head!r}")
