@@ -9,6 +9,8 @@ import signal
 import sys
 from pathlib import Path
 
+from dvrl_marl.schemas import cli_number
+
 __all__ = ["main"]
 
 
@@ -27,10 +29,19 @@ def _render(args) -> int:
 
 
 def _train(args) -> int:
-    import tomllib
+    from dvrl_marl.files import read_toml
 
-    run_table = tomllib.loads(Path(args.config).read_text()).get("run", {})
-    if run_table.get("algorithm") == "bc":  # behaviour cloning of a seat from a Minari dataset
+    if not Path(args.config).is_file():
+        raise FileNotFoundError(f"no configuration file {args.config}")
+    run_table = read_toml(args.config).get("run", {})
+    algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
+    goal_algorithms = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
+    known = ("bc", "mappo", "ippo", "ppo", *goal_algorithms)
+    if algorithm is not None and algorithm not in known or (algorithm is None and "extends" not in run_table
+                                                           and "env_id" in run_table):
+        # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]
+        raise ValueError(f"{args.config}: [run] algorithm: must be one of {', '.join(known)}, got {algorithm!r}")
+    if algorithm == "bc":  # behaviour cloning of a seat from a Minari dataset
         from dvrl_marl.training import clone
 
         config = clone.load_config(args.config)
@@ -56,8 +67,9 @@ def _train(args) -> int:
             shutil.copytree(out / "policies", args.export, dirs_exist_ok=True)
             print(f"exported the policies to {args.export}")
         return 0
-    # Goal-env configurations name a Gymnasium env_id; the collaborative (SB3 PPO) ones do not.
-    if "env_id" not in run_table:
+    # Goal-env configurations name a Gymnasium env_id (or extend one that does); the collaborative SB3 PPO ones do
+    # not.
+    if algorithm == "ppo" or (algorithm is None and "env_id" not in run_table and "extends" not in run_table):
         from dvrl_marl.training.marl import train_ppo
 
         out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
@@ -201,6 +213,13 @@ def _teleop(args) -> int:
     return 0
 
 
+# The command line's numbers, declared once (dvrl_marl.schemas.cli_number): a count is >= 1 (0 once meant "the
+# config's value", -1 "one"), a seed >= 0, a port a TCP port. argparse names the flag in the error.
+COUNT = cli_number(int, low=1, name="count (>= 1)")
+SEED = cli_number(int, low=0, name="seed (>= 0)")
+PORT = cli_number(int, low=0, high=65535, name="port (0-65535)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dvrl-marl", description="dVRK reinforcement-learning environments on MuJoCo")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -208,8 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--surgeon", choices=["learned", "scripted", "keyboard"], default="learned",
                       help="who works the LND (default: the learned Reach + Pick pipeline)")
     demo.add_argument("--out", help="run folder (default runs/demo-<timestamp>)")
-    demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--max-cycles", type=int, help="truncate the episode after this many steps (default: the "
+    demo.add_argument("--seed", type=SEED, default=0)
+    demo.add_argument("--max-cycles", type=COUNT, help="truncate the episode after this many steps (default: the "
                       "task's 1500; 6000, two minutes, for --surgeon keyboard)")
     demo.add_argument("--pipeline", help="pipeline name or TOML file (default: learned_team)")
     demo.add_argument("--team", choices=["pipeline", "marl"], default="pipeline",
@@ -225,29 +244,30 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the arm the person works (default: grasper, the LND)")
     teleop.add_argument("--partner", default="scripted", help="who works the other arm: scripted (default), learned "
                         "(the learned_team pipeline's policy), pipeline, or a shipped policy name or folder")
-    teleop.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: any free port)")
+    teleop.add_argument("--port", type=PORT, default=8000, help="port (default 8000; 0: any free port)")
     teleop.add_argument("--host", default="127.0.0.1", help="interface to serve on (default 127.0.0.1: this "
                         "machine only; another needs --allow-remote)")
     teleop.add_argument("--allow-remote", action="store_true", help="allow --host to be reachable from other "
                         "machines (the access token in the URL is still checked on every connection)")
     teleop.add_argument("--token", help="access token (default: a new random one, printed in the URL)")
-    teleop.add_argument("--seed", type=int, default=0, help="episode k runs seed SEED + k")
-    teleop.add_argument("--max-cycles", type=int, help="steps before an episode is cut (default 6000: 2 minutes)")
+    teleop.add_argument("--seed", type=SEED, default=0, help="episode k runs seed SEED + k")
+    teleop.add_argument("--max-cycles", type=COUNT, help="steps before an episode is cut (default 6000: 2 minutes)")
     teleop.add_argument("--dataset", default="dvrl_marl/surgeon-teleop-v1",
                         help="Minari dataset id to record into (the next free version when taken)")
     teleop.add_argument("--no-record", action="store_true", help="do not record episodes")
     teleop.set_defaults(func=_teleop)
     render = sub.add_parser("render", help="render a scene from its endoscope camera and print a summary")
-    render.add_argument("--scene", default="collaborative", help="scene name in scenes/ (default: collaborative)")
+    render.add_argument("--scene", default="collaborative", help="a scene with an endoscope camera: collaborative "
+                        "(default), pick_lnd, pick_lnd_v1, reach_lnd, reach_suction_irrigation")
     render.add_argument("--out", default="collaborative.png", help="PNG file to write")
-    render.add_argument("--width", type=int, default=640)
-    render.add_argument("--height", type=int, default=480)
+    render.add_argument("--width", type=COUNT, default=640)
+    render.add_argument("--height", type=COUNT, default=480)
     render.set_defaults(func=_render)
 
     train = sub.add_parser("train", help="train a policy from a configuration (baselines/configs/*.toml)")
     train.add_argument("config", help="configuration TOML file")
-    train.add_argument("--seed", type=int, default=0)
-    train.add_argument("--steps", type=int, help="override total_timesteps")
+    train.add_argument("--seed", type=SEED, default=0)
+    train.add_argument("--steps", type=COUNT, help="override total_timesteps")
     train.add_argument("--out", help="run folder (default runs/<config>-seed<seed>)")
     train.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs to <out>/sb3_log")
@@ -255,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--ray-address", help="MAPPO/IPPO: collect experience on a Ray cluster (auto: the cluster "
                        "this machine joined with `ray start`; host:port; local: a Ray instance of this process)")
-    train.add_argument("--num-collectors", type=int, help="MAPPO/IPPO: Ray collector actors (each steps "
+    train.add_argument("--num-collectors", type=COUNT, help="MAPPO/IPPO: Ray collector actors (each steps "
                        "num_envs / N worlds; default 1 with --ray-address); without --ray-address, starts Ray here")
     train.set_defaults(func=_train)
 
@@ -263,8 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("policy", help="a shipped policy name (see dvrl_marl.policies.available()) or a folder")
     evaluate.add_argument("--env", help="environment id (default: the one the policy was trained on)")
     evaluate.add_argument("--tool", choices=["lnd", "suction_irrigation"], help="Reach: roll out on this tool")
-    evaluate.add_argument("--episodes", type=int, default=50)
-    evaluate.add_argument("--seed", type=int, default=1_000_000)
+    evaluate.add_argument("--episodes", type=COUNT, default=50)
+    evaluate.add_argument("--seed", type=SEED, default=1_000_000)
     evaluate.add_argument("--video", help="write the first episodes to this MP4")
     evaluate.set_defaults(func=_evaluate)
 
@@ -273,8 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--suction", nargs="+", default=["marl-suction"],
                       help="suction seat(s): scripted, pipeline, a shipped policy name or a folder")
     team.add_argument("--grasper", nargs="+", default=["marl-grasper"], help="grasper seat(s), the same choices")
-    team.add_argument("--episodes", type=int, default=100)
-    team.add_argument("--seed", type=int, help="first evaluation seed (default: the held-out range)")
+    team.add_argument("--episodes", type=COUNT, default=100)
+    team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
     team.add_argument("--task", choices=["suction_debris", "suction_debris_v1", "suction_debris_v2"],
                       help="the scene's task (default: suction_debris, v0's; suction_debris_v1 / _v2 for the newer "

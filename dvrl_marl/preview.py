@@ -32,9 +32,19 @@ def scene_arms(model: mujoco.MjModel) -> dict[str, str]:
     return arms
 
 
+def renderable_scenes() -> list[str]:
+    """The scenes with an endoscope camera; the others (``common``, the robot files) are parts the scenes include."""
+    from dvrl_marl.assets import scenes_dir
+
+    return sorted(path.stem for path in scenes_dir().glob("*.xml") if 'name="endoscope"' in path.read_text())
+
+
 def render_scene(name: str, width: int = 640, height: int = 480) -> np.ndarray:
     """RGB image (height, width, 3) of scene ``name`` from its endoscope camera, arms in a working pose."""
     model = load_model(name)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "endoscope") < 0:
+        raise ValueError(f"scene {name!r} has no endoscope camera: it is a part that scenes include; renderable "
+                         f"scenes: {renderable_scenes()}")
     data = mujoco.MjData(model)
     for prefix, tool in scene_arms(model).items():
         arm = Arm(model, data, prefix, tool)

@@ -15,11 +15,11 @@ import math
 from typing import Annotated, Any, Literal
 
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, StrictBool, StrictStr, TypeAdapter,
-                      ValidationError)
+                      ValidationError, model_validator)
 
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
-           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicySpecBounds", "cli_number", "Seed",
+           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "cli_number", "Seed",
            "Integer", "Text", "Flag", "UnitInterval"]
 
 #: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
@@ -88,6 +88,8 @@ def _requirement(problem: dict) -> str:
         return "must be true or false" + got
     if kind in ("string_type",):
         return "must be a string" + got
+    if kind == "value_error":  # a rule between fields (a dataclass's __post_init__): its own words
+        return str(context.get("error", problem["msg"]))
     if kind == "literal_error":
         return f"must be one of {context.get('expected')}{got}"
     if kind in ("too_short", "too_long"):
@@ -228,19 +230,32 @@ class CloneEvaluate(BaseModel):
 
 
 # --- policy files --------------------------------------------------------------------------------
-class PolicySpecBounds(BaseModel):
-    """The action bounds of a policy file (``policy.json``): finite, as long as each other, low below high."""
+class PolicyFile(BaseModel):
+    """What ``policy.json`` must hold (:mod:`dvrl_marl.policies`; its other keys record how it was trained): the
+    layer sizes, one activation per layer, the observation's keys and finite action bounds, each low below its
+    high (bounds the other way round would invert the actions)."""
 
-    model_config = ConfigDict(extra="ignore", strict=False)
+    model_config = ConfigDict(extra="allow")
+    format: Text
+    layer_sizes: Annotated[list[PositiveInt], Field(min_length=2)]
+    activations: Annotated[list[Text], Field(min_length=1)]
+    observation_keys: list[Text]
     action_low: list[Finite]
     action_high: list[Finite]
 
-    def model_post_init(self, context) -> None:
-        if len(self.action_low) != len(self.action_high):
-            raise ValueError("action_low and action_high differ in length")
+    @model_validator(mode="after")
+    def _consistent(self):
+        if len(self.layer_sizes) != len(self.activations) + 1:
+            raise ValueError(f"layer_sizes must list {len(self.activations) + 1} sizes (one per layer boundary for "
+                             f"{len(self.activations)} activations), got {self.layer_sizes}")
+        for name in ("action_low", "action_high"):
+            if len(getattr(self, name)) != self.layer_sizes[-1]:
+                raise ValueError(f"{name} needs {self.layer_sizes[-1]} values (the output layer's), got "
+                                 f"{getattr(self, name)}")
         for index, (low, high) in enumerate(zip(self.action_low, self.action_high)):
             if not low < high:
-                raise ValueError(f"action_low[{index}] = {low} is not below action_high[{index}] = {high}")
+                raise ValueError(f"action_low[{index}] = {low} must be below action_high[{index}] = {high}")
+        return self
 
 
 # --- the command line ------------------------------------------------------------------------------------------------

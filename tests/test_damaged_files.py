@@ -42,13 +42,16 @@ def _edit_json(folder, change):
     (lambda f: _edit_npz(f, lambda a: a["W0"].__setitem__((0, 0), np.nan)), "policy.npz", "array 'W0' must hold finite"),
     (lambda f: (f / "policy.npz").write_bytes((f / "policy.npz").read_bytes()[:500]), "policy.npz", "not a readable .npz"),
     (lambda f: (f / "policy.json").write_text((f / "policy.json").read_text()[:40]), "policy.json", "not valid JSON"),
-    (lambda f: (f / "policy.json").write_text("{}"), "policy.json", "missing field 'format'"),
-    (lambda f: _edit_json(f, lambda s: s.pop("activations")), "policy.json", "missing field 'activations'"),
+    (lambda f: (f / "policy.json").write_text("{}"), "policy.json", "format: missing"),
+    (lambda f: _edit_json(f, lambda s: s.pop("activations")), "policy.json", "activations: missing"),
     (lambda f: _edit_json(f, lambda s: s.update(format="v0")), "policy.json", "field 'format' is 'v0'"),
     (lambda f: _edit_json(f, lambda s: s.update(activations=["relu", "relu", "gelu", "tanh"])), "policy.json",
      "activations[2]"),
     (lambda f: _edit_json(f, lambda s: s.update(layer_sizes=[9, 256, 3])), "policy.json", "layer_sizes"),
-    (lambda f: _edit_json(f, lambda s: s.update(action_low=[-1.0])), "policy.json", "field 'action_low'"),
+    (lambda f: _edit_json(f, lambda s: s.update(action_low=[-1.0])), "policy.json", "action_low needs 3 values"),
+    (lambda f: _edit_json(f, lambda s: s.update(action_low=s["action_high"], action_high=s["action_low"])),
+     "policy.json", "action_low[0] = 1.0 must be below action_high[0] = -1.0"),
+    (lambda f: _edit_json(f, lambda s: s.update(action_high=[1.0, "1", 1.0])), "policy.json", "action_high[1]"),
 ])
 def test_damaged_policy_names_file_and_field(reach_copy, damage, file, message):
     damage(reach_copy)

@@ -161,11 +161,11 @@ def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
 
     bad = tmp_path / "bad.toml"
     bad.write_text('[run]\nalgorithm = "bc"\ndataset = "dvrl_marl/x-v1"\n[record]\npolicy = "reach-lnd"\n'
-                   '[dagger]\nrounds = 1\n')
+                   'episodes = 5\n[dagger]\nrounds = 1\nepisodes = 1\n')
     with pytest.raises(ValueError, match="scripted"):
         load_config(bad)
     bad.write_text('[run]\nalgorithm = "bc"\ndataset = "dvrl_marl/x-v1"\n[dagger]\nround = 1\n')
-    with pytest.raises(ValueError, match="unknown \\[dagger\\] key"):
+    with pytest.raises(ValueError, match="\\[dagger\\] round: unknown key"):
         load_config(bad)
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the single-arm environments)
 from dvrl_marl import policies
+from dvrl_marl.schemas import STRICT, Finite, Flag, NonNegative, Positive, PositiveInt, Text
 from dvrl_marl.agents.experts import PickExpert, ReachExpert
 from dvrl_marl.task import load_task
 
@@ -54,22 +55,25 @@ _HOME_OFFSET = {"grasper": (-0.015, 0.02, -0.08), "suction": (0.005, 0.0, -0.08)
 
 @dataclass(frozen=True)
 class StageSpec:
-    """One stage of a pipeline (see the module documentation)."""
+    """One stage of a pipeline (see the module documentation). The annotations are the stage's schema: pydantic
+    checks a spec file's stages against them (:meth:`from_dict`), the rules between fields follow."""
 
-    type: str
-    policy: str = "scripted"
-    target: str | None = None
-    height: float = 0.0
-    lift: float = 0.015
-    carry: bool = False
-    valve: str = "off"  # suction reach stages: "off", "on", or "inside" (open once inside the cavity)
-    jaw: str = "open"  # grasper reach stages: "open" or "closed"
-    until: str = "steps"  # teleop stages
-    steps: int = 50  # teleop "steps" condition
-    device: str | None = None
-    timeout: int = 400  # steps before the stage hands over (a pick or carry that lost its debris starts over)
-    tolerance: float | None = None  # reach: hand over within this distance (m); default 1.5 x the scene's delta
-    precision: float = 1.0  # reach: shrink the policy's frame (and its steps) by this factor for finer positioning
+    __pydantic_config__ = STRICT
+
+    type: Text
+    policy: Text = "scripted"
+    target: Text | None = None
+    height: Finite = 0.0  # m above the target
+    lift: NonNegative = 0.015
+    carry: Flag = False
+    valve: Text = "off"  # suction reach stages: "off", "on", or "inside" (open once inside the cavity)
+    jaw: Text = "open"  # grasper reach stages: "open" or "closed"
+    until: Text = "steps"  # teleop stages
+    steps: PositiveInt = 50  # teleop "steps" condition
+    device: Text | None = None
+    timeout: PositiveInt = 400  # steps before the stage hands over (a pick or carry that lost its debris starts over)
+    tolerance: Positive | None = None  # reach: hand over within this distance (m); default 1.5 x the scene's delta
+    precision: Finite = 1.0  # reach: shrink the policy's frame (and its steps) by this factor for finer positioning
 
     def __post_init__(self):
         if self.type not in _STAGE_TYPES:
@@ -88,12 +92,20 @@ class StageSpec:
             raise ValueError(f"stage timeout must be >= 1, got {self.timeout}")
 
     @classmethod
-    def from_dict(cls, table: dict) -> "StageSpec":
+    def from_dict(cls, table: dict, source: str = "pipeline stage", where: str | None = None) -> "StageSpec":
+        """A stage from a spec file's table, checked against the schema; errors name ``source`` and ``where``."""
+        from dvrl_marl.schemas import validated
+
+        if not isinstance(table, dict):
+            raise ValueError(f"{source}: [{where}] must be a table of stage settings, got {table!r}")
         known = {f.name for f in fields(cls)}
         unknown = set(table) - known
         if unknown:
-            raise ValueError(f"unknown stage key(s) {sorted(unknown)}; known: {sorted(known)}")
-        return cls(**table)
+            raise ValueError(f"{source}: [{where}] unknown stage key(s) {sorted(unknown)}; known: {sorted(known)}")
+        try:
+            return validated(cls, table, source, table=where)
+        except ValueError as error:
+            raise ValueError(str(error)) from None
 
 
 @dataclass(frozen=True)
@@ -133,18 +145,18 @@ def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
     for arm, spec in table.items():
         if arm not in ("suction", "grasper"):
             raise ValueError(f"{path}: unknown arm {arm!r}; expected 'suction' or 'grasper'")
+        if not isinstance(spec, dict):
+            raise ValueError(f"{path}: [{arm}] must be a table (for_each, stages, idle, finally), got {spec!r}")
         unknown = set(spec) - {"for_each", "stages", "idle", "finally"}
         if unknown:
             raise ValueError(f"{path}: unknown key(s) {sorted(unknown)} for arm {arm!r}")
         for_each = spec.get("for_each", "none")
         if for_each not in ("cavity", "debris", "none"):
             raise ValueError(f"{path}: for_each must be 'cavity', 'debris' or 'none', got {for_each!r}")
-        plans[arm] = ArmPlan(
-            for_each=for_each,
-            stages=tuple(StageSpec.from_dict(s) for s in spec.get("stages", [])),
-            idle=tuple(StageSpec.from_dict(s) for s in spec.get("idle", [])),
-            final=tuple(StageSpec.from_dict(s) for s in spec.get("finally", [])),
-        )
+        stages = {key: tuple(StageSpec.from_dict(stage, str(path), f"{arm}.{key}[{index}]")
+                             for index, stage in enumerate(spec.get(key, [])))
+                  for key in ("stages", "idle", "finally")}
+        plans[arm] = ArmPlan(for_each=for_each, stages=stages["stages"], idle=stages["idle"], final=stages["finally"])
     return plans
 
 

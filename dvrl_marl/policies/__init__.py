@@ -174,22 +174,15 @@ def _read_policy_folder(path: Path):
 
     json_path, npz_path = path / "policy.json", path / "policy.npz"
     spec = read_json(json_path)
-    fmt = field(spec, "format", json_path, str)
-    if fmt != POLICY_FORMAT:
-        raise ValueError(f"{json_path}: field 'format' is {fmt!r}, this library reads {POLICY_FORMAT!r}")
-    activations = field(spec, "activations", json_path, list)
-    sizes = field(spec, "layer_sizes", json_path, list)
-    field(spec, "observation_keys", json_path, list)
-    if not activations or len(sizes) != len(activations) + 1 or not all(isinstance(v, int) and v > 0 for v in sizes):
-        raise ValueError(f"{json_path}: field 'layer_sizes' must list {len(activations) + 1} positive sizes (one per "
-                         f"layer boundary for {len(activations)} activations), got {sizes!r}")
+    from dvrl_marl.schemas import PolicyFile, validated
+
+    checked = validated(PolicyFile, spec, str(json_path))
+    if checked.format != POLICY_FORMAT:
+        raise ValueError(f"{json_path}: field 'format' is {checked.format!r}, this library reads {POLICY_FORMAT!r}")
+    activations, sizes = checked.activations, checked.layer_sizes
     for index, name in enumerate(activations):
         if name not in _ACTIVATIONS:
             raise ValueError(f"{json_path}: field 'activations[{index}]' is {name!r}; known: {sorted(_ACTIVATIONS)}")
-    for bound in ("action_low", "action_high"):
-        values = field(spec, bound, json_path, list)
-        if len(values) != sizes[-1] or not np.all(np.isfinite(np.asarray(values, dtype=np.float64))):
-            raise ValueError(f"{json_path}: field {bound!r} needs {sizes[-1]} finite values, got {values!r}")
     arrays = read_npz(npz_path)
     weights = []
     for index in range(len(activations)):

@@ -67,32 +67,31 @@ class CloneConfig:
 
 
 def load_config(path) -> CloneConfig:
+    """A behaviour-cloning configuration, each table checked against its schema (:mod:`dvrl_marl.schemas`:
+    ``CloneRun``, ``CloneBc``, ``CloneRecord``, ``CloneEvaluate``, ``CloneDagger``)."""
+    from dvrl_marl import schemas
     from dvrl_marl.files import read_toml
 
     path = Path(path)
     table = read_toml(path)
-    run, bc = dict(table.get("run", {})), dict(table.get("bc", {}))
-    if run.get("algorithm") != "bc" or not isinstance(run.get("dataset"), str):
-        raise ValueError(f"{path}: [run] needs algorithm = \"bc\" and a dataset id")
-    unknown = set(bc) - {"hidden", "epochs", "batch_size", "learning_rate", "cleared_features", "anneal_lr",
-                         "action_weights"}
-    if unknown:
-        raise ValueError(f"{path}: unknown [bc] key(s) {sorted(unknown)}")
-    dagger = dict(table.get("dagger", {}))
-    unknown = set(dagger) - {"rounds", "episodes", "seed"}
-    if unknown:
-        raise ValueError(f"{path}: unknown [dagger] key(s) {sorted(unknown)}")
-    if dagger and (int(dagger.get("rounds", 1)) < 1 or int(dagger.get("episodes", 1)) < 1):
-        raise ValueError(f"{path}: [dagger] rounds and episodes must be positive")
-    if dagger and table.get("record", {}).get("policy", "scripted") != "scripted":
+    models = {"run": schemas.CloneRun, "bc": schemas.CloneBc, "record": schemas.CloneRecord,
+              "evaluate": schemas.CloneEvaluate, "dagger": schemas.CloneDagger}
+    for name, content in table.items():
+        if name not in models or not isinstance(content, dict):
+            raise ValueError(f"{path}: unknown table [{name}] (known: {', '.join(models)})")
+    if "run" not in table:
+        raise ValueError(f"{path}: missing table [run] (algorithm = \"bc\" and a dataset id)")
+    checked = {name: schemas.validated(model, table[name], str(path), table=name)
+               for name, model in models.items() if name in table}
+    bc = checked["bc"].model_dump(exclude_none=True) if "bc" in checked else {}
+    record = checked["record"].model_dump(exclude_none=True) if "record" in checked else {}
+    dagger = checked["dagger"].model_dump() if "dagger" in checked else {}
+    evaluate = (checked["evaluate"] if "evaluate" in checked else schemas.CloneEvaluate()).model_dump()
+    if dagger and record.get("policy", "scripted") != "scripted":
         raise ValueError(f"{path}: [dagger] asks the expert to label the clone's states: [record] policy must be "
                          "\"scripted\"")
-    config = CloneConfig(name=path.stem, dataset=run["dataset"], record=dict(table.get("record", {})),
-                         evaluate=dict(table.get("evaluate", {})), dagger=dagger,
-                         **{k: (tuple(v) if k in ("hidden", "action_weights") else v) for k, v in bc.items()})
-    if not config.hidden or any(int(h) < 1 for h in config.hidden) or config.epochs < 1 or config.batch_size < 1:
-        raise ValueError(f"{path}: hidden sizes, epochs and batch_size must be positive")
-    return config
+    return CloneConfig(name=path.stem, dataset=checked["run"].dataset, record=record, evaluate=evaluate,
+                       dagger=dagger, **bc)
 
 
 def cleared_features() -> list[tuple[int, float]]:

@@ -87,7 +87,7 @@ from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonN
 from dvrl_marl.training import teams
 from dvrl_marl.training.teams import evaluate_team_batched
 
-__all__ = ["MappoConfig", "load_config", "train", "export_actor", "TRAIN_SEED_BASE"]
+__all__ = ["MappoConfig", "load_config", "train", "export_actor", "load_checkpoint", "TRAIN_SEED_BASE"]
 
 #: Training worlds of seed s draw from TRAIN_SEED_BASE * (s + 1) + i; evaluation seeds (teams.EVAL_SEED on) lie
 #: far beyond them.
@@ -749,7 +749,6 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         limit_threads(int(config.torch_threads))
     device = learner_device(config)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     total = int(total_steps or config.total_steps)
     surgeon = None if config.surgeon == "none" else "scripted"  # (who fills the seat does not change the spaces)
     # The learner's view of the env (spaces, layout for the partner in evaluation): one world.
@@ -777,16 +776,31 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     return_var_state = {"mean": np.zeros(count), "var": np.ones(count), "count": 1e-4}
     steps_done, iteration, rng_states, seconds_before = 0, 0, None, 0.0
     checkpoint = out / "checkpoint.pt"
-    if resume and checkpoint.is_file():
-        saved = torch.load(checkpoint, weights_only=False, map_location=device)
-        loss_module.load_state_dict(saved["loss_module"])
-        optimiser.load_state_dict(saved["optimiser"])
-        return_var_state = saved["return_var"]
+    if resume:
+        saved = load_checkpoint(checkpoint, device)
+        try:
+            loss_module.load_state_dict(saved["loss_module"])
+            optimiser.load_state_dict(saved["optimiser"])
+        except (KeyError, RuntimeError, ValueError) as error:  # another configuration's networks, or a damaged file
+            raise ValueError(f"{checkpoint}: its networks do not fit this configuration ({error}); resume it with "
+                             "the configuration it was trained with") from None
+        return_var_state = {key: np.asarray(value, dtype=np.float64) if key != "count" else float(value)
+                            for key, value in saved["return_var"].items()}
         steps_done, iteration = saved["steps"], saved["iteration"]
         rng_states = saved.get("collector_rng") or [saved["rng"]]  # (checkpoints before collectors kept one stream)
         torch.set_rng_state(saved["torch_rng"].cpu())
         seconds_before = float(saved.get("wall_seconds", 0.0))  # the run's cost counts every session it took
+        if steps_done >= total:  # nothing to do: the records stay as they are
+            log(f"{out}: the run is finished ({steps_done:,d} steps done, {total:,d} asked); nothing was changed. "
+                "Pass a larger --steps to extend it.")
+            env.close()
+            return _finished_result(out, steps_done)
         log(f"resumed {out} at {steps_done} steps")
+    elif (out / "checkpoint.pt").exists() or (out / "progress.csv").exists():
+        env.close()
+        raise ValueError(f"{out} holds a run already (checkpoint.pt / progress.csv): --resume continues it; another "
+                         "--out starts a new one. Nothing was overwritten.")
+    out.mkdir(parents=True, exist_ok=True)  # (only now: a refused resume leaves no folder behind)
     (out / "config.toml").write_text(_config_toml(config))
     writer = None
     if tensorboard:
@@ -979,8 +993,12 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             if steps_done >= next_checkpoint or final:
                 next_checkpoint += config.checkpoint_every
                 tmp = checkpoint.with_suffix(".tmp")
+                # Plain values and tensors only: the file loads with torch.load(weights_only=True), which runs no
+                # code from it.
+                return_var = {"mean": return_var_state["mean"].tolist(), "var": return_var_state["var"].tolist(),
+                              "count": float(return_var_state["count"])}
                 torch.save({"loss_module": loss_module.state_dict(), "optimiser": optimiser.state_dict(),
-                            "return_var": return_var_state, "steps": steps_done, "iteration": iteration,
+                            "return_var": return_var, "steps": steps_done, "iteration": iteration,
                             "collector_rng": collectors.rng_states(), "torch_rng": torch.get_rng_state(),
                             "wall_seconds": time.perf_counter() - start, "config": asdict(config)}, tmp)
                 tmp.replace(checkpoint)  # atomic: an interruption never leaves a half-written checkpoint
@@ -994,6 +1012,43 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, **last, "timing": timing},
                                                 indent=2) + "\n")
     return last
+
+
+def _finished_result(out: Path, steps_done: int) -> dict:
+    """The last evaluation of a finished run, from its records (result.json, else progress.csv's last row)."""
+    result = out / "result.json"
+    if result.is_file():
+        return json.loads(result.read_text())
+    progress = out / "progress.csv"
+    rows = list(csv.DictReader(progress.open())) if progress.is_file() else []
+    last = {key: float(value) for key, value in rows[-1].items()} if rows else {"success_rate": float("nan")}
+    return {**last, "steps": steps_done}
+
+
+def load_checkpoint(path, device="cpu") -> dict:
+    """A run's ``checkpoint.pt``, read with ``torch.load(weights_only=True)``: tensors and plain values only, so a
+    crafted file cannot run code (the earliest checkpoints' numpy arrays are allowed by name, nothing else). A
+    missing, damaged or foreign file is a ``ValueError`` naming it."""
+    torch = _torch()
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no checkpoint to resume from (a mistyped --out, or a run that never reached its "
+                         "first checkpoint); nothing was started or overwritten")
+    numpy_arrays = [np.ndarray, np.dtype, getattr(np, "_core", getattr(np, "core", None)).multiarray._reconstruct]
+    numpy_arrays += [getattr(np.dtypes, name) for name in ("Float64DType", "Float32DType", "Int64DType", "BoolDType")
+                     if hasattr(np, "dtypes")]
+    try:
+        with torch.serialization.safe_globals(numpy_arrays):
+            saved = torch.load(path, weights_only=True, map_location=device)
+    except Exception as error:  # noqa: BLE001  (UnpicklingError, RuntimeError, EOFError...: all say "not readable")
+        reason = str(error).strip().splitlines()[-1] if str(error).strip() else type(error).__name__
+        raise ValueError(f"{path}: not a checkpoint this trainer can read ({type(error).__name__}: "
+                         f"{reason[:300]}); it is loaded as weights only, so a file that would run code is refused")
+    missing = [key for key in ("loss_module", "optimiser", "return_var", "steps", "iteration", "torch_rng")
+               if not isinstance(saved, dict) or key not in saved]
+    if missing:
+        raise ValueError(f"{path}: not a dvrl-marl MAPPO checkpoint (missing {missing})")
+    return saved
 
 
 def learner_device(config: MappoConfig):

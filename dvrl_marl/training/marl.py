@@ -85,6 +85,23 @@ def evaluate_team(act, episodes: int, seed: int = 5_000_000, surgeon=None, on_re
             "episodes": episodes}
 
 
+def _checked(path, table: dict):
+    """The configuration checked against its schema (:class:`dvrl_marl.schemas.Sb3PpoRun`; ``[env]`` by the scene
+    itself; ``[algorithm]`` and ``[policy]`` by SB3): ``([run], [env])``."""
+    from dvrl_marl.schemas import Sb3PpoRun, validated
+
+    for name, content in table.items():
+        if name not in ("run", "env", "algorithm", "policy") or not isinstance(content, dict):
+            raise ValueError(f"{path}: unknown table [{name}] (known: run, env, algorithm, policy)")
+    run = validated(Sb3PpoRun, table.get("run", {}), str(path), table="run")
+    env_kwargs = dict(table.get("env", {}))
+    try:
+        suction_debris_v0.parallel_env(**env_kwargs).close()
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: [env] {error}") from None
+    return run, env_kwargs
+
+
 def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = None,
               eval_episodes: int | None = None, tensorboard: bool = False) -> dict:
     """Train PPO on the collaborative env from a configuration; writes the model and ``result.json``."""
@@ -98,22 +115,21 @@ def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = Non
     from dvrl_marl.files import read_toml
 
     table = read_toml(config_path)
-    run = table.get("run", {})
-    surgeon = None if run.get("surgeon", "none") == "none" else run["surgeon"]
-    env_kwargs = table.get("env", {})
+    run, env_kwargs = _checked(config_path, table)
+    surgeon = None if run.surgeon == "none" else run.surgeon
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.toml").write_text(config_path.read_text())
-    vec = make_vec_env(int(run.get("n_envs", 4)), surgeon=surgeon, **env_kwargs)
+    vec = make_vec_env(run.n_envs, surgeon=surgeon, **env_kwargs)
     model = PPO("MlpPolicy", vec, seed=seed, verbose=0, policy_kwargs=table.get("policy", {}),
                 **table.get("algorithm", {}))
     model.set_logger(configure(str(out_dir / "sb3_log"), formats))
     start = time.perf_counter()
-    model.learn(int(total_timesteps or run.get("total_timesteps", 100_000)))
+    model.learn(int(total_timesteps or run.total_timesteps))
     model.save(out_dir / "final_model.zip")
     vec.close()
     agents = [a for a in suction_debris_v0.AGENTS if surgeon is None or a != "grasper"]
-    episodes = int(eval_episodes or run.get("eval_episodes", 10))
+    episodes = int(eval_episodes or run.eval_episodes)
     result = evaluate_team(TeamPolicy(model, agents), episodes, surgeon=surgeon, **env_kwargs)
     result.update({"config": config_path.stem, "seed": seed, "timesteps": int(model.num_timesteps),
                    "wall_seconds": time.perf_counter() - start})

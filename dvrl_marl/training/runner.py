@@ -29,11 +29,13 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the environments)
+from dvrl_marl.schemas import STRICT, NonNegative, NonNegativeInt, PositiveInt, Text
 from dvrl_marl.training.demonstrations import (
     generate_demonstrations,
     observation_batch,
@@ -63,32 +65,32 @@ ALGORITHMS = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
 
 @dataclass
 class RunConfig:
-    name: str
-    env_id: str
-    algorithm: str
-    total_timesteps: int
-    eval_every: int = 2000
-    eval_episodes: int = 50
-    demonstrations: int = 0
-    action_noise: float = 0.0
-    env: dict = field(default_factory=dict)
-    her: dict = field(default_factory=dict)
-    algorithm_kwargs: dict = field(default_factory=dict)
-    policy: dict = field(default_factory=dict)
-    source: str = ""
+    """A goal-env run's settings; the annotations are the configuration's schema (pydantic checks every value)."""
+
+    __pydantic_config__ = STRICT
+
+    name: Text
+    env_id: Text
+    algorithm: Literal["ddpg", "ddpg_bc", "td3", "sac", "tqc"]
+    total_timesteps: PositiveInt
+    eval_every: PositiveInt = 2000
+    eval_episodes: PositiveInt = 50
+    demonstrations: NonNegativeInt = 0
+    action_noise: NonNegative = 0.0
+    env: dict[Text, Any] = field(default_factory=dict)  # gym.make keyword arguments (the env checks them)
+    her: dict[Text, Any] = field(default_factory=dict)  # HerReplayBuffer's (SB3 checks them)
+    algorithm_kwargs: dict[Text, Any] = field(default_factory=dict)
+    policy: dict[Text, Any] = field(default_factory=dict)
+    source: Text = ""
 
     def validate(self) -> "RunConfig":
-        if self.algorithm not in ALGORITHMS:
-            raise ValueError(f"config {self.name}: algorithm must be one of {ALGORITHMS}, got {self.algorithm!r}")
         if self.env_id not in gym.registry:
             raise ValueError(f"config {self.name}: unknown env_id {self.env_id!r}")
-        for key in ("total_timesteps", "eval_every", "eval_episodes"):
-            if int(getattr(self, key)) <= 0:
-                raise ValueError(f"config {self.name}: {key} must be positive")
         return self
 
 
 _RUN_KEYS = ("env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations", "action_noise")
+_TABLES = ("run", "env", "her", "algorithm", "policy")
 
 
 def load_config(path) -> RunConfig:
@@ -115,13 +117,19 @@ def load_config(path) -> RunConfig:
         for key in ("env", "her", "algorithm", "policy"):
             merged[key].update(table.get(key, {}))
         table, run, text = merged, merged["run"], base.source + "\n# --- " + path.name + " ---\n" + text
-    unknown = set(run) - set(_RUN_KEYS)
+    unknown = [name for name in table if name not in _TABLES or not isinstance(table[name], dict)]
     if unknown:
-        raise ValueError(f"config {path}: unknown [run] key(s) {sorted(unknown)}")
-    return RunConfig(
-        name=path.stem, env=table.get("env", {}), her=table.get("her", {}),
-        algorithm_kwargs=table.get("algorithm", {}), policy=table.get("policy", {}), source=text, **run,
-    ).validate()
+        raise ValueError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(_TABLES)})")
+    for key in run:
+        if key not in _RUN_KEYS:
+            raise ValueError(f"{path}: [run] {key}: unknown key (a typo?); known: {', '.join(_RUN_KEYS)}")
+    from dvrl_marl.schemas import validated
+
+    values = {"name": path.stem, "env": table.get("env", {}), "her": table.get("her", {}),
+              "algorithm_kwargs": table.get("algorithm", {}), "policy": table.get("policy", {}), "source": text, **run}
+    tables = {**{key: "run" for key in run}, "env": "env", "her": "her", "algorithm_kwargs": "algorithm",
+              "policy": "policy"}
+    return validated(RunConfig, values, str(path), tables=tables).validate()
 
 
 def evaluate_policy(policy, env_id: str, episodes: int, seed: int = 1_000_000, env_kwargs: dict | None = None,
@@ -203,13 +211,19 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
 
     formats = log_formats(tensorboard)  # before any work: a missing package fails at once
     out_dir = Path(out_dir)
+    checkpoint, buffer_path = out_dir / "checkpoint.zip", out_dir / "replay_buffer.pkl"
+    progress_csv = out_dir / "progress.csv"
+    if resume and not (checkpoint.is_file() and buffer_path.is_file()):
+        raise ValueError(f"{out_dir}: no checkpoint.zip and replay_buffer.pkl to resume from (a mistyped --out, or a "
+                         "run that never reached its first evaluation); nothing was started or overwritten")
+    if not resume and (checkpoint.exists() or progress_csv.exists()):
+        raise ValueError(f"{out_dir} holds a run already (checkpoint.zip / progress.csv): --resume continues it; "
+                         "another --out starts a new one. Nothing was overwritten.")
     out_dir.mkdir(parents=True, exist_ok=True)
     total = int(total_timesteps or config.total_timesteps)
     env = Monitor(gym.make(config.env_id, **config.env))
-    checkpoint, buffer_path = out_dir / "checkpoint.zip", out_dir / "replay_buffer.pkl"
-    progress_csv = out_dir / "progress.csv"
     history: list[dict] = []
-    if resume and checkpoint.is_file():
+    if resume:
         model = _algorithms()[config.algorithm].load(checkpoint, env=env)
         model.load_replay_buffer(buffer_path)
         if progress_csv.is_file():
@@ -232,6 +246,11 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
                 model.set_demonstrations(observation_batch(demos), demos["action"])
         if progress_csv.exists():
             progress_csv.unlink()
+    if resume and model.num_timesteps >= total and history:  # finished: its records stay as they are
+        print(f"{out_dir}: the run is finished ({model.num_timesteps:,d} steps done, {total:,d} asked); nothing was "
+              "changed. Pass a larger --steps to extend it.")
+        env.close()
+        return history
     model.set_logger(configure(str(out_dir / "sb3_log"), formats))
 
     start = time.perf_counter()
