@@ -9,7 +9,8 @@ import time
 import mujoco
 import numpy as np
 
-__all__ = ["SceneRenderer", "RENDER_MODES", "DisplayUnavailableError", "require_display"]
+__all__ = ["SceneRenderer", "RENDER_MODES", "DisplayUnavailableError", "require_display", "display_available",
+           "render_modes_here"]
 
 RENDER_MODES = ("human", "rgb_array", "depth_array")
 
@@ -18,10 +19,23 @@ class DisplayUnavailableError(RuntimeError):
     """``render_mode="human"`` was asked for where no window can open."""
 
 
+def display_available() -> bool:
+    """Whether a window can open here (always off Linux; on Linux, with DISPLAY or WAYLAND_DISPLAY set)."""
+    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def render_modes_here(modes) -> list[str]:
+    """The render modes an environment advertises on this machine: ``"human"`` only where a window can open, so
+    that the ecosystem's checkers (Gymnasium's ``check_env``, PettingZoo's ``render_test``), which try every
+    advertised mode, pass with their defaults on a headless server. Asking for ``"human"`` there still says why it
+    cannot be (:class:`DisplayUnavailableError`)."""
+    return [mode for mode in modes if mode != "human" or display_available()]
+
+
 def require_display() -> None:
     """Raise :class:`DisplayUnavailableError` where MuJoCo's viewer cannot open a window (it would end the Python
     process from C, leaving ``MUJOCO_LOG.TXT`` behind)."""
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    if not display_available():
         raise DisplayUnavailableError(
             'render_mode="human" needs a display (no DISPLAY or WAYLAND_DISPLAY is set). On a headless machine use '
             'render_mode="rgb_array" (MUJOCO_GL=egl, which importing dvrl_marl sets for you), or run under a display '
@@ -36,8 +50,6 @@ class SceneRenderer:
                  frame_budget: float | None = None, decorate=None):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
-        if render_mode == "human":
-            require_display()  # fail here, in Python, not later in GLFW
         from dvrl_marl.schemas import PositiveInt, validated
 
         # a bad size names itself here, not later as "no OpenGL context"
@@ -123,6 +135,9 @@ class SceneRenderer:
         if self.render_mode != "human":
             return None
         if self._viewer is None:
+            # Here, when the window is first needed (reset or render), not at construction: the ecosystem's checkers
+            # build every env with render_mode="human" to read its metadata, and must pass on a headless server.
+            require_display()  # in Python, with what to do instead, not later in GLFW
             from dvrl_marl.viewer import ViewerWindow
 
             self._viewer = ViewerWindow(self.model, self.data, title=self.title, camera=self.camera, width=self.width,

@@ -30,7 +30,7 @@ def _headless(code: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize("checker", ["gymnasium", "pettingzoo"])
-def test_checkers_with_default_arguments_end_in_a_clear_error_headless(tmp_path, checker):
+def test_checkers_pass_with_their_default_arguments_headless(tmp_path, checker):
     code = {
         "gymnasium": """
             import gymnasium as gym, dvrl_marl
@@ -40,12 +40,12 @@ def test_checkers_with_default_arguments_end_in_a_clear_error_headless(tmp_path,
         "pettingzoo": """
             from pettingzoo.test import render_test
             from dvrl_marl.envs import suction_debris_v0
-            render_test(suction_debris_v0.parallel_env)
+            render_test(suction_debris_v0.env)
         """,
     }[checker]
     result = _headless(code, tmp_path)
-    assert result.returncode == 1, result.stderr  # a Python exception, not a process killed from C
-    assert "DisplayUnavailableError" in result.stderr and 'render_mode="rgb_array"' in result.stderr
+    # They pass with their defaults on a headless server: "human" is advertised only where a window can open.
+    assert result.returncode == 0, result.stderr
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
@@ -56,8 +56,10 @@ def test_human_mode_without_display_raises_in_python(monkeypatch, make):
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     from dvrl_marl.rendering import DisplayUnavailableError
 
+    env = make()  # (PettingZoo's render_test builds it to read its metadata: that must work)
     with pytest.raises(DisplayUnavailableError, match="needs a display"):
-        make()
+        env.reset(seed=0)
+        env.render()
 
 
 @pytest.mark.parametrize("env_id", SINGLE_IDS)

@@ -16,7 +16,7 @@ import numpy as np
 from dvrl_marl import kinematics
 from dvrl_marl.arm import Arm
 from dvrl_marl.core.worlds import sample_reachable
-from dvrl_marl.rendering import RENDER_MODES, SceneRenderer
+from dvrl_marl.rendering import RENDER_MODES, SceneRenderer, render_modes_here
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import TaskSpec, load_task
 
@@ -25,6 +25,8 @@ __all__ = ["PSMGoalEnv"]
 class PSMGoalEnv(gym.Env):
     """Base class of the single-arm goal environments (see :class:`PSMReachEnv` and :class:`PSMPickEnv`)."""
 
+    # Every mode (gym.make reads the class: "human" stays ours, never Gymnasium's HumanRendering); each instance
+    # advertises what this machine can show (render_modes_here).
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
     #: Name of the task file in ``tasks/`` holding the defaults.
     task_name: str = ""
@@ -53,6 +55,11 @@ class PSMGoalEnv(gym.Env):
             raise ValueError(f"{type(self).__name__}: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"{type(self).__name__}: render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+        # What this machine can show, and the mode asked for (Gymnasium's checker holds an env to its own mode; a
+        # window that cannot open says so when it is first needed).
+        here = render_modes_here(RENDER_MODES)
+        self.metadata = {**self.metadata, "render_modes": here + ([render_mode] if render_mode not in here + [None]
+                                                                  else [])}
         spec = load_task(task or self.task_name).with_overrides(
             workspace_centre=None if workspace_centre is None else tuple(float(v) for v in workspace_centre),
             workspace_range=workspace_range,

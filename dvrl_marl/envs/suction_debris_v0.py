@@ -127,7 +127,7 @@ from dvrl_marl.core.collaborative import (
 )
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
-from dvrl_marl.rendering import SceneRenderer
+from dvrl_marl.rendering import SceneRenderer, render_modes_here
 from dvrl_marl.teleop.pacing import PacedDisplay
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import load_task_table
@@ -286,7 +286,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     metadata = {
         "name": "suction_debris_v0",
-        "render_modes": ["human", "rgb_array"],
+        "render_modes": ["human", "rgb_array"],  # (each instance: what this machine can show, render_modes_here)
         "render_fps": 50,
         "is_parallelizable": True,
     }
@@ -306,11 +306,12 @@ class SuctionDebrisEnv(ParallelEnv):
     ):
         #: The environment's name (its version), as its messages say it.
         self.name = env_name(Path(task).stem)
-        self.metadata = {**self.metadata, "name": self.name}
+        self.metadata = {**self.metadata, "name": self.name,
+                         "render_modes": render_modes_here(("human", "rgb_array"))}  # (the display now)
         if reward_type not in ("sparse", "dense"):
             raise ValueError(f"{self.name}: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"{self.name}: render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if render_mode is not None and render_mode not in ("human", "rgb_array"):
+            raise ValueError(f"{self.name}: render_mode must be 'human' or 'rgb_array', got {render_mode!r}")
         if surgeon_seat not in AGENTS:
             raise ValueError(f"{self.name}: surgeon_seat must be one of {AGENTS}, got {surgeon_seat!r}")
         self.params = SuctionDebrisParams.from_task(task, max_cycles=max_cycles, **params)
