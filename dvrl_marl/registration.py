@@ -63,7 +63,8 @@ def register_envs() -> None:
                      vector_entry_point=_VECTOR_ENTRY_POINTS[entry_point])
     for env_id, (entry_point, kwargs) in SEAT_ENV_IDS.items():
         if env_id not in gym.registry:  # the scene truncates its own episodes (max_cycles)
-            gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
+            gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs,
+                         vector_entry_point="dvrl_marl.envs.seat_vector:make_seat_vector")
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but registration must never break import

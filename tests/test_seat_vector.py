@@ -1,0 +1,53 @@
+"""The surgeon seat as a Gymnasium vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dvrl_marl  # noqa: F401  (registration)
+
+
+@pytest.mark.parametrize("seat", ["suction", "grasper"])
+def test_the_batched_seats_follow_the_seat_env_world_by_world(seat):
+    kwargs = {"partner": "scripted", "seat": seat, "max_cycles": 60}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        envs = gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=3, vectorization_mode="vector_entry_point", **kwargs)
+        singles = [gym.make("dvrl_marl/SurgeonSeat-v2", **kwargs) for _ in range(3)]
+    observations, infos = envs.reset(seed=5)
+    np.testing.assert_array_equal(observations, np.stack([s.reset(seed=5 + i)[0] for i, s in enumerate(singles)]))
+    assert infos["is_success"].shape == (3,) and infos["_is_success"].all()
+    rng = np.random.default_rng(0)
+    ended = [False] * 3
+    episodes = 0
+    for _ in range(200):
+        actions = rng.uniform(-1, 1, (3, 4)).astype(np.float32)
+        observations, rewards, terminations, truncations, infos = envs.step(actions)
+        for world, single in enumerate(singles):
+            if ended[world]:  # Gymnasium's next-step autoreset: this step reset the world
+                expected, reward, terminated, truncated = single.reset()[0], 0.0, False, False
+                ended[world] = False
+                episodes += 1
+            else:
+                expected, reward, terminated, truncated, _ = single.step(actions[world])
+                ended[world] = terminated or truncated
+            np.testing.assert_allclose(observations[world], expected, rtol=0, atol=1e-12)
+            assert (rewards[world], terminations[world], truncations[world]) == (reward, terminated, truncated)
+    assert episodes >= 6
+    assert envs.observation_space.shape == (3, singles[0].observation_space.shape[0])
+    envs.close()
+
+
+def test_the_pipeline_partner_gets_a_sync_vector_and_bad_arguments_are_named():
+    envs = gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=2, vectorization_mode="vector_entry_point")
+    assert isinstance(envs, gym.vector.SyncVectorEnv)
+    observations, _ = envs.reset(seed=0)
+    assert observations.shape[0] == 2
+    envs.close()
+    with pytest.raises(ValueError, match="num_envs"):
+        gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=0, vectorization_mode="vector_entry_point")
+    with pytest.raises(ValueError, match="autoreset_mode"):
+        gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=2, vectorization_mode="vector_entry_point",
+                     partner="scripted", autoreset_mode="sometimes")
