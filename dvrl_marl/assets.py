@@ -44,6 +44,17 @@ def _resolve(name: str) -> Path:
     raise FileNotFoundError(f"cannot find the {name!r} folder next to {_PACKAGE_DIR} (is the package installed?)")
 
 
+def configs_dir() -> Path:
+    """The training configurations of record (``baselines/configs`` in a clone, ``dvrl_marl/configs`` in a wheel)."""
+    installed = _PACKAGE_DIR / "configs"
+    if installed.is_dir():
+        return installed
+    source = _PACKAGE_DIR.parent / "baselines" / "configs"
+    if source.is_dir():
+        return source
+    raise FileNotFoundError(f"cannot find the training configurations next to {_PACKAGE_DIR}")
+
+
 def scenes_dir() -> Path:
     """The folder of MJCF scenes and their meshes."""
     return _resolve("scenes")

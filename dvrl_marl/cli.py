@@ -31,8 +31,7 @@ def _render(args) -> int:
 def _train(args) -> int:
     from dvrl_marl.files import read_toml
 
-    if not Path(args.config).is_file():
-        raise FileNotFoundError(f"no configuration file {args.config}")
+    args.config = _config_path(args.config)
     run_table = read_toml(args.config).get("run", {})
     algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
     goal_algorithms = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
@@ -97,6 +96,20 @@ def _train(args) -> int:
                                 "success_rate": final["success_rate"]})
         print(f"exported the policy to {args.export}")
     return 0
+
+
+def _config_path(name: str) -> str:
+    """A configuration file: the path given, or a shipped configuration's name (``suction_debris_mappo``), which
+    works from an installed wheel as well as from a clone."""
+    if Path(name).is_file():
+        return name
+    from dvrl_marl.assets import configs_dir
+
+    shipped = configs_dir() / (name if name.endswith(".toml") else f"{name}.toml")
+    if Path(name).name == str(name) and shipped.is_file():
+        return str(shipped)
+    names = sorted(path.stem for path in configs_dir().glob("*.toml"))
+    raise FileNotFoundError(f"no configuration file {name}; shipped configurations: {', '.join(names)}")
 
 
 def _evaluate(args) -> int:
@@ -265,7 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.set_defaults(func=_render)
 
     train = sub.add_parser("train", help="train a policy from a configuration (baselines/configs/*.toml)")
-    train.add_argument("config", help="configuration TOML file")
+    train.add_argument("config", help="configuration TOML file, or the name of a shipped one (e.g. "
+                       "suction_debris_mappo; see baselines/configs)")
     train.add_argument("--seed", type=SEED, default=0)
     train.add_argument("--steps", type=COUNT, help="override total_timesteps")
     train.add_argument("--out", help="run folder (default runs/<config>-seed<seed>)")

@@ -65,7 +65,8 @@ def evaluate(algo, env_id: str, episodes: int = 20, seed: int = 1_000_000, video
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # --help shows defaults
     parser.add_argument("--env", default="dvrl_marl/PSMReachDense-v1")
     parser.add_argument("--iterations", type=int, default=30)
     parser.add_argument("--env-runners", type=int, default=0, help="RLlib env runners (0: sample in the driver)")

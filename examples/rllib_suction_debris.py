@@ -67,7 +67,8 @@ def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # --help shows defaults
     parser.add_argument("--iterations", type=int, default=50)
     parser.add_argument("--shared", action="store_true", help="one policy for both arms")
     parser.add_argument("--env-runners", type=int, default=0, help="RLlib env runners (0: sample in the driver)")

@@ -5,6 +5,10 @@ import subprocess
 import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering in CI
+# One thread per BLAS / torch pool: on a 2-core machine two threads fight the other core's test (or training) and a
+# 6 s docs block took minutes; the suite's figures are timed in benchmarks/, never here.
+for _variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
 
 
 @pytest.fixture(scope="session")
