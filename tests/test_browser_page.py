@@ -291,6 +291,19 @@ def test_a_person_like_operator_finishes_from_what_the_page_shows(browser, serve
     page.close()
 
 
+KEYS_OF_AXES = (("KeyA", "KeyD"), ("KeyS", "KeyW"), ("KeyF", "KeyR"))  # (minus, plus) of x, y, z
+
+
+def steer(page, held: set, offset_mm) -> set:
+    """Hold the page's keys that point along ``offset_mm`` (x, y, z; within 1 mm: none); returns the keys held."""
+    keys = {plus if value > 0 else minus for (minus, plus), value in zip(KEYS_OF_AXES, offset_mm) if abs(value) > 1.0}
+    for key in held - keys:
+        page.keyboard.up(key)
+    for key in keys - held:
+        page.keyboard.down(key)
+    return keys
+
+
 def test_the_page_says_when_the_other_instrument_blocks_a_move(browser, served):
     page = browser.new_page()
     page.goto(served.url)
@@ -302,13 +315,7 @@ def test_the_page_says_when_the_other_instrument_blocks_a_move(browser, served):
     blocked = False
     while time.monotonic() < deadline and not blocked:  # steer the LND at the suction's tip, as a careless person
         s = status(page)
-        offset = np.subtract(s["tips_mm"]["suction"], s["tips_mm"]["grasper"])
-        keys = {plus if value > 0 else minus for (minus, plus), value in zip(KEYS_OF_AXES, offset) if abs(value) > 1.0}
-        for key in held - keys:
-            page.keyboard.up(key)
-        for key in keys - held:
-            page.keyboard.down(key)
-        held = keys
+        held = steer(page, held, np.subtract(s["tips_mm"]["suction"], s["tips_mm"]["grasper"]))
         blocked = s["cues"]["blocked"]
         time.sleep(0.03)
     assert blocked
@@ -318,9 +325,6 @@ def test_the_page_says_when_the_other_instrument_blocks_a_move(browser, served):
     for key in held:
         page.keyboard.up(key)
     page.close()
-
-
-KEYS_OF_AXES = (("KeyA", "KeyD"), ("KeyS", "KeyW"), ("KeyF", "KeyR"))  # (minus, plus) of x, y, z
 
 
 def test_the_suction_seat_keeps_its_valve_closed_until_space_and_tells_its_own_task(browser, tmp_path, monkeypatch):
@@ -392,13 +396,7 @@ def test_a_pin_gripped_off_centre_is_delivered_from_the_page(browser, served):
         s = status(page)
         if s["state"] == "over":
             break
-        offset = np.subtract(s["outline"]["handoff"], s["tip_mm"])
-        keys = {plus if value > 0 else minus for (minus, plus), value in zip(KEYS_OF_AXES, offset) if abs(value) > 1.0}
-        for key in held - keys:
-            page.keyboard.up(key)
-        for key in keys - held:
-            page.keyboard.down(key)
-        held = keys
+        held = steer(page, held, np.subtract(s["outline"]["handoff"], s["tip_mm"]))
         time.sleep(0.02)
     for key in held:
         page.keyboard.up(key)
