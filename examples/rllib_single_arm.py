@@ -67,17 +67,17 @@ def evaluate(algo, env_id: str, episodes: int = 20, seed: int = 1_000_000, video
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # --help shows defaults
-    parser.add_argument("--env", default="dvrl_marl/PSMReachDense-v1")
-    parser.add_argument("--iterations", type=int, default=30)
+    parser.add_argument("--env", default="dvrl_marl/PSMReachDense-v1", help="a single-arm env id")
+    parser.add_argument("--iterations", type=int, default=30, help="training iterations")
     parser.add_argument("--env-runners", type=int, default=0, help="RLlib env runners (0: sample in the driver)")
     parser.add_argument("--envs-per-runner", type=int, default=8, help="envs each runner steps as one vector")
-    parser.add_argument("--train-batch", type=int, default=4000)
-    parser.add_argument("--minibatch", type=int, default=500)
-    parser.add_argument("--epochs", type=int, default=10)
+    parser.add_argument("--train-batch", type=int, default=4000, help="env steps per iteration")
+    parser.add_argument("--minibatch", type=int, default=500, help="PPO minibatch size")
+    parser.add_argument("--epochs", type=int, default=10, help="PPO epochs per iteration")
     parser.add_argument("--episodes", type=int, default=20, help="evaluation episodes at the end")
-    parser.add_argument("--address", help="Ray cluster address (default: a Ray instance of this process)")
+    parser.add_argument("--address", help="Ray cluster address (none: a Ray instance of this process)")
     parser.add_argument("--video", help="film the first evaluation episode to this MP4")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the run")
     args = parser.parse_args(argv)
 
     from dvrl_marl.integrations.rllib import init_ray, train

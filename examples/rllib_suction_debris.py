@@ -69,17 +69,17 @@ def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # --help shows defaults
-    parser.add_argument("--iterations", type=int, default=50)
+    parser.add_argument("--iterations", type=int, default=50, help="training iterations")
     parser.add_argument("--shared", action="store_true", help="one policy for both arms")
     parser.add_argument("--env-runners", type=int, default=0, help="RLlib env runners (0: sample in the driver)")
-    parser.add_argument("--train-batch", type=int, default=4000)
-    parser.add_argument("--minibatch", type=int, default=500)
-    parser.add_argument("--epochs", type=int, default=5)
-    parser.add_argument("--max-cycles", type=int, default=1500)
-    parser.add_argument("--address", help="Ray cluster address (default: a Ray instance of this process)")
+    parser.add_argument("--train-batch", type=int, default=4000, help="env steps per iteration")
+    parser.add_argument("--minibatch", type=int, default=500, help="PPO minibatch size")
+    parser.add_argument("--epochs", type=int, default=5, help="PPO epochs per iteration")
+    parser.add_argument("--max-cycles", type=int, default=1500, help="steps before an episode is cut")
+    parser.add_argument("--address", help="Ray cluster address (none: a Ray instance of this process)")
     parser.add_argument("--checkpoint", help="save the algorithm here at the end")
     parser.add_argument("--video", help="film one episode of the trained team to this MP4")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the run")
     args = parser.parse_args(argv)
 
     from dvrl_marl.integrations.rllib import init_ray, train

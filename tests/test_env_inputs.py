@@ -1,0 +1,105 @@
+"""The environments' own inputs and messages, as a careless user meets them: every bad value is refused by name, and
+every message names the environment (its version) and what to do."""
+
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dvrl_marl  # noqa: F401  (registration)
+from dvrl_marl.envs import suction_debris_v1, suction_debris_v2
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"teleop_timeout": -1}, "suction_debris_v1: teleop_timeout (seconds, or None): must be > 0, got -1"),
+    ({"workspace_range": 1e-12}, "outside the observation space's bound"),
+    ({"width": "abc"}, "render width: must be an integer, got 'abc'"),
+    ({"height": 0}, "render height: must be >= 1"),
+    ({"pins_fall": 1}, "suction_debris_v1: pins_fall: must be true or false, got 1"),
+    ({"blood_ml": [8.0, "8"]}, "suction_debris_v1: blood_ml[1]: must be a number, got '8'"),
+    ({"suction_rate_ml_s": float("inf")}, "suction_rate_ml_s: must be finite"),
+])
+def test_bad_scene_arguments_are_named_with_the_envs_version(kwargs, message):
+    with pytest.raises(ValueError) as error:
+        suction_debris_v1.parallel_env(**kwargs)
+    assert message in str(error.value)
+
+
+def test_the_envs_messages_name_their_own_version_and_the_right_mistake():
+    env = suction_debris_v2.parallel_env()
+    with pytest.raises(ValueError, match=r"^suction_debris_v2: step\(\) called before reset\(\)"):
+        env.step({})
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="^suction_debris_v2: no action for agent"):
+        env.step({"suction": np.zeros(4)})
+    env = suction_debris_v2.parallel_env(max_cycles=1)
+    env.reset(seed=0)
+    env.step({agent: np.zeros(4) for agent in env.agents})
+    with pytest.raises(ValueError, match="after the episode ended"):
+        env.step({})
+    batched = suction_debris_v2.batched_env(num_envs=2)
+    with pytest.raises(ValueError, match="^suction_debris_v2: "):
+        batched.step({"suction": np.full((2, 4), np.nan), "grasper": np.zeros((2, 4))})
+
+
+@pytest.mark.parametrize("seed, message", [("1234", "must be an integer, got '1234'"), (1.5, "must be an integer"),
+                                           (-1, "must be >= 0"), ([1, 2, 3], "expected an int or 4 seeds"),
+                                           ([1, 2, 3, "4"], "[3]: must be an integer")])
+def test_a_batched_seed_is_an_integer_or_one_per_world(seed, message):
+    env = suction_debris_v1.batched_env(num_envs=4)
+    with pytest.raises(ValueError) as error:
+        env.reset(seed=seed)
+    assert message in str(error.value)
+
+
+@pytest.mark.parametrize("mask, message", [([-1], "world index -1 is outside [0, 4)"),
+                                           ([4], "world index 4 is outside [0, 4)"),
+                                           ([0.0, 1.0], "booleans of shape (4,) or world indices"),
+                                           ([True, False], "reset mask must have shape (4,)")])
+def test_a_reset_mask_never_wraps_or_overflows(mask, message):
+    env = suction_debris_v1.batched_env(num_envs=4)
+    env.reset(seed=0)
+    with pytest.raises(ValueError) as error:
+        env.reset(options={"reset_mask": mask})
+    assert message in str(error.value)
+    env.reset(options={"reset_mask": [3, 0]})  # indices that exist are fine
+
+
+def test_make_vec_refuses_episodes_that_end_before_they_begin():
+    for env_id in ("dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"):
+        with pytest.raises(ValueError, match="max_episode_steps: must be >= 1, got 0"):
+            gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", max_episode_steps=0)
+
+
+def test_render_lists_only_the_scenes_it_can_render():
+    result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "render", "--scene", "common", "--out",
+                             "/dev/null"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert result.returncode == 2 and "has no endoscope camera" in result.stderr, result.stderr
+    assert "'common'" not in result.stderr.split("renderable scenes:")[1]
+
+
+def test_the_rllib_examples_show_their_defaults():
+    for example in ("rllib_suction_debris.py", "rllib_single_arm.py"):
+        source = (ROOT / "examples" / example).read_text()
+        assert "ArgumentDefaultsHelpFormatter" in source, example
+    result = subprocess.run([sys.executable, str(ROOT / "examples" / "rllib_suction_debris.py"), "--help"],
+                            capture_output=True, text=True, timeout=120, cwd=ROOT)
+    if result.returncode == 0:  # (the example imports Ray before parsing where it is installed)
+        assert "(default: 50)" in result.stdout
+
+
+def test_a_shipped_configuration_is_found_by_name():
+    from dvrl_marl.cli import _config_path
+
+    assert Path(_config_path("suction_debris_mappo")).name == "suction_debris_mappo.toml"
+    with pytest.raises(FileNotFoundError, match="shipped configurations: .*suction_debris_mappo"):
+        _config_path("suction_debris_mapo")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert "baselines/configs" in (ROOT / "pyproject.toml").read_text()  # in the wheel, as dvrl_marl/configs
