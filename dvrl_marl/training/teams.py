@@ -128,8 +128,10 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     """Play ``episodes`` episodes at once (world j seeded ``seed + j``) with ``team[agent]`` callables on
     observations ``(N, obs_dim)`` returning ``(N, 4)``.
 
-    Returns success rate, blood removed, debris delivered, median steps to completion (over successes) and
-    instrument-contact steps per episode, with the per-episode outcomes.
+    Returns success rate, blood removed, debris delivered, median steps to completion (over successes),
+    instrument-contact steps per episode and, per seat, the tip's path (mm per episode) and the mean absolute change
+    of its action between steps (how smoothly it moved; a real PSM is servoed through IK at 50 Hz), with the
+    per-episode outcomes.
     """
     env_kwargs = {k: v for k, v in env_kwargs.items() if k != "reward_type"}
     env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
@@ -145,11 +147,21 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     contacts = np.zeros(episodes, dtype=np.int64)
     remaining = initial.copy()
     delivered = np.zeros(episodes)
+    tip = env.observation_layout["own_tip"]
+    path = {agent: np.zeros(episodes) for agent in env.agents}
+    change = {agent: np.zeros(episodes) for agent in env.agents}
+    last = {}
     while not done.all():
         actions = {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
+        before = {agent: observations[agent][:, tip].copy() for agent in env.agents}
         observations, _, terminations, truncations, infos = env.step(actions)
         info = infos[first]
         live = ~done
+        for agent in env.agents:
+            path[agent] += live * np.linalg.norm(observations[agent][:, tip] - before[agent], axis=1)
+            if agent in last:
+                change[agent] += live * np.abs(actions[agent] - last[agent]).mean(axis=1)
+            last[agent] = actions[agent]
         steps += live
         contacts += live & info["collision"]
         remaining = np.where(live, info["blood_remaining"], remaining)
@@ -163,6 +175,9 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
             "mean_debris_delivered": float(delivered.mean()),
             "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
             "mean_contact_steps": float(contacts.mean()),
+            "mean_tip_path_mm": {agent: float(1000.0 * env.workspace_range * path[agent].mean()) for agent in path},
+            "mean_action_change": {agent: float((change[agent] / np.maximum(steps - 1, 1)).mean())
+                                   for agent in change},
             "success": success.tolist(), "steps": steps.tolist()}
 
 

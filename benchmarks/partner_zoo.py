@@ -1,0 +1,70 @@
+"""Learned seats beside partners they never met: the held-out person-like zoo, against the scripted seat.
+
+For each seat, the learned policy (its default call: the mean action, as a robot is driven) and the scripted
+expert play beside the same partners: the scripted one, the Reach + Pick pipeline, the measured person
+(:data:`dvrl_marl.agents.partners.PERSON`) and each held-out kind (:data:`~dvrl_marl.agents.partners.HELD_OUT`:
+late, slow, shaky, hesitant; drawn with ``ZOO_SEED``, never used in training). Test seeds (``teams.EVAL_SEED`` on),
+``suction_debris_v2`` with a person's 6,000-step horizon.
+
+    python benchmarks/partner_zoo.py [--episodes 100] [--suction marl-suction] [--grasper marl-grasper]
+                                     [--noise] [--json baselines/results/partner_zoo.json]
+
+Prints, per seat and partner: success, median steps to success, instrument-contact steps, the seat's tip path (mm)
+and its mean absolute action change between steps (smoothness), learned beside scripted. The gap is the figure
+(issue 36: the learned seat within 2 points of the scripted seat's success beside each partner).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from dvrl_marl.agents.partners import HELD_OUT, zoo_partner
+from dvrl_marl.envs import suction_debris_v2
+from dvrl_marl.training import teams
+
+PARTNERS = ("scripted", "pipeline", "person", *sorted(HELD_OUT))
+
+
+def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool) -> dict:
+    other = "grasper" if seat == "suction" else "suction"
+    env = suction_debris_v2.parallel_env()
+    filler = (zoo_partner(partner, other, env) if partner not in ("scripted", "pipeline")
+              else teams.seat(partner, other))
+    team = {seat: teams.seat(player, seat, noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
+            other: filler}
+    result = teams.evaluate_team_batched(team, episodes, task="suction_debris_v2", max_cycles=6000)
+    return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
+            "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
+            "mean_contact_steps": result["mean_contact_steps"], "tip_path_mm": result["mean_tip_path_mm"][seat],
+            "action_change": result["mean_action_change"][seat]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=100, help="test seeds per row")
+    parser.add_argument("--suction", default="marl-suction", help="the learned suction seat")
+    parser.add_argument("--grasper", default="marl-grasper", help="the learned grasper seat")
+    parser.add_argument("--noise", action="store_true", help="learned seats act with their exploration noise")
+    parser.add_argument("--json", type=Path, help="write the rows here")
+    args = parser.parse_args()
+    rows = []
+    print(f"{'seat':8s} {'partner':10s} {'player':14s} {'success':>8s} {'median steps':>13s} {'contacts':>9s} "
+          f"{'tip path mm':>12s} {'action change':>14s}")
+    for seat, learned in (("suction", args.suction), ("grasper", args.grasper)):
+        for partner in PARTNERS:
+            for player in (learned, "scripted"):
+                row = evaluate(seat, player, partner, args.episodes, args.noise)
+                rows.append(row)
+                median = row["median_steps_to_completion"]
+                print(f"{seat:8s} {partner:10s} {player:14s} {row['success_rate']:8.2f} "
+                      f"{'-' if median is None else f'{median:.0f}':>13s} {row['mean_contact_steps']:9.1f} "
+                      f"{row['tip_path_mm']:12.0f} {row['action_change']:14.3f}", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"noise": args.noise, "rows": rows}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
