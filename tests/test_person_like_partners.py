@@ -94,3 +94,13 @@ def test_team_evaluation_reports_each_seats_path_and_smoothness():
     slowed = {**team, "grasper": PersonLikePartner("grasper", ENV, Profile(speed=0.5, approach=0.1))}
     smoother = teams.evaluate_team_batched(slowed, 4, task="suction_debris_v2", max_cycles=6000)
     assert smoother["mean_action_change"]["grasper"] < result["mean_action_change"]["grasper"]
+
+
+def test_a_trainer_names_the_person_like_partners_as_a_seat():
+    population = teams.seat("person-like", "grasper", ENV)
+    assert len(population.members) == 8 and all(isinstance(m, PersonLikePartner) for m in population.members)
+    for member in population.members:  # drawn from the training ranges, never the held-out zoo's
+        for name, (low, high) in TRAINING_RANGES.items():
+            assert low <= getattr(member.profile, name) <= high
+    actions = population(np.stack([o for o in _observations(steps=1, worlds=16)[0]]))
+    assert actions.shape == (16, 4)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 __all__ = ["Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
-           "ZOO_SEED"]
+           "training_partners", "ZOO_SEED", "TRAINING_SEED"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,8 @@ HELD_OUT = {
 }
 #: The held-out members are drawn from this seed (one stream per kind and seat): documented and reproducible.
 ZOO_SEED = 424_242
+#: A trainer's person-like partners are drawn from TRAINING_RANGES with this seed (apart from ZOO_SEED's streams).
+TRAINING_SEED = 77_000
 
 
 def draw_profiles(ranges: dict, count: int, seed: int) -> list[Profile]:
@@ -139,3 +141,16 @@ def zoo_partner(kind: str, agent: str, env, members: int = 4):
     profiles = draw_profiles(ranges, members, stream)
     partners = [PersonLikePartner(agent, env, profile, seed=stream + index) for index, profile in enumerate(profiles)]
     return Partners(partners, [f"{kind}-{index}" for index in range(members)])
+
+
+def training_partners(agent: str, env, members: int = 8):
+    """The person-like partners a trainer may use in ``agent``'s seat (the seat name ``"person-like"`` of
+    :func:`dvrl_marl.training.teams.seat`): ``members`` profiles from :data:`TRAINING_RANGES`, drawn with
+    :data:`TRAINING_SEED`, a share of the worlds each."""
+    from dvrl_marl.training.teams import Partners
+
+    stream = TRAINING_SEED + (agent == "grasper")
+    profiles = draw_profiles(TRAINING_RANGES, members, stream)
+    partners = [PersonLikePartner(agent, env, profile, seed=stream + 100 * (index + 1))
+                for index, profile in enumerate(profiles)]
+    return Partners(partners, [f"person-like-{index}" for index in range(members)])

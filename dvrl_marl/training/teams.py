@@ -8,7 +8,8 @@ result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper")
 matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "scripted", "pipeline"])
 ```
 
-A seat is named by ``"scripted"`` (the built-in expert), ``"pipeline"`` (the ``learned_team`` pipeline: the
+A seat is named by ``"scripted"`` (the built-in expert), ``"person-like"`` (eight person-like partners drawn from
+the training ranges, :mod:`dvrl_marl.agents.partners`), ``"pipeline"`` (the ``learned_team`` pipeline: the
 single-arm Reach and Pick policies composed, one pipeline per world), a shipped policy name
 (:func:`dvrl_marl.policies.available`) or a policy folder.
 """
@@ -59,6 +60,10 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     env = env or suction_debris_v0.parallel_env()
     if name == "scripted":
         return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
+    if name == "person-like":  # the scripted expert as people act: late, slow, smooth, shaky, hesitant (seeded)
+        from dvrl_marl.agents.partners import training_partners
+
+        return training_partners(agent, env)
     if name == "pipeline":
         from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
