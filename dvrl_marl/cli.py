@@ -112,6 +112,12 @@ def _config_path(name: str) -> str:
     raise FileNotFoundError(f"no configuration file {name}; shipped configurations: {', '.join(names)}")
 
 
+#: The scene's task of each env a seat policy names (multi-agent policies name the PettingZoo env they learnt on).
+_SEAT_TASKS = {"dvrl_marl/SurgeonSeat-v1": "suction_debris_v1", "dvrl_marl/SurgeonSeat-v2": "suction_debris_v2",
+               "suction_debris_v0": "suction_debris", "suction_debris_v1": "suction_debris_v1",
+               "suction_debris_v2": "suction_debris_v2"}
+
+
 def _evaluate(args) -> int:
     import json
 
@@ -120,16 +126,17 @@ def _evaluate(args) -> int:
 
     policy = policies.load(args.policy)
     env_id = args.env or policy.spec["env_id"]
-    if env_id == "dvrl_marl/SurgeonSeat-v1":  # a seat of the collaborative scene: its team, on held-out seeds
+    if env_id in _SEAT_TASKS or policy.spec.get("agent"):  # a seat of the collaborative scene: its team
         from dvrl_marl.training import teams
 
         agent = policy.spec.get("agent", "grasper")
         partner = "suction" if agent == "grasper" else "grasper"
         seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
+        task = _SEAT_TASKS.get(env_id, "suction_debris_v2")
         result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner)}, args.episodes,
-                                             seed=seed, task="suction_debris_v1")
+                                             seed=seed, task=task)
         result = {k: v for k, v in result.items() if k not in ("success", "steps")}
-        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "seat": agent,
+        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "task": task, "seat": agent,
                           "partner": "pipeline (learned_team)", **result}, indent=2))
         return 0
     env_kwargs = {"tool": args.tool} if args.tool else {}

@@ -103,3 +103,13 @@ def test_a_shipped_configuration_is_found_by_name():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert "baselines/configs" in (ROOT / "pyproject.toml").read_text()  # in the wheel, as dvrl_marl/configs
+
+
+def test_evaluate_takes_a_learned_seat_by_its_shipped_name():
+    import json
+
+    result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "evaluate", "marl-suction", "--episodes", "3"],
+                            capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert result.returncode == 0, result.stderr  # (it once died with NameNotFound: suction_debris_v0)
+    report = json.loads(result.stdout)
+    assert report["seat"] == "suction" and report["task"] == "suction_debris" and report["episodes"] == 3
