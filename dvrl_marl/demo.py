@@ -3,11 +3,12 @@ from the endoscope.
 
 ``team="pipeline"`` (default): the suction arm runs the learned Reach policy through the ``learned_team``
 pipeline; the surgeon seat (the LND) is filled by the learned Reach + Pick pipeline, the scripted surgeon, or a
-keyboard. ``team="marl"``: the suction arm learned by multi-agent PPO (the shipped ``marl-suction``), beside the
-scripted surgeon, a person at the keyboard, or (``surgeon="learned"``) the learned ``marl-grasper`` where one is
-shipped. Learned MAPPO policies act as they trained, with the exploration noise their ``policy.json`` records,
-seeded from ``seed`` (their mean action alone can stay pressed against the other instrument). Writes ``demo.mp4``
-and ``metrics.json`` into a new run folder and returns the metrics.
+keyboard. ``team="marl"``: the learned suction seat (the shipped ``marl-suction-v2``, cloned from the scripted
+suction and chosen by its mean action beside scripted, learned and person-like surgeons), beside the scripted
+surgeon, a person at the keyboard, or (``surgeon="learned"``) the learned ``marl-grasper``. Learned seats act by
+their mean action, as a robot is driven (the first ``marl-suction`` needed its exploration noise: it is still
+shipped, for the results made with it). Writes ``demo.mp4`` and ``metrics.json`` into a new run folder and returns
+the metrics.
 
 ``surgeon="keyboard"``: a person works the LND in the scene's window (held keys move, see
 :class:`~dvrl_marl.teleop.KeyboardDevice`); the episode starts when they press ENTER and runs in real time at the
@@ -45,9 +46,8 @@ def _pipeline_name() -> str:
     return "learned_team" if all(name in policies.available() for name in _LEARNED_POLICIES) else "scripted_team"
 
 
-def _as_trained(policy, seed: int):
-    """A learned policy acting with the exploration noise it records (seeded), or its mean action if it records none."""
-    return policy.with_noise(seed) if policy.spec.get("exploration") else policy
+#: The learned seats of team="marl": deployable by their default call (benchmarks/partner_zoo.py measures them).
+MARL_SEATS = {"suction": "marl-suction-v2", "grasper": "marl-grasper"}
 
 
 def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, max_cycles: int | None = None,
@@ -63,7 +63,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         raise ValueError("team='marl' runs the learned multi-agent policies; a pipeline applies to team='pipeline'")
     out = Path(out) if out else Path("runs") / f"demo-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
-    needed = ("marl-suction", "marl-grasper") if surgeon == "learned" else ("marl-suction",)
+    needed = tuple(MARL_SEATS.values()) if surgeon == "learned" else (MARL_SEATS["suction"],)
     missing = [name for name in needed if name not in policies.available()]
     if team == "marl" and missing:
         raise FileNotFoundError(f"team='marl' with surgeon={surgeon!r} seats the multi-agent policies "
@@ -88,7 +88,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         keyboard = KeyboardDevice()
         kwargs["surgeon"] = keyboard
     if surgeon == "learned" and team == "marl":
-        kwargs["surgeon"] = _as_trained(policies.load("marl-grasper"), seed)
+        kwargs["surgeon"] = policies.load(MARL_SEATS["grasper"])
     elif surgeon == "learned" or (surgeon == "scripted" and record):
         # The pipeline (or the expert, bound here so that it can be recorded) reads the scene layout from an env
         # built with the same parameters.
@@ -109,7 +109,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         kwargs["surgeon"] = recorder
     env = scene_env.parallel_env(**kwargs)
     if team == "marl":
-        suction = _as_trained(policies.load("marl-suction"), seed)
+        suction = policies.load(MARL_SEATS["suction"])
     else:
         suction = ArmPipeline(plans["suction"], "suction", env)
     if render_mode == "rgb_array":

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -401,8 +402,9 @@ def test_demo_runs_the_marl_team(tmp_path, monkeypatch):
 
     run = tmp_path / "run"
     mappo.train(mappo.load_config(_config(tmp_path)), 0, run, total_steps=1024, progress=False, log=lambda *_: None)
+    shutil.copytree(run / "policies" / "marl-suction", run / "policies" / demo.MARL_SEATS["suction"])
     monkeypatch.setattr(policies, "shipped_dir", lambda: run / "policies")
-    assert {"marl-suction", "marl-grasper"} <= set(policies.available())
+    assert set(demo.MARL_SEATS.values()) <= set(policies.available())
     metrics = demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=30, video=False, progress=False)
     assert metrics["team"] == "marl" and metrics["pipeline"] == "marl" and metrics["steps"] == 30
     with pytest.raises(ValueError, match="pipeline applies"):
@@ -413,9 +415,9 @@ def test_demo_without_shipped_marl_policies_names_them(tmp_path, monkeypatch):
     from dvrl_marl import demo
 
     monkeypatch.setattr(policies, "shipped_dir", lambda: tmp_path)
-    with pytest.raises(FileNotFoundError, match="marl-suction and marl-grasper"):
+    with pytest.raises(FileNotFoundError, match="marl-suction-v2 and marl-grasper"):
         demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=10, video=False, progress=False)
-    with pytest.raises(FileNotFoundError, match="seats the multi-agent policies marl-suction; marl-suction is not"):
+    with pytest.raises(FileNotFoundError, match="seats the multi-agent policies marl-suction-v2; marl-suction-v2 is not"):
         demo.run_demo(team="marl", surgeon="scripted", out=tmp_path / "demo", max_cycles=10, video=False,
                       progress=False)
 

@@ -104,3 +104,17 @@ def test_a_trainer_names_the_person_like_partners_as_a_seat():
             assert low <= getattr(member.profile, name) <= high
     actions = population(np.stack([o for o in _observations(steps=1, worlds=16)[0]]))
     assert actions.shape == (16, 4)
+
+
+def test_the_deployable_suction_works_by_its_mean_action_beside_people_it_never_met():
+    # The shipped marl-suction-v2, called the way the README shows (policy(observation): its mean action), beside
+    # the scripted surgeon, the learned grasper and held-out person-like surgeons, on test seeds.
+    from dvrl_marl import policies
+
+    suction = policies.load("marl-suction-v2")
+    assert suction.spec["agent"] == "suction" and suction.spec["env_id"] == "suction_debris_v2"
+    for partner in ("scripted", "marl-grasper", "late", "slow"):
+        grasper = zoo_partner(partner, "grasper", ENV) if partner in HELD_OUT else teams.seat(partner, "grasper")
+        result = teams.evaluate_team_batched({"suction": suction, "grasper": grasper}, 12, task="suction_debris_v2",
+                                             max_cycles=6000)
+        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] <= 2.0, (partner, result)

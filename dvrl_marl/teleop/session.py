@@ -30,9 +30,13 @@ from dvrl_marl.teleop.pacing import RealTimePacer
 
 __all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "TELEOP_ENV_ID", "scene_view", "pack_frame", "unpack_frame"]
 
-#: ``learned`` is the learned_team pipeline's arm (the learned Reach policy for the suction, Reach + Pick for the
+#: ``learned`` is the learned seat for the partner's arm (``marl-suction-v2`` beside a person at the LND,
+#: ``marl-grasper`` beside a person at the suction: deployable by their mean action); ``pipeline`` is the learned_team
+#: pipeline's arm (the learned Reach policy for the suction, Reach + Pick for the
 #: LND); a shipped policy name or folder also works.
 PARTNERS = ("scripted", "learned", "pipeline")
+#: ``--partner learned``: the learned seat that works the other arm beside a person in ``seat``.
+LEARNED_PARTNERS = {"grasper": "marl-suction-v2", "suction": "marl-grasper"}
 #: A person gets 2 minutes (6,000 steps at 50 Hz); the task's 1,500 steps (30 s) suit a script, not a newcomer.
 TELEOP_MAX_CYCLES = 6000
 DEFAULT_DATASET_ID = "dvrl_marl/surgeon-teleop-v1"
@@ -127,7 +131,7 @@ class TeleopSession:
         # itself once the page spoke was a device defaulting to "open" in the suction seat).
         self.device = device or BrowserDevice(silence_timeout=silence_timeout,
                                               initial_tool=1.0 if seat == "grasper" else -1.0)
-        env_partner = "pipeline" if partner == "learned" else partner
+        env_partner = LEARNED_PARTNERS[seat] if partner == "learned" else partner
         self.env = gym.make(TELEOP_ENV_ID, seat=seat, partner=env_partner, max_cycles=self.max_cycles, **scene_kwargs)
         self.scene = self.env.unwrapped.scene
         self.control_dt = float(self.scene.params.control_dt)

@@ -572,7 +572,7 @@ def _build_models(config: MappoConfig, agents, obs_dim: int, state_dim: int, act
 
 # --- numpy export ---------------------------------------------------------------------------------------------
 def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
-                 tool_head: str = "gaussian", log_std=None) -> Path:
+                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v0") -> Path:
     """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box; with the switch
     tool head the tool's more likely value, +1 or -1) as a numpy policy folder, the observation normalisation
     folded into the first layer. ``log_std``: this agent's exploration noise (log standard deviation per action
@@ -606,7 +606,7 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
         if tool_head == "switch":
             std[-1] = None  # the tool is decided open / closed, not perturbed
         metadata = {**metadata, "exploration": {"std": std, "tool_head": tool_head}}
-    return write_policy(directory, layers, name=name, env_id="suction_debris_v0", algorithm="MAPPO",
+    return write_policy(directory, layers, name=name, env_id=env_id, algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
 
@@ -1085,6 +1085,7 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
     for index, agent in enumerate(agents):
         folder = out / "policies" / f"marl-{agent}"
         export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
+                     env_id=suction_debris_v0.env_name(str(config.env.get("task", "suction_debris"))),
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                             "steps": steps, "partners": _partners(config),
                                             **_demonstrations(config)}},
