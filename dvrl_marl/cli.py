@@ -152,7 +152,7 @@ def _evaluate_team(args) -> int:
     from dvrl_marl.training import teams
 
     seed = teams.EVAL_SEED if args.seed is None else args.seed
-    task = {} if args.task is None else {"task": args.task}
+    task = {"task": args.task}
     rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, noise=args.noise, **task)
     width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
     print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
@@ -319,8 +319,9 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
     team.add_argument("--task", choices=["suction_debris", "suction_debris_v1", "suction_debris_v2"],
-                      help="the scene's task (default: suction_debris, v0's; suction_debris_v1 / _v2 for the newer "
-                           "scenes)")
+                      default="suction_debris_v2",
+                      help="the scene's task (default: the demo's, suction_debris_v2; figures recorded before "
+                           "2026-11-25 used suction_debris, v0's)")
     team.add_argument("--noise", action="store_true",
                       help="learned seats act with the exploration noise they trained with (seeded; their policy.json "
                            "records it), not their mean action")

@@ -113,3 +113,11 @@ def test_evaluate_takes_a_learned_seat_by_its_shipped_name():
     assert result.returncode == 0, result.stderr  # (it once died with NameNotFound: suction_debris_v0)
     report = json.loads(result.stdout)
     assert report["seat"] == "suction" and report["task"] == "suction_debris" and report["episodes"] == 3
+
+
+def test_evaluate_team_runs_the_demos_scene_by_default():
+    from dvrl_marl.cli import build_parser
+    from dvrl_marl.demo import ENV_NAME
+
+    args = build_parser().parse_args(["evaluate-team", "--suction", "scripted", "--grasper", "scripted"])
+    assert args.task == ENV_NAME == "suction_debris_v2"
