@@ -31,7 +31,7 @@ def _render(args) -> int:
 def _train(args) -> int:
     from dvrl_marl.files import read_toml
 
-    args.config = _config_path(args.config)
+    args.config = resolve_config(args.config)
     run_table = read_toml(args.config).get("run", {})
     algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
     goal_algorithms = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
@@ -98,7 +98,7 @@ def _train(args) -> int:
     return 0
 
 
-def _config_path(name: str) -> str:
+def resolve_config(name: str) -> str:
     """A configuration file: the path given, or a shipped configuration's name (``suction_debris_mappo``), which
     works from an installed wheel as well as from a clone."""
     if Path(name).is_file():

@@ -95,11 +95,11 @@ def test_the_rllib_examples_show_their_defaults():
 
 
 def test_a_shipped_configuration_is_found_by_name():
-    from dvrl_marl.cli import _config_path
+    from dvrl_marl.cli import resolve_config
 
-    assert Path(_config_path("suction_debris_mappo")).name == "suction_debris_mappo.toml"
+    assert Path(resolve_config("suction_debris_mappo")).name == "suction_debris_mappo.toml"
     with pytest.raises(FileNotFoundError, match="shipped configurations: .*suction_debris_mappo"):
-        _config_path("suction_debris_mapo")
+        resolve_config("suction_debris_mapo")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert "baselines/configs" in (ROOT / "pyproject.toml").read_text()  # in the wheel, as dvrl_marl/configs

@@ -130,7 +130,7 @@ _MAPPO_NUMBERS = sorted(f.name for f in fields(mappo.MappoConfig)
        data=st.data())
 def test_a_broken_mappo_configuration_names_file_table_and_field(tmp_path, key, kind, data):
     default = getattr(mappo.MappoConfig(), key)
-    table = next((name for name, keys in mappo._TABLE_KEYS.items() if keys and key in keys), "run")
+    table = next((name for name, keys in mappo.TABLE_KEYS.items() if keys and key in keys), "run")
     if kind == "wrong type":
         value = data.draw(st.sampled_from(NOT_A_NUMBER))
     elif kind == "nan":

@@ -27,19 +27,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector.utils import batch_space
 
+from dvrl_marl.envs.vector import autoreset_metadata
+
 __all__ = ["SeatVectorEnv", "make_seat_vector"]
 
 _VERSIONS = ("v0", "v1", "v2")
 _INFO_KEYS = ("is_success", "blood_remaining", "debris_delivered", "collision")
-
-
-def _autoreset_metadata(mode: str):
-    try:  # Gymnasium >= 1.1 names the modes in an enum
-        from gymnasium.vector import AutoresetMode
-
-        return {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}[mode]
-    except ImportError:  # pragma: no cover - Gymnasium 1.0
-        return mode
 
 
 class SeatVectorEnv(gym.vector.VectorEnv):
@@ -65,7 +58,7 @@ class SeatVectorEnv(gym.vector.VectorEnv):
         self.num_envs = self.batched.num_envs
         self.autoreset_mode = autoreset_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": 50,
-                         "autoreset_mode": _autoreset_metadata(autoreset_mode)}
+                         "autoreset_mode": autoreset_metadata(autoreset_mode)}
         self.render_mode = scene_kwargs.get("render_mode")
         self.single_observation_space = self.batched.observation_space(seat)
         self.single_action_space = self.batched.action_space(seat)

@@ -39,12 +39,13 @@ from dvrl_marl.core.reach import ReachCore
 from dvrl_marl.envs.psm_pick import PSMPickEnv
 from dvrl_marl.envs.psm_reach import PSMReachEnv
 
-__all__ = ["GoalVectorEnv", "make_reach_vector", "make_pick_vector", "AUTORESET_MODES"]
+__all__ = ["GoalVectorEnv", "make_reach_vector", "make_pick_vector", "AUTORESET_MODES", "autoreset_metadata"]
 
 AUTORESET_MODES = ("next_step", "same_step", "disabled")
 
 
-def _autoreset_metadata(mode: str):
+def autoreset_metadata(mode: str):
+    """Gymnasium's name of an autoreset mode (an enum from Gymnasium 1.1 on, the string before)."""
     try:  # Gymnasium >= 1.1 names the modes in an enum
         from gymnasium.vector import AutoresetMode
 
@@ -70,7 +71,7 @@ class GoalVectorEnv(gym.vector.VectorEnv):
         self.template = template
         self.num_envs = self.core.num_worlds
         self.autoreset_mode = autoreset_mode
-        self.metadata = {**template.metadata, "autoreset_mode": _autoreset_metadata(autoreset_mode)}
+        self.metadata = {**template.metadata, "autoreset_mode": autoreset_metadata(autoreset_mode)}
         self.render_mode = template.render_mode
         if not 0 <= int(render_world) < self.num_envs:
             raise ValueError(f"render_world must be in [0, {self.num_envs}), got {render_world!r}")

@@ -211,7 +211,7 @@ class MappoConfig:
 
 #: The configuration's tables and the keys each holds; [run] takes every key (the flat form of the first records),
 #: [env] the scene's keyword arguments.
-_TABLE_KEYS = {
+TABLE_KEYS = {
     "run": None,
     "env": None,
     "ppo": ("learning_rate", "anneal_lr", "epochs", "minibatches", "clip_epsilon", "gamma", "gae_lambda",
@@ -249,15 +249,15 @@ def load_config(path) -> MappoConfig:
     values: dict = {"name": path.stem}
     where: dict = {}  # key -> the table it came from, for the messages
     for section, content in table.items():
-        if section not in _TABLE_KEYS or not isinstance(content, dict):
-            raise ValueError(f"{path}: unknown table [{section}] (known: {', '.join(_TABLE_KEYS)})")
+        if section not in TABLE_KEYS or not isinstance(content, dict):
+            raise ValueError(f"{path}: unknown table [{section}] (known: {', '.join(TABLE_KEYS)})")
         if section == "env":
             values["env"], where["env"] = dict(content), "env"
             continue
         for key, value in content.items():
-            allowed = _TABLE_KEYS[section]
+            allowed = TABLE_KEYS[section]
             if key in ("name", "env") or (allowed is not None and key not in allowed) or key not in _FIELDS:
-                home = next((name for name, keys in _TABLE_KEYS.items() if keys and key in keys), None)
+                home = next((name for name, keys in TABLE_KEYS.items() if keys and key in keys), None)
                 hint = f" (it belongs in [{home}])" if home and key in _FIELDS else ""
                 raise ValueError(f"{path}: [{section}] {key}: unknown key{hint}")
             if key in values:
