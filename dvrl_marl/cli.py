@@ -30,12 +30,12 @@ def _render(args) -> int:
 
 def _train(args) -> int:
     from dvrl_marl.files import read_toml
+    from dvrl_marl.training import mappo as multi_agent, runner as goal_env
 
     args.config = resolve_config(args.config)
     run_table = read_toml(args.config).get("run", {})
     algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
-    goal_algorithms = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
-    known = ("bc", "mappo", "ippo", "ppo", *goal_algorithms)
+    known = ("bc", *multi_agent.ALGORITHMS, "ppo", *goal_env.ALGORITHMS)
     if algorithm is not None and algorithm not in known or (algorithm is None and "extends" not in run_table
                                                            and "env_id" in run_table):
         # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]

@@ -19,8 +19,8 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
 
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
-           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "cli_number", "Seed",
-           "Integer", "Text", "Flag", "UnitInterval"]
+           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "cli_number", "Seed", "Seeds",
+           "Text", "Flag", "UnitInterval"]
 
 #: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
 STRICT = ConfigDict(extra="forbid")
@@ -41,11 +41,11 @@ Positive = Annotated[float, _NUMBER, Strict(), Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, _NUMBER, Strict(), Field(ge=0, allow_inf_nan=False)]
 Fraction = Annotated[float, _NUMBER, Strict(), Field(ge=0, le=1, allow_inf_nan=False)]
 UnitInterval = Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)]  # (0, 1]
-Integer = Annotated[int, _NUMBER, Strict()]
 PositiveInt = Annotated[int, _NUMBER, Strict(), Field(ge=1)]
 NonNegativeInt = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
 #: numpy's generators take seeds >= 0.
 Seed = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
+Seeds = list[Seed]  # (one object: validated() keeps one adapter per schema)
 Vector3 = tuple[Finite, Finite, Finite]
 Text = StrictStr
 Flag = StrictBool
@@ -112,6 +112,8 @@ _ADAPTERS: dict = {}
 
 
 def _adapter(schema) -> TypeAdapter:
+    """One adapter per schema object, built once (schemas are module constants; keyed by identity, the schema kept
+    alive beside its adapter so that an identity is never reused)."""
     key = id(schema)
     if key not in _ADAPTERS:
         _ADAPTERS[key] = (schema, TypeAdapter(schema))

@@ -6,7 +6,6 @@ value can be overridden by keyword. Adding a task is adding a file.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 

@@ -29,12 +29,12 @@ class WorldRandom:
         if seed is None:
             self.generators = [np.random.default_rng() for _ in range(self.num_worlds)]
             return
-        from dvrl_marl.schemas import Seed, validated
+        from dvrl_marl.schemas import Seed, Seeds, validated
 
         if isinstance(seed, (str, bytes)) or not hasattr(seed, "__iter__"):  # one seed (a string is no seed list)
             seeds = [validated(Seed, seed, "reset(seed=...)") + i for i in range(self.num_worlds)]
         else:
-            seeds = validated(list[Seed], list(seed), "reset(seed=[...]): one seed per world")
+            seeds = validated(Seeds, list(seed), "reset(seed=[...]): one seed per world")
             if len(seeds) != self.num_worlds:
                 raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
         self.generators = [np.random.default_rng(s) for s in seeds]

@@ -38,9 +38,19 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["SeatEnv", "PARTNERS"]
+__all__ = ["SeatEnv", "PARTNERS", "scene_module"]
 
 PARTNERS = ("pipeline", "scripted")
+
+
+def scene_module(version: str, who: str = "SeatEnv"):
+    """The module of the collaborative scene's ``version`` ("v0", "v1", "v2")."""
+    from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
+
+    modules = {"v0": suction_debris_v0, "v1": suction_debris_v1, "v2": suction_debris_v2}
+    if version not in modules:
+        raise ValueError(f"{who}: version must be one of {sorted(modules)}, got {version!r}")
+    return modules[version]
 
 
 class SeatEnv(gym.Env):
@@ -50,14 +60,11 @@ class SeatEnv(gym.Env):
 
     def __init__(self, seat: str = "grasper", partner="pipeline", version: str = "v1", render_mode=None,
                  **scene_kwargs):
-        from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
+        from dvrl_marl.envs import suction_debris_v0
 
-        modules = {"v0": suction_debris_v0, "v1": suction_debris_v1, "v2": suction_debris_v2}
-        if version not in modules:
-            raise ValueError(f"SeatEnv: version must be one of {sorted(modules)}, got {version!r}")
         if seat not in suction_debris_v0.AGENTS:
             raise ValueError(f"SeatEnv: seat must be one of {suction_debris_v0.AGENTS}, got {seat!r}")
-        self.scene = modules[version].parallel_env(render_mode=render_mode, **scene_kwargs)
+        self.scene = scene_module(version, "SeatEnv").parallel_env(render_mode=render_mode, **scene_kwargs)
         self.seat = seat
         self.partner_seat = next(agent for agent in suction_debris_v0.AGENTS if agent != seat)
         self.partner = self._partner(partner)

@@ -31,7 +31,6 @@ from dvrl_marl.envs.vector import autoreset_metadata
 
 __all__ = ["SeatVectorEnv", "make_seat_vector"]
 
-_VERSIONS = ("v0", "v1", "v2")
 _INFO_KEYS = ("is_success", "blood_remaining", "debris_delivered", "collision")
 
 
@@ -40,18 +39,17 @@ class SeatVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, seat: str = "grasper", partner="scripted", version: str = "v1",
                  autoreset_mode: str = "next_step", **scene_kwargs):
-        from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
+        from dvrl_marl.envs import suction_debris_v0
+        from dvrl_marl.envs.seat import scene_module
 
-        modules = {"v0": suction_debris_v0, "v1": suction_debris_v1, "v2": suction_debris_v2}
-        if version not in modules:
-            raise ValueError(f"SeatVectorEnv: version must be one of {_VERSIONS}, got {version!r}")
+        module = scene_module(version, "SeatVectorEnv")
         if seat not in suction_debris_v0.AGENTS:
             raise ValueError(f"SeatVectorEnv: seat must be one of {suction_debris_v0.AGENTS}, got {seat!r}")
         if autoreset_mode not in ("next_step", "same_step"):
             raise ValueError(f"SeatVectorEnv: autoreset_mode must be 'next_step' or 'same_step', got "
                              f"{autoreset_mode!r}")
         partner_seat = next(agent for agent in suction_debris_v0.AGENTS if agent != seat)
-        self.batched = modules[version].batched_env(num_envs=num_envs, surgeon=_batched_partner(partner),
+        self.batched = module.batched_env(num_envs=num_envs, surgeon=_batched_partner(partner),
                                                     surgeon_seat=partner_seat, autoreset_mode="disabled",
                                                     **scene_kwargs)
         self.seat, self.partner_seat = seat, partner_seat

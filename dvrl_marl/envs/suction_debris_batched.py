@@ -145,7 +145,7 @@ class SuctionDebrisBatchedEnv:
             self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
         if tips is not None:
             if not isinstance(tips, dict):
-                raise ValueError(f"{self.name}: tip_positions must be a dict {agent: (num_envs, 3) metres}")
+                raise ValueError(f"{self.name}: tip_positions must be a dict {{agent: (num_envs, 3) metres}}")
             self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip_positions[{agent!r}]")
                                           for agent, value in tips.items()})
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
@@ -159,7 +159,7 @@ class SuctionDebrisBatchedEnv:
         a mask or indices (default all). The same checks as the ``tip_positions`` reset option."""
         worlds = self.core.worlds_of(worlds)
         if not isinstance(tips, dict):
-            raise ValueError(f"{self.name}: tip positions must be a dict {agent: (num_envs, 3) metres}")
+            raise ValueError(f"{self.name}: tip positions must be a dict {{agent: (num_envs, 3) metres}}")
         self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip positions of {agent!r}")
                                       for agent, value in tips.items()})
 

@@ -98,8 +98,8 @@ from __future__ import annotations
 import concurrent.futures
 import math
 import warnings
-from pathlib import Path
 from dataclasses import dataclass, fields, replace
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -978,13 +978,12 @@ class SuctionDebrisEnv(ParallelEnv):
         elif self._held is None and closed:
             for index, pin in enumerate(self.debris):
                 if pin.visible and not pin.delivered:
-                    start, end = pin.axis_ends()
-                    if _point_segment_distance(tip, start, end) <= _PIN_SENSOR_RANGE:
+                    grip = _closest_on_segment(tip, *pin.axis_ends())  # where the jaws would hold the pin
+                    if math.dist(tip, grip) <= _PIN_SENSOR_RANGE:
                         self._held = index
                         pin.held = True
                         pin.fall_speed = None  # caught
                         self._hold_offset = tuple(pin.position[i] - tip[i] for i in range(3))
-                        grip = _closest_on_segment(tip, start, end)  # where the jaws hold the pin
                         self._grip_offset = tuple(grip[i] - tip[i] for i in range(3))
                         if not pin.lifted:
                             pin.lifted = True

@@ -49,9 +49,7 @@ def _with_task(kwargs: dict) -> dict:
 
 def parallel_env(**kwargs) -> SuctionDebrisEnv:
     """The parallel environment (the native form); keyword arguments as ``suction_debris_v0.parallel_env``."""
-    environment = SuctionDebrisEnv(**_with_task(kwargs))
-    environment.metadata = {**environment.metadata, "name": "suction_debris_v1"}
-    return environment
+    return SuctionDebrisEnv(**_with_task(kwargs))
 
 
 raw_env = parallel_env
@@ -61,9 +59,7 @@ def batched_env(num_envs: int = 1, **kwargs):
     """N worlds stepped as arrays (see :mod:`dvrl_marl.envs.suction_debris_batched`)."""
     from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
-    batched = SuctionDebrisBatchedEnv(num_envs, **_with_task(kwargs))
-    batched.metadata = {**batched.metadata, "name": "suction_debris_v1"}
-    return batched
+    return SuctionDebrisBatchedEnv(num_envs, **_with_task(kwargs))
 
 
 def env(**kwargs):

@@ -38,18 +38,15 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from dvrl_marl.envs.suction_debris_v0 import AGENTS, SuctionDebrisEnv
 
-__all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK", "NAME"]
+__all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK"]
 
-#: The task file of this version, and the environment's name.
+#: The task file of this version (the environment takes its name from it).
 TASK = "suction_debris_v2"
-NAME = "suction_debris_v2"
 
 
 def parallel_env(**kwargs) -> SuctionDebrisEnv:
     """The parallel environment (the native form); keyword arguments as ``suction_debris_v0.parallel_env``."""
-    environment = SuctionDebrisEnv(**{"task": TASK, **kwargs})
-    environment.metadata = {**environment.metadata, "name": NAME}
-    return environment
+    return SuctionDebrisEnv(**{"task": TASK, **kwargs})
 
 
 raw_env = parallel_env
@@ -59,9 +56,7 @@ def batched_env(num_envs: int = 1, **kwargs):
     """N worlds stepped as arrays (see :mod:`dvrl_marl.envs.suction_debris_batched`)."""
     from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
-    batched = SuctionDebrisBatchedEnv(num_envs, **{"task": TASK, **kwargs})
-    batched.metadata = {**batched.metadata, "name": NAME}
-    return batched
+    return SuctionDebrisBatchedEnv(num_envs, **{"task": TASK, **kwargs})
 
 
 def env(**kwargs):

@@ -170,7 +170,7 @@ def load(name_or_path) -> NumpyPolicy:
 
 def _read_policy_folder(path: Path):
     """Read and check ``policy.json`` + ``policy.npz``: every failure names the file and the field."""
-    from dvrl_marl.files import field, read_json, read_npz
+    from dvrl_marl.files import read_json, read_npz
 
     json_path, npz_path = path / "policy.json", path / "policy.npz"
     spec = read_json(json_path)

@@ -177,15 +177,17 @@ def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partne
 
     operator = operator or PersonLikeOperator(seed, reaction_s=reaction_s)
     operator.reset()
-    env = gym.make(TELEOP_ENV_ID, seat="grasper", partner=partner, max_cycles=int(round(max_seconds / 0.02)))
+    from dvrl_marl.envs.suction_debris_v2 import TASK  # the scene of TELEOP_ENV_ID
+    from dvrl_marl.task import load_task_table
+
+    dt = float(load_task_table(TASK)[1]["control_dt"])
+    env = gym.make(TELEOP_ENV_ID, seat="grasper", partner=partner, max_cycles=int(round(max_seconds / dt)))
     scene = env.unwrapped.scene
-    dt = float(scene.params.control_dt)
     clock = [0.0]
     device = BrowserDevice(clock=lambda: clock[0])
     device.connect()
     device.reset()
     observation, _ = env.reset(seed=seed)
-    outline = None
     view = scene_view(scene, "grasper")
     outline = view["outline"]
     seen = deque([view], maxlen=max(1, int(round(reaction_s / dt))) + 1)

@@ -108,7 +108,7 @@ class MappoConfig:
     __pydantic_config__ = STRICT
 
     name: Text = "suction_debris_mappo"
-    algorithm: Literal["mappo", "ippo"] = "mappo"
+    algorithm: Literal[ALGORITHMS] = "mappo"
     total_steps: PositiveInt = 20_000_000  # parallel env steps (one per world per step)
     num_envs: PositiveInt = 512
     rollout_steps: PositiveInt = 64
@@ -119,7 +119,7 @@ class MappoConfig:
     # policy (a shipped name or a folder), or a list of these (teams.Partners: a share of the worlds each, in
     # training, demonstrations and validation alike; learned partners act with their recorded noise)
     surgeon: Text | list[Text] = "none"
-    surgeon_seat: Literal["grasper", "suction"] = "grasper"
+    surgeon_seat: Literal[suction_debris_v0.AGENTS] = "grasper"
     env: dict[Text, Any] = field(default_factory=lambda: {"reward_type": "dense"})
     # PPO
     learning_rate: Positive = 3e-4
@@ -142,17 +142,17 @@ class MappoConfig:
     final_std: NonNegative = 0.0
     # "gaussian": the tool value (valve / jaw) is a fourth Gaussian dimension; "switch": an open/closed decision
     # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
-    tool_head: Literal["gaussian", "switch"] = "gaussian"
-    initial_tool_logit: dict[Literal["suction", "grasper"], Finite] = field(default_factory=dict)
+    tool_head: Literal[TOOL_HEADS] = "gaussian"
+    initial_tool_logit: dict[Literal[suction_debris_v0.AGENTS], Finite] = field(default_factory=dict)
     # with the switch head, a fixed offset added to an agent's tool logit while its observation says it holds a pin
     # (see held_pin_prior): the grasper's jaw can lean open while it approaches and closed while it carries
-    held_tool_logit: dict[Literal["suction", "grasper"], Finite] = field(default_factory=dict)
+    held_tool_logit: dict[Literal[suction_debris_v0.AGENTS], Finite] = field(default_factory=dict)
     # "": the actors read the observation; a name in dvrl_marl.policies.features.FEATURES: they also read features
     # computed from it (relative targets), and the exported policies compute the same
     observation_features: Text = ""
     # MAPPO's critic input: "state" (the env's state()), or "state_and_observation": the state and the agent's own
     # observation (with its features), one value network per agent (Yu et al. 2022's agent-specific global state)
-    critic_input: Literal["state", "state_and_observation"] = "state"
+    critic_input: Literal[CRITIC_INPUTS] = "state"
     # curriculum
     easy_start: Fraction = 0.0
     anneal_begin: Fraction = 0.0

@@ -71,7 +71,7 @@ class RunConfig:
 
     name: Text
     env_id: Text
-    algorithm: Literal["ddpg", "ddpg_bc", "td3", "sac", "tqc"]
+    algorithm: Literal[ALGORITHMS]
     total_timesteps: PositiveInt
     eval_every: PositiveInt = 2000
     eval_episodes: PositiveInt = 50
