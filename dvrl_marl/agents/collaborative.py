@@ -15,16 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
+
 __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon"]
 
-#: Heights above the phantom top (normalised units are scene-specific, so these are metres, converted in for_env).
-_SAFE_HEIGHT = 0.010
-_PARK_HEIGHT = 0.030
-
-
-def _surgeon_home(base, workspace_range: float, park_z: float) -> np.ndarray:
-    """Where a surgeon waits (normalised): beside its RCM, towards the assistant, at the park height."""
-    return np.array([base[0] - 0.015 / workspace_range, base[1] + 0.02 / workspace_range, park_z])
 
 
 class _Scripted:
@@ -35,8 +29,8 @@ class _Scripted:
         self.layout = layout
         self.slices = observation_layout
         self.gain = layout.gain
-        self.safe_z = layout.phantom_top + _SAFE_HEIGHT / workspace_range
-        self.park_z = layout.phantom_top + _PARK_HEIGHT / workspace_range
+        self.safe_z = layout.phantom_top + SAFE_HEIGHT / workspace_range
+        self.park_z = park_height(layout, workspace_range)
         self.near = 0.001 / workspace_range  # 1 mm
         self.cavity_centres = np.asarray(layout.cavity_centres, dtype=np.float64)  # (C, 2)
         self.threshold = np.asarray(layout.blood_threshold_fraction, dtype=np.float64)
@@ -113,7 +107,7 @@ class ScriptedSuction(_Scripted):
         base = np.asarray(layout.base_positions["suction"][:2])
         distances = [np.linalg.norm(np.asarray(c) - base) for c in layout.cavity_centres]
         self.order = [int(i) for i in np.argsort(distances)[::-1]]  # farthest cavity first
-        self.park = np.array([base[0] + 0.005 / workspace_range, base[1], self.park_z])
+        self.park = suction_parking_place(layout, workspace_range)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         tip = obs[:, self.slices["own_tip"]]
@@ -149,8 +143,7 @@ class ScriptedSurgeon(_Scripted):
 
     def __init__(self, layout, observation_layout, workspace_range: float):
         super().__init__(layout, observation_layout, workspace_range)
-        base = np.asarray(layout.base_positions["grasper"][:2])
-        self.home = _surgeon_home(base, workspace_range, self.park_z)
+        self.home = surgeon_waiting_place(layout, workspace_range)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         n = len(obs)
@@ -293,7 +286,7 @@ class KeepClearSurgeon(_KeepClear):
     def __init__(self, layout, observation_layout, workspace_range: float, hold_height: float = 0.004,
                  margin: float = 0.7):
         super().__init__(layout, observation_layout, workspace_range)
-        self.home = _surgeon_home(self.grasper_base, workspace_range, self.park_z)
+        self.home = surgeon_waiting_place(layout, workspace_range, self.grasper_base)
         self.hold = np.array([0.0, 0.0, hold_height / workspace_range])
         self.margin = float(margin)
 

@@ -19,7 +19,7 @@ from dvrl_marl import assets, kinematics
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
 
-__all__ = ["CollaborativeCore", "AGENTS", "TOOLS", "sample_debris", "segment_distance"]
+__all__ = ["CollaborativeCore", "Cavities", "AGENTS", "TOOLS", "sample_debris", "segment_distance"]
 
 AGENTS = ("suction", "grasper")
 TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
@@ -104,7 +104,7 @@ def _distance(u, v) -> np.ndarray:
     return np.sqrt(_dot(difference, difference))
 
 
-class _Cavities:
+class Cavities:
     """The phantom's cavities as arrays, with the batched forms of :mod:`dvrl_marl.envs.blood`'s geometry."""
 
     def __init__(self, phantom):
@@ -185,7 +185,7 @@ class CollaborativeCore:
         self.num_worlds = n = int(num_worlds)
         p = self.params = template.params
         self.sparse = template.reward_type == "sparse"
-        self.cavities = _Cavities(template.phantom)
+        self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
         self.inverse_range = 1.0 / p.workspace_range
@@ -214,6 +214,7 @@ class CollaborativeCore:
         self.hold_offset = np.zeros((n, 3))
         self.grip_offset = np.zeros((n, 3))  # where the jaws hold the held pin, from the tip (v2's hand-off)
         self.elapsed = np.zeros(n, dtype=np.int64)
+        self.limit = np.full(n, p.max_cycles, dtype=np.int64)  # each episode's time limit (start levels shorten it)
         self.contact = np.zeros(n, dtype=bool)
         self.complete = np.zeros(n, dtype=bool)
         self.work_distance = {agent: np.zeros(n) for agent in AGENTS}
@@ -281,6 +282,7 @@ class CollaborativeCore:
         self.holding[indices] = -1
         self.hold_offset[indices] = 0.0
         self.elapsed[indices] = 0
+        self.limit[indices] = self.params.max_cycles
         self.contact[indices] = False
         self.complete[indices] = False
         for agent in AGENTS:
@@ -365,7 +367,7 @@ class CollaborativeCore:
         self.elapsed += 1
         self.contact = contact
         self.complete = self._complete()
-        truncated = (self.elapsed >= self.params.max_cycles) & ~self.complete
+        truncated = (self.elapsed >= self.limit) & ~self.complete
         rewards = self._rewards(removed, lifted, delivered, contact)
         return rewards, self.complete.copy(), truncated
 

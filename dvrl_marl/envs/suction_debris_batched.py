@@ -52,7 +52,10 @@ import numpy as np
 
 from dvrl_marl.core.collaborative import AGENTS, CollaborativeCore
 from dvrl_marl.core.worlds import check_action_batch
+from dvrl_marl.envs import start_levels
+from dvrl_marl.envs.guidance import GuidedReward, OverRims
 from dvrl_marl.envs.suction_debris_v0 import SuctionDebrisEnv, env_name
+from dvrl_marl.policies import features
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES"]
 
@@ -95,6 +98,14 @@ class SuctionDebrisBatchedEnv:
         self.state_space = self.template.state_space
         self.workspace_range = self.template.workspace_range
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
+        # Options that help learning (issue 37; validated by the template): features, start levels, guided reward.
+        self.feature_spec = self.template.feature_spec
+        self.levels = np.full(self.num_envs, self.template.start_level)  # each world's start level
+        self._level_rngs = [start_levels.level_generator(None) for _ in range(self.num_envs)]
+        self._rims = None  # the way around the rims, for easy starts that recede (built on first use)
+        self._guided = (GuidedReward(self.template, self.possible_agents, self.template.guidance)
+                        if reward_type == "guided" else None)
+        self._potential = None
 
     def _bind_surgeon(self, surgeon, seat):
         if surgeon is None:
@@ -133,13 +144,25 @@ class SuctionDebrisBatchedEnv:
         blood_ml = options.pop("blood_ml", None)
         tips = options.pop("tip_positions", None)
         debris_count = options.pop("debris_count", None)
+        level = options.pop("level", None)
         if options:
             raise ValueError(f"{self.name}: unknown reset option(s) {sorted(options)}; "
-                             "known: ['blood_ml', 'debris_count', 'reset_mask', 'tip_positions']")
+                             "known: ['blood_ml', 'debris_count', 'level', 'reset_mask', 'tip_positions']")
         worlds = self.core.worlds_of(mask)
         if blood_ml is not None and np.ndim(blood_ml) == 2 and np.shape(blood_ml)[0] == self.num_envs:
             blood_ml = np.asarray(blood_ml)[worlds]
-        self.core.reset(worlds, seed=seed, blood_ml=blood_ml)
+        if level is not None:  # these worlds' level, for this and their later episodes (until set again)
+            self.levels[worlds] = self._checked_levels(level)[worlds]
+        if seed is not None:
+            self.core.random.seed(seed)  # (validates the seed before anything is drawn)
+            self._seed_levels(seed)
+        if np.any(self.levels[worlds] < start_levels.DEFAULT):
+            if blood_ml is not None or debris_count is not None or tips is not None:
+                raise ValueError(f"{self.name}: a level below 1 draws blood, debris and starts itself; pass "
+                                 "blood_ml / debris_count / tip_positions or level, not both")
+            self._start_at_levels(worlds)
+        else:
+            self.core.reset(worlds, blood_ml=blood_ml)
         if debris_count is not None:
             count = np.asarray(debris_count)
             self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
@@ -150,8 +173,77 @@ class SuctionDebrisBatchedEnv:
                                           for agent, value in tips.items()})
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._surgeon.reset()
+        self._restart_potential()
         info = self.core.info()
         return self.observations(), {agent: dict(info) for agent in self.agents}
+
+    def _start_episodes(self, worlds: np.ndarray) -> None:
+        """Automatic resets of ``worlds``, at their levels."""
+        if np.any(self.levels[worlds] < start_levels.DEFAULT):
+            self._start_at_levels(worlds)
+        else:
+            self.core.reset(worlds)
+        self._restart_potential()
+
+    def set_start_level(self, level, worlds=None) -> None:
+        """The start level (:mod:`dvrl_marl.envs.start_levels`) of the next episodes of ``worlds`` (default all; a
+        mask or indices), automatic resets included: for a library's curriculum that cannot pass reset options."""
+        worlds = self.core.worlds_of(worlds)
+        self.levels[worlds] = self._checked_levels(level)[worlds]
+
+    def _checked_levels(self, level) -> np.ndarray:
+        """(N,) levels from one level or one per world."""
+        if isinstance(level, (list, tuple, np.ndarray)):
+            values = list(level)
+            if len(values) != self.num_envs:
+                raise ValueError(f"{self.name}: level needs one value or one per world ({self.num_envs}), "
+                                 f"got {len(values)}")
+            return np.array([start_levels.checked_level(v, f"{self.name}: level") for v in values])
+        return np.full(self.num_envs, start_levels.checked_level(level, f"{self.name}: level"))
+
+    def _seed_levels(self, seed) -> None:
+        """World i's level stream: a single env's reset with seed + i (or the i-th of a list of seeds)."""
+        seeds = [int(s) for s in seed] if hasattr(seed, "__iter__") and not isinstance(seed, (str, bytes)) else [
+            int(seed) + i for i in range(self.num_envs)]
+        self._level_rngs = [start_levels.level_generator(s) for s in seeds]
+
+    def _start_at_levels(self, worlds: np.ndarray) -> None:
+        """New episodes for ``worlds`` at their levels (easy starts: :mod:`dvrl_marl.envs.start_levels`)."""
+        core, params = self.core, self.params
+        draws = {}
+        for world in worlds.tolist():
+            if self.levels[world] < start_levels.DEFAULT:
+                draws[world] = start_levels.draw(self._level_rngs[world], float(self.levels[world]), params.blood_ml,
+                                                 params.debris_count)
+        blood = np.tile(np.asarray(params.blood_ml, dtype=np.float64), (len(worlds), 1))
+        for row, world in enumerate(worlds.tolist()):
+            if world in draws:
+                blood[row] = draws[world].blood_ml
+        core.reset(worlds, blood_ml=blood)
+        easy = [world for world, drawn in draws.items() if drawn.easy]
+        if not easy:
+            return
+        easy = np.array(easy)
+        core.limit_debris(easy, np.array([draws[world].debris_count for world in easy.tolist()]))
+        core.limit[easy] = min(params.max_cycles, start_levels.EASY_EPISODES.episode_steps)
+        if self._rims is None:
+            self._rims = OverRims(core.cavities)
+        grasper = core.arms["grasper"]
+        for world in easy.tolist():
+            pending = core.visible[world] & ~core.delivered[world]
+            target = start_levels.grasper_start(self._level_rngs[world], core.debris_position[world], pending,
+                                                grasper.tip[world] + grasper.base_position, draws[world].reach,
+                                                self._rims)
+            if target is None:
+                continue
+            try:
+                core.place_tips([world], {"grasper": target[None]})
+            except ValueError:
+                pass  # that start is not possible (unreachable, or into the other instrument): the ordinary one
+
+    def _restart_potential(self) -> None:
+        if self._guided is not None:
+            self._potential = self._guided.potentials(self.core.state(), self.core.remaining_ml)
 
     def set_tip_positions(self, tips: dict, worlds=None) -> None:
         """Move tips at the start of an episode, keeping everything else of it (for curricula that start an arm
@@ -162,6 +254,7 @@ class SuctionDebrisBatchedEnv:
             raise ValueError(f"{self.name}: tip positions must be a dict {{agent: (num_envs, 3) metres}}")
         self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip positions of {agent!r}")
                                       for agent, value in tips.items()})
+        self._restart_potential()
 
     def _rows(self, value, worlds, name):
         value = np.asarray(value, dtype=np.float64)
@@ -177,6 +270,11 @@ class SuctionDebrisBatchedEnv:
             commands[seat] = check_action_batch(self._surgeon(core.observation(seat)), self.num_envs, 4,
                                                 f"{self.name}: surgeon in seat {seat!r}")
         rewards, terminated, truncated = core.step(commands)
+        if self._guided is not None:  # the guided terms' change over the step (potential-based)
+            potential = self._guided.potentials(core.state(), core.remaining_ml)
+            for agent in rewards:
+                rewards[agent] = rewards[agent] + (potential[agent] - self._potential[agent])
+            self._potential = potential
         observations = self.observations()
         info = core.info()
         infos = {agent: dict(info) for agent in self.agents}
@@ -185,7 +283,7 @@ class SuctionDebrisBatchedEnv:
             final_state = core.state()
             for agent in self.agents:
                 infos[agent].update(final_observation=observations[agent], final_state=final_state, _final=done)
-            core.reset(done)
+            self._start_episodes(np.flatnonzero(done))
             observations = self.observations()
         terminations = {agent: terminated.copy() for agent in self.agents}
         truncations = {agent: truncated.copy() for agent in self.agents}
@@ -194,7 +292,9 @@ class SuctionDebrisBatchedEnv:
     def observations(self) -> dict:
         """The current observations of every world, ``{agent: (N, obs_dim)}`` (after ``set_tip_positions``, or
         several masked resets in a row)."""
-        return {agent: self.core.observation(agent) for agent in self.agents}
+        if self.feature_spec is None:
+            return {agent: self.core.observation(agent) for agent in self.agents}
+        return {agent: features.apply(self.feature_spec, self.core.observation(agent)) for agent in self.agents}
 
 
     def state(self) -> np.ndarray:

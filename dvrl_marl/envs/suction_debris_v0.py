@@ -60,14 +60,26 @@ fractions, every debris with its true position (hidden ones included) and flags,
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
 ``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and
-10 x the decrease of each agent's own distance (m) to what it should work on next (potential-based shaping). Both: each agent in an
-instrument-instrument contact gets ``-contact_penalty``.
+10 x the decrease of each agent's own distance (m) to what it should work on next (potential-based shaping).
+``"guided"``: the dense reward plus the potential-based terms that made the task learnable from scratch
+(:mod:`dvrl_marl.envs.guidance`: the grasper's path over a pin to the hand-off, centred grasps, a hold bonus and a
+waiting place; the suction's route over the cavities still to clear, a clearing bonus and a parking place; all
+measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.envs.guidance.Guidance`,
+defaults: the configuration of record). Potential-based terms leave the optimal policy unchanged, and success is
+the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``.
 
 ## Starting State
 Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper jaw open, valve closed; blood
 ``blood_ml`` per cavity; ``debris_count`` pins placed at seeded random slots and orientations on the cavity
 floors, hidden under the blood. ``reset(options={"blood_ml": [v0, v1]})`` sets the blood for that episode (and
 the ones after it); other keys are ignored with a warning.
+
+Start levels (:mod:`dvrl_marl.envs.start_levels`): ``reset(options={"level": x})`` (``start_level=x`` when made;
+``"easy"`` = 0, ``"default"`` = 1, the default) draws an easy episode with probability ``1 - x``: cavities
+emptier, fewer debris, the grasper starting near a visible pin (receding from it as ``x`` rises), 300 steps at
+most. Level 1 is the default task, bit for bit. The level holds for later episodes until set again, so a
+library's curriculum can drive it at each reset (the batched env also takes one level per world, and
+``set_start_level``).
 
 ## Episode End
 Complete (every cavity below ``blood_threshold_ml`` and every debris delivered): all agents terminate.
@@ -81,6 +93,11 @@ real time at 50 Hz), ``max_cycles``,
 ``blood_ml``, ``blood_threshold_ml``, ``suction_rate_ml_s``, ``debris_count``, ``contact_penalty``,
 ``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
 ``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris.toml``.
+Options that help learning (issue 37; off by default): ``reward_type="guided"`` and ``guidance``,
+``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.policies.features.FEATURES`): each
+agent's observation gets those features appended (relative targets computed from the observation alone: the pin
+to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
+ones the learned seats read.
 
 ## Batched form
 ``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
@@ -91,6 +108,8 @@ rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s``
 - v0: initial release. The batched form (same trajectories) was added without a version change.
   ``render_mode="human"`` became a window of the project's own, drawn in ``step()`` and paced to 50 Hz, with ENTER
   to start for a person's device (frames and timing only: trajectories are unchanged).
+  Options added without a version change, their defaults the published behaviour (issue 37):
+  ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option.
 """
 
 from __future__ import annotations
@@ -125,7 +144,11 @@ from dvrl_marl.core.collaborative import (
     WRIST_RADIUS as _WRIST_RADIUS,
     sample_debris,
 )
+from dvrl_marl.core.collaborative import Cavities
+from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
+from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
+from dvrl_marl.policies import features
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
 from dvrl_marl.rendering import SceneRenderer, render_modes_here
 from dvrl_marl.teleop.pacing import PacedDisplay
@@ -138,6 +161,21 @@ __all__ = ["parallel_env", "env", "raw_env", "batched_env", "SuctionDebrisEnv", 
 _TOOLS = TOOLS
 _PREFIX = {"suction": "suction/", "grasper": "grasper/"}
 _OBS_POSITION_BOUND = 10.0
+#: "guided": the dense reward plus the guided terms (:mod:`dvrl_marl.envs.guidance`).
+REWARD_TYPES = ("sparse", "dense", "guided")
+
+
+def _guidance_settings(values, owner: str) -> Guidance:
+    """``guidance`` (a dict of :class:`Guidance` fields, or None for the defaults), checked."""
+    if values is None:
+        return Guidance()
+    if isinstance(values, Guidance):
+        return values
+    from dvrl_marl.schemas import validated
+
+    if not isinstance(values, dict):
+        raise ValueError(f"{owner}: guidance must be a dict of Guidance settings, got {type(values).__name__}")
+    return validated(Guidance, values, f"{owner}: guidance")
 
 
 @dataclass(frozen=True)
@@ -302,14 +340,17 @@ class SuctionDebrisEnv(ParallelEnv):
         width: int = 640,
         height: int = 480,
         task: str = "suction_debris",
+        guidance: dict | None = None,
+        observation_features: str = "",
+        start_level: float | str = 1.0,
         **params,
     ):
         #: The environment's name (its version), as its messages say it.
         self.name = env_name(Path(task).stem)
         self.metadata = {**self.metadata, "name": self.name,
                          "render_modes": render_modes_here(("human", "rgb_array"))}  # (the display now)
-        if reward_type not in ("sparse", "dense"):
-            raise ValueError(f"{self.name}: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+        if reward_type not in REWARD_TYPES:
+            raise ValueError(f"{self.name}: reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
         if render_mode is not None and render_mode not in ("human", "rgb_array"):
             raise ValueError(f"{self.name}: render_mode must be 'human' or 'rgb_array', got {render_mode!r}")
         if surgeon_seat not in AGENTS:
@@ -365,6 +406,12 @@ class SuctionDebrisEnv(ParallelEnv):
         self._observation_space = spaces.Box(
             -_OBS_POSITION_BOUND, _OBS_POSITION_BOUND, shape=(obs_dim,), dtype=np.float64
         )
+        self.feature_spec = self._feature_spec(observation_features, p.debris_count)
+        if self.feature_spec is not None:  # appended after the plain observation (differences of positions: twice the bound)
+            count = features.feature_count(observation_features)
+            self.observation_layout["features"] = slice(obs_dim, obs_dim + count)
+            low = np.concatenate([np.full(obs_dim, -_OBS_POSITION_BOUND), np.full(count, -2 * _OBS_POSITION_BOUND)])
+            self._observation_space = spaces.Box(low, -low, dtype=np.float64)
         self._action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self._observation_spaces = {a: self._observation_space for a in AGENTS}
         self._action_spaces = {a: self._action_space for a in AGENTS}
@@ -395,6 +442,17 @@ class SuctionDebrisEnv(ParallelEnv):
         self._episodes = 0  # episodes begun (reset() calls)
         self._held = None  # the held pin's index (cues and renders may come before the first reset)
         self._hold_offset = self._grip_offset = (0.0, 0.0, 0.0)
+        # Options that help learning (issue 37): start levels, the guided reward.
+        self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
+        self._level_rng = start_levels.level_generator(None)
+        self._limit = p.max_cycles  # this episode's time limit (an easy start shortens it)
+        self._rims = None  # the way around the rims (guidance.OverRims), for easy starts that recede
+        if guidance is not None and reward_type != "guided":
+            raise ValueError(f"{self.name}: guidance settings need reward_type='guided', got {reward_type!r}")
+        #: the guided reward's settings (:class:`dvrl_marl.envs.guidance.Guidance`; None unless reward_type="guided")
+        self.guidance = _guidance_settings(guidance, self.name) if reward_type == "guided" else None
+        self._guided = GuidedReward(self, self.possible_agents, self.guidance) if self.guidance is not None else None
+        self._potential = None
 
     # --- construction helpers -----------------------------------------------------------------------------
     def _hide_unused_debris(self) -> None:
@@ -478,9 +536,24 @@ class SuctionDebrisEnv(ParallelEnv):
             raise ValueError(f"{self.name}: options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
         blood_ml = options.pop("blood_ml", None)
+        level = options.pop("level", None)
         if options:  # PettingZoo's own API test passes arbitrary options, so unknown ones warn rather than raise
-            warnings.warn(f"{self.name}: ignoring unknown reset option(s) {sorted(options)}; known: ['blood_ml']",
-                          stacklevel=2)
+            warnings.warn(f"{self.name}: ignoring unknown reset option(s) {sorted(options)}; known: "
+                          "['blood_ml', 'level']", stacklevel=2)
+        if seed is not None:
+            self._level_rng = start_levels.level_generator(seed)
+        if level is not None:  # this episode's and the later ones' (until set again)
+            self.start_level = start_levels.checked_level(level, f"{self.name}: reset option level")
+        drawn = None
+        if self.start_level < start_levels.DEFAULT:
+            if blood_ml is not None:
+                raise ValueError(f"{self.name}: a level below 1 draws the blood itself; pass blood_ml or level, "
+                                 "not both")
+            drawn = start_levels.draw(self._level_rng, self.start_level, self.params.blood_ml, self.params.debris_count)
+            blood_ml = drawn.blood_ml
+            self._level_blood = True
+        elif getattr(self, "_level_blood", False) and blood_ml is None:  # back to the task's blood after easy starts
+            blood_ml, self._level_blood = self.params.blood_ml, False
         if blood_ml is not None:
             self.blood = BloodState(self.phantom, [float(v) for v in np.atleast_1d(blood_ml)], self.params.suction_rate_ml_s)
         mujoco.mj_resetData(self.model, self.data)
@@ -505,9 +578,14 @@ class SuctionDebrisEnv(ParallelEnv):
         self._contact = False
         self._blocked = {agent: False for agent in AGENTS}
         self._drawn_ml = 0.0
+        self._limit = self.params.max_cycles
+        if drawn is not None and drawn.easy:
+            self._start_easy(drawn)
         self.agents = list(self.possible_agents)
         self._episodes += 1
         self._work_distances = {agent: self._work_distance(agent) for agent in AGENTS}
+        if self._guided is not None:
+            self._potential = self._guided.potentials(self.state()[None], np.asarray(self.blood.remaining_ml)[None])
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
         if self._display is not None:
@@ -546,8 +624,13 @@ class SuctionDebrisEnv(ParallelEnv):
         self._contact = contact
 
         complete = self._complete()
-        truncated = self._step_count >= p.max_cycles and not complete
+        truncated = self._step_count >= self._limit and not complete
         rewards = self._rewards(removed, lifted, delivered, complete, contact)
+        if self._guided is not None:  # the guided terms' change over the step (potential-based)
+            potential = self._guided.potentials(self.state()[None], np.asarray(self.blood.remaining_ml)[None])
+            for agent in rewards:
+                rewards[agent] += float(potential[agent][0] - self._potential[agent][0])
+            self._potential = potential
         observations = {agent: self._observe(agent) for agent in self.agents}
         infos = {agent: self._info(contact, complete) for agent in self.agents}
         if teleop_lost:
@@ -1010,8 +1093,37 @@ class SuctionDebrisEnv(ParallelEnv):
         threshold = self.params.blood_threshold_ml
         return all(v < threshold or v <= 0.0 for v in self.blood.remaining_ml) and all(p.delivered for p in self.debris)
 
+    def _start_easy(self, start) -> None:
+        """An easy start (:mod:`dvrl_marl.envs.start_levels`): some debris out of play, the episode shorter, the
+        grasper's tip near a visible pin (kept where it was when that start is not possible)."""
+        for index in range(start.debris_count, len(self.debris)):
+            pin = self.debris[index]
+            pin.delivered, pin.visible = True, False
+            self._sync_debris(index)
+        self._limit = min(self.params.max_cycles, start_levels.EASY_EPISODES.episode_steps)
+        if self._rims is None:
+            self._rims = OverRims(Cavities(self.phantom))
+        pins = np.array([pin.position for pin in self.debris])
+        pending = np.array([pin.visible and not pin.delivered for pin in self.debris])
+        arm = self.arms["grasper"]
+        target = start_levels.grasper_start(self._level_rng, pins, pending, arm.tip_world(), start.reach, self._rims)
+        if target is None:
+            return
+        low, high = self._low, self._high
+        if (any(v < lo - 1e-12 or v > hi + 1e-12 for v, lo, hi in zip(target, low, high))
+                or target[2] < self._floor(target[0], target[1]) - 1e-12):
+            return
+        previous = list(arm.tip)
+        try:
+            arm.set_tip(*arm.to_base(target).tolist())
+        except kinematics.UnreachableError:
+            arm.set_tip(*previous)
+            return
+        if self._instrument_distance() < 0.0:
+            arm.set_tip(*previous)
+
     def _rewards(self, removed, lifted, delivered, complete, contact) -> dict:
-        if self.reward_type == "sparse":
+        if self.reward_type == "sparse":  # ("guided": the dense reward, the guided terms added in step)
             team = 0.0 if complete else -1.0
             rewards = {agent: team for agent in self.agents}
         else:
@@ -1039,6 +1151,17 @@ class SuctionDebrisEnv(ParallelEnv):
         targets = [pin.position for pin in self.debris if pin.visible and not pin.delivered]
         return min((math.dist(tip, t) for t in targets), default=0.0)
 
+    def _feature_spec(self, name: str, debris: int):
+        """The ``observation_features`` option's spec (None without it)."""
+        if not isinstance(name, str):
+            raise ValueError(f"{self.name}: observation_features must be a feature set's name or '', got {name!r}")
+        if not name:
+            return None
+        try:
+            return features.spec(name, self.layout(), debris)
+        except ValueError as error:
+            raise ValueError(f"{self.name}: observation_features: {error}") from None
+
     def _observe(self, agent) -> np.ndarray:
         own = self.arms[agent]
         other = self.arms["grasper" if agent == "suction" else "suction"]
@@ -1052,6 +1175,8 @@ class SuctionDebrisEnv(ParallelEnv):
                 values += (0.0, 0.0, 0.0)
             values += (float(pin.visible), float(pin.held), float(pin.delivered))
         values += self._norm(*self.handoff)
+        if self.feature_spec is not None:
+            return features.apply(self.feature_spec, np.array(values))  # the observation, the features appended
         return np.array(values)
 
     def _info(self, contact: bool, complete: bool) -> dict:

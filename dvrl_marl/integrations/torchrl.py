@@ -11,7 +11,14 @@ Agents are grouped as TorchRL and BenchMARL expect: ``("agents", "observation")`
 ``state`` ``(N, state_dim)`` beside them for a centralised (MAPPO) critic, and the team's ``done`` /
 ``terminated`` / ``truncated`` ``(N, 1)``. Agents are in ``env.agent_names`` order. Tensors are float32 (what
 TorchRL's modules take); the core computes in float64. Worlds are reset by TorchRL's ``"_reset"`` mask (the
-core's autoreset is off), each from its own seed stream. Needs ``pip install torchrl``.
+core's autoreset is off), each from its own seed stream. ``is_success`` ``(N, 1)`` says which worlds completed
+the task this step. Needs ``pip install torchrl``.
+
+The env's options that help learning (issue 37) pass through like any other keyword: ``reward_type="guided"``,
+``observation_features=...``, ``start_level=...``. A curriculum sets the level of the next episodes with
+:meth:`SuctionDebrisTorchRLEnv.set_start_level`, or per reset with a ``"level"`` entry ``(N,)`` beside
+``"_reset"``. ``group_map`` is ``{"agents": agent_names}`` (BenchMARL's grouping;
+:mod:`dvrl_marl.integrations.benchmarl` ships the task).
 """
 
 from __future__ import annotations
@@ -62,14 +69,25 @@ class SuctionDebrisTorchRLEnv(EnvBase):
             shape=(n,),
         )
         flag = Categorical(2, shape=(n, 1), dtype=torch.bool, device=device)
+        self.observation_spec["is_success"] = flag.clone()
         self.done_spec = Composite(done=flag.clone(), terminated=flag.clone(), truncated=flag.clone(), shape=(n,))
         self._seed = seed
+
+    @property
+    def group_map(self) -> dict:
+        """Every agent in one group, ``"agents"`` (the keys of the tensordicts)."""
+        return {"agents": list(self.agent_names)}
+
+    def set_start_level(self, level, worlds=None) -> None:
+        """The start level of the next episodes (see :mod:`dvrl_marl.envs.start_levels`)."""
+        self.batched.set_start_level(level, worlds)
 
     def _tensor(self, array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.asarray(array, dtype=np.float32), device=self.device)
 
     def _observation(self) -> dict:
-        stacked = np.stack([self.batched.core.observation(agent) for agent in self.agent_names], axis=1)
+        observations = self.batched.observations()
+        stacked = np.stack([observations[agent] for agent in self.agent_names], axis=1)
         agents = TensorDict({"observation": self._tensor(stacked)}, batch_size=stacked.shape[:2], device=self.device)
         return {"agents": agents, "state": self._tensor(self.batched.state())}
 
@@ -78,21 +96,25 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(self.batch_size).cpu().numpy()
         seed, self._seed = self._seed, None
-        options = None if mask is None else {"reset_mask": mask}
-        self.batched.reset(seed=seed, options=options)
+        options = {} if mask is None else {"reset_mask": mask}
+        if tensordict is not None and "level" in tensordict.keys():
+            options["level"] = tensordict.get("level").reshape(self.batch_size).cpu().numpy().astype(np.float64)
+        self.batched.reset(seed=seed, options=options or None)
         flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=self.device)
-        return TensorDict({**self._observation(), "done": flags, "terminated": flags.clone(),
-                           "truncated": flags.clone()}, batch_size=self.batch_size, device=self.device)
+        return TensorDict({**self._observation(), "is_success": flags.clone(), "done": flags,
+                           "terminated": flags.clone(), "truncated": flags.clone()}, batch_size=self.batch_size,
+                          device=self.device)
 
     def _step(self, tensordict):
         action = tensordict.get(("agents", "action")).detach().cpu().numpy().astype(np.float64)
         actions = {agent: action[:, index] for index, agent in enumerate(self.agent_names)}
-        _, rewards, terminations, truncations, _ = self.batched.step(actions)
+        _, rewards, terminations, truncations, infos = self.batched.step(actions)
         reward = np.stack([rewards[agent] for agent in self.agent_names], axis=1)[..., None]
         terminated = torch.as_tensor(terminations[self.agent_names[0]], device=self.device)[:, None]
         truncated = torch.as_tensor(truncations[self.agent_names[0]], device=self.device)[:, None]
         out = self._observation()
         out["agents"].set("reward", self._tensor(reward))
+        out["is_success"] = torch.as_tensor(infos[self.agent_names[0]]["is_success"], device=self.device)[:, None]
         return TensorDict({**out, "done": terminated | truncated, "terminated": terminated, "truncated": truncated},
                           batch_size=self.batch_size, device=self.device)
 

@@ -86,6 +86,8 @@ class NumpyPolicy:
             from dvrl_marl.policies import features
 
             return features.apply(self.spec["features"], x)
+        if self._feature_count and x.shape[-1] == expected + self._feature_count:
+            return x  # an env made with observation_features appended them already
         if x.shape[-1] != expected:  # a policy meeting an env it was not made for (or a hand-edited file)
             raise ValueError(f"policy {self.name!r} ({self.spec.get('env_id', 'unknown env')}) reads {expected} "
                              f"observation features, got {x.shape[-1]}")

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
+__all__ = ["spec", "suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
            "suction_debris_cleared_pins_zoom", "routes_geometry", "feature_count", "apply", "FEATURES"]
 
 #: A distance no pin in the normalised workspace reaches (masked slots).
@@ -100,6 +100,17 @@ def suction_debris_targets(observation, *, cavities: int, debris: int):
     carry = (handoff - held_position) * ops.as_float(holding)[..., None]
     return ops.concatenate([to_pin, ops.as_float(has_pin)[..., None], ops.as_float(holding)[..., None], carry,
                             handoff - tip, other - tip])
+
+
+def spec(name: str, layout, debris: int) -> dict:
+    """The feature set ``name`` for a scene: its name, the observation's layout (cavities, debris slots) and, for the
+    sets that need it, the scene's fixed geometry (``layout``: an env's ``layout()``). What :func:`apply` takes, what
+    an exported policy records, and what the env's ``observation_features`` option computes."""
+    feature_count(name)
+    out = {"name": name, "cavities": len(layout.cavity_centres), "debris": int(debris)}
+    if name in NEEDS_GEOMETRY:
+        out.update(routes_geometry(layout))
+    return out
 
 
 def routes_geometry(layout) -> dict:

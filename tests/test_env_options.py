@@ -1,0 +1,228 @@
+"""The collaborative env's options that help learning (issue 37): start levels, the guided reward, observation
+features; in the single, AEC, batched and TorchRL forms, the same episodes in each."""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dvrl_marl.envs import start_levels, suction_debris_v0
+from dvrl_marl.envs.guidance import Guidance, GuidedReward
+from dvrl_marl.policies import features
+
+OPTIONS = dict(reward_type="guided", observation_features="suction_debris_cleared_pins_zoom")
+
+
+def _run_side_by_side(levels, steps, num_envs=3, seed=10, **kwargs):
+    """The batched env against single envs seeded seed + i, same random actions; returns the largest differences
+    of observations and rewards, and how many episodes ended."""
+    batched = suction_debris_v0.batched_env(num_envs=num_envs, **kwargs)
+    batched.reset(seed=seed, options={"level": levels})
+    singles = [suction_debris_v0.parallel_env(**kwargs) for _ in range(num_envs)]
+    for index, single in enumerate(singles):
+        single.reset(seed=seed + index, options={"level": levels[index]})
+    rng = np.random.default_rng(0)
+    worst_observation = worst_reward = 0.0
+    ended = 0
+    for _ in range(steps):
+        actions = {agent: rng.uniform(-1, 1, (num_envs, 4)) for agent in batched.agents}
+        observations, rewards, terminations, truncations, _ = batched.step(actions)
+        for index, single in enumerate(singles):
+            obs, reward, term, trunc, _ = single.step({agent: actions[agent][index] for agent in single.agents})
+            assert term["suction"] == terminations["suction"][index]
+            assert trunc["suction"] == truncations["suction"][index]
+            for agent in batched.agents:
+                worst_reward = max(worst_reward, abs(reward[agent] - rewards[agent][index]))
+            if term["suction"] or trunc["suction"]:
+                ended += 1
+                obs, _ = single.reset()
+            for agent in batched.agents:
+                worst_observation = max(worst_observation, float(np.abs(obs[agent] - observations[agent][index]).max()))
+    return worst_observation, worst_reward, ended
+
+
+def test_single_and_batched_start_the_same_episodes_at_every_level():
+    """Easy starts (300-step episodes, autoreset at their level) with the guided reward and features: the batched
+    worlds are the single envs, seeded seed + i, bit for bit (rewards to float rounding)."""
+    observation, reward, ended = _run_side_by_side([0.0, 0.4, 1.0], 650, **OPTIONS)
+    assert observation == 0.0
+    assert reward < 1e-9
+    assert ended >= 4  # the easy worlds' 300-step episodes ended twice each, at least
+
+
+def test_level_one_is_the_default_task_bit_for_bit():
+    default = suction_debris_v0.batched_env(num_envs=2, reward_type="dense")
+    levelled = suction_debris_v0.batched_env(num_envs=2, reward_type="dense", start_level="default")
+    a, _ = default.reset(seed=3)
+    b, _ = levelled.reset(seed=3, options={"level": 1.0})
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        actions = {agent: rng.uniform(-1, 1, (2, 4)) for agent in default.agents}
+        a, ra, *_ = default.step(actions)
+        b, rb, *_ = levelled.step(actions)
+        for agent in default.agents:
+            assert np.array_equal(a[agent], b[agent]) and np.array_equal(ra[agent], rb[agent])
+
+
+def test_easy_episodes_are_easier_and_shorter():
+    env = suction_debris_v0.batched_env(num_envs=64, start_level="easy", autoreset_mode="disabled")
+    env.reset(seed=0)
+    core = env.core
+    in_play = (~core.delivered).sum(axis=1)
+    assert in_play.min() >= 1 and in_play.max() <= env.params.debris_count and in_play.min() < in_play.max()
+    assert np.all(core.remaining_ml <= np.asarray(env.params.blood_ml) + 1e-12)
+    assert (core.remaining_ml == 0.0).mean() > 0.3  # half of the cavities start empty
+    assert np.all(core.limit == 300)
+    # the grasper starts just above a visible pin (level 0: nowhere back along the way)
+    tip = core.arms["grasper"].tip + core.arms["grasper"].base_position
+    visible = core.visible & ~core.delivered
+    near = [np.linalg.norm(core.debris_position[w][visible[w]] - tip[w], axis=1).min() < 0.004
+            for w in range(env.num_envs) if visible[w].any()]
+    assert len(near) > 32 and np.mean(near) > 0.9
+    # the episode ends at 300 steps, truncated
+    for _ in range(300):
+        _, _, terminations, truncations, _ = env.step({agent: np.zeros((64, 4)) for agent in env.agents})
+    assert np.all(truncations["suction"] | terminations["suction"])
+
+
+@settings(max_examples=15, deadline=None)
+@given(level=st.floats(0.0, 1.0), seed=st.integers(0, 2**31 - 1))
+def test_starts_at_any_level_keep_the_tips_in_the_workspace_and_above_the_surface(level, seed):
+    env = suction_debris_v0.batched_env(num_envs=8, start_level=level, autoreset_mode="disabled")
+    observations, _ = env.reset(seed=seed)
+    core = env.core
+    for agent in env.agents:
+        assert np.all(np.abs(observations[agent][:, 0:3]) <= 1.0 + 1e-9)
+        tip = core.arms[agent].tip + core.arms[agent].base_position
+        assert np.all(tip[:, 2] >= core._floor(tip[:, 0], tip[:, 1]) - 1e-9)  # noqa: SLF001 (the core's own rule)
+    assert np.all(core._instrument_distance() >= 0.0)  # noqa: SLF001
+
+
+def test_guided_reward_is_the_dense_reward_plus_the_change_of_its_potential():
+    dense = suction_debris_v0.parallel_env(reward_type="dense")
+    guided = suction_debris_v0.parallel_env(reward_type="guided")
+    terms = GuidedReward(guided, guided.possible_agents, Guidance())
+    dense.reset(seed=5, options={"level": 0.0})
+    guided.reset(seed=5, options={"level": 0.0})
+
+    def potential():
+        return terms.potentials(guided.state()[None], np.asarray(guided.blood.remaining_ml)[None])
+
+    before = potential()
+    rng = np.random.default_rng(2)
+    extra = {agent: 0.0 for agent in guided.agents}
+    for _ in range(120):
+        actions = {agent: rng.uniform(-1, 1, 4).astype(np.float32) for agent in guided.agents}
+        _, rd, *_ = dense.step(actions)
+        _, rg, *_ = guided.step(actions)
+        for agent in extra:
+            extra[agent] += rg[agent] - rd[agent]
+    after = potential()
+    for agent in extra:  # the guided terms telescope
+        assert extra[agent] == pytest.approx(float(after[agent][0] - before[agent][0]), abs=1e-9)
+    assert any(abs(v) > 1e-3 for v in extra.values())
+
+
+def test_guided_reward_leaves_a_seat_filled_by_a_partner_alone():
+    env = suction_debris_v0.batched_env(num_envs=2, surgeon="scripted", reward_type="guided",
+                                        guidance={"suction_route": 0.0, "clear_bonus": 0.0})
+    env.reset(seed=0)
+    assert env.agents == ["suction"]
+    _, rewards, *_ = env.step({"suction": np.zeros((2, 4))})
+    dense = suction_debris_v0.batched_env(num_envs=2, surgeon="scripted", reward_type="dense")
+    dense.reset(seed=0)
+    _, expected, *_ = dense.step({"suction": np.zeros((2, 4))})
+    assert np.allclose(rewards["suction"], expected["suction"])
+
+
+def test_observation_features_are_appended_and_match_what_a_policy_computes():
+    plain = suction_debris_v0.parallel_env()
+    extended = suction_debris_v0.parallel_env(observation_features="suction_debris_routes")
+    a, _ = plain.reset(seed=1)
+    b, _ = extended.reset(seed=1)
+    spec = features.spec("suction_debris_routes", plain.layout(), plain.params.debris_count)
+    for agent in plain.agents:
+        assert b[agent].shape == extended.observation_space(agent).shape
+        assert extended.observation_space(agent).contains(b[agent])
+        assert np.array_equal(b[agent], features.apply(spec, a[agent]))
+    assert extended.observation_layout["features"] == slice(a["suction"].shape[0], b["suction"].shape[0])
+
+
+@pytest.mark.parametrize("kwargs, reset_options, message", [
+    ({"start_level": 1.5}, None, "level must lie in"),
+    ({"start_level": "hard"}, None, "level must be a number"),
+    ({}, {"level": float("nan")}, "level must lie in"),
+    ({}, {"level": True}, "level must be a number"),
+    ({"guidance": {"grasp_path": 5.0}}, None, "guidance settings need reward_type='guided'"),
+    ({"reward_type": "guided", "guidance": {"grasp_paths": 5.0}}, None, "grasp_paths"),
+    ({"reward_type": "guided", "guidance": {"hold_bonus": -1.0}}, None, "hold_bonus"),
+    ({"reward_type": "shaped"}, None, "reward_type must be one of"),
+    ({"observation_features": "suction_debris_everything"}, None, "unknown observation features"),
+    ({"start_level": 0.0}, {"blood_ml": [1.0, 1.0]}, "not both"),
+])
+def test_bad_options_are_refused_by_name(kwargs, reset_options, message):
+    with pytest.raises(ValueError, match=message):
+        suction_debris_v0.parallel_env(**kwargs).reset(seed=0, options=reset_options)
+
+
+def test_batched_levels_per_world_and_bad_lengths():
+    env = suction_debris_v0.batched_env(num_envs=3, autoreset_mode="disabled")
+    env.reset(seed=0, options={"level": [0.0, 1.0, "easy"]})
+    assert env.core.limit.tolist() == [300, env.params.max_cycles, 300]
+    with pytest.raises(ValueError, match="one per world"):
+        env.reset(options={"level": [0.0, 1.0]})
+    with pytest.raises(ValueError, match="not both"):
+        env.reset(options={"level": 0.0, "debris_count": 1})
+    env.set_start_level(1.0)
+    env.reset(seed=0)
+    assert env.core.limit.tolist() == [env.params.max_cycles] * 3
+
+
+def test_pettingzoo_api_and_aec_form_with_every_option():
+    from pettingzoo.test import parallel_api_test
+
+    parallel_api_test(suction_debris_v0.parallel_env(start_level=0.3, **OPTIONS), num_cycles=400)
+    aec = suction_debris_v0.env(start_level="easy", **OPTIONS)
+    aec.reset(seed=0, options={"level": 0.0})
+    for agent in aec.agent_iter(40):
+        observation, *_ = aec.last()
+        assert observation.shape == aec.observation_space(agent).shape
+        aec.step(None if aec.terminations[agent] or aec.truncations[agent] else np.zeros(4, dtype=np.float32))
+
+
+def test_torchrl_env_with_the_options_and_a_level_per_reset():
+    pytest.importorskip("torchrl")
+    import torch
+    from torchrl.envs.utils import check_env_specs
+
+    from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+    env = SuctionDebrisTorchRLEnv(num_envs=3, seed=0, start_level="easy", **OPTIONS)
+    check_env_specs(env)
+    assert env.group_map == {"agents": ["suction", "grasper"]}
+    td = env.rollout(310, break_when_any_done=False)
+    assert td["next", "truncated"].sum() >= 3  # the easy episodes' 300 steps
+    reset = env.reset(env.reset().update({"_reset": torch.tensor([[True], [False], [True]]),
+                                          "level": torch.tensor([1.0, 0.0, 1.0])}))
+    assert env.batched.levels.tolist() == [1.0, 0.0, 1.0]
+    assert reset["agents", "observation"].shape[-1] == env.batched.observation_space("suction").shape[0]
+
+
+def test_sb3_collaborative_vec_env_takes_the_options():
+    pytest.importorskip("supersuit")
+    from dvrl_marl.integrations.sb3 import make_collaborative_vec_env
+
+    venv = make_collaborative_vec_env(n_envs=2, seed=0, start_level="easy", **OPTIONS)
+    observations = venv.reset()
+    assert observations.shape[0] == 4 and np.all(np.isfinite(observations))
+    observations, rewards, dones, infos = venv.step(np.zeros((4, 4), dtype=np.float32))
+    assert rewards.shape == (4,)
+    venv.close()
+
+
+def test_named_levels():
+    assert start_levels.checked_level("easy", "x") == 0.0 and start_levels.checked_level("default", "x") == 1.0
