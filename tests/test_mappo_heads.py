@@ -15,7 +15,7 @@ from dvrl_marl.policies import features
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
-from dvrl_marl.training import mappo  # noqa: E402
+from dvrl_marl.training import mappo, models  # noqa: E402
 
 AGENTS = ["suction", "grasper"]
 OBS_DIM = 30  # 10 + 2 cavities + 6 x 3 debris
@@ -235,7 +235,7 @@ def _config(**model):
 
 def test_switch_head_samples_open_or_closed_with_its_log_probability():
     config = _config(tool_head="switch", initial_tool_logit={"suction": 2.0, "grasper": -2.0})
-    actor, _, _, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    actor, _, _, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -270,7 +270,7 @@ def test_held_tool_logit_leans_the_jaw_by_whether_a_pin_is_held():
 
     config = _config(tool_head="switch", initial_tool_logit={"suction": 2.0, "grasper": 2.0},
                      held_tool_logit={"grasper": -10.0})
-    actor, _, _, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    actor, _, _, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
     observations = torch.zeros(4000, 2, OBS_DIM)
     observations[2000:, :, 9 + 6 * 2 + 3:9 + 6 * 2 + 5] = 1.0  # pin 2 visible and held in the second half
     td = TensorDict({"agents": TensorDict({"observation": observations}, batch_size=[4000, 2])}, batch_size=[4000])
@@ -301,9 +301,14 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+    model = dict(model)
+    feature_set = model.pop("observation_features", "")  # the env's option since issue 37
     config = mappo.MappoConfig(**{"hidden": [16, 16], **model})
-    actor, _, actor_net, norms = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
     env = suction_debris_v0.batched_env(num_envs=40, surgeon=None)
+    spec = features.spec(feature_set, env.layout(), env.params.debris_count) if feature_set else None
+    width = OBS_DIM + (features.feature_count(feature_set) if feature_set else 0)
+    actor, _, actor_net, norms = models.build_models(config, AGENTS, width, 31, 4, held_flags=models.held_flag_indices(OBS_DIM),
+                                                     feature_spec=spec)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(200):
@@ -311,13 +316,11 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     observations = np.stack([env.observations()[a] for a in AGENTS], axis=1)
     observations[:, :, 9 + 4:27:6] = 0.0  # held flags: none, but pin 1 (visible) in every other world
     observations[::2, :, 9 + 6 * 1 + 3:9 + 6 * 1 + 5] = 1.0
-    observed = torch.from_numpy(observations)
-    if actor_net.feature_spec is not None:
-        observed = features.apply(actor_net.feature_spec, observed)
-    norms["observation"].update(observed)
+    extended = observations if spec is None else features.apply(spec, observations)  # what the env would give
+    norms["observation"].update(torch.from_numpy(extended))
     for net in actor_net.nets:  # make the head matter
         torch.nn.init.normal_(net[-1].weight, std=0.5)
-    td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(observations).float()},
+    td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(extended).float()},
                                           batch_size=[40, 2])}, batch_size=[40])
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         expected = np.clip(actor(td)["agents", "action"].numpy(), -1.0, 1.0)
@@ -325,8 +328,9 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
         folder = mappo.export_actor(actor_net, index, tmp_path / agent, name=agent, agent=agent, metadata={},
                                     tool_head=config.tool_head)
         policy = policies.load(folder)
-        assert ("features" in policy.spec) == bool(config.observation_features)
+        assert ("features" in policy.spec) == bool(feature_set)
         np.testing.assert_allclose(policy(observations[:, index]), expected[:, index], atol=2e-4)
+        np.testing.assert_allclose(policy(extended[:, index]), expected[:, index], atol=2e-4)  # the env's features
         if config.tool_head == "switch":
             assert set(np.unique(policy(observations[:, index])[:, 3])) <= {-1.0, 1.0}
         with pytest.raises(ValueError, match="reads 30 observation features, got 29"):
@@ -336,9 +340,9 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
 @pytest.mark.parametrize("text, message", [
     ("[model]\ntool_head = 'dice'\n", "[model] tool_head: must be one of"),
     ("[run]\ndevice = 'tpu'\n", "device must be"),
-    ("[model]\nobservation_features = 'everything'\n", "observation_features must be one of"),
-    ("[shaping]\nroute_to_park = 'yes'\n", "[shaping] route_to_park: must be true or false"),
-    ("[shaping]\ncentred_grasps = 1\n", "[shaping] centred_grasps: must be true or false"),
+    ("[env]\nobservation_features = 'everything'\n", "unknown observation features"),
+    ("[env]\nreward_type = 'guided'\n[env.guidance]\nroute_to_park = 'yes'\n", "route_to_park"),
+    ("[env]\nreward_type = 'guided'\n[env.guidance]\ncentred_grasps = 1\n", "centred_grasps"),
     ("[ppo]\nbounds_loss_coef = -1.0\n", "[ppo] bounds_loss_coef: must be >= 0"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "[model] initial_tool_logit.scalpel"),
     ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = 'closed' }\n", "[model] held_tool_logit.grasper: must be a number"),
@@ -383,7 +387,7 @@ def test_scheduled_exploration_noise(tmp_path):
 def test_exported_policy_acts_with_its_recorded_noise(tmp_path):
     """The export records the exploration noise; with_noise adds it (seeded, clipped); the switch tool stays +-1."""
     config = _config(tool_head="switch")
-    _, _, actor_net, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    _, _, actor_net, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
     log_std = torch.log(torch.tensor([0.3, 0.2, 0.1, 0.5]))
     folder = mappo.export_actor(actor_net, 0, tmp_path / "p", name="p", agent="suction", metadata={},
                                 tool_head="switch", log_std=log_std)
@@ -409,7 +413,7 @@ def test_evaluate_team_with_noise_from_the_cli(tmp_path):
     import sys
 
     config = _config(tool_head="switch")
-    _, _, actor_net, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    _, _, actor_net, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
     folder = mappo.export_actor(actor_net, 0, tmp_path / "s", name="s", agent="suction", metadata={},
                                 tool_head="switch", log_std=torch.zeros(4))
     command = [sys.executable, "-m", "dvrl_marl.cli", "evaluate-team", "--suction", str(folder), "--grasper",
@@ -435,7 +439,7 @@ def test_bad_recorded_noise_is_named(tmp_path, std, message):
     import json
 
     config = _config()
-    _, _, actor_net, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    _, _, actor_net, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
     folder = mappo.export_actor(actor_net, 0, tmp_path / "p", name="p", agent="suction", metadata={})
     spec = json.loads((folder / "policy.json").read_text())
     spec["exploration"] = {"std": std}
@@ -450,14 +454,14 @@ def test_unshared_local_collector_acts_with_the_learners_weights():
 
     config = mappo.MappoConfig(num_envs=4, rollout_steps=3, hidden=[8], tool_head="switch",
                                env={"reward_type": "dense", "max_cycles": 20})
-    learner, _, _, _ = mappo._build_models(config, AGENTS, OBS_DIM, 31, 4)
+    learner, _, _, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
     with torch.no_grad():
         for parameter in learner.parameters():
             parameter.add_(0.1)
-    collectors = make_collectors(config, 0, actor=None, steps_done=0, easy=0.0)
+    collectors = make_collectors(config, 0, actor=None, steps_done=0)
     try:
         assert not collectors.shared
-        batch = collectors.collect(learner.state_dict(), 0.0)
+        batch = collectors.collect(learner.state_dict())
         copy = collectors.collector.actor.state_dict()
         assert all(torch.equal(copy[k], v.cpu()) for k, v in learner.state_dict().items())
         assert batch["action"].shape == (3, 4, 2, 4)
@@ -484,20 +488,20 @@ def test_bounds_loss_pulls_saturated_means_back_in_training(tmp_path):
                                    checkpoint_every=2048, hidden=[16, 16], epochs=4, minibatches=2, anneal_lr=False,
                                    learning_rate=0.01, bounds_loss_coef=coef, tool_head="switch",
                                    env={"reward_type": "dense", "max_cycles": 40})
-        original = mappo._build_models
+        original = mappo.build_models
 
         def saturated(*args, **kwargs):
-            models = original(*args, **kwargs)
+            built = original(*args, **kwargs)
             with torch.no_grad():
-                for net in models[2].nets:
+                for net in built[2].nets:
                     net[-1].bias[:3] = 3.0
-            return models
+            return built
 
-        mappo._build_models = saturated
+        mappo.build_models = saturated
         try:
             mappo.train(config, 0, tmp_path / f"run{coef}", progress=False, tensorboard=False, log=lambda *_: None)
         finally:
-            mappo._build_models = original
+            mappo.build_models = original
         policy = policies.load(tmp_path / f"run{coef}" / "policies" / "marl-suction")
         hidden = policy.features(observations["suction"])
         for index, (weight, bias) in enumerate(policy.weights):

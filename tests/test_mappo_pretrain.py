@@ -15,7 +15,7 @@ pytest.importorskip("torchrl")
 
 from dvrl_marl.agents.collaborative import ScriptedSurgeon  # noqa: E402
 from dvrl_marl.envs import suction_debris_v0  # noqa: E402
-from dvrl_marl.training import mappo, pretrain  # noqa: E402
+from dvrl_marl.training import mappo, models, pretrain  # noqa: E402
 
 CONFIG = """
 [run]
@@ -32,6 +32,7 @@ surgeon_seat = "suction"
 reward_type = "dense"
 max_cycles = {max_cycles}
 blood_ml = [0.0, 0.0]
+observation_features = "suction_debris_cleared_pins"
 [ppo]
 epochs = 2
 minibatches = 2
@@ -39,7 +40,6 @@ minibatches = 2
 hidden = [32, 32]
 initial_std = 0.3
 tool_head = "switch"
-observation_features = "suction_debris_cleared_pins"
 [pretrain]
 bc_expert = "scripted"
 bc_episodes = {episodes}
@@ -96,7 +96,7 @@ def test_a_dagger_round_records_where_the_learner_drove_labelled_by_the_expert(t
 def test_the_clone_acts_like_the_expert(tmp_path):
     config = _config(tmp_path, max_cycles=150, episodes=16, epochs=40)
     observations, labels = pretrain.record_expert(config, seed=0)["grasper"]
-    _, _, actor_net, _ = mappo._build_models(config, ["grasper"], observations.shape[1], 10, 4)
+    _, _, actor_net, _ = models.build_models(config, ["grasper"], observations.shape[1], 10, 4)
     before = actor_net.agent_forward(torch.from_numpy(observations), 0).detach().numpy()
     loss = pretrain.clone_actor(actor_net, 0, observations, labels, tool_head="switch", epochs=40,
                                 learning_rate=3e-3, batch_size=256)

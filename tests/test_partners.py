@@ -13,7 +13,7 @@ pytest.importorskip("torchrl")
 
 from dvrl_marl.envs import suction_debris_v0  # noqa: E402
 from dvrl_marl.policies import NoisyPolicy  # noqa: E402
-from dvrl_marl.training import mappo, teams  # noqa: E402
+from dvrl_marl.training import mappo, mappo_config, teams  # noqa: E402
 
 
 def _constant(value):
@@ -96,7 +96,7 @@ max_cycles = 40
 hidden = [16, 16]
 """)
     loaded = mappo.load_config(config)
-    population = mappo._partner(loaded, None, noise_from=0)
+    population = mappo_config.partner(loaded, None, noise_from=0)
     assert isinstance(population, teams.Partners) and population.names == ["scripted", "marl-suction"]
     run = tmp_path / "run"
     mappo.train(loaded, 0, run, progress=False, log=lambda *_: None)

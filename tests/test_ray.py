@@ -14,7 +14,7 @@ pytest.importorskip("torchrl")
 from ray.cluster_utils import Cluster  # noqa: E402
 
 from dvrl_marl import policies  # noqa: E402
-from dvrl_marl.training import mappo  # noqa: E402
+from dvrl_marl.training import mappo, models  # noqa: E402
 from dvrl_marl.training.collectors import RolloutCollector, _merge, split_worlds  # noqa: E402
 
 TINY = """
@@ -28,13 +28,12 @@ eval_episodes = 2
 checkpoint_every = 512
 torch_threads = 1
 [env]
-reward_type = "dense"
+reward_type = "guided"
 max_cycles = 40
 [model]
 hidden = [16, 16]
 [curriculum]
-easy_start = 1.0
-near_debris = 0.5
+levels = [[0.0, 0.0], [1.0, 0.5]]
 """
 
 
@@ -89,7 +88,7 @@ def test_training_on_two_nodes_checkpoints_resumes_and_exports(cluster, tmp_path
     assert final["steps"] == 512
     assert any("2 collectors on 2 node(s)" in m for m in messages), messages
     assert (run / "checkpoint.pt").is_file()
-    saved = mappo._torch().load(run / "checkpoint.pt", weights_only=False)
+    saved = models.require_torch().load(run / "checkpoint.pt", weights_only=False)
     assert len(saved["collector_rng"]) == 2
 
     messages.clear()

@@ -29,7 +29,7 @@ from dvrl_marl.core.collaborative import Cavities
 from dvrl_marl.envs.places import suction_parking_place, surgeon_waiting_place
 from dvrl_marl.schemas import STRICT, Flag, NonNegative
 
-__all__ = ["Guidance", "GuidedReward", "GraspPathShaping", "SuctionRouteShaping", "OverRims"]
+__all__ = ["Guidance", "GuidedReward", "SceneFacts", "GraspPathShaping", "SuctionRouteShaping", "OverRims"]
 
 
 @dataclass(frozen=True, config=STRICT)
@@ -62,9 +62,9 @@ class Guidance:
         return asdict(self)
 
 
-class _SceneFacts:
-    """What the shaping terms read of an env (single or batched): its parameters, state layout, normalisation,
-    layout and cavities."""
+class SceneFacts:
+    """What the guided terms read of an env (single or batched): its parameters, state layout, normalisation,
+    layout and cavities (each term takes an env or these)."""
 
     def __init__(self, env):
         self.params = env.params
@@ -81,7 +81,7 @@ class GuidedReward:
 
     def __init__(self, env, agents, guidance: Guidance | None = None):
         self.guidance = guidance = guidance or Guidance()
-        scene = _SceneFacts(env)
+        scene = SceneFacts(env)
         agents = list(agents)
         self.grasp = GraspPathShaping(scene, guidance.grasp_path, agents, guidance.hold_bonus,
                                       over_rims=guidance.over_rims, home=guidance.wait_at_home,
@@ -150,6 +150,7 @@ class GraspPathShaping:
 
     def __init__(self, env, weight: float, agents, hold_bonus: float = 0.0, over_rims: bool = False,
                  home: bool = False, cleared_only: bool = False, centred: bool = False, off_centre: float = 0.0):
+        env = env if isinstance(env, SceneFacts) else SceneFacts(env)
         self.over_rims = OverRims(env.cavities) if over_rims else None
         self.centre = np.asarray(env.params.workspace_centre)
         self.weight = float(weight)
@@ -259,7 +260,10 @@ class OverRims:
     #: waited there pushed into the side toward a pin for the rest of the episode).
     BESIDE = -2
 
-    def __init__(self, cavities: Cavities, margin: float = 0.002):
+    def __init__(self, cavities, margin: float = 0.002):
+        """``cavities``: a :class:`~dvrl_marl.core.collaborative.Cavities`, or an env (its scene's)."""
+        if not isinstance(cavities, Cavities):
+            cavities = SceneFacts(cavities).cavities
         self.cavities = cavities
         self.phantom = self.cavities.phantom
         self.height = self.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
@@ -326,6 +330,7 @@ class SuctionRouteShaping:
 
     def __init__(self, env, weight: float, agents, clear_bonus: float = 0.0, over_rims: bool = False,
                  park: bool = False):
+        env = env if isinstance(env, SceneFacts) else SceneFacts(env)
         self.over_rims = OverRims(env.cavities) if over_rims else None
         self.weight = float(weight)
         self.clear_bonus = float(clear_bonus)

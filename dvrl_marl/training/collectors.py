@@ -1,7 +1,7 @@
 """Experience for the multi-agent trainer: rollouts of the batched collaborative env, here or on a Ray cluster.
 
-A :class:`RolloutCollector` owns a share of the training worlds (a batched env, the curriculum that resets them,
-the trainer-side shaping) and a copy of the actors; :meth:`RolloutCollector.rollout` steps its worlds
+A :class:`RolloutCollector` owns a share of the training worlds (a batched env made with the configuration's
+``[env]`` options, restarting ended worlds at the scheduled start level) and a copy of the actors; :meth:`RolloutCollector.rollout` steps its worlds
 ``rollout_steps`` times with the actors' weights it is given and returns the arrays the learner needs. The
 learner (:func:`dvrl_marl.training.mappo.train`) asks :class:`LocalCollectors` (one collector in its own process,
 sharing its actor: nothing is copied) or :class:`RayCollectors` (``num_collectors`` Ray actors, spread over the
@@ -20,6 +20,9 @@ import os
 import socket
 
 import numpy as np
+
+from dvrl_marl.training.mappo_config import TRAIN_SEED_BASE, partner
+from dvrl_marl.training.models import build_models, held_flag_indices, limit_threads, require_torch
 
 __all__ = ["RolloutCollector", "LocalCollectors", "RayCollectors", "make_collectors", "split_worlds"]
 
@@ -41,51 +44,39 @@ class RolloutCollector:
     """Steps ``num_envs`` training worlds (see the module documentation).
 
     ``first_world``: this share's offset among all training worlds (its worlds are seeded after the ones before
-    it); ``steps_done``, ``easy`` and ``progress`` (the fraction of the run done) say where the run stands (resets
-    are seeded from it and the curriculum draws its first episodes at that difficulty); ``rng_state`` restores the
-    random stream of a checkpoint; ``actor`` shares the learner's actor module (local collection) instead of
+    it); ``steps_done`` and ``progress`` (the fraction of the run done) say where the run stands (resets are seeded
+    from it and the first episodes start at that progress's level); ``rng_state`` restores the random stream of a
+    checkpoint (episode cuts); ``actor`` shares the learner's actor module (local collection) instead of
     building a copy that rollouts load weights into.
     """
 
     def __init__(self, config, seed: int, *, index: int = 0, num_envs: int | None = None, first_world: int = 0,
-                 steps_done: int = 0, easy: float = 0.0, progress: float = 0.0, rng_state=None, actor=None,
+                 steps_done: int = 0, progress: float = 0.0, rng_state=None, actor=None,
                  torch_threads: int | None = None):
         from dvrl_marl.envs import suction_debris_v0
-        from dvrl_marl.training import mappo, shaping
 
-        torch = mappo._torch()
+        torch = require_torch()
         if torch_threads:
-            mappo.limit_threads(int(torch_threads))
+            limit_threads(int(torch_threads))
         if actor is None:  # a collector of its own (a Ray actor): its own sampling stream too
             torch.manual_seed(int(np.random.SeedSequence([seed, index, steps_done]).generate_state(1)[0]))
         self.config, self.index = config, int(index)
-        surgeon = mappo._partner(config, None, noise_from=mappo.TRAIN_SEED_BASE * (seed + 1) + 104_729 * (index + 1))
-        train_env = dict(config.env)
-        if config.contact_penalty is not None:
-            train_env["contact_penalty"] = config.contact_penalty
+        surgeon = partner(config, None, noise_from=TRAIN_SEED_BASE * (seed + 1) + 104_729 * (index + 1))
         self.env = suction_debris_v0.batched_env(num_envs=int(num_envs or config.num_envs), surgeon=surgeon,
                                                  surgeon_seat=config.surgeon_seat, autoreset_mode="disabled",
-                                                 **train_env)
+                                                 **config.env)
         env, n = self.env, self.env.num_envs
         self.agents = list(env.possible_agents)
         obs_dim, state_dim = env.observation_space(self.agents[0]).shape[0], env.state_space.shape[0]
-        self.actor = actor if actor is not None else mappo._build_models(config, self.agents, obs_dim, state_dim, 4)[0]
+        self.actor = actor if actor is not None else build_models(
+            config, self.agents, obs_dim, state_dim, 4, held_flags=held_flag_indices(env.observation_layout),
+            feature_spec=env.feature_spec)[0]
         self.rng = np.random.default_rng(seed if index == 0 else [seed, index])
         if rng_state is not None:
             self.rng.bit_generator.state = rng_state
-        self.curriculum = mappo._Curriculum(config, env, self.rng)
-        self.shaping = shaping.GraspPathShaping(env, config.grasp_path_shaping, self.agents, config.hold_bonus,
-                                               over_rims=config.shaping_over_rims, home=config.wait_at_home,
-                                               cleared_only=config.cleared_pins_only,
-                                               centred=config.centred_grasps,
-                                               off_centre=config.off_centre_grasps)
-        self.route = shaping.SuctionRouteShaping(env, config.suction_route_shaping, self.agents, config.clear_bonus,
-                                                over_rims=config.shaping_over_rims, park=config.route_to_park)
-        env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) + steps_done + first_world)
-        self.curriculum.reset(np.ones(n, dtype=bool), easy, progress)
-        self.observations = env.observations()
+        self.observations, _ = env.reset(seed=TRAIN_SEED_BASE * (seed + 1) + steps_done + first_world,
+                                         options=self._level_option(progress))
         self.state = env.state()
-        self.blood = env.core.info()["blood_remaining_per_cavity"]  # (N, C), for the suction's route shaping
         self.discounted = np.zeros((n, len(self.agents)))
         # Worlds that start together stay in step for a whole episode (1,500 steps, ~50 rollouts of the same phase);
         # the first episode of each world is cut at a random length (a time limit, bootstrapped like the env's own).
@@ -105,18 +96,21 @@ class RolloutCollector:
         self.buffers["next_observation"] = np.zeros_like(self.buffers["observation"])
         self.buffers["next_state"] = np.zeros_like(self.buffers["state"])
 
-    def rollout(self, actor_state=None, easy: float = 0.0, progress: float = 0.0) -> dict:
+    def _level_option(self, progress: float) -> dict:
+        """The reset option of the scheduled start level at ``progress`` ({} without a schedule)."""
+        level = self.config.level(progress)
+        return {} if level is None else {"level": level}
+
+    def rollout(self, actor_state=None, progress: float = 0.0) -> dict:
         """Step every world ``rollout_steps`` times sampling from the actors (``actor_state``: the learner's
         ``actor.state_dict()``, loaded first); the per-step arrays (:data:`ROLLOUT_ARRAYS`) and episode counts."""
-        from dvrl_marl.training import mappo
-
-        torch = mappo._torch()
+        torch = require_torch()
         from tensordict import TensorDict
         from torchrl.envs.utils import ExplorationType, set_exploration_type
 
         if actor_state is not None:
             self.actor.load_state_dict(actor_state)
-        config, env, agents, shaping, curriculum = self.config, self.env, self.agents, self.shaping, self.curriculum
+        config, env, agents = self.config, self.env, self.agents
         buffers, n, count = self.buffers, env.num_envs, len(self.agents)
         stats = dict.fromkeys(ROLLOUT_STATS, 0.0)
         # sampling from the policy: TorchRL's actors act deterministically unless told otherwise
@@ -125,8 +119,6 @@ class RolloutCollector:
                 obs = np.stack([self.observations[a] for a in agents], axis=1)
                 buffers["observation"][t] = obs
                 buffers["state"][t] = self.state
-                potential_before = shaping.potential(self.state) if shaping.active else None
-                route_before = self.route.potential(self.state, self.blood) if self.route.active else None
                 td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(buffers["observation"][t])},
                                                       batch_size=[n, count])}, batch_size=[n])
                 self.actor(td)
@@ -139,14 +131,9 @@ class RolloutCollector:
                 buffers["next_observation"][t] = np.stack([self.observations[a] for a in agents], axis=1)
                 buffers["next_state"][t] = self.state
                 reward = np.stack([rewards[a] for a in agents], axis=1)
-                if shaping.active:
-                    reward[:, shaping.index] += shaping.potential(self.state) - potential_before
-                self.blood = infos[agents[0]]["blood_remaining_per_cavity"]
-                if self.route.active:
-                    reward[:, self.route.index] += self.route.potential(self.state, self.blood) - route_before
                 terminated, truncated = terminations[agents[0]], truncations[agents[0]]
                 self.episode_step += 1
-                truncated = truncated | (self.episode_step == self.first_cut) | (self.episode_step == curriculum.cut)
+                truncated = truncated | (self.episode_step == self.first_cut)
                 self.first_cut[self.episode_step >= self.first_cut] = 0  # see first_cut
                 done = terminated | truncated
                 self.episode_step[done] = 0
@@ -159,16 +146,15 @@ class RolloutCollector:
                     info = infos[agents[0]]
                     stats["episodes_ended"] += int(done.sum())
                     stats["successes"] += int((done & info["is_success"]).sum())
-                    stats["debris_delivered"] += float((info["debris_delivered"] - curriculum.out_of_play)[done].sum())
+                    # (an easy start's debris out of play count as delivered)
+                    stats["debris_delivered"] += float(info["debris_delivered"][done].sum())
                     stats["blood_left_ml"] += float(info["blood_remaining"][done].sum())
-                    curriculum.reset(done, easy, progress)
-                    self.observations = env.observations()
+                    self.observations, _ = env.reset(options={"reset_mask": done, **self._level_option(progress)})
                     self.state = env.state()
-                    self.blood = env.core.info()["blood_remaining_per_cavity"]
         return {**buffers, "stats": stats}
 
     def rng_state(self) -> dict:
-        """The collector's random stream (curriculum, episode cuts), for the learner's checkpoint."""
+        """The collector's random stream (episode cuts), for the learner's checkpoint."""
         return self.rng.bit_generator.state
 
     def where(self) -> dict:
@@ -205,11 +191,10 @@ class LocalCollectors:
         self.shared = shared
         self.count = 1
 
-    def collect(self, actor_state, easy: float, progress: float = 0.0) -> dict:
+    def collect(self, actor_state, progress: float = 0.0) -> dict:
         if self.shared:  # the actor is the learner's: its weights are current
-            return self.collector.rollout(None, easy, progress)
-        return self.collector.rollout({key: value.detach().cpu() for key, value in actor_state.items()}, easy,
-                                      progress)
+            return self.collector.rollout(None, progress)
+        return self.collector.rollout({key: value.detach().cpu() for key, value in actor_state.items()}, progress)
 
     def rng_states(self) -> list:
         return [self.collector.rng_state()]
@@ -230,7 +215,7 @@ class RayCollectors:
     """
 
     def __init__(self, config, seed: int, *, address: str | None, num_collectors: int, steps_done: int = 0,
-                 easy: float = 0.0, progress: float = 0.0, rng_states=None, cpus_per_collector: float = 1.0,
+                 progress: float = 0.0, rng_states=None, cpus_per_collector: float = 1.0,
                  max_restarts: int = -1):
         try:
             import ray
@@ -251,16 +236,16 @@ class RayCollectors:
         self.actors, first = [], 0
         for index, share in enumerate(shares):
             self.actors.append(remote.options(scheduling_strategy="SPREAD", name=None).remote(
-                config, seed, index=index, num_envs=share, first_world=first, steps_done=steps_done, easy=easy,
+                config, seed, index=index, num_envs=share, first_world=first, steps_done=steps_done,
                 progress=progress, rng_state=None if rng_states is None else rng_states[index],
                 torch_threads=max(1, int(cpus_per_collector))))
             first += share
         self.count = num_collectors
 
-    def collect(self, actor_state, easy: float, progress: float = 0.0) -> dict:
+    def collect(self, actor_state, progress: float = 0.0) -> dict:
         ray = self._ray
         weights = ray.put({key: value.detach().cpu() for key, value in actor_state.items()})
-        results = ray.get([actor.rollout.remote(weights, easy, progress) for actor in self.actors])
+        results = ray.get([actor.rollout.remote(weights, progress) for actor in self.actors])
         if len(results) == 1:  # Ray returns read-only views of its object store; the learner's tensors want their own
             results[0] = {key: np.array(value) if key in ROLLOUT_ARRAYS else value for key, value in results[0].items()}
         return _merge(results)
@@ -277,13 +262,13 @@ class RayCollectors:
         self.actors = []
 
 
-def make_collectors(config, seed: int, *, actor, steps_done: int, easy: float, progress: float = 0.0,
+def make_collectors(config, seed: int, *, actor, steps_done: int, progress: float = 0.0,
                     rng_states=None, ray_address: str | None = None, num_collectors: int = 0):
     """:class:`RayCollectors` when ``ray_address`` or ``num_collectors`` asks for Ray, else :class:`LocalCollectors`."""
     if ray_address is None and not num_collectors:
-        collector = RolloutCollector(config, seed, steps_done=steps_done, easy=easy, progress=progress, actor=actor,
+        collector = RolloutCollector(config, seed, steps_done=steps_done, progress=progress, actor=actor,
                                      rng_state=None if not rng_states else rng_states[0])
         return LocalCollectors(collector, shared=actor is not None)
     return RayCollectors(config, seed, address=None if ray_address in (None, "local") else ray_address,
-                         num_collectors=max(1, int(num_collectors or 1)), steps_done=steps_done, easy=easy,
+                         num_collectors=max(1, int(num_collectors or 1)), steps_done=steps_done,
                          progress=progress, rng_states=rng_states)

@@ -30,17 +30,18 @@ def record_expert(config, seed: int, *, act=None, round_index: int = 0) -> dict:
     clone acts, the expert labels what it visits); None: the expert with DART noise. ``round_index`` picks the
     episodes' seeds (each round its own)."""
     from dvrl_marl.envs import suction_debris_v0
-    from dvrl_marl.training import mappo, teams
+    from dvrl_marl.training import teams
+    from dvrl_marl.training.mappo_config import TRAIN_SEED_BASE, partner
 
     episodes = int(config.bc_episodes)
-    surgeon = mappo._partner(config, None, noise_from=mappo.TRAIN_SEED_BASE * (seed + 1) - 31 * (round_index + 1))
+    surgeon = partner(config, None, noise_from=TRAIN_SEED_BASE * (seed + 1) - 31 * (round_index + 1))
     env = suction_debris_v0.batched_env(num_envs=episodes, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
                                         autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)
     experts = {agent: teams.seat(config.bc_expert, agent, env) for agent in agents}
     # seeds of their own: below the training worlds' (TRAIN_SEED_BASE * (seed + 1) on), far from evaluation's
     rng = np.random.default_rng([seed, 7, round_index])
-    observations, _ = env.reset(seed=mappo.TRAIN_SEED_BASE * (seed + 1) - episodes * (round_index + 1))
+    observations, _ = env.reset(seed=TRAIN_SEED_BASE * (seed + 1) - episodes * (round_index + 1))
     recorded = {agent: ([], []) for agent in agents}
     running = np.ones(episodes, dtype=bool)
     for _ in range(env.params.max_cycles):
