@@ -1,0 +1,123 @@
+"""BenchMARL task for the collaborative scene: ``pip install "dvrl-marl[benchmarl]"``.
+
+```python
+from benchmarl.algorithms import MappoConfig
+from benchmarl.experiment import Experiment, ExperimentConfig
+from benchmarl.models.mlp import MlpConfig
+from dvrl_marl.integrations.benchmarl import suction_debris_task
+
+experiment = Experiment(task=suction_debris_task("easy"), algorithm_config=MappoConfig.get_from_yaml(),
+                        model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(),
+                        seed=0, config=ExperimentConfig.get_from_yaml())
+experiment.run()
+```
+
+:class:`SuctionDebrisTask` is a BenchMARL ``TaskClass`` over the batched env's TorchRL form
+(:class:`dvrl_marl.integrations.torchrl.SuctionDebrisTorchRLEnv`, vectorised: BenchMARL's ``n_envs_per_worker``
+worlds in one env): both arms in one group ``"agents"``, continuous actions in [-1, 1], ``state`` for MAPPO's
+centralised critic, and the share of ended episodes that succeeded logged as ``collection/success_rate``.
+:func:`suction_debris_task` reads one of the shipped task files, one per start level
+(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: the guided reward, the observation
+features, the level), or a file of your own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+try:
+    from benchmarl.environments.common import TaskClass
+except ImportError as error:  # pragma: no cover - exercised where BenchMARL is missing
+    raise ImportError('dvrl_marl.integrations.benchmarl needs BenchMARL: pip install "dvrl-marl[benchmarl]"') from error
+from torchrl.data import Composite
+
+from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+__all__ = ["SuctionDebrisTask", "suction_debris_task", "TASK_FILES", "LEVELS"]
+
+#: The shipped task files.
+TASK_FILES = Path(__file__).with_name("benchmarl_tasks")
+LEVELS = ("easy", "default")
+
+
+def _base(env):
+    """The SuctionDebrisTorchRLEnv under BenchMARL's transforms."""
+    while not isinstance(env, SuctionDebrisTorchRLEnv):
+        env = env.base_env
+    return env
+
+
+class SuctionDebrisTask(TaskClass):
+    """The collaborative task as a BenchMARL ``TaskClass`` (see the module documentation); ``config``: keyword
+    arguments of :class:`SuctionDebrisTorchRLEnv`."""
+
+    def get_env_fun(self, num_envs, continuous_actions, seed, device):
+        config = copy.deepcopy(self.config)
+        return lambda: SuctionDebrisTorchRLEnv(num_envs=num_envs, device=device, seed=seed, **config)
+
+    def supports_continuous_actions(self) -> bool:
+        return True
+
+    def supports_discrete_actions(self) -> bool:
+        return False
+
+    def max_steps(self, env) -> int:
+        return int(_base(env).batched.params.max_cycles)
+
+    def has_render(self, env) -> bool:
+        return False  # (rendering every evaluation is slow; render a policy with dvrl-marl's own tools)
+
+    def group_map(self, env) -> dict:
+        return _base(env).group_map
+
+    # BenchMARL's specs are a single world's (the env's batch dimension removed)
+    def observation_spec(self, env) -> Composite:
+        spec = env.full_observation_spec_unbatched.clone()
+        for key in ("state", "is_success"):
+            del spec[key]
+        return spec
+
+    def info_spec(self, env):
+        return None
+
+    def state_spec(self, env) -> Composite:
+        return Composite({"state": env.full_observation_spec_unbatched["state"].clone()})
+
+    def action_spec(self, env) -> Composite:
+        return env.full_action_spec_unbatched.clone()
+
+    def action_mask_spec(self, env):
+        return None
+
+    @staticmethod
+    def env_name() -> str:
+        return "dvrl_marl"
+
+    @staticmethod
+    def log_info(batch) -> dict:
+        done = batch.get(("next", "done"))
+        ended = float(done.sum())
+        if not ended:
+            return {}
+        return {"collection/success_rate": float((batch.get(("next", "is_success")) & done).sum()) / ended}
+
+
+def suction_debris_task(level_or_file: str = "default", **overrides) -> SuctionDebrisTask:
+    """The task from a shipped level (``"easy"``, ``"default"``) or a YAML file of keyword arguments; ``overrides``
+    replace the file's values. Checked by building one world: a bad key or value is a ``ValueError`` naming it."""
+    import yaml
+
+    path = TASK_FILES / f"suction_debris_{level_or_file}.yaml" if level_or_file in LEVELS else Path(level_or_file)
+    if not path.is_file():
+        raise ValueError(f"BenchMARL task {level_or_file!r}: neither a level ({', '.join(LEVELS)}) nor a file")
+    config = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: a task file holds keyword arguments (a mapping), got {type(config).__name__}")
+    config.update(overrides)
+    try:
+        SuctionDebrisTorchRLEnv(num_envs=1, **config).batched.close()
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: {error}") from None
+    name = path.stem if level_or_file not in LEVELS else f"suction_debris_{level_or_file}"
+    return SuctionDebrisTask(name=name, config=config)

@@ -1,0 +1,63 @@
+"""BenchMARL on the collaborative task (dvrl_marl.integrations.benchmarl): the task's specs and groups, and a short
+run of BenchMARL's own MAPPO, IPPO and MASAC with our task files. CI runs these in an environment with BenchMARL
+(``.ci/run``); elsewhere they skip, saying so."""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import json
+
+import pytest
+
+pytest.importorskip("benchmarl", reason='BenchMARL is not installed (pip install "dvrl-marl[benchmarl]")')
+
+from dvrl_marl.integrations.benchmarl import LEVELS, SuctionDebrisTask, suction_debris_task  # noqa: E402
+
+
+@pytest.mark.parametrize("level", LEVELS)
+def test_shipped_levels_build_the_task_with_groups_specs_and_state(level):
+    task = suction_debris_task(level)
+    assert isinstance(task, SuctionDebrisTask) and task.config["reward_type"] == "guided"
+    env = task.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
+    assert task.group_map(env) == {"agents": ["suction", "grasper"]}
+    assert task.observation_spec(env)["agents", "observation"].shape[0] == 2  # one world's: (agents, obs_dim)
+    assert "state" in task.state_spec(env).keys() and "state" not in task.observation_spec(env).keys()
+    assert task.action_spec(env)["agents", "action"].shape == (2, 4)
+    assert task.max_steps(env) == 1500
+    assert env.batched.levels.tolist() == [0.0 if level == "easy" else 1.0] * 3
+
+
+def test_bad_task_files_are_named(tmp_path):
+    with pytest.raises(ValueError, match="neither a level"):
+        suction_debris_task("hard")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("start_level: 3\n")
+    with pytest.raises(ValueError, match="bad.yaml.*level must lie in"):
+        suction_debris_task(str(bad))
+
+
+@pytest.mark.parametrize("algorithm", ["mappo", "ippo", "masac"])
+def test_a_short_benchmarl_run_learns_and_writes_its_json(tmp_path, algorithm):
+    from benchmarl.algorithms import IppoConfig, MappoConfig, MasacConfig
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models.mlp import MlpConfig
+
+    config = ExperimentConfig.get_from_yaml()
+    config.max_n_frames = 1_200
+    config.on_policy_collected_frames_per_batch = config.off_policy_collected_frames_per_batch = 600
+    config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = 4
+    config.on_policy_n_minibatch_iters, config.on_policy_minibatch_size = 1, 300
+    config.off_policy_n_optimizer_steps, config.off_policy_train_batch_size = 2, 64
+    config.evaluation_interval, config.evaluation_episodes = 600, 2
+    config.loggers, config.render, config.save_folder = ["csv"], False, str(tmp_path)
+    algorithm_config = {"mappo": MappoConfig, "ippo": IppoConfig, "masac": MasacConfig}[algorithm].get_from_yaml()
+    task = suction_debris_task("easy", max_cycles=60)
+    experiment = Experiment(task=task, algorithm_config=algorithm_config, model_config=MlpConfig.get_from_yaml(),
+                            critic_model_config=MlpConfig.get_from_yaml(), seed=0, config=config)
+    experiment.run()
+    assert experiment.total_frames >= 1_200
+    results = list(tmp_path.rglob("*.json"))
+    assert results, "BenchMARL wrote no JSON of results"
+    data = json.loads(results[0].read_text())
+    assert "dvrl_marl" in json.dumps(data)
