@@ -2,13 +2,13 @@
 
 ```python
 from benchmarl.algorithms import MappoConfig
-from benchmarl.experiment import Experiment, ExperimentConfig
+from benchmarl.experiment import Experiment
 from benchmarl.models.mlp import MlpConfig
-from dvrl_marl.integrations.benchmarl import suction_debris_task
+from dvrl_marl.integrations.benchmarl import experiment_config, suction_debris_task
 
 experiment = Experiment(task=suction_debris_task("easy"), algorithm_config=MappoConfig.get_from_yaml(),
                         model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(),
-                        seed=0, config=ExperimentConfig.get_from_yaml())
+                        seed=0, config=experiment_config())
 experiment.run()
 ```
 
@@ -19,6 +19,10 @@ centralised critic, and the share of ended episodes that succeeded logged as ``c
 :func:`suction_debris_task` reads one of the shipped task files, one per start level
 (``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: the guided reward, the observation
 features, the level), or a file of your own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
+:func:`experiment_config` is BenchMARL's experiment defaults with the shipped overrides
+(``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO settings of this project's
+configuration of record); nothing inside BenchMARL's algorithms is changed. :class:`SuccessCurve` records the
+evaluation's success rate.
 """
 
 from __future__ import annotations
@@ -26,15 +30,19 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+import time
+
 try:
     from benchmarl.environments.common import TaskClass
+    from benchmarl.experiment.callback import Callback
 except ImportError as error:  # pragma: no cover - exercised where BenchMARL is missing
     raise ImportError('dvrl_marl.integrations.benchmarl needs BenchMARL: pip install "dvrl-marl[benchmarl]"') from error
 from torchrl.data import Composite
 
 from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
-__all__ = ["SuctionDebrisTask", "suction_debris_task", "TASK_FILES", "LEVELS"]
+__all__ = ["SuctionDebrisTask", "SuccessCurve", "suction_debris_task", "experiment_config", "first_episode_success", "TASK_FILES",
+           "LEVELS"]
 
 #: The shipped task files.
 TASK_FILES = Path(__file__).with_name("benchmarl_tasks")
@@ -101,6 +109,50 @@ class SuctionDebrisTask(TaskClass):
         if not ended:
             return {}
         return {"collection/success_rate": float((batch.get(("next", "is_success")) & done).sum()) / ended}
+
+
+def first_episode_success(rollout) -> bool:
+    """Whether one world's rollout (a tensordict of its steps, BenchMARL's evaluation or ``env.rollout``) completed
+    the task in its first episode (a vectorised rollout restarts worlds that end)."""
+    done = rollout.get(("next", "done")).reshape(-1)
+    if not bool(done.any()):
+        return False
+    first = int(done.nonzero()[0])
+    return bool(rollout.get(("next", "is_success")).reshape(-1)[first])
+
+
+class SuccessCurve(Callback):
+    """A BenchMARL callback: after each evaluation, the share of its episodes that completed the task, logged as
+    ``eval/success_rate`` and kept in :attr:`points` (frames, wall seconds since the callback was made, success)."""
+
+    def __init__(self):
+        super().__init__()
+        self.points: list[dict] = []
+        self.started = time.perf_counter()
+
+    def on_evaluation_end(self, rollouts):
+        success = sum(first_episode_success(r) for r in rollouts) / max(len(rollouts), 1)
+        frames = int(self.experiment.total_frames)
+        self.points.append({"frames": frames, "wall_seconds": time.perf_counter() - self.started,
+                            "success_rate": float(success)})
+        self.experiment.logger.log({"eval/success_rate": float(success)}, step=self.experiment.n_iters_performed)
+
+
+def experiment_config(path=None, **overrides):
+    """BenchMARL's ``ExperimentConfig``: its own defaults, then the shipped overrides for this task
+    (``benchmarl_tasks/experiment.yaml``: the record's PPO settings, 256 worlds per batch) or those of ``path``,
+    then ``overrides``. An unknown key is a ``ValueError`` naming it."""
+    import yaml
+    from benchmarl.experiment import ExperimentConfig
+
+    config = ExperimentConfig.get_from_yaml()
+    path = Path(path) if path is not None else TASK_FILES / "experiment.yaml"
+    values = {**(yaml.safe_load(path.read_text()) or {}), **overrides}
+    for key, value in values.items():
+        if not hasattr(config, key):
+            raise ValueError(f"{path}: {key}: not a BenchMARL experiment setting")
+        setattr(config, key, value)
+    return config
 
 
 def suction_debris_task(level_or_file: str = "default", **overrides) -> SuctionDebrisTask:

@@ -1,0 +1,271 @@
+"""The multi-agent benchmark table of the collaborative task: libraries x algorithms x start levels x seeds.
+
+One row per run, one command per row (each writes one JSON record; nothing is overwritten):
+
+    python benchmarks/marl_benchmark.py run --library benchmarl --algorithm mappo --level easy --seed 0 --frames 2000000
+    python benchmarks/marl_benchmark.py run --library dvrl-marl --algorithm mappo --level default --seed 0 --frames 4000000
+    python benchmarks/marl_benchmark.py table            # the table (markdown), its JSON and the plot
+
+Every run uses the same env options, the shipped BenchMARL task files
+(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v2``, the guided reward,
+the observation features, the start level). ``benchmarl`` runs BenchMARL's own algorithm and experiment defaults
+with the shipped experiment overrides (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO
+settings of the configuration of record; :func:`dvrl_marl.integrations.benchmarl.experiment_config`), only the
+frame budget and the evaluation interval set here; ``dvrl-marl`` runs this project's trainer with the configuration of
+record (``baselines/configs/suction_<algorithm>.toml``), its ``[env]`` replaced by the same task file; at the easy
+level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
+ending on the default task).
+
+Reported as the MARL evaluation protocol asks (Gorsane et al. 2022): success on 100 held-out test episodes (seeds
+``teams.EVAL_SEED`` on, the deterministic policy, the record's level) per run; per cell the interquartile mean over
+seeds with a 95 % stratified-bootstrap interval (``rliable``), and frames and wall clock until the validation
+success first reached 0.9 during training. Records: ``baselines/results/benchmark/*.json`` (one per run; the curve,
+the final figures, the command, the machine), the aggregate ``table.json`` and ``benchmark.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "baselines" / "results" / "benchmark"
+LIBRARIES = ("benchmarl", "dvrl-marl")
+ALGORITHMS = {"benchmarl": ("mappo", "ippo", "masac"), "dvrl-marl": ("mappo", "ippo")}
+LEVELS = ("easy", "default")
+TEST_EPISODES = 100
+TARGET = 0.9
+
+
+def _task_options(level: str) -> dict:
+    import yaml
+
+    return yaml.safe_load((ROOT / "dvrl_marl" / "integrations" / "benchmarl_tasks" /
+                           f"suction_debris_{level}.yaml").read_text())
+
+
+def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int) -> Path:
+    return results / f"{library}_{algorithm}_{level}_seed{seed}.json"
+
+
+def _first_reaching(curve: list[dict], key: str):
+    return next((point[key] for point in curve if point["success_rate"] >= TARGET), None)
+
+
+# --- BenchMARL ----------------------------------------------------------------------------------------------------
+def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: int, eval_every: int, folder: Path,
+                  batch_frames: int = 0, test_episodes: int = TEST_EPISODES):
+    import torch
+    from benchmarl.algorithms import IppoConfig, MappoConfig, MasacConfig
+    from benchmarl.experiment import Experiment
+    from benchmarl.models.mlp import MlpConfig
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from dvrl_marl.integrations.benchmarl import (SuccessCurve, experiment_config, first_episode_success,
+                                                  suction_debris_task)
+    from dvrl_marl.training import teams
+
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    curve = SuccessCurve()
+    config = experiment_config()  # BenchMARL's defaults with the shipped overrides
+    config.max_n_frames = int(frames)
+    config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = int(worlds)
+    if batch_frames:
+        config.on_policy_collected_frames_per_batch = config.off_policy_collected_frames_per_batch = int(batch_frames)
+        config.on_policy_minibatch_size = min(config.on_policy_minibatch_size, int(batch_frames))
+    config.evaluation_interval = int(eval_every)
+    config.save_folder = str(folder)
+    config.checkpoint_at_end = False
+    algorithm_config = {"mappo": MappoConfig, "ippo": IppoConfig, "masac": MasacConfig}[algorithm].get_from_yaml()
+    task = suction_debris_task(level)
+    experiment = Experiment(task=task, algorithm_config=algorithm_config, model_config=MlpConfig.get_from_yaml(),
+                            critic_model_config=MlpConfig.get_from_yaml(), seed=seed, config=config,
+                            callbacks=[curve])
+    experiment.run()
+    wall = time.perf_counter() - started
+    test_env = task.get_env_fun(num_envs=test_episodes, continuous_actions=True, seed=teams.EVAL_SEED,
+                                device="cpu")()
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        rollout = test_env.rollout(max_steps=task.max_steps(test_env), policy=experiment.policy,
+                                   break_when_any_done=False)
+    success = [first_episode_success(r) for r in rollout.unbind(0)]
+    return curve.points, {"success_rate": float(np.mean(success)), "episodes": len(success)}, wall, int(
+        experiment.total_frames)
+
+
+# --- this project's trainer ---------------------------------------------------------------------------------------
+def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every: int, folder: Path,
+                  test_episodes: int = TEST_EPISODES, eval_episodes: int | None = None):
+    import csv
+
+    from dvrl_marl import policies
+    from dvrl_marl.training import mappo, teams
+
+    config = mappo.load_config(ROOT / "baselines" / "configs" / f"suction_debris_{algorithm}.toml")
+    config.env = _task_options(level)
+    if level == "easy":
+        config.levels = []  # every episode easy (the task file's start level)
+    config.eval_every = config.checkpoint_every = int(eval_every)
+    config.evaluate_with_noise = False  # validation as BenchMARL's: the deterministic policy
+    if eval_episodes:
+        config.eval_episodes = int(eval_episodes)
+    started = time.perf_counter()
+    result = mappo.train(config, seed, folder, total_steps=int(frames), progress=False, tensorboard=False,
+                         log=lambda *_: None)
+    wall = time.perf_counter() - started
+    with (folder / "progress.csv").open() as handle:
+        curve = [{"frames": int(float(row["steps"])), "wall_seconds": float(row["wall_seconds"]),
+                  "success_rate": float(row["success_rate"])} for row in csv.DictReader(handle)]
+    team = {agent: policies.load(folder / "policies_best" / f"marl-{agent}") for agent in ("suction", "grasper")}
+    options = {k: v for k, v in config.env.items() if k not in ("reward_type", "observation_features")}
+    final = teams.evaluate_team_batched(team, test_episodes, seed=teams.EVAL_SEED, **options)
+    return curve, {"success_rate": float(final["success_rate"]), "episodes": test_episodes,
+                   "validation_best": float(result.get("success_rate", float("nan")))}, wall, int(frames)
+
+
+def command_run(args) -> int:
+    results = Path(args.results)
+    record = _record_path(results, args.library, args.algorithm, args.level, args.seed)
+    if record.exists():
+        print(f"{record} exists: a run is recorded once (delete it to run again)", file=sys.stderr)
+        return 2
+    if args.algorithm not in ALGORITHMS[args.library]:
+        print(f"--algorithm: {args.library} runs {', '.join(ALGORITHMS[args.library])}", file=sys.stderr)
+        return 2
+    folder = results / "runs" / record.stem
+    if folder.exists():
+        print(f"{folder} exists: delete it, or the record of that run", file=sys.stderr)
+        return 2
+    folder.mkdir(parents=True)
+    if args.library == "benchmarl":
+        curve, final, wall, frames = run_benchmarl(args.algorithm, args.level, args.seed, args.frames, args.worlds,
+                                                   args.eval_every, folder, args.batch_frames, args.test_episodes)
+    else:
+        curve, final, wall, frames = run_dvrl_marl(args.algorithm, args.level, args.seed, args.frames,
+                                                   args.eval_every, folder, args.test_episodes, args.eval_episodes)
+    out = {"library": args.library, "algorithm": args.algorithm, "level": args.level, "seed": args.seed,
+           "frames": frames, "wall_seconds": wall, "final": final, "curve": curve,
+           "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
+           "target": TARGET, "env_options": _task_options(args.level),
+           "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
+           "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
+    record.write_text(json.dumps(out, indent=2) + "\n")
+    print(f"{record.name}: test success {final['success_rate']:.2f}, {frames:,} frames, {wall / 60:.1f} min, "
+          f"to {TARGET:.0%}: {out['frames_to_target']} frames")
+    return 0
+
+
+# --- the table ----------------------------------------------------------------------------------------------------
+def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
+    """Per (library, algorithm, level): IQM of the test success over seeds with a 95 % stratified-bootstrap
+    interval (rliable), and the median frames / wall clock to the target over the seeds that reached it."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    cells = {}
+    for record in records:
+        cells.setdefault((record["library"], record["algorithm"], record["level"]), []).append(record)
+    rows = []
+    for (library, algorithm, level), runs in sorted(cells.items()):
+        scores = np.array([[run["final"]["success_rate"]] for run in runs])  # (seeds, 1 task)
+        point, interval = rly.get_interval_estimates({"x": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]),
+                                                     reps=reps)
+        reached = [run for run in runs if run["frames_to_target"] is not None]
+        rows.append({"library": library, "algorithm": algorithm, "level": level, "seeds": len(runs),
+                     "iqm_success": float(point["x"][0]), "ci95": [float(interval["x"][0][0]),
+                                                                  float(interval["x"][1][0])],
+                     "seed_success": [run["final"]["success_rate"] for run in runs],
+                     "frames": int(np.median([run["frames"] for run in runs])),
+                     "wall_minutes": float(np.median([run["wall_seconds"] for run in runs]) / 60),
+                     "reached_target": f"{len(reached)}/{len(runs)}",
+                     "frames_to_target": (int(np.median([r["frames_to_target"] for r in reached])) if reached
+                                          else None),
+                     "minutes_to_target": (float(np.median([r["wall_to_target"] for r in reached]) / 60) if reached
+                                           else None)})
+    return rows
+
+
+def command_table(args) -> int:
+    results = Path(args.results)
+    records = [json.loads(path.read_text()) for path in sorted(results.glob("*_seed*.json"))]
+    if not records:
+        print(f"no records in {results}", file=sys.stderr)
+        return 2
+    rows = aggregate(records)
+    (results / "table.json").write_text(json.dumps({"target": TARGET, "test_episodes": TEST_EPISODES, "rows": rows},
+                                                   indent=2) + "\n")
+    print("| library | algorithm | level | seeds | IQM success [95 % CI] | per seed | frames | minutes | reached 0.9 | "
+          "frames to 0.9 | minutes to 0.9 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for row in rows:
+        low, high = row["ci95"]
+        to_frames = f"{row['frames_to_target']:,}" if row["frames_to_target"] is not None else "-"
+        to_minutes = f"{row['minutes_to_target']:.0f}" if row["minutes_to_target"] is not None else "-"
+        print(f"| {row['library']} | {row['algorithm'].upper()} | {row['level']} | {row['seeds']} | "
+              f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}] | {', '.join(f'{s:.2f}' for s in row['seed_success'])} | "
+              f"{row['frames']:,} | {row['wall_minutes']:.0f} | {row['reached_target']} | {to_frames} | {to_minutes} |")
+    _plot(rows, results / "benchmark.png")
+    return 0
+
+
+def _plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(LEVELS), figsize=(5 * len(LEVELS), 3.2), sharex=True)
+    for axis, level in zip(np.atleast_1d(axes), LEVELS):
+        chosen = [row for row in rows if row["level"] == level]
+        labels = [f"{row['library']}\n{row['algorithm'].upper()} (n={row['seeds']})" for row in chosen]
+        points = [row["iqm_success"] for row in chosen]
+        errors = np.array([[row["iqm_success"] - row["ci95"][0], row["ci95"][1] - row["iqm_success"]]
+                           for row in chosen]).T if chosen else None
+        axis.barh(range(len(chosen)), points, xerr=errors, color="#4c72b0", capsize=3)
+        axis.set_yticks(range(len(chosen)), labels, fontsize=8)
+        axis.set_xlim(0, 1)
+        axis.axvline(TARGET, color="grey", linestyle=":")
+        axis.set_title(f"{level} level: IQM test success, 95 % CI")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="one run: writes one JSON record")
+    run.add_argument("--library", choices=LIBRARIES, required=True)
+    run.add_argument("--algorithm", choices=sorted({a for v in ALGORITHMS.values() for a in v}), required=True)
+    run.add_argument("--level", choices=LEVELS, required=True)
+    run.add_argument("--seed", type=int, required=True)
+    run.add_argument("--frames", type=int, default=2_000_000, help="env steps of all worlds (default %(default)s)")
+    run.add_argument("--worlds", type=int, default=256, help="BenchMARL: worlds per batch (default %(default)s)")
+    run.add_argument("--batch-frames", type=int, default=0,
+                     help="BenchMARL: frames per collected batch (0: the shipped experiment.yaml's)")
+    run.add_argument("--eval-every", type=int, default=245_760, help="frames between validations (default %(default)s)")
+    run.add_argument("--test-episodes", type=int, default=TEST_EPISODES, help="held-out test episodes (default %(default)s)")
+    run.add_argument("--eval-episodes", type=int, default=0,
+                     help="dvrl-marl: validation episodes (0: the configuration's)")
+    run.add_argument("--results", default=str(RESULTS))
+    table = sub.add_parser("table", help="the table of the records, its JSON and plot")
+    table.add_argument("--results", default=str(RESULTS))
+    args = parser.parse_args(argv)
+    if args.command == "run" and (args.frames < 1 or args.worlds < 1 or args.seed < 0 or args.test_episodes < 1
+                                  or args.eval_episodes < 0 or args.batch_frames < 0 or args.eval_every < 1):
+        parser.error("--frames, --worlds, --test-episodes, --eval-every must be >= 1; --seed, --eval-episodes, "
+                     "--batch-frames >= 0")
+    return command_run(args) if args.command == "run" else command_table(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

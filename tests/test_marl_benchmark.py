@@ -1,0 +1,79 @@
+"""benchmarks/marl_benchmark.py: a run writes one record and never overwrites one; the table aggregates the records
+(IQM with a bootstrap interval, frames to the target) into its JSON and plot."""
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "marl_benchmark.py"
+spec = importlib.util.spec_from_file_location("marl_benchmark", SCRIPT)
+marl_benchmark = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(marl_benchmark)
+
+
+def _record(results, library, level, seed, success, reached):
+    curve = [{"frames": 1000 * (i + 1), "wall_seconds": 10.0 * (i + 1), "success_rate": s}
+             for i, s in enumerate([0.2, success])]
+    out = {"library": library, "algorithm": "mappo", "level": level, "seed": seed, "frames": 2000,
+           "wall_seconds": 20.0, "final": {"success_rate": success}, "curve": curve,
+           "frames_to_target": 2000 if reached else None, "wall_to_target": 20.0 if reached else None}
+    path = results / f"{library}_mappo_{level}_seed{seed}.json"
+    path.write_text(json.dumps(out))
+
+
+def test_table_aggregates_iqm_intervals_and_frames_to_target(tmp_path):
+    pytest.importorskip("rliable")
+    for seed, success in enumerate([1.0, 0.95, 0.9, 0.2, 1.0]):
+        _record(tmp_path, "dvrl-marl", "default", seed, success, success >= 0.9)
+    for seed in range(3):
+        _record(tmp_path, "benchmarl", "easy", seed, 0.0, False)
+    assert marl_benchmark.main(["table", "--results", str(tmp_path)]) == 0
+    table = json.loads((tmp_path / "table.json").read_text())
+    rows = {(r["library"], r["level"]): r for r in table["rows"]}
+    ours = rows["dvrl-marl", "default"]
+    assert ours["seeds"] == 5 and ours["reached_target"] == "4/5" and ours["frames_to_target"] == 2000
+    assert ours["iqm_success"] == pytest.approx(0.95)  # the middle three of five: 0.9, 0.95, 1.0
+    assert ours["ci95"][0] <= ours["iqm_success"] <= ours["ci95"][1]
+    assert rows["benchmarl", "easy"]["iqm_success"] == 0.0 and rows["benchmarl", "easy"]["frames_to_target"] is None
+    assert (tmp_path / "benchmark.png").stat().st_size > 1000
+
+
+def test_a_run_never_overwrites_a_record(tmp_path, capsys):
+    _record(tmp_path, "dvrl-marl", "easy", 0, 1.0, True)
+    before = (tmp_path / "dvrl-marl_mappo_easy_seed0.json").read_text()
+    code = marl_benchmark.main(["run", "--library", "dvrl-marl", "--algorithm", "mappo", "--level", "easy",
+                                "--seed", "0", "--results", str(tmp_path)])
+    assert code == 2 and "exists" in capsys.readouterr().err
+    assert (tmp_path / "dvrl-marl_mappo_easy_seed0.json").read_text() == before
+
+
+def test_bad_flags_are_named():
+    result = subprocess.run([sys.executable, str(SCRIPT), "run", "--library", "dvrl-marl", "--algorithm", "mappo",
+                             "--level", "easy", "--seed", "0", "--frames", "0"], capture_output=True, text=True)
+    assert result.returncode == 2 and "--frames" in result.stderr
+
+
+@pytest.mark.parametrize("library", ["dvrl-marl", "benchmarl"])
+def test_a_tiny_run_writes_its_record(tmp_path, library):
+    pytest.importorskip("torchrl")
+    if library == "benchmarl":
+        pytest.importorskip("benchmarl")
+    else:
+        pytest.importorskip("yaml")
+    flags = ["--frames", "1200", "--worlds", "4", "--batch-frames", "600", "--eval-every", "600"] if library == \
+        "benchmarl" else ["--frames", "2048", "--eval-every", "8192", "--eval-episodes", "2"]
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    result = subprocess.run([sys.executable, str(SCRIPT), "run", "--library", library, "--algorithm", "mappo",
+                             "--level", "easy", "--seed", "0", "--test-episodes", "3", "--results", str(tmp_path),
+                             *flags], capture_output=True, text=True, env=env, timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
+    record = json.loads((tmp_path / f"{library}_mappo_easy_seed0.json").read_text())
+    assert record["final"]["episodes"] == 3 and 0.0 <= record["final"]["success_rate"] <= 1.0
+    assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
+    assert record["command"].startswith("python benchmarks/marl_benchmark.py run")
