@@ -5,6 +5,12 @@
     python examples/rllib_suction_debris.py --shared --env-runners 2     # one policy for both arms, 2 env runners
     python examples/rllib_suction_debris.py --address auto               # on the Ray cluster this machine joined
     python examples/rllib_suction_debris.py --iterations 1 --video rllib.mp4   # and a video of the learned team
+    python examples/rllib_suction_debris.py --guided --level easy --test-episodes 20   # the env's learning options
+
+``--guided`` turns on the env's options that made the task learnable (``reward_type="guided"`` and the observation
+features the learned seats read; ``dvrl_marl.envs.guidance``), ``--level`` its start level (``easy`` ... ``default``,
+``dvrl_marl.envs.start_levels``); the trained team is then tested on ``--test-episodes`` held-out episodes at that
+level.
 
 The env is registered with RLlib as ``dvrl_marl/suction_debris-v1`` (``dvrl_marl.integrations.rllib``; its
 wrapper renders, RLlib's own does not) and steps the PettingZoo parallel env unmodified, at a few hundred steps/s
@@ -19,16 +25,27 @@ import json
 from pathlib import Path
 
 
+#: ``--guided``: the env options of the configuration of record (baselines/configs/suction_debris_mappo.toml).
+GUIDED = {"reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom", "contact_penalty": 0.1}
+
+
+def env_options(*, guided: bool = False, level: str = "default", max_cycles: int = 1500) -> dict:
+    """The env's keyword arguments for this recipe."""
+    return {**(GUIDED if guided else {"reward_type": "dense"}), "start_level": level, "max_cycles": max_cycles}
+
+
 def build_config(*, shared: bool = False, env_runners: int = 0, train_batch: int = 4000, minibatch: int = 500,
-                 epochs: int = 5, max_cycles: int = 1500, reward_type: str = "dense", seed: int = 0):
-    """The PPOConfig of this recipe."""
+                 epochs: int = 5, max_cycles: int = 1500, reward_type: str = "dense", seed: int = 0,
+                 options: dict | None = None):
+    """The PPOConfig of this recipe (``options``: the env's keyword arguments, else ``reward_type`` and
+    ``max_cycles``)."""
     from ray.rllib.algorithms.ppo import PPOConfig
 
     from dvrl_marl.integrations.rllib import policy_per_agent, register_suction_debris, shared_policy
 
     name = register_suction_debris()
     return (PPOConfig()
-            .environment(name, env_config={"reward_type": reward_type, "max_cycles": max_cycles})
+            .environment(name, env_config=options or {"reward_type": reward_type, "max_cycles": max_cycles})
             .multi_agent(**(shared_policy() if shared else policy_per_agent()))
             .env_runners(num_env_runners=env_runners)
             .training(train_batch_size=train_batch, minibatch_size=minibatch, num_epochs=epochs, gamma=0.99,
@@ -36,14 +53,17 @@ def build_config(*, shared: bool = False, env_runners: int = 0, train_batch: int
             .debugging(seed=seed))
 
 
-def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1500, video: str | None = None) -> dict:
-    """One episode of the trained team (deterministic actions: the distributions' means), optionally filmed."""
+def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1500, video: str | None = None,
+             options: dict | None = None) -> dict:
+    """One episode of the trained team (deterministic actions: the distributions' means), optionally filmed;
+    ``options``: the env's keyword arguments it trained with (the observation features among them)."""
     import numpy as np
     import torch
 
     from dvrl_marl.envs import suction_debris_v1
 
-    env = suction_debris_v1.parallel_env(render_mode="rgb_array" if video else None, max_cycles=max_cycles)
+    options = {k: v for k, v in (options or {"max_cycles": max_cycles}).items() if k != "reward_type"}
+    env = suction_debris_v1.parallel_env(render_mode="rgb_array" if video else None, **options)
     observations, _ = env.reset(seed=seed)
     frames, steps, info = [], 0, {}
     while env.agents:
@@ -80,13 +100,20 @@ def main(argv=None) -> dict:
     parser.add_argument("--checkpoint", help="save the algorithm here at the end")
     parser.add_argument("--video", help="film one episode of the trained team to this MP4")
     parser.add_argument("--seed", type=int, default=0, help="seed of the run")
+    parser.add_argument("--guided", action="store_true", help="the env's guided reward and observation features")
+    parser.add_argument("--level", default="default", choices=("easy", "default"), help="the env's start level")
+    parser.add_argument("--test-episodes", type=int, default=1, help="held-out episodes the trained team plays")
     args = parser.parse_args(argv)
+    if args.iterations < 0 or args.test_episodes < 1:
+        parser.error("--iterations must be >= 0 and --test-episodes >= 1")
 
     from dvrl_marl.integrations.rllib import init_ray, train
 
     init_ray(args.address)
+    options = env_options(guided=args.guided, level=args.level, max_cycles=args.max_cycles)
     config = build_config(shared=args.shared, env_runners=args.env_runners, train_batch=args.train_batch,
-                          minibatch=args.minibatch, epochs=args.epochs, max_cycles=args.max_cycles, seed=args.seed)
+                          minibatch=args.minibatch, epochs=args.epochs, max_cycles=args.max_cycles, seed=args.seed,
+                          options=options)
     algo = config.build_algo()
     result = train(algo, args.iterations, log=lambda line: print(line, flush=True))
     summary = {"iterations": args.iterations,
@@ -94,7 +121,11 @@ def main(argv=None) -> dict:
                "policies": sorted(algo.config.policies)}
     if args.checkpoint:
         summary["checkpoint"] = str(algo.save(str(Path(args.checkpoint).resolve())).checkpoint.path)
-    summary["episode"] = roll_out(algo, shared=args.shared, max_cycles=args.max_cycles, video=args.video)
+    episodes = [roll_out(algo, shared=args.shared, seed=900_000_000 + k, max_cycles=args.max_cycles,
+                         video=args.video if k == 0 else None, options=options) for k in range(args.test_episodes)]
+    summary["episode"] = episodes[0]
+    summary["test"] = {"episodes": len(episodes), "level": args.level, "guided": args.guided,
+                       "success_rate": sum(e["success"] for e in episodes) / len(episodes)}
     print(json.dumps(summary))
     algo.stop()
     return summary

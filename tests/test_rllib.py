@@ -58,6 +58,16 @@ def test_multi_agent_recipe_trains_saves_and_films_a_team(tmp_path, local_ray, s
     assert Path(summary["checkpoint"]).is_dir()
 
 
+def test_multi_agent_recipe_takes_the_envs_learning_options(local_ray):
+    """--guided --level easy: the guided reward, the observation features and easy starts reach RLlib's env and the
+    test episodes (the policies read the features they trained on)."""
+    recipe = load("rllib_suction_debris")
+    summary = recipe.main([*TINY, "--max-cycles", "60", "--guided", "--level", "easy", "--test-episodes", "2"])
+    assert summary["test"]["episodes"] == 2 and summary["test"]["level"] == "easy" and summary["test"]["guided"]
+    assert 0.0 <= summary["test"]["success_rate"] <= 1.0
+    assert recipe.env_options(guided=True, level="easy")["observation_features"] == "suction_debris_cleared_pins_zoom"
+
+
 def test_single_arm_recipe_runs_a_vector_of_envs_per_runner(tmp_path, local_ray):
     recipe = load("rllib_single_arm")
     summary = recipe.main([*TINY, "--envs-per-runner", "4", "--episodes", "2", "--video", str(tmp_path / "reach.mp4")])
