@@ -14,7 +14,8 @@ settings of the configuration of record; :func:`dvrl_marl.integrations.benchmarl
 frame budget and the evaluation interval set here; ``dvrl-marl`` runs this project's trainer with the configuration of
 record (``baselines/configs/suction_<algorithm>.toml``), its ``[env]`` replaced by the same task file; at the easy
 level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
-ending on the default task).
+ending on the default task); BenchMARL's default-level runs get the same schedule through a callback
+(``StartLevelSchedule``, outside the algorithm). Validation and test episodes are always at the record's level.
 
 Reported as the MARL evaluation protocol asks (Gorsane et al. 2022): success on 100 held-out test episodes (seeds
 ``teams.EVAL_SEED`` on, the deterministic policy, the record's level) per run; per cell the interquartile mean over
@@ -43,6 +44,9 @@ LIBRARIES = ("benchmarl", "dvrl-marl")
 ALGORITHMS = {"benchmarl": ("mappo", "ippo", "masac"), "dvrl-marl": ("mappo", "ippo")}
 LEVELS = ("easy", "default")
 TEST_EPISODES = 100
+#: The start-level schedule of the default level's runs, both libraries (the configuration of record's
+#: ``[curriculum] levels``): BenchMARL through :class:`dvrl_marl.integrations.benchmarl.StartLevelSchedule`.
+CURRICULUM = ((0.0, 0.0), (0.3, 0.5), (1.0, 1.0))
 TARGET = 0.9
 
 
@@ -70,8 +74,8 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
     from benchmarl.models.mlp import MlpConfig
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    from dvrl_marl.integrations.benchmarl import (SuccessCurve, experiment_config, first_episode_success,
-                                                  suction_debris_task)
+    from dvrl_marl.integrations.benchmarl import (StartLevelSchedule, SuccessCurve, experiment_config,
+                                                  first_episode_success, suction_debris_task)
     from dvrl_marl.training import teams
 
     torch.set_num_threads(1)
@@ -90,7 +94,7 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
     task = suction_debris_task(level)
     experiment = Experiment(task=task, algorithm_config=algorithm_config, model_config=MlpConfig.get_from_yaml(),
                             critic_model_config=MlpConfig.get_from_yaml(), seed=seed, config=config,
-                            callbacks=[curve])
+                            callbacks=[curve] + ([StartLevelSchedule(CURRICULUM)] if level == "default" else []))
     experiment.run()
     wall = time.perf_counter() - started
     test_env = task.get_env_fun(num_envs=test_episodes, continuous_actions=True, seed=teams.EVAL_SEED,
@@ -157,6 +161,7 @@ def command_run(args) -> int:
            "frames": frames, "wall_seconds": wall, "final": final, "curve": curve,
            "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
            "target": TARGET, "env_options": _task_options(args.level),
+           "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
     record.write_text(json.dumps(out, indent=2) + "\n")

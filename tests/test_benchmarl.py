@@ -61,3 +61,30 @@ def test_a_short_benchmarl_run_learns_and_writes_its_json(tmp_path, algorithm):
     assert results, "BenchMARL wrote no JSON of results"
     data = json.loads(results[0].read_text())
     assert "dvrl_marl" in json.dumps(data)
+
+
+def test_start_level_schedule_drives_the_training_worlds_level(tmp_path):
+    from benchmarl.algorithms import MappoConfig
+    from benchmarl.experiment import Experiment
+    from benchmarl.models.mlp import MlpConfig
+
+    from dvrl_marl.integrations.benchmarl import StartLevelSchedule, SuccessCurve, experiment_config
+
+    with pytest.raises(ValueError, match="progress increasing"):
+        StartLevelSchedule([(0.5, 0.0), (0.2, 1.0)])
+    schedule = StartLevelSchedule([(0.0, 0.0), (1.0, 1.0)])
+    assert schedule.level(0.25) == pytest.approx(0.25)
+    curve = SuccessCurve()
+    config = experiment_config(max_n_frames=1_200, on_policy_collected_frames_per_batch=600,
+                               on_policy_n_envs_per_worker=4, on_policy_minibatch_size=300,
+                               on_policy_n_minibatch_iters=1, evaluation_interval=600, evaluation_episodes=2,
+                               save_folder=str(tmp_path))
+    experiment = Experiment(task=suction_debris_task("default", max_cycles=60), algorithm_config=MappoConfig.get_from_yaml(),
+                            model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(),
+                            seed=0, config=config, callbacks=[schedule, curve])
+    experiment.run()
+    # set at the start (level 0), after the first batch (half-way: 0.5) and the second (the default task)
+    assert [level for _, level in schedule.applied] == [0.0, 0.5, 1.0]
+    assert len(curve.points) >= 1 and all(0.0 <= p["success_rate"] <= 1.0 for p in curve.points)
+    with pytest.raises(ValueError, match="not a BenchMARL experiment setting"):
+        experiment_config(learning_rate=1e-3)

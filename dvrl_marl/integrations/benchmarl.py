@@ -41,7 +41,7 @@ from torchrl.data import Composite
 
 from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
-__all__ = ["SuctionDebrisTask", "SuccessCurve", "suction_debris_task", "experiment_config", "first_episode_success", "TASK_FILES",
+__all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_debris_task", "experiment_config", "first_episode_success", "TASK_FILES",
            "LEVELS"]
 
 #: The shipped task files.
@@ -136,6 +136,44 @@ class SuccessCurve(Callback):
         self.points.append({"frames": frames, "wall_seconds": time.perf_counter() - self.started,
                             "success_rate": float(success)})
         self.experiment.logger.log({"eval/success_rate": float(success)}, step=self.experiment.n_iters_performed)
+
+
+class StartLevelSchedule(Callback):
+    """A BenchMARL callback that drives the env's start level (:mod:`dvrl_marl.envs.start_levels`) as a
+    piecewise-linear schedule over the run, ``levels = [(progress, level), ...]`` (progress: the share of
+    ``max_n_frames`` collected): after each collected batch the training worlds' next episodes start at the scheduled
+    level. The same curriculum as this project's trainer (``[curriculum] levels``), from outside the algorithm; the
+    evaluation env keeps the task file's level.
+    """
+
+    def __init__(self, levels=((0.0, 0.0), (0.3, 0.5), (1.0, 1.0))):
+        super().__init__()
+        points = [(float(p), float(v)) for p, v in levels]
+        if not points or any(b[0] <= a[0] for a, b in zip(points, points[1:])) or not all(
+                0.0 <= p <= 1.0 and 0.0 <= v <= 1.0 for p, v in points):
+            raise ValueError(f"StartLevelSchedule: levels must be (progress, level) pairs in [0, 1], progress "
+                             f"increasing, got {levels!r}")
+        self.levels = points
+        self.applied: list[tuple[int, float]] = []  # (frames, level) each time the level was set
+
+    def level(self, progress: float) -> float:
+        import numpy as np
+
+        points, values = zip(*self.levels)
+        return float(np.interp(min(max(progress, 0.0), 1.0), points, values))
+
+    def _apply(self):
+        experiment = self.experiment
+        frames = int(getattr(experiment, "total_frames", 0))
+        level = self.level(frames / max(int(experiment.config.max_n_frames or 1), 1))
+        _base(experiment.collector.env).set_start_level(level)
+        self.applied.append((frames, level))
+
+    def on_setup(self):
+        self._apply()
+
+    def on_batch_collected(self, batch):
+        self._apply()
 
 
 def experiment_config(path=None, **overrides):
