@@ -18,7 +18,8 @@ ending on the default task); BenchMARL's default-level runs get the same schedul
 (``StartLevelSchedule``, outside the algorithm). Validation and test episodes are always at the record's level.
 
 Reported as the MARL evaluation protocol asks (Gorsane et al. 2022): success on 100 held-out test episodes (seeds
-``teams.EVAL_SEED`` on, the deterministic policy, the record's level) per run; per cell the interquartile mean over
+``teams.EVAL_SEED`` on, the record's level) per run, with the deterministic policy (the mean action: what a robot
+is driven by, and BenchMARL's evaluation) and, beside it, sampling its actions as in training (``_sampled``); per cell the interquartile mean over
 seeds with a 95 % stratified-bootstrap interval (``rliable``), and frames and wall clock until the validation
 success first reached 0.9 during training. Records: ``baselines/results/benchmark/*.json`` (one per run; the curve,
 the final figures, the command, the machine), the aggregate ``table.json`` and ``benchmark.png``.
@@ -99,11 +100,15 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
     wall = time.perf_counter() - started
     test_env = task.get_env_fun(num_envs=test_episodes, continuous_actions=True, seed=teams.EVAL_SEED,
                                 device="cpu")()
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        rollout = test_env.rollout(max_steps=task.max_steps(test_env), policy=experiment.policy,
-                                   break_when_any_done=False)
-    success = [first_episode_success(r) for r in rollout.unbind(0)]
-    return curve.points, {"success_rate": float(np.mean(success)), "episodes": len(success)}, wall, int(
+    final = {"episodes": test_episodes}
+    for key, exploration in (("success_rate", ExplorationType.DETERMINISTIC),
+                             ("success_rate_sampled", ExplorationType.RANDOM)):
+        test_env.set_seed(teams.EVAL_SEED)
+        with torch.no_grad(), set_exploration_type(exploration):
+            rollout = test_env.rollout(max_steps=task.max_steps(test_env), policy=experiment.policy,
+                                       break_when_any_done=False)
+        final[key] = float(np.mean([first_episode_success(r) for r in rollout.unbind(0)]))
+    return curve.points, final, wall, int(
         experiment.total_frames)
 
 
@@ -133,7 +138,11 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
     team = {agent: policies.load(folder / "policies_best" / f"marl-{agent}") for agent in ("suction", "grasper")}
     options = {k: v for k, v in config.env.items() if k not in ("reward_type", "observation_features")}
     final = teams.evaluate_team_batched(team, test_episodes, seed=teams.EVAL_SEED, **options)
+    sampled = teams.evaluate_team_batched({agent: policy.with_noise(teams.noise_seed(agent, teams.EVAL_SEED))
+                                           for agent, policy in team.items()}, test_episodes, seed=teams.EVAL_SEED,
+                                          **options)
     return curve, {"success_rate": float(final["success_rate"]), "episodes": test_episodes,
+                   "success_rate_sampled": float(sampled["success_rate"]),
                    "validation_best": float(result.get("success_rate", float("nan")))}, wall, int(frames)
 
 
@@ -182,13 +191,19 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
         cells.setdefault((record["library"], record["algorithm"], record["level"]), []).append(record)
     rows = []
     for (library, algorithm, level), runs in sorted(cells.items()):
-        scores = np.array([[run["final"]["success_rate"]] for run in runs])  # (seeds, 1 task)
-        point, interval = rly.get_interval_estimates({"x": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]),
-                                                     reps=reps)
+        def iqm(key):
+            scores = np.array([[run["final"][key]] for run in runs])  # (seeds, 1 task)
+            point, interval = rly.get_interval_estimates({"x": scores},
+                                                         lambda s: np.array([metrics.aggregate_iqm(s)]), reps=reps)
+            return float(point["x"][0]), [float(interval["x"][0][0]), float(interval["x"][1][0])]
+
+        iqm_success, ci95 = iqm("success_rate")
+        sampled = iqm("success_rate_sampled") if all("success_rate_sampled" in r["final"] for r in runs) else None
         reached = [run for run in runs if run["frames_to_target"] is not None]
         rows.append({"library": library, "algorithm": algorithm, "level": level, "seeds": len(runs),
-                     "iqm_success": float(point["x"][0]), "ci95": [float(interval["x"][0][0]),
-                                                                  float(interval["x"][1][0])],
+                     "iqm_success": iqm_success, "ci95": ci95,
+                     "iqm_success_sampled": None if sampled is None else sampled[0],
+                     "ci95_sampled": None if sampled is None else sampled[1],
                      "seed_success": [run["final"]["success_rate"] for run in runs],
                      "frames": int(np.median([run["frames"] for run in runs])),
                      "wall_minutes": float(np.median([run["wall_seconds"] for run in runs]) / 60),
@@ -209,15 +224,17 @@ def command_table(args) -> int:
     rows = aggregate(records)
     (results / "table.json").write_text(json.dumps({"target": TARGET, "test_episodes": TEST_EPISODES, "rows": rows},
                                                    indent=2) + "\n")
-    print("| library | algorithm | level | seeds | IQM success [95 % CI] | per seed | frames | minutes | reached 0.9 | "
-          "frames to 0.9 | minutes to 0.9 |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| library | algorithm | level | seeds | IQM success, mean action [95 % CI] | per seed | IQM success, sampled "
+          "[95 % CI] | frames | minutes | validation reached 0.9 | frames to 0.9 | minutes to 0.9 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         low, high = row["ci95"]
         to_frames = f"{row['frames_to_target']:,}" if row["frames_to_target"] is not None else "-"
         to_minutes = f"{row['minutes_to_target']:.0f}" if row["minutes_to_target"] is not None else "-"
         print(f"| {row['library']} | {row['algorithm'].upper()} | {row['level']} | {row['seeds']} | "
               f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}] | {', '.join(f'{s:.2f}' for s in row['seed_success'])} | "
+              + (f"{row['iqm_success_sampled']:.2f} [{row['ci95_sampled'][0]:.2f}, {row['ci95_sampled'][1]:.2f}] | "
+                 if row["iqm_success_sampled"] is not None else "- | ") +
               f"{row['frames']:,} | {row['wall_minutes']:.0f} | {row['reached_target']} | {to_frames} | {to_minutes} |")
     _plot(rows, results / "benchmark.png")
     return 0

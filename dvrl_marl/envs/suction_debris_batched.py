@@ -27,8 +27,13 @@ Besides ``blood_ml`` ((C,) or one row per world), ``reset(options=...)`` takes `
 ``(N,)`` ints: only the first k debris are in play, the others start delivered) and ``tip_positions``
 (``{agent: (N, 3)}`` metres in the world frame: each tip must be inside the workspace box, above the surface,
 reachable, and leave the instruments apart). Rows of worlds that are not reset are ignored.
-``set_tip_positions(tips, worlds)`` moves tips of episodes just drawn (to start near what the draw placed). A
-trainer's curriculum uses them; the default task is what you get without them.
+``set_tip_positions(tips, worlds)`` moves tips of episodes just drawn (to start near what the draw placed). The
+default task is what you get without them.
+
+``level`` (one level, ``"easy"`` / ``"default"``, or one per world) sets the start level of those worlds' episodes,
+this one and the later ones, automatic resets included (:mod:`dvrl_marl.envs.start_levels`; ``set_start_level``
+does the same between resets); below 1 it draws blood, debris and starts itself, so it is refused together with
+the three options above. World ``i``'s level draws are those of a single env reset with ``seed + i``.
 
 ## The surgeon seat
 ``surgeon="scripted"`` runs the batched scripted expert in every world; a callable gets the seat's observations
