@@ -88,9 +88,9 @@ def _train(args) -> int:
         import gymnasium as gym
 
         from dvrl_marl.training.export import export_policy
-        from dvrl_marl.training.runner import _algorithms
+        from dvrl_marl.training.runner import sb3_algorithms
 
-        model = _algorithms()[config.algorithm].load(out / "final_model.zip", env=gym.make(config.env_id, **config.env))
+        model = sb3_algorithms()[config.algorithm].load(out / "final_model.zip", env=gym.make(config.env_id, **config.env))
         export_policy(model, args.export, name=Path(args.export).name, env_id=config.env_id,
                       training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
                                 "success_rate": final["success_rate"]})

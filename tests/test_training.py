@@ -14,7 +14,7 @@ import torch as th
 from dvrl_marl import policies
 from dvrl_marl.training import bc_loss, export_policy, load_config, q_filter_mask, train
 from dvrl_marl.training.demonstrations import generate_demonstrations, load_demonstrations, save_demonstrations
-from dvrl_marl.training.runner import _algorithms, evaluate_policy
+from dvrl_marl.training.runner import sb3_algorithms, evaluate_policy
 
 # The goal-env configurations (the PPO ones for the collaborative env are tested in test_marl_training.py).
 CONFIGS = sorted(p for p in (Path(__file__).parents[1] / "baselines" / "configs").glob("*.toml")
@@ -91,7 +91,7 @@ def _tiny(config):
 @pytest.mark.parametrize("config_path", CONFIGS, ids=lambda p: p.stem)
 def test_every_configuration_trains_end_to_end(config_path, tmp_path):
     config = _tiny(load_config(config_path))
-    if config.algorithm not in _algorithms():
+    if config.algorithm not in sb3_algorithms():
         pytest.skip(f"{config.algorithm} needs sb3-contrib")
     history = train(config, seed=0, out_dir=tmp_path, progress=False)
     assert [row["timesteps"] for row in history] == [150, 300]

@@ -45,7 +45,7 @@ from dvrl_marl.training.demonstrations import (
 __all__ = ["RunConfig", "load_config", "train", "evaluate_policy", "ALGORITHMS"]
 
 
-def _algorithms() -> dict:
+def sb3_algorithms() -> dict:
     from stable_baselines3 import DDPG, SAC, TD3
 
     from dvrl_marl.training.bc import DDPGBC
@@ -184,7 +184,7 @@ def _build_model(config: RunConfig, env, seed: int):
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.noise import NormalActionNoise
 
-    cls = _algorithms().get(config.algorithm)
+    cls = sb3_algorithms().get(config.algorithm)
     if cls is None:
         raise ValueError(f"algorithm {config.algorithm!r} needs sb3-contrib (pip install sb3-contrib)")
     kwargs = dict(config.algorithm_kwargs)
@@ -224,7 +224,7 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
     env = Monitor(gym.make(config.env_id, **config.env))
     history: list[dict] = []
     if resume:
-        model = _algorithms()[config.algorithm].load(checkpoint, env=env)
+        model = sb3_algorithms()[config.algorithm].load(checkpoint, env=env)
         model.load_replay_buffer(buffer_path)
         if progress_csv.is_file():
             with progress_csv.open() as handle:
