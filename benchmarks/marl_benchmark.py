@@ -192,17 +192,18 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
     rows = []
     for (library, algorithm, level), runs in sorted(cells.items()):
         def iqm(key):
-            scores = np.array([[run["final"][key]] for run in runs])  # (seeds, 1 task)
+            scores = np.array([[run["final"][key]] for run in runs if key in run["final"]])  # (seeds, 1 task)
             point, interval = rly.get_interval_estimates({"x": scores},
                                                          lambda s: np.array([metrics.aggregate_iqm(s)]), reps=reps)
             return float(point["x"][0]), [float(interval["x"][0][0]), float(interval["x"][1][0])]
 
         iqm_success, ci95 = iqm("success_rate")
-        sampled = iqm("success_rate_sampled") if all("success_rate_sampled" in r["final"] for r in runs) else None
+        with_sampled = sum("success_rate_sampled" in run["final"] for run in runs)  # (the first records had none)
+        sampled = iqm("success_rate_sampled") if with_sampled else None
         reached = [run for run in runs if run["frames_to_target"] is not None]
         rows.append({"library": library, "algorithm": algorithm, "level": level, "seeds": len(runs),
                      "iqm_success": iqm_success, "ci95": ci95,
-                     "iqm_success_sampled": None if sampled is None else sampled[0],
+                     "iqm_success_sampled": None if sampled is None else sampled[0], "seeds_sampled": with_sampled,
                      "ci95_sampled": None if sampled is None else sampled[1],
                      "seed_success": [run["final"]["success_rate"] for run in runs],
                      "frames": int(np.median([run["frames"] for run in runs])),
@@ -233,7 +234,8 @@ def command_table(args) -> int:
         to_minutes = f"{row['minutes_to_target']:.0f}" if row["minutes_to_target"] is not None else "-"
         print(f"| {row['library']} | {row['algorithm'].upper()} | {row['level']} | {row['seeds']} | "
               f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}] | {', '.join(f'{s:.2f}' for s in row['seed_success'])} | "
-              + (f"{row['iqm_success_sampled']:.2f} [{row['ci95_sampled'][0]:.2f}, {row['ci95_sampled'][1]:.2f}] | "
+              + (f"{row['iqm_success_sampled']:.2f} [{row['ci95_sampled'][0]:.2f}, {row['ci95_sampled'][1]:.2f}]"
+                 + (f" (n={row['seeds_sampled']})" if row["seeds_sampled"] != row["seeds"] else "") + " | "
                  if row["iqm_success_sampled"] is not None else "- | ") +
               f"{row['frames']:,} | {row['wall_minutes']:.0f} | {row['reached_target']} | {to_frames} | {to_minutes} |")
     _plot(rows, results / "benchmark.png")

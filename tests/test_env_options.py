@@ -226,3 +226,24 @@ def test_sb3_collaborative_vec_env_takes_the_options():
 
 def test_named_levels():
     assert start_levels.checked_level("easy", "x") == 0.0 and start_levels.checked_level("default", "x") == 1.0
+
+
+def test_surgeon_seat_gymnasium_env_takes_the_options():
+    """The seat as a Gymnasium env (SB3's single-agent path): the options reach the scene; Gymnasium's checker."""
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    import dvrl_marl  # noqa: F401  (registers the environments)
+
+    env = gym.make("dvrl_marl/SurgeonSeat-v2", start_level="easy", **OPTIONS)
+    check_env(env.unwrapped, skip_render_check=True)
+    observation, _ = env.reset(seed=0, options={"level": 0.0})
+    assert observation.shape == env.observation_space.shape and env.observation_space.contains(observation)
+    steps = 0
+    while True:
+        _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        steps += 1
+        if terminated or truncated:
+            break
+    assert steps <= 300  # an easy episode's limit
+    env.close()
