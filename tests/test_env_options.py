@@ -180,6 +180,14 @@ def test_batched_levels_per_world_and_bad_lengths():
     env.set_start_level(1.0)
     env.reset(seed=0)
     assert env.core.limit.tolist() == [env.params.max_cycles] * 3
+    # back at the default level every world has the task's blood again (an easy draw's does not linger)
+    assert np.allclose(env.core.remaining_ml, np.asarray(env.params.blood_ml))
+    auto = suction_debris_v0.batched_env(num_envs=2, start_level="easy", max_cycles=5)
+    auto.reset(seed=1)
+    auto.set_start_level("default")
+    for _ in range(5):  # the easy episodes end (time limit) and restart at the default level
+        auto.step({agent: np.zeros((2, 4)) for agent in auto.agents})
+    assert np.allclose(auto.core.remaining_ml, np.asarray(auto.params.blood_ml))
 
 
 def test_pettingzoo_api_and_aec_form_with_every_option():

@@ -108,6 +108,7 @@ class SuctionDebrisBatchedEnv:
         self.levels = np.full(self.num_envs, self.template.start_level)  # each world's start level
         self._level_rngs = [start_levels.level_generator(None) for _ in range(self.num_envs)]
         self._rims = None  # the way around the rims, for easy starts that recede (built on first use)
+        self._level_blood = np.zeros(self.num_envs, dtype=bool)  # worlds whose blood a level's draw set
         self._guided = (GuidedReward(self.template, self.possible_agents, self.template.guidance)
                         if reward_type == "guided" else None)
         self._potential = None
@@ -167,7 +168,7 @@ class SuctionDebrisBatchedEnv:
                                  "blood_ml / debris_count / tip_positions or level, not both")
             self._start_at_levels(worlds)
         else:
-            self.core.reset(worlds, blood_ml=blood_ml)
+            self._reset_at_default(worlds, blood_ml)
         if debris_count is not None:
             count = np.asarray(debris_count)
             self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
@@ -187,8 +188,17 @@ class SuctionDebrisBatchedEnv:
         if np.any(self.levels[worlds] < start_levels.DEFAULT):
             self._start_at_levels(worlds)
         else:
-            self.core.reset(worlds)
+            self._reset_at_default(worlds)
         self._restart_potential()
+
+    def _reset_at_default(self, worlds: np.ndarray, blood_ml=None) -> None:
+        """The default task in ``worlds``: the blood of ``blood_ml``, else each world's own (the task's where an
+        easier level's draw had set it)."""
+        drawn = worlds[self._level_blood[worlds]]
+        if blood_ml is None and len(drawn):
+            self.core.set_blood(drawn, self.params.blood_ml)
+        self._level_blood[worlds] = False
+        self.core.reset(worlds, blood_ml=blood_ml)
 
     def set_start_level(self, level, worlds=None) -> None:
         """The start level (:mod:`dvrl_marl.envs.start_levels`) of the next episodes of ``worlds`` (default all; a
@@ -225,6 +235,7 @@ class SuctionDebrisBatchedEnv:
             if world in draws:
                 blood[row] = draws[world].blood_ml
         core.reset(worlds, blood_ml=blood)
+        self._level_blood[worlds] = True
         easy = [world for world, drawn in draws.items() if drawn.easy]
         if not easy:
             return
