@@ -447,6 +447,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._level_rng = start_levels.level_generator(None)
         self._limit = p.max_cycles  # this episode's time limit (an easy start shortens it)
         self._rims = None  # the way around the rims (guidance.OverRims), for easy starts that recede
+        self._level_blood = False  # the blood is a level's draw (the task's comes back at the default level)
         if guidance is not None and reward_type != "guided":
             raise ValueError(f"{self.name}: guidance settings need reward_type='guided', got {reward_type!r}")
         #: the guided reward's settings (:class:`dvrl_marl.envs.guidance.Guidance`; None unless reward_type="guided")
@@ -552,7 +553,7 @@ class SuctionDebrisEnv(ParallelEnv):
             drawn = start_levels.draw(self._level_rng, self.start_level, self.params.blood_ml, self.params.debris_count)
             blood_ml = drawn.blood_ml
             self._level_blood = True
-        elif getattr(self, "_level_blood", False) and blood_ml is None:  # back to the task's blood after easy starts
+        elif self._level_blood and blood_ml is None:  # back to the task's blood after easy starts
             blood_ml, self._level_blood = self.params.blood_ml, False
         if blood_ml is not None:
             self.blood = BloodState(self.phantom, [float(v) for v in np.atleast_1d(blood_ml)], self.params.suction_rate_ml_s)
