@@ -12,7 +12,8 @@ the observation features, the start level). ``benchmarl`` runs BenchMARL's own a
 with the shipped experiment overrides (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO
 settings of the configuration of record; :func:`dvrl_marl.integrations.benchmarl.experiment_config`), only the
 frame budget and the evaluation interval set here; ``dvrl-marl`` runs this project's trainer with the configuration of
-record (``baselines/configs/suction_<algorithm>.toml``), its ``[env]`` replaced by the same task file; at the easy
+record (``baselines/configs/suction_debris_<algorithm>.toml``; the test figure is its final policies, as
+BenchMARL's), its ``[env]`` replaced by the same task file; at the easy
 level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
 ending on the default task); BenchMARL's default-level runs get the same schedule through a callback
 (``StartLevelSchedule``, outside the algorithm). Validation and test episodes are always at the record's level.
@@ -128,14 +129,18 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
     config.evaluate_with_noise = False  # validation as BenchMARL's: the deterministic policy
     if eval_episodes:
         config.eval_episodes = int(eval_episodes)
-    started = time.perf_counter()
-    result = mappo.train(config, seed, folder, total_steps=int(frames), progress=False, tensorboard=False,
-                         log=lambda *_: None)
-    wall = time.perf_counter() - started
+    finished = folder / "result.json"
+    if finished.is_file():  # trained already (its record not written yet): evaluate it
+        result = json.loads(finished.read_text())
+    else:
+        result = mappo.train(config, seed, folder, total_steps=int(frames), progress=False, tensorboard=False,
+                             log=lambda *_: None)
     with (folder / "progress.csv").open() as handle:
         curve = [{"frames": int(float(row["steps"])), "wall_seconds": float(row["wall_seconds"]),
                   "success_rate": float(row["success_rate"])} for row in csv.DictReader(handle)]
-    team = {agent: policies.load(folder / "policies_best" / f"marl-{agent}") for agent in ("suction", "grasper")}
+    wall = curve[-1]["wall_seconds"]  # the training's own clock (the test episodes below are not training)
+    # the final policies, as BenchMARL's experiment.policy (the best validation checkpoint stays in policies_best/)
+    team = {agent: policies.load(folder / "policies" / f"marl-{agent}") for agent in ("suction", "grasper")}
     options = {k: v for k, v in config.env.items() if k not in ("reward_type", "observation_features")}
     final = teams.evaluate_team_batched(team, test_episodes, seed=teams.EVAL_SEED, **options)
     sampled = teams.evaluate_team_batched({agent: policy.with_noise(teams.noise_seed(agent, teams.EVAL_SEED))
@@ -156,10 +161,10 @@ def command_run(args) -> int:
         print(f"--algorithm: {args.library} runs {', '.join(ALGORITHMS[args.library])}", file=sys.stderr)
         return 2
     folder = results / "runs" / record.stem
-    if folder.exists():
+    if folder.exists() and not (args.library == "dvrl-marl" and (folder / "result.json").is_file()):
         print(f"{folder} exists: delete it, or the record of that run", file=sys.stderr)
         return 2
-    folder.mkdir(parents=True)
+    folder.mkdir(parents=True, exist_ok=True)
     if args.library == "benchmarl":
         curve, final, wall, frames = run_benchmarl(args.algorithm, args.level, args.seed, args.frames, args.worlds,
                                                    args.eval_every, folder, args.batch_frames, args.test_episodes)
