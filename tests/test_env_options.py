@@ -255,3 +255,21 @@ def test_surgeon_seat_gymnasium_env_takes_the_options():
             break
     assert steps <= 300  # an easy episode's limit
     env.close()
+
+
+def test_easy_episodes_can_take_the_tasks_time_limit():
+    """easy_episode_steps=None: an easy episode lasts as long as the task's (the scripted team then completes every
+    easy episode; with the record's 300 steps it cannot finish those with two full cavities)."""
+    env = suction_debris_v0.batched_env(num_envs=4, start_level="easy", easy_episode_steps=None,
+                                        autoreset_mode="disabled")
+    env.reset(seed=0)
+    assert env.core.limit.tolist() == [env.params.max_cycles] * 4
+    single = suction_debris_v0.parallel_env(start_level="easy", easy_episode_steps=120)
+    single.reset(seed=0)
+    for step in range(1, 200):
+        _, _, term, trunc, _ = single.step({agent: np.zeros(4, dtype=np.float32) for agent in single.agents})
+        if term["suction"] or trunc["suction"]:
+            break
+    assert step == 120 and trunc["suction"]
+    with pytest.raises(ValueError, match="easy_episode_steps"):
+        suction_debris_v0.parallel_env(easy_episode_steps=0)

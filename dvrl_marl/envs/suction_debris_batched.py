@@ -241,7 +241,7 @@ class SuctionDebrisBatchedEnv:
             return
         easy = np.array(easy)
         core.limit_debris(easy, np.array([draws[world].debris_count for world in easy.tolist()]))
-        core.limit[easy] = min(params.max_cycles, start_levels.EASY_EPISODES.episode_steps)
+        core.limit[easy] = min(params.max_cycles, self.template.easy_episode_steps or params.max_cycles)
         if self._rims is None:
             self._rims = OverRims(core.cavities)
         grasper = core.arms["grasper"]

@@ -77,7 +77,8 @@ the ones after it); other keys are ignored with a warning.
 Start levels (:mod:`dvrl_marl.envs.start_levels`): ``reset(options={"level": x})`` (``start_level=x`` when made;
 ``"easy"`` = 0, ``"default"`` = 1, the default) draws an easy episode with probability ``1 - x``: cavities
 emptier, fewer debris, the grasper starting near a visible pin (receding from it as ``x`` rises), 300 steps at
-most. Level 1 is the default task, bit for bit. The level holds for later episodes until set again, so a
+most (``easy_episode_steps``; ``None``: the task's own limit, so that every easy episode can be completed). Level
+1 is the default task, bit for bit. The level holds for later episodes until set again, so a
 library's curriculum can drive it at each reset (the batched env also takes one level per world, and
 ``set_start_level``).
 
@@ -343,6 +344,7 @@ class SuctionDebrisEnv(ParallelEnv):
         guidance: dict | None = None,
         observation_features: str = "",
         start_level: float | str = 1.0,
+        easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
         **params,
     ):
         #: The environment's name (its version), as its messages say it.
@@ -444,6 +446,12 @@ class SuctionDebrisEnv(ParallelEnv):
         self._hold_offset = self._grip_offset = (0.0, 0.0, 0.0)
         # Options that help learning (issue 37): start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
+        if easy_episode_steps is not None:
+            from dvrl_marl.schemas import PositiveInt, validated
+
+            easy_episode_steps = validated(PositiveInt, easy_episode_steps, f"{self.name}: easy_episode_steps")
+        #: an easy episode's time limit (None: the task's max_cycles)
+        self.easy_episode_steps = easy_episode_steps
         self._level_rng = start_levels.level_generator(None)
         self._limit = p.max_cycles  # this episode's time limit (an easy start shortens it)
         self._rims = None  # the way around the rims (guidance.OverRims), for easy starts that recede
@@ -1101,7 +1109,7 @@ class SuctionDebrisEnv(ParallelEnv):
             pin = self.debris[index]
             pin.delivered, pin.visible = True, False
             self._sync_debris(index)
-        self._limit = min(self.params.max_cycles, start_levels.EASY_EPISODES.episode_steps)
+        self._limit = min(self.params.max_cycles, self.easy_episode_steps or self.params.max_cycles)
         if self._rims is None:
             self._rims = OverRims(Cavities(self.phantom))
         pins = np.array([pin.position for pin in self.debris])

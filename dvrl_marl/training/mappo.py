@@ -411,9 +411,10 @@ def _update_running(stats: dict, x: np.ndarray) -> None:
 
 
 
-#: The env options that shape learning only: validation runs the task itself (the exported policies compute their
-#: observation features from the plain observation).
-_LEARNING_OPTIONS = ("reward_type", "guidance", "start_level", "observation_features")
+#: The env options that shape learning only: validation runs the task at the configured start level (a fixed
+#: ``start_level`` is the task being learnt; the ``[curriculum]`` schedule is not), and the exported policies compute
+#: their observation features from the plain observation.
+_LEARNING_OPTIONS = ("reward_type", "guidance", "observation_features")
 
 
 def _eval_kwargs(config: MappoConfig) -> dict:
