@@ -191,6 +191,7 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
     from rliable import library as rly
     from rliable import metrics
 
+    np.random.seed(0)  # the bootstrap's resamples (rliable draws from numpy's global stream): the same table twice
     cells = {}
     for record in records:
         cells.setdefault((record["library"], record["algorithm"], record["level"]), []).append(record)
@@ -257,14 +258,22 @@ def _plot(rows: list[dict], path: Path) -> None:
     for axis, level in zip(np.atleast_1d(axes), LEVELS):
         chosen = [row for row in rows if row["level"] == level]
         labels = [f"{row['library']}\n{row['algorithm'].upper()} (n={row['seeds']})" for row in chosen]
-        points = [row["iqm_success"] for row in chosen]
-        errors = np.array([[row["iqm_success"] - row["ci95"][0], row["ci95"][1] - row["iqm_success"]]
-                           for row in chosen]).T if chosen else None
-        axis.barh(range(len(chosen)), points, xerr=errors, color="#4c72b0", capsize=3)
-        axis.set_yticks(range(len(chosen)), labels, fontsize=8)
+        y = np.arange(len(chosen))
+        for offset, key, interval, colour, name in ((0.2, "iqm_success", "ci95", "#4c72b0", "mean action"),
+                                                    (-0.2, "iqm_success_sampled", "ci95_sampled", "#dd8452",
+                                                     "sampled")):
+            present = [i for i, row in enumerate(chosen) if row.get(key) is not None]
+            if not present:
+                continue
+            points = np.array([chosen[i][key] for i in present])
+            errors = np.array([[chosen[i][key] - chosen[i][interval][0], chosen[i][interval][1] - chosen[i][key]]
+                               for i in present]).T
+            axis.barh(y[present] + offset, points, height=0.38, xerr=errors, color=colour, capsize=3, label=name)
+        axis.set_yticks(y, labels, fontsize=8)
         axis.set_xlim(0, 1)
         axis.axvline(TARGET, color="grey", linestyle=":")
         axis.set_title(f"{level} level: IQM test success, 95 % CI")
+        axis.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
