@@ -94,7 +94,10 @@ def test_envs_copy_after_rendering(make, copier):
     env.reset(seed=3)
     frame = env.render()
     twin = copier(env)
-    np.testing.assert_array_equal(twin.render(), frame)  # the copy rebuilds its renderer and draws the same world
+    # The copy rebuilds its renderer and draws the same world. (Once, at the dependency floors late in a long run,
+    # the software rasteriser drew 339 edge pixels of 307,200 differently; another world differs in far more.)
+    differing = (np.asarray(twin.render()) != np.asarray(frame)).any(axis=-1).mean()
+    assert differing < 0.002, f"{differing:.2%} of the pixels differ"
     if hasattr(env, "action_space") and not callable(env.action_space) and not hasattr(env, "num_envs"):
         action = env.action_space.sample()
         a, b = env.step(action), twin.step(action)
