@@ -38,7 +38,7 @@ def test_bad_task_files_are_named(tmp_path):
 
 
 @pytest.mark.parametrize("algorithm", ["mappo", "ippo", "masac"])
-def test_a_short_benchmarl_run_learns_and_writes_its_json(tmp_path, algorithm):
+def test_a_short_benchmarl_run_trains_and_writes_its_json(tmp_path, algorithm):
     from benchmarl.algorithms import IppoConfig, MappoConfig, MasacConfig
     from benchmarl.experiment import Experiment, ExperimentConfig
     from benchmarl.models.mlp import MlpConfig

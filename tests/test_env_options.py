@@ -227,6 +227,8 @@ def test_sb3_collaborative_vec_env_takes_the_options():
     venv = make_collaborative_vec_env(n_envs=2, seed=0, start_level="easy", **OPTIONS)
     observations = venv.reset()
     assert observations.shape[0] == 4 and np.all(np.isfinite(observations))
+    # the features reached SuperSuit's padded slots (plus its two-agent indicator)
+    assert observations.shape[1] == suction_debris_v0.parallel_env(**OPTIONS).observation_space("suction").shape[0] + 2
     observations, rewards, dones, infos = venv.step(np.zeros((4, 4), dtype=np.float32))
     assert rewards.shape == (4,)
     venv.close()

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["EASY", "DEFAULT", "NAMED_LEVELS", "EasyEpisodes", "EASY_EPISODES", "StartDraw", "checked_level",
-           "draw", "grasper_start", "level_generator"]
+           "checked_schedule", "scheduled_level", "draw", "grasper_start", "level_generator"]
 
 EASY = 0.0
 DEFAULT = 1.0
@@ -87,6 +87,25 @@ def checked_level(value, owner: str) -> float:
     if not 0.0 <= level <= 1.0:  # NaN fails too
         raise ValueError(f"{owner}: level must lie in [0, 1] (0 easy, 1 the default task), got {value!r}")
     return level
+
+
+def checked_schedule(levels, owner: str) -> list[tuple[float, float]]:
+    """A curriculum's schedule of levels: ``(progress, level)`` pairs in [0, 1], progress increasing (a library's
+    curriculum over a run: this project's trainer, the BenchMARL callback); else ``ValueError`` naming ``owner``."""
+    points = [(float(p), float(v)) for p, v in levels]
+    if any(not (0.0 <= p <= 1.0 and 0.0 <= v <= 1.0) for p, v in points):
+        raise ValueError(f"{owner}: levels must be (progress, level) pairs in [0, 1], got {levels!r}")
+    progress = [p for p, _ in points]
+    if any(b <= a for a, b in zip(progress, progress[1:])):
+        raise ValueError(f"{owner}: the progress points must increase (levels are (progress, level) pairs in [0, 1], "
+                         f"progress increasing), got {progress}")
+    return points
+
+
+def scheduled_level(levels, progress: float) -> float:
+    """The level a schedule (:func:`checked_schedule`) gives at ``progress`` in [0, 1]: piecewise linear."""
+    points, values = zip(*levels)
+    return float(np.interp(min(max(progress, 0.0), 1.0), points, values))
 
 
 def level_generator(seed: int | None) -> np.random.Generator:

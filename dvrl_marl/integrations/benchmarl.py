@@ -39,6 +39,7 @@ except ImportError as error:  # pragma: no cover - exercised where BenchMARL is 
     raise ImportError('dvrl_marl.integrations.benchmarl needs BenchMARL: pip install "dvrl-marl[benchmarl]"') from error
 from torchrl.data import Composite
 
+from dvrl_marl.envs.start_levels import checked_schedule, scheduled_level
 from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
 __all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_debris_task", "experiment_config", "first_episode_success", "TASK_FILES",
@@ -148,19 +149,13 @@ class StartLevelSchedule(Callback):
 
     def __init__(self, levels=((0.0, 0.0), (0.3, 0.5), (1.0, 1.0))):
         super().__init__()
-        points = [(float(p), float(v)) for p, v in levels]
-        if not points or any(b[0] <= a[0] for a, b in zip(points, points[1:])) or not all(
-                0.0 <= p <= 1.0 and 0.0 <= v <= 1.0 for p, v in points):
-            raise ValueError(f"StartLevelSchedule: levels must be (progress, level) pairs in [0, 1], progress "
-                             f"increasing, got {levels!r}")
-        self.levels = points
+        self.levels = checked_schedule(levels, "StartLevelSchedule")
+        if not self.levels:
+            raise ValueError("StartLevelSchedule: an empty schedule (give at least one (progress, level) pair)")
         self.applied: list[tuple[int, float]] = []  # (frames, level) each time the level was set
 
     def level(self, progress: float) -> float:
-        import numpy as np
-
-        points, values = zip(*self.levels)
-        return float(np.interp(min(max(progress, 0.0), 1.0), points, values))
+        return scheduled_level(self.levels, progress)
 
     def _apply(self):
         experiment = self.experiment

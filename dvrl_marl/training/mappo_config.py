@@ -11,9 +11,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
-
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import start_levels, suction_debris_v0
 from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval)
 from dvrl_marl.training import teams
@@ -114,8 +112,7 @@ class MappoConfig:
         """The start level of episodes that begin at ``progress`` in [0, 1] of the run (None: no schedule)."""
         if not self.levels:
             return None
-        points, values = zip(*self.levels)
-        return float(np.interp(min(max(progress, 0.0), 1.0), points, values))
+        return start_levels.scheduled_level(self.levels, progress)
 
 
 #: The configuration's tables and the keys each holds; [run] takes every key (the flat form of the first records),
@@ -201,9 +198,7 @@ def load_config(path) -> MappoConfig:
     if any(config.held_tool_logit.values()) and config.tool_head != "switch":
         raise ValueError(f"{path}: held_tool_logit needs tool_head = \"switch\" (it leans the open/closed "
                          f"decision), got tool_head = {config.tool_head!r}")
-    progress = [point for point, _ in config.levels]
-    if any(b <= a for a, b in zip(progress, progress[1:])):
-        raise ValueError(f"{path}: [curriculum] levels: the progress points must increase, got {progress}")
+    start_levels.checked_schedule(config.levels, f"{path}: [curriculum] levels")
     return config
 
 

@@ -180,7 +180,6 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
         layers.append(nn.Linear(width, outputs))
         return nn.Sequential(*layers)
 
-    extra = 0  # (the env appends its observation features; the networks read them as observation)
     flags = list(held_flags) if held_flags is not None else held_flag_indices(obs_dim)
 
     class PerAgent(nn.Module):
@@ -190,14 +189,10 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
             super().__init__()
             self.norm = norm
             self.feature_spec = feature_spec
-            self.nets = nn.ModuleList(mlp(inputs + extra, outputs) for _ in agents)
+            self.nets = nn.ModuleList(mlp(inputs, outputs) for _ in agents)
             # the tool logit's fixed offset while a pin is held (held_pin_prior), per agent; None: no offset
             self.held_prior = held_prior if held_prior is not None and any(held_prior) else None
             self.held_flags = flags if self.held_prior is not None else []
-
-        def with_features(self, x):
-            """What the normaliser sees: the observation (its features, if any, come from the env)."""
-            return x
 
         def _leaning(self, raw, output, offset):
             """``output`` with ``offset`` added to its last (tool) value where ``raw`` says a pin is held."""
@@ -206,14 +201,14 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
 
         def agent_forward(self, x, index: int):
             """Agent ``index``'s output on its own observations ``(..., d)`` (behaviour cloning)."""
-            out = self.nets[index](self.norm(self.with_features(x)))
+            out = self.nets[index](self.norm(x))
             if self.held_prior is not None and self.held_prior[index]:
                 out = self._leaning(x, out, self.held_prior[index])
             return out
 
         def forward(self, x):
             raw = x
-            x = self.norm(self.with_features(x))
+            x = self.norm(x)
             outputs = [net(x[..., i, :]) for i, net in enumerate(self.nets)]
             if self.held_prior is not None:
                 outputs = [self._leaning(raw[..., i, :], out, offset) if offset else out
@@ -245,7 +240,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
 
         def forward(self, state, observation):
             state = self.norm(state).unsqueeze(-2).expand(*observation.shape[:-1], state_dim)
-            seen = self.observation.norm(self.observation.with_features(observation))
+            seen = self.observation.norm(observation)
             x = torch.cat([state, seen], dim=-1)
             return torch.stack([net(x[..., i, :]) for i, net in enumerate(self.observation.nets)], dim=-2)
 
@@ -263,7 +258,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
             loc = self.net(x)
             return loc, self.log_std.exp().expand_as(loc)
 
-    obs_norm = RunningNorm((obs_dim + extra,))
+    obs_norm = RunningNorm((obs_dim,))
     actor_net = PerAgent(obs_dim, action_dim, obs_norm, held_pin_prior(config, agents))
     with torch.no_grad():  # small initial means: exploration starts from the standard deviation alone
         for agent, net in zip(agents, actor_net.nets):
@@ -279,7 +274,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
                                return_log_prob=True, log_prob_key=("agents", "action_log_prob"))
     if config.algorithm == "mappo" and config.critic_input == "state_and_observation":
         state_norm = RunningNorm((state_dim,))
-        seen = PerAgent(obs_dim + state_dim, 1, RunningNorm((obs_dim + extra,)))  # inputs: state + observation
+        seen = PerAgent(obs_dim + state_dim, 1, RunningNorm((obs_dim,)))  # inputs: state + observation
         critic = TensorDictModule(AgentSpecificCritic(state_norm, seen), in_keys=["state", ("agents", "observation")],
                                   out_keys=[("agents", "state_value")])
         norms = {"observation": obs_norm, "state": state_norm, "critic_observation": seen.norm}
@@ -288,7 +283,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
         critic = TensorDictModule(CentralCritic(state_norm), in_keys=["state"], out_keys=[("agents", "state_value")])
         norms = {"observation": obs_norm, "state": state_norm}
     else:
-        critic = TensorDictModule(PerAgent(obs_dim, 1, RunningNorm((obs_dim + extra,))),
+        critic = TensorDictModule(PerAgent(obs_dim, 1, RunningNorm((obs_dim,))),
                                   in_keys=[("agents", "observation")],
                                   out_keys=[("agents", "state_value")])
         norms = {"observation": obs_norm, "critic_observation": critic.module.norm}

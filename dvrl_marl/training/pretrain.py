@@ -114,7 +114,7 @@ def clone_actor(actor_net, index: int, observations: np.ndarray, actions: np.nda
     y = torch.from_numpy(np.ascontiguousarray(actions)).to(device)
     if update_norm:
         with torch.no_grad():
-            actor_net.norm.update(actor_net.with_features(x))
+            actor_net.norm.update(x)
     network = actor_net.nets[index]
     optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
     generator = torch.Generator().manual_seed(seed)
