@@ -60,7 +60,18 @@ def _task_options(level: str) -> dict:
 
 
 def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int) -> Path:
-    return results / f"{library}_{algorithm}_{level}_seed{seed}.json"
+    return results / f"{library}_{algorithm}_{_task_options(level)['task']}_{level}_seed{seed}.json"
+
+
+def _task_of(record: dict) -> str:
+    """The scene version a record ran on (its task file's ``task``)."""
+    return record["env_options"]["task"]
+
+
+def _machine_of(runs: list[dict]) -> str:
+    """The machine(s) a cell's runs took their wall clock on, in words."""
+    kinds = sorted({f"{run['machine']['cpus']} cores, Python {run['machine']['python']}" for run in runs})
+    return " / ".join(kinds)
 
 
 def _first_reaching(curve: list[dict], key: str):
@@ -194,9 +205,9 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
     np.random.seed(0)  # the bootstrap's resamples (rliable draws from numpy's global stream): the same table twice
     cells = {}
     for record in records:
-        cells.setdefault((record["library"], record["algorithm"], record["level"]), []).append(record)
+        cells.setdefault((_task_of(record), record["library"], record["algorithm"], record["level"]), []).append(record)
     rows = []
-    for (library, algorithm, level), runs in sorted(cells.items()):
+    for (task, library, algorithm, level), runs in sorted(cells.items()):
         def iqm(key):
             scores = np.array([[run["final"][key]] for run in runs if key in run["final"]])  # (seeds, 1 task)
             point, interval = rly.get_interval_estimates({"x": scores},
@@ -207,7 +218,8 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
         with_sampled = sum("success_rate_sampled" in run["final"] for run in runs)  # (the first records had none)
         sampled = iqm("success_rate_sampled") if with_sampled else None
         reached = [run for run in runs if run["frames_to_target"] is not None]
-        rows.append({"library": library, "algorithm": algorithm, "level": level, "seeds": len(runs),
+        rows.append({"task": task, "library": library, "algorithm": algorithm, "level": level, "seeds": len(runs),
+                     "machine": _machine_of(runs),
                      "iqm_success": iqm_success, "ci95": ci95,
                      "iqm_success_sampled": None if sampled is None else sampled[0], "seeds_sampled": with_sampled,
                      "ci95_sampled": None if sampled is None else sampled[1],
@@ -231,19 +243,20 @@ def command_table(args) -> int:
     rows = aggregate(records)
     (results / "table.json").write_text(json.dumps({"target": TARGET, "test_episodes": TEST_EPISODES, "rows": rows},
                                                    indent=2) + "\n")
-    print("| library | algorithm | level | seeds | IQM success, mean action [95 % CI] | per seed | IQM success, sampled "
-          "[95 % CI] | frames | minutes | validation reached 0.9 | frames to 0.9 | minutes to 0.9 |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| scene | library | algorithm | level | seeds | IQM success, mean action [95 % CI] | per seed | IQM success, "
+          "sampled [95 % CI] | frames | minutes | machine | validation reached 0.9 | frames to 0.9 | minutes to 0.9 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         low, high = row["ci95"]
         to_frames = f"{row['frames_to_target']:,}" if row["frames_to_target"] is not None else "-"
         to_minutes = f"{row['minutes_to_target']:.0f}" if row["minutes_to_target"] is not None else "-"
-        print(f"| {row['library']} | {row['algorithm'].upper()} | {row['level']} | {row['seeds']} | "
+        print(f"| {row['task']} | {row['library']} | {row['algorithm'].upper()} | {row['level']} | {row['seeds']} | "
               f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}] | {', '.join(f'{s:.2f}' for s in row['seed_success'])} | "
               + (f"{row['iqm_success_sampled']:.2f} [{row['ci95_sampled'][0]:.2f}, {row['ci95_sampled'][1]:.2f}]"
                  + (f" (n={row['seeds_sampled']})" if row["seeds_sampled"] != row["seeds"] else "") + " | "
                  if row["iqm_success_sampled"] is not None else "- | ") +
-              f"{row['frames']:,} | {row['wall_minutes']:.0f} | {row['reached_target']} | {to_frames} | {to_minutes} |")
+              f"{row['frames']:,} | {row['wall_minutes']:.0f} | {row['machine']} | {row['reached_target']} | {to_frames} | "
+              f"{to_minutes} |")
     _plot(rows, results / "benchmark.png")
     return 0
 
@@ -254,10 +267,11 @@ def _plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(LEVELS), figsize=(5 * len(LEVELS), 3.2), sharex=True)
+    height = 1.2 + 0.55 * max(sum(row["level"] == level for row in rows) for level in LEVELS)
+    fig, axes = plt.subplots(1, len(LEVELS), figsize=(5.5 * len(LEVELS), height), sharex=True)
     for axis, level in zip(np.atleast_1d(axes), LEVELS):
         chosen = [row for row in rows if row["level"] == level]
-        labels = [f"{row['library']}\n{row['algorithm'].upper()} (n={row['seeds']})" for row in chosen]
+        labels = [f"{row['library']} {row['algorithm'].upper()}\n{row['task']} (n={row['seeds']})" for row in chosen]
         y = np.arange(len(chosen))
         for offset, key, interval, colour, name in ((0.2, "iqm_success", "ci95", "#4c72b0", "mean action"),
                                                     (-0.2, "iqm_success_sampled", "ci95_sampled", "#dd8452",

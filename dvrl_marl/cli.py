@@ -115,7 +115,7 @@ def resolve_config(name: str) -> str:
 #: The scene's task of each env a seat policy names (multi-agent policies name the PettingZoo env they learnt on).
 _SEAT_TASKS = {"dvrl_marl/SurgeonSeat-v1": "suction_debris_v1", "dvrl_marl/SurgeonSeat-v2": "suction_debris_v2",
                "suction_debris_v0": "suction_debris", "suction_debris_v1": "suction_debris_v1",
-               "suction_debris_v2": "suction_debris_v2"}
+               "suction_debris_v2": "suction_debris_v2", "suction_debris_v3": "suction_debris_v3"}
 
 
 def _evaluate(args) -> int:
@@ -318,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--episodes", type=COUNT, default=100)
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
-    team.add_argument("--task", choices=["suction_debris", "suction_debris_v1", "suction_debris_v2"],
+    team.add_argument("--task", choices=["suction_debris", "suction_debris_v1", "suction_debris_v2", "suction_debris_v3"],
                       default="suction_debris_v2",
                       help="the scene's task (default: the demo's, suction_debris_v2; figures recorded before "
                            "2026-11-25 used suction_debris, v0's)")

@@ -350,6 +350,18 @@ def wrist_position_point(tool: Tool, q) -> tuple[float, float, float]:
     return (length * s1 * c2, -length * s2, -length * c1 * c2)
 
 
+def wrist_position_batch(tool: Tool, q: np.ndarray) -> np.ndarray:
+    """:func:`wrist_position_point` for joint vectors ``q`` ``(M, n_joints)``: ``(M, 3)``, base frame."""
+    s1, c1 = np.sin(q[:, 0]), np.cos(q[:, 0])
+    s2, c2 = np.sin(q[:, 1]), np.cos(q[:, 1])
+    length = q[:, 2] - tool.insertion_offset
+    wrist = np.empty((len(q), 3))
+    wrist[:, 0] = length * s1 * c2
+    wrist[:, 1] = -length * s2
+    wrist[:, 2] = -length * c1 * c2
+    return wrist
+
+
 def _solve_batch(tool: Tool, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x, y, z = position[..., 0], position[..., 1], position[..., 2]
     outer_yaw, outer_pitch, insertion, radial = _solve(tool, x, y, z, np.sqrt, np.arctan2)

@@ -51,6 +51,10 @@ MULTI_AGENT_ENV_IDS = {
         "dvrl_marl.envs.suction_debris_v2:parallel_env",
         "dvrl_marl.envs.suction_debris_v2:env",
     ),
+    "dvrl_marl/suction_debris-v3": (
+        "dvrl_marl.envs.suction_debris_v3:parallel_env",
+        "dvrl_marl.envs.suction_debris_v3:env",
+    ),
 }
 
 

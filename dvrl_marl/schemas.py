@@ -168,6 +168,7 @@ class CollaborativeTask(BaseModel):
     bleeding_onset_s: NonNegative = 0.0
     deliver_at_grip: Flag = False
     pins_stay_on_phantom: Flag = False
+    blocked_moves: Literal["stop", "slide"] = "stop"
 
 
 # --- training configurations without a dataclass of their own --------------------------------------------------------

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
+from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2, suction_debris_v3
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -253,6 +253,15 @@ def test_batched_v2_equals_single_env_grip_handoff_and_drops_kept_on_the_phantom
     # way to the hand-off point: v2's hand-off at the grip and its edge landing, world by world.
     assert_batched_collaborative_matches(3, seed=23, steps=1250, action_seed=7, scripted=True, reward_type="dense",
                                          max_cycles=600, module=suction_debris_v2, drop_probability=0.03)
+
+
+def test_batched_v3_equals_single_env_while_moves_slide():
+    # Uniform commands push into walls, joint limits and the other instrument all the time: v3's slides (the wall
+    # slide, the contact normal, the joint-limit clamp, the fallbacks), world by world.
+    assert_batched_collaborative_matches(3, seed=24, steps=1000, action_seed=8, max_cycles=250,
+                                         module=suction_debris_v3)
+    assert_batched_collaborative_matches(3, seed=25, steps=1000, action_seed=9, scripted=True, reward_type="guided",
+                                         max_cycles=500, module=suction_debris_v3, drop_probability=0.03)
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -17,13 +17,17 @@ marl_benchmark = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(marl_benchmark)
 
 
-def _record(results, library, level, seed, success, reached):
+TASK = marl_benchmark._task_options("easy")["task"]  # the scene the shipped task files run
+
+
+def _record(results, library, level, seed, success, reached, task=TASK):
     curve = [{"frames": 1000 * (i + 1), "wall_seconds": 10.0 * (i + 1), "success_rate": s}
              for i, s in enumerate([0.2, success])]
     out = {"library": library, "algorithm": "mappo", "level": level, "seed": seed, "frames": 2000,
            "wall_seconds": 20.0, "final": {"success_rate": success}, "curve": curve,
-           "frames_to_target": 2000 if reached else None, "wall_to_target": 20.0 if reached else None}
-    path = results / f"{library}_mappo_{level}_seed{seed}.json"
+           "frames_to_target": 2000 if reached else None, "wall_to_target": 20.0 if reached else None,
+           "env_options": {"task": task}, "machine": {"cpus": 2, "python": "3.11.7"}}
+    path = results / f"{library}_mappo_{task}_{level}_seed{seed}.json"
     path.write_text(json.dumps(out))
 
 
@@ -33,10 +37,13 @@ def test_table_aggregates_iqm_intervals_and_frames_to_target(tmp_path):
         _record(tmp_path, "dvrl-marl", "default", seed, success, success >= 0.9)
     for seed in range(3):
         _record(tmp_path, "benchmarl", "easy", seed, 0.0, False)
+        _record(tmp_path, "benchmarl", "easy", seed, 1.0, True, task="suction_debris_v2")  # another scene's cell
     assert marl_benchmark.main(["table", "--results", str(tmp_path)]) == 0
     table = json.loads((tmp_path / "table.json").read_text())
-    rows = {(r["library"], r["level"]): r for r in table["rows"]}
+    rows = {(r["library"], r["level"]): r for r in table["rows"] if r["task"] == TASK}
+    assert [r["iqm_success"] for r in table["rows"] if r["task"] == "suction_debris_v2"] == [1.0]
     ours = rows["dvrl-marl", "default"]
+    assert ours["machine"] == "2 cores, Python 3.11.7"
     assert ours["seeds"] == 5 and ours["reached_target"] == "4/5" and ours["frames_to_target"] == 2000
     assert ours["iqm_success"] == pytest.approx(0.95)  # the middle three of five: 0.9, 0.95, 1.0
     assert ours["ci95"][0] <= ours["iqm_success"] <= ours["ci95"][1]
@@ -46,11 +53,11 @@ def test_table_aggregates_iqm_intervals_and_frames_to_target(tmp_path):
 
 def test_a_run_never_overwrites_a_record(tmp_path, capsys):
     _record(tmp_path, "dvrl-marl", "easy", 0, 1.0, True)
-    before = (tmp_path / "dvrl-marl_mappo_easy_seed0.json").read_text()
+    before = (tmp_path / f"dvrl-marl_mappo_{TASK}_easy_seed0.json").read_text()
     code = marl_benchmark.main(["run", "--library", "dvrl-marl", "--algorithm", "mappo", "--level", "easy",
                                 "--seed", "0", "--results", str(tmp_path)])
     assert code == 2 and "exists" in capsys.readouterr().err
-    assert (tmp_path / "dvrl-marl_mappo_easy_seed0.json").read_text() == before
+    assert (tmp_path / f"dvrl-marl_mappo_{TASK}_easy_seed0.json").read_text() == before
 
 
 def test_bad_flags_are_named():
@@ -73,7 +80,7 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
                              "--level", "easy", "--seed", "0", "--test-episodes", "3", "--results", str(tmp_path),
                              *flags], capture_output=True, text=True, env=env, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
-    record = json.loads((tmp_path / f"{library}_mappo_easy_seed0.json").read_text())
+    record = json.loads((tmp_path / f"{library}_mappo_{TASK}_easy_seed0.json").read_text())
     assert record["final"]["episodes"] == 3 and 0.0 <= record["final"]["success_rate"] <= 1.0
     assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
     assert record["command"].startswith("python benchmarks/marl_benchmark.py run")

@@ -41,6 +41,8 @@ def test_block_runs(code, tmp_path):
         if importlib.util.find_spec(module) is None:
             pytest.skip(f"{module} is not installed")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT,
+    # BenchMARL writes its experiment folder into the working directory: keep it out of the checkout.
+    cwd = tmp_path if "benchmarl" in first else ROOT
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=cwd,
                             env=env)
     assert result.returncode == 0, result.stderr[-3000:]

@@ -87,12 +87,8 @@ class ArmBatch:
 
         The batched form of :func:`dvrl_marl.kinematics.wrist_position_point`.
         """
-        q = self.q
-        s1, c1 = np.sin(q[:, 0]), np.cos(q[:, 0])
-        s2, c2 = np.sin(q[:, 1]), np.cos(q[:, 1])
-        length = q[:, 2] - self.tool.insertion_offset
-        wrist = np.empty((self.num_worlds, 3))
-        wrist[:, 0] = length * s1 * c2
-        wrist[:, 1] = -length * s2
-        wrist[:, 2] = -length * c1 * c2
-        return wrist + self.base_position
+        return self.wrist_of(self.q)
+
+    def wrist_of(self, q: np.ndarray) -> np.ndarray:
+        """:meth:`wrist_world` for joints ``q`` ``(M, n_joints)``."""
+        return kinematics.wrist_position_batch(self.tool, q) + self.base_position

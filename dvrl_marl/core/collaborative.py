@@ -16,16 +16,16 @@ import math
 import numpy as np
 
 from dvrl_marl import assets, kinematics
+from dvrl_marl.core import sliding
 from dvrl_marl.core.arms import ArmBatch
+from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
 
-__all__ = ["CollaborativeCore", "Cavities", "AGENTS", "TOOLS", "sample_debris", "segment_distance"]
+__all__ = ["CollaborativeCore", "Cavities", "AGENTS", "TOOLS", "sample_debris", "segment_distance",
+           "SHAFT_RADIUS", "WRIST_RADIUS"]
 
 AGENTS = ("suction", "grasper")
 TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
-#: Radii used for instrument-instrument contact: the 8.5 mm shaft and the wrist/tube segment beyond it.
-SHAFT_RADIUS = assets.SHAFT_RADIUS
-WRIST_RADIUS = {"suction": assets.SUCTION_TUBE_RADIUS, "grasper": 0.0025}
 #: Instruments closer than this beyond touching also count as in contact (they touch after a refused move).
 CONTACT_MARGIN = 5e-4
 #: Released pins fall at g (m/s^2) when the task's ``pins_fall`` is set (suction_debris_v1).
@@ -72,23 +72,6 @@ def sample_debris(rng: np.random.Generator, cavities, count: int) -> list:
 
 def _dot(u, v):
     return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
-
-
-def segment_distance(p1, q1, p2, q2) -> np.ndarray:
-    """Shortest distances between segments p1-q1 and p2-q2, batched over leading axes (..., 3)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f, c, b = _dot(d1, d1), _dot(d2, d2), _dot(d2, r), _dot(d1, r), _dot(d1, d2)
-    denominator = a * e - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(denominator > 1e-18, np.minimum(np.maximum((b * f - c * e) / denominator, 0.0), 1.0), 0.0)
-        t = np.where(e > 1e-18, (b * s + f) / e, 0.0)
-        a_ok = a > 1e-18
-        below, above = t < 0.0, t > 1.0
-        s = np.where(below, np.where(a_ok, np.minimum(np.maximum(-c / a, 0.0), 1.0), 0.0), s)
-        s = np.where(above, np.where(a_ok, np.minimum(np.maximum((b - c) / a, 0.0), 1.0), 0.0), s)
-    t = np.where(below, 0.0, np.where(above, 1.0, t))
-    difference = r + d1 * s[..., None] - d2 * t[..., None]
-    return np.sqrt(_dot(difference, difference))
 
 
 def _closest_on_segment(point, start, end) -> np.ndarray:
@@ -185,6 +168,7 @@ class CollaborativeCore:
         self.num_worlds = n = int(num_worlds)
         p = self.params = template.params
         self.sparse = template.reward_type == "sparse"
+        self.slide = p.blocked_moves == "slide"  # v3: blocked moves slide (core.sliding)
         self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
@@ -377,37 +361,57 @@ class CollaborativeCore:
     def _move(self, agent: str, delta: np.ndarray) -> np.ndarray:
         arm = self.arms[agent]
         old = arm.tip_world()
-        target = np.minimum(np.maximum(old + delta, self.low), self.high)
-        x, y, z = target[:, 0], target[:, 1], target[:, 2]
-        floor = self._floor(x, y)
-        below = z < floor
-        if below.any():
-            gentle = below & (floor - old[:, 2] <= self.params.step_size + 1e-12)  # slide up a slope by one step
-            wall = below & ~gentle  # keep the horizontal position, move only vertically
-            x = np.where(wall, old[:, 0], x)
-            y = np.where(wall, old[:, 1], y)
-            z = np.where(gentle, floor, np.where(wall, np.maximum(z, self._floor(old[:, 0], old[:, 1])), z))
-            target = np.stack([x, y, z], axis=1)
+        if self.slide:
+            p = self.params
+            target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old,
+                                            delta)
+        else:
+            target = np.minimum(np.maximum(old + delta, self.low), self.high)
+            x, y, z = target[:, 0], target[:, 1], target[:, 2]
+            floor = self._floor(x, y)
+            below = z < floor
+            if below.any():
+                gentle = below & (floor - old[:, 2] <= self.params.step_size + 1e-12)  # slide up a slope by one step
+                wall = below & ~gentle  # keep the horizontal position, move only vertically
+                x = np.where(wall, old[:, 0], x)
+                y = np.where(wall, old[:, 1], y)
+                z = np.where(gentle, floor, np.where(wall, np.maximum(z, self._floor(old[:, 0], old[:, 1])), z))
+                target = np.stack([x, y, z], axis=1)
         previous_tip, previous_q = arm.tip, arm.q
-        arm.move(target - old, -1.0, 1.0)
+        cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
         refused = clearance < 0.0  # instruments never pass through each other
+        if self.slide:
+            stuck = refused | (cut & np.all(arm.tip == previous_tip, axis=1))
+            if stuck.any():
+                self._fall_back(agent, np.flatnonzero(stuck), old, delta, refused, clearance)
         if refused.any():
             arm.tip = np.where(refused[:, None], previous_tip, arm.tip)
             arm.q = np.where(refused[:, None], previous_q, arm.q)
         return refused | (clearance < CONTACT_MARGIN)
 
+    def _fall_back(self, agent, rows, old, delta, refused, clearance) -> None:
+        """v3: the blocked moves of ``rows`` slide (:func:`sliding.resolve_blocked`); ``refused`` and ``clearance``
+        are updated in place for those made."""
+        p = self.params
+        arm, other = self.arms[agent], self.arms[AGENTS[1 - AGENTS.index(agent)]]
+        made, tip, q, gap = sliding.resolve_blocked(
+            {"tool": arm.tool, "base": arm.base_position, "tip": old[rows]},
+            {"tool": other.tool, "base": other.base_position, "tip": other.tip_world()[rows]},
+            agent == "suction", delta[rows], self.cavities, p.tip_clearance, p.step_size, self.low, self.high)
+        chosen = rows[made]
+        arm.tip[chosen], arm.q[chosen] = tip[made] - arm.base_position, q[made]
+        refused[chosen], clearance[chosen] = False, gap[made]
+
+    def instrument_clearance(self) -> np.ndarray:
+        """Clearance between the two instruments in every world (m; they never intersect: never negative)."""
+        return self._instrument_distance()
+
     def _instrument_distance(self) -> np.ndarray:
         """Clearance between the two instruments (negative when they intersect)."""
         a, b = self.arms["suction"], self.arms["grasper"]
-        rcm_a, wrist_a, tip_a = a.base_position, a.wrist_world(), a.tip_world()
-        rcm_b, wrist_b, tip_b = b.base_position, b.wrist_world(), b.tip_world()
-        ra, rb = WRIST_RADIUS["suction"], WRIST_RADIUS["grasper"]
-        return np.minimum(
-            np.minimum(segment_distance(rcm_a, wrist_a, rcm_b, wrist_b) - 2 * SHAFT_RADIUS,
-                       segment_distance(rcm_a, wrist_a, wrist_b, tip_b) - SHAFT_RADIUS - rb),
-            np.minimum(segment_distance(wrist_a, tip_a, rcm_b, wrist_b) - ra - SHAFT_RADIUS,
-                       segment_distance(wrist_a, tip_a, wrist_b, tip_b) - ra - rb))
+        return instrument_clearance(a.base_position, a.wrist_world(), a.tip_world(),
+                                    b.base_position, b.wrist_world(), b.tip_world())
 
     def _suction(self) -> np.ndarray:
         removed = np.zeros(self.num_worlds)

@@ -146,6 +146,7 @@ from dvrl_marl.core.collaborative import (
     sample_debris,
 )
 from dvrl_marl.core.collaborative import Cavities
+from dvrl_marl.core import sliding
 from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
@@ -205,6 +206,8 @@ class SuctionDebrisParams:
     # Added with suction_debris_v2 (defaults: v0's and v1's behaviour; tasks/suction_debris_v2.toml sets v2's):
     deliver_at_grip: bool = False  # hand-off judged where the jaws hold the pin (v0/v1: at the pin's centre)
     pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
+    # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
+    blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
 
     @classmethod
     def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
@@ -376,6 +379,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 raise ValueError(f"{self.name} needs upright, unrotated PSM bases in its scene")
         self.phantom = self._phantom_from_model()
         self.blood = BloodState(self.phantom, p.blood_ml, p.suction_rate_ml_s)
+        self._cavities = Cavities(self.phantom)  # the batched geometry v3's sliding reads (core.sliding)
         self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.phantom.cavities))]
         self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
         self.handoff = tuple(float(v) for v in self.data.site_xpos[object_id(self.model, "site", "handoff")])
@@ -932,6 +936,8 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _move(self, agent, dx, dy, dz) -> bool:
         """Move one arm's tip (world deltas); returns True when the instruments are in contact."""
+        if self.params.blocked_moves == "slide":
+            return self._slide(agent, np.array([[dx, dy, dz]]))
         arm = self.arms[agent]
         old = arm.tip_world()
         low, high = self._low, self._high
@@ -954,12 +960,42 @@ class SuctionDebrisEnv(ParallelEnv):
             return True
         return clearance < _CONTACT_MARGIN
 
+    def _slide(self, agent, delta: np.ndarray) -> bool:
+        """v3's move (:mod:`dvrl_marl.core.sliding`): a wall slid along, a blocked move resolved by
+        :func:`~dvrl_marl.core.sliding.resolve_blocked`; the batched core's functions, on one row."""
+        arm, p = self.arms[agent], self.params
+        old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
+        low, high = np.asarray(self._low), np.asarray(self._high)
+        target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta)[0]
+        previous = list(arm.tip)
+        cut = arm.move(*(target - old[0]).tolist(), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+        clearance = self._instrument_distance()
+        self._blocked[agent] = refused = clearance < 0.0
+        if refused or (cut and list(arm.tip) == previous):
+            other = self.arms[AGENTS[1 - AGENTS.index(agent)]]
+            made, tip, _, gap = sliding.resolve_blocked(
+                {"tool": arm.tool, "base": arm.base_position, "tip": old},
+                {"tool": other.tool, "base": other.base_position,
+                 "tip": np.asarray(other.tip_world(), dtype=np.float64)[None]},
+                agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high)
+            if made[0]:
+                arm.set_tip(*(tip[0] - arm.base_position).tolist())
+                return bool(gap[0] < _CONTACT_MARGIN)
+            arm.set_tip(*previous)
+            if refused:
+                return True
+        return clearance < _CONTACT_MARGIN
+
     def _instrument_segments(self, agent):
         arm = self.arms[agent]
         bx, by, bz = arm.base_position.tolist()
         wx, wy, wz = kinematics.wrist_position_point(arm.tool, arm.q)
         wrist = (wx + bx, wy + by, wz + bz)
         return (bx, by, bz), wrist, arm.tip_world()
+
+    def instrument_clearance(self) -> float:
+        """Clearance between the two instruments (m; they never intersect: never negative)."""
+        return self._instrument_distance()
 
     def _instrument_distance(self) -> float:
         """Clearance between the two instruments (negative when they intersect)."""

@@ -1,0 +1,160 @@
+"""How a blocked move resolves in ``suction_debris_v3`` (``blocked_moves = "slide"``): it slides, it does not stop.
+
+Up to v2 a move that a cavity's wall, the joint limits or the other instrument blocks is stopped: the tip keeps its
+horizontal position at a wall, stays where it was when the instruments would intersect, and goes as far as it can
+along the move at a joint limit. A policy whose mean action pushes into such a blocker then sees the same observation
+again and sends the same action again, for the rest of the episode (measured, issue 37: 87 of 89 failed test
+episodes of a MAPPO team acting by its mean action ended with the suction motionless for 100+ steps, against the
+wall, the other instrument or its joint limits; its exploration noise had shaken it loose in training, which is why
+it succeeded 0.92 of its training episodes and 0.11 of the test ones). No robot adds exploration noise to its
+commands, so the scene resolves contacts as a frictionless constraint does (a forbidden-region virtual fixture):
+
+- **A cavity's wall** is a sphere (the bowl, :class:`~dvrl_marl.core.collaborative.Cavities`): the move's
+  component into it is taken away and the rest slides along it (``d - min(d.n, 0) n``, ``n`` the wall's normal at
+  the tip, toward the sphere's centre). Its upward part lifts a tip pushed outward over the rim, as a tool tip
+  pressed sideways against a bowl rides up its side. The phantom's vertical sides stay walls (a horizontal push
+  into a vertical wall has no component along it).
+- **The other instrument or the joint limits** (:func:`resolve_blocked`), when the move is refused, or cut short
+  with no progress: first the move less its component into the other instrument (the normal where the two come
+  closest), then that step lifted off the contact by a tenth of its length (a step along a round shaft enters it a
+  little), then the move's components given up one at a time, the smallest first, then all but one, the largest
+  first (:func:`fallback_moves`). A candidate beyond the joint limits goes where the outer joints (yaw, pitch,
+  insertion) clamped to their limits put the wrist (the arm slides along its limit). The first candidate that keeps
+  the tip in the box, above the surface, within the joint limits and clear of the other instrument is made. Only if
+  none does does the tip stay.
+
+Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for
+N (the single env calls these functions on one row).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvrl_marl import kinematics
+from dvrl_marl.core.instruments import contact_normal, instrument_clearance
+
+__all__ = ["wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT"]
+
+#: The lift off the other instrument of a step along it, per unit of the step's length (see :func:`resolve_blocked`).
+CONTACT_LIFT = 0.1
+#: The joints that place the wrist (outer yaw, outer pitch, insertion); the wrist joints keep the tool pointing down.
+OUTER_JOINTS = 3
+
+
+def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """``delta`` (N, 3) less its component into the wall of the cavity that ``old`` (N, 3, world) lies over (the
+    sphere's inward normal at the tip); unchanged for a tip over no cavity or a move away from the wall."""
+    cavity = cavities.cavity_at(old[:, 0], old[:, 1])
+    over = cavity >= 0
+    index = np.maximum(cavity, 0)
+    radius = cavities.sphere_radius[index]
+    centre = np.stack([cavities.centre_x[index], cavities.centre_y[index],
+                       cavities.phantom.top_z - cavities.depth[index] + radius], axis=1)
+    normal = centre - old
+    length = np.sqrt((normal * normal).sum(axis=1))
+    normal = normal / np.maximum(length, 1e-12)[:, None]
+    into = np.minimum((delta * normal).sum(axis=1), 0.0)
+    return np.where(over[:, None], delta - into[:, None] * normal, delta)
+
+
+def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray, high: np.ndarray,
+                   old: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
+    the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it, against a steeper wall
+    slid along it (:func:`wall_slide`), then, if the slid move still enters the wall, only its vertical part."""
+
+    def floor(x, y):
+        return cavities.surface_height(x, y) + tip_clearance
+
+    target = np.minimum(np.maximum(old + delta, low), high)
+    ground = floor(target[:, 0], target[:, 1])
+    into_wall = (target[:, 2] < ground) & (ground - old[:, 2] > step + 1e-12)
+    if into_wall.any():
+        slid = np.minimum(np.maximum(old + wall_slide(cavities, old, target - old), low), high)
+        target = np.where(into_wall[:, None], slid, target)
+        ground = floor(target[:, 0], target[:, 1])
+    x, y, z = target[:, 0], target[:, 1], target[:, 2]
+    below = z < ground
+    if below.any():
+        gentle = below & (ground - old[:, 2] <= step + 1e-12)
+        wall = below & ~gentle
+        x = np.where(wall, old[:, 0], x)
+        y = np.where(wall, old[:, 1], y)
+        z = np.where(gentle, ground, np.where(wall, np.maximum(z, floor(old[:, 0], old[:, 1])), z))
+        target = np.stack([x, y, z], axis=1)
+    return target
+
+
+def fallback_moves(delta: np.ndarray) -> list[np.ndarray]:
+    """The moves a blocked ``delta`` (N, 3) falls back to, in order: without its smallest component, without its
+    middle one, without its largest; then its largest alone, its middle one alone, its smallest alone (ties: x
+    before y before z). A zero row stays zero."""
+    order = np.argsort(np.abs(delta), axis=1, kind="stable")  # smallest first
+    rows = np.arange(len(delta))[:, None]
+    keep_sets = ([1, 2], [0, 2], [0, 1], [2], [1], [0])  # positions in ``order`` kept
+    moves = []
+    for keep in keep_sets:
+        mask = np.zeros_like(delta)
+        mask[rows, order[:, keep]] = 1.0
+        moves.append(delta * mask)
+    return moves
+
+
+def _clamped_to_joint_limits(tool, base, target: np.ndarray) -> np.ndarray:
+    """Where ``target`` (M, 3, world) goes with the outer joints clamped to their limits: the wrist where the clamped
+    joints put it, the tip at the same offset from it as the unclamped solution's."""
+    q, _ = kinematics.inverse_kinematics_batch(tool, target - base)
+    lower, upper = np.asarray(tool.lower[:OUTER_JOINTS]), np.asarray(tool.upper[:OUTER_JOINTS])
+    clamped = q.copy()
+    clamped[:, :OUTER_JOINTS] = np.minimum(np.maximum(q[:, :OUTER_JOINTS], lower), upper)
+    return kinematics.wrist_position_batch(tool, clamped) + (target - base - kinematics.wrist_position_batch(tool, q)) + base
+
+
+def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray, cavities, tip_clearance: float,
+                    step: float, low: np.ndarray, high: np.ndarray):
+    """The slide of M blocked moves: ``arm`` and ``other`` ``{"tool", "base" (3,), "tip" (M, 3)}`` (world, before
+    the move; the other instrument's shaft follows from its tip, as the joints do), ``delta`` (M, 3) the commanded
+    move. Returns ``(made (M,), tip (M, 3) world, q (M, n), clearance (M,))`` for the first candidate of each row
+    that can be made (rows not made: unchanged, clearance NaN)."""
+    tool, base, start = arm["tool"], np.asarray(arm["base"]), arm["tip"]
+
+    def segment(tool, base, tip):
+        joints, reachable = kinematics.inverse_kinematics_batch(tool, tip - base)
+        return (base, kinematics.wrist_position_batch(tool, joints) + base, tip), joints, reachable
+
+    own_start, start_q, _ = segment(tool, base, start)
+    partner, _, _ = segment(other["tool"], np.asarray(other["base"]), other["tip"])
+    normal = contact_normal(*own_start, *partner) if is_suction else contact_normal(*partner, *own_start)
+    into = np.minimum((delta * normal).sum(axis=1), 0.0)
+    along = delta - into[:, None] * normal
+    # A step along a round shaft in contact enters it by about step^2 / (2 x radius) (0.06 mm for 1 mm on the
+    # 8.5 mm shaft): the same step lifted off the contact by a tenth of its length clears that.
+    lifted = along + (CONTACT_LIFT * np.sqrt((delta * delta).sum(axis=1)) * (into < 0.0))[:, None] * normal
+    candidates = [delta, along, lifted, *fallback_moves(delta)]
+    made = np.zeros(len(delta), dtype=bool)
+    tip, q, clearance = start.copy(), start_q, np.full(len(delta), np.nan)
+    for index, move in enumerate(candidates):
+        live = ~made & np.any(move != 0.0, axis=1)
+        if not live.any():
+            continue
+        target = surface_target(cavities, tip_clearance, step, low, high, start, move)
+        _, reachable = kinematics.inverse_kinematics_batch(tool, target - base)
+        if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
+            live &= ~reachable
+            if not live.any():
+                continue
+        if not reachable.all():
+            slid = _clamped_to_joint_limits(tool, base, target)
+            slid = np.minimum(np.maximum(slid, low), high)
+            above = slid[:, 2] >= cavities.surface_height(slid[:, 0], slid[:, 1]) + tip_clearance
+            target = np.where((~reachable & above)[:, None], slid, target)
+        own, joints, reachable = segment(tool, base, target)
+        moved = np.any(target != start, axis=1)
+        gap = instrument_clearance(*own, *partner) if is_suction else instrument_clearance(*partner, *own)
+        accept = live & moved & reachable & (gap >= 0.0)
+        tip[accept], q[accept], clearance[accept] = target[accept], joints[accept], gap[accept]
+        made |= accept
+        if made.all():
+            break
+    return made, tip, q, clearance
