@@ -139,17 +139,17 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
         if not live.any():
             continue
         target = surface_target(cavities, tip_clearance, step, low, high, start, move)
-        _, reachable = kinematics.inverse_kinematics_batch(tool, target - base)
+        own, joints, reachable = segment(tool, base, target)
         if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
             live &= ~reachable
             if not live.any():
                 continue
-        if not reachable.all():
+        if not reachable[live].all():
             slid = _clamped_to_joint_limits(tool, base, target)
             slid = np.minimum(np.maximum(slid, low), high)
             above = slid[:, 2] >= cavities.surface_height(slid[:, 0], slid[:, 1]) + tip_clearance
             target = np.where((~reachable & above)[:, None], slid, target)
-        own, joints, reachable = segment(tool, base, target)
+            own, joints, reachable = segment(tool, base, target)
         moved = np.any(target != start, axis=1)
         gap = instrument_clearance(*own, *partner) if is_suction else instrument_clearance(*partner, *own)
         accept = live & moved & reachable & (gap >= 0.0)

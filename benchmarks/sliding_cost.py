@@ -1,0 +1,54 @@
+"""What v3's sliding costs per step: suction_debris_v2 against v3, batched, measured in the same run.
+
+A move that nothing blocks costs what it cost in v2 (one more test); a blocked one runs the candidates of
+:func:`dvrl_marl.core.sliding.resolve_blocked`. Uniform random commands block in most steps (the adversarial case:
+they push into the phantom, the joint limits and each other); the scripted experts' commands never do.
+
+    python benchmarks/sliding_cost.py [--worlds 256 4096]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.envs import suction_debris_v2, suction_debris_v3
+
+
+def world_steps_per_second(module, worlds: int, commands: str, steps: int = 200, repeats: int = 3) -> float:
+    env = module.batched_env(num_envs=worlds)
+    observations, _ = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
+    uniform = [{agent: rng.uniform(-1.0, 1.0, (worlds, 4)) for agent in env.agents} for _ in range(16)]
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for step in range(steps):
+            if commands == "uniform":
+                actions = uniform[step % 16]
+            else:
+                actions = {agent: experts[agent](observations[agent]) for agent in env.agents}
+            observations, *_ = env.step(actions)
+        best = min(best, time.perf_counter() - start)
+    return worlds * steps / best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--worlds", type=int, nargs="+", default=[256, 4096])
+    args = parser.parse_args()
+    print("batched world-steps/s (best of 3; the scripted rows include the experts' own arithmetic)")
+    print(f"  {'worlds':>7s} {'commands':>9s} {'v2':>12s} {'v3':>12s} {'v3 / v2':>8s}")
+    for worlds in args.worlds:
+        for commands in ("uniform", "scripted"):
+            v2 = world_steps_per_second(suction_debris_v2, worlds, commands)
+            v3 = world_steps_per_second(suction_debris_v3, worlds, commands)
+            print(f"  {worlds:7,d} {commands:>9s} {v2:12,.0f} {v3:12,.0f} {v3 / v2:8.2f}")
+
+
+if __name__ == "__main__":
+    main()
