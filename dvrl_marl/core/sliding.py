@@ -108,7 +108,8 @@ def _clamped_to_joint_limits(tool, base, target: np.ndarray) -> np.ndarray:
     lower, upper = np.asarray(tool.lower[:OUTER_JOINTS]), np.asarray(tool.upper[:OUTER_JOINTS])
     clamped = q.copy()
     clamped[:, :OUTER_JOINTS] = np.minimum(np.maximum(q[:, :OUTER_JOINTS], lower), upper)
-    return kinematics.wrist_position_batch(tool, clamped) + (target - base - kinematics.wrist_position_batch(tool, q)) + base
+    offset = target - base - kinematics.wrist_position_batch(tool, q)  # wrist to tip, kept
+    return kinematics.wrist_position_batch(tool, clamped) + offset + base
 
 
 def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray, cavities, tip_clearance: float,
