@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from dvrl_marl import assets, kinematics
+from dvrl_marl import kinematics
 from dvrl_marl.core import sliding
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
