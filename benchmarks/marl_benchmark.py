@@ -202,13 +202,15 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
     from rliable import library as rly
     from rliable import metrics
 
-    np.random.seed(0)  # the bootstrap's resamples (rliable draws from numpy's global stream): the same table twice
     cells = {}
     for record in records:
         cells.setdefault((_task_of(record), record["library"], record["algorithm"], record["level"]), []).append(record)
     rows = []
     for (task, library, algorithm, level), runs in sorted(cells.items()):
         def iqm(key):
+            # rliable resamples from numpy's global stream: seeded per cell, so a cell's interval is the same
+            # whatever other cells the table holds
+            np.random.seed(0)
             scores = np.array([[run["final"][key]] for run in runs if key in run["final"]])  # (seeds, 1 task)
             point, interval = rly.get_interval_estimates({"x": scores},
                                                          lambda s: np.array([metrics.aggregate_iqm(s)]), reps=reps)
