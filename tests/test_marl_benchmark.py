@@ -84,3 +84,16 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     assert record["final"]["episodes"] == 3 and 0.0 <= record["final"]["success_rate"] <= 1.0
     assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
     assert record["command"].startswith("python benchmarks/marl_benchmark.py run")
+
+
+def test_a_cells_interval_does_not_depend_on_the_other_cells():
+    pytest.importorskip("rliable")
+    records = [{"library": "dvrl-marl", "algorithm": "mappo", "level": "default", "frames": 2000, "wall_seconds": 20.0,
+                "final": {"success_rate": s}, "frames_to_target": None, "wall_to_target": None,
+                "env_options": {"task": TASK}, "machine": {"cpus": 2, "python": "3.11.7"}}
+               for s in (0.1, 0.5, 0.2, 0.9, 0.3)]
+    other = [{**record, "library": "benchmarl", "final": {"success_rate": 1.0 - record["final"]["success_rate"]}}
+             for record in records]
+    alone = marl_benchmark.aggregate(records, reps=200)
+    beside = [row for row in marl_benchmark.aggregate(other + records, reps=200) if row["library"] == "dvrl-marl"]
+    assert alone[0]["ci95"] == beside[0]["ci95"]
