@@ -87,8 +87,4 @@ class ArmBatch:
 
         The batched form of :func:`dvrl_marl.kinematics.wrist_position_point`.
         """
-        return self.wrist_of(self.q)
-
-    def wrist_of(self, q: np.ndarray) -> np.ndarray:
-        """:meth:`wrist_world` for joints ``q`` ``(M, n_joints)``."""
-        return kinematics.wrist_position_batch(self.tool, q) + self.base_position
+        return kinematics.wrist_position_batch(self.tool, self.q) + self.base_position

@@ -361,22 +361,9 @@ class CollaborativeCore:
     def _move(self, agent: str, delta: np.ndarray) -> np.ndarray:
         arm = self.arms[agent]
         old = arm.tip_world()
-        if self.slide:
-            p = self.params
-            target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old,
-                                            delta)
-        else:
-            target = np.minimum(np.maximum(old + delta, self.low), self.high)
-            x, y, z = target[:, 0], target[:, 1], target[:, 2]
-            floor = self._floor(x, y)
-            below = z < floor
-            if below.any():
-                gentle = below & (floor - old[:, 2] <= self.params.step_size + 1e-12)  # slide up a slope by one step
-                wall = below & ~gentle  # keep the horizontal position, move only vertically
-                x = np.where(wall, old[:, 0], x)
-                y = np.where(wall, old[:, 1], y)
-                z = np.where(gentle, floor, np.where(wall, np.maximum(z, self._floor(old[:, 0], old[:, 1])), z))
-                target = np.stack([x, y, z], axis=1)
+        p = self.params
+        target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old, delta,
+                                        slide_on_walls=self.slide)
         previous_tip, previous_q = arm.tip, arm.q
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()

@@ -59,10 +59,11 @@ def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 
 def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray, high: np.ndarray,
-                   old: np.ndarray, delta: np.ndarray) -> np.ndarray:
+                   old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True) -> np.ndarray:
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
-    the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it, against a steeper wall
-    slid along it (:func:`wall_slide`), then, if the slid move still enters the wall, only its vertical part."""
+    the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
+    slid along it (:func:`wall_slide`; v3), then, if the move still enters the wall, only its vertical part (all that
+    v0-v2 make of it: ``slide_on_walls=False``)."""
 
     def floor(x, y):
         return cavities.surface_height(x, y) + tip_clearance
@@ -70,7 +71,7 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
     target = np.minimum(np.maximum(old + delta, low), high)
     ground = floor(target[:, 0], target[:, 1])
     into_wall = (target[:, 2] < ground) & (ground - old[:, 2] > step + 1e-12)
-    if into_wall.any():
+    if slide_on_walls and into_wall.any():
         slid = np.minimum(np.maximum(old + wall_slide(cavities, old, target - old), low), high)
         target = np.where(into_wall[:, None], slid, target)
         ground = floor(target[:, 0], target[:, 1])
@@ -124,6 +125,8 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
         joints, reachable = kinematics.inverse_kinematics_batch(tool, tip - base)
         return (base, kinematics.wrist_position_batch(tool, joints) + base, tip), joints, reachable
 
+    # Joints from the tips by the batched IK, not the arms' stored joints: the single env solves its joints with
+    # scalar math, and the last bits of the shafts must not make one world slide otherwise than its batched twin.
     own_start, start_q, _ = segment(tool, base, start)
     partner, _, _ = segment(other["tool"], np.asarray(other["base"]), other["tip"])
     normal = contact_normal(*own_start, *partner) if is_suction else contact_normal(*partner, *own_start)

@@ -1147,7 +1147,7 @@ class SuctionDebrisEnv(ParallelEnv):
             self._sync_debris(index)
         self._limit = min(self.params.max_cycles, self.easy_episode_steps or self.params.max_cycles)
         if self._rims is None:
-            self._rims = OverRims(Cavities(self.phantom))
+            self._rims = OverRims(self._cavities)
         pins = np.array([pin.position for pin in self.debris])
         pending = np.array([pin.visible and not pin.delivered for pin in self.debris])
         arm = self.arms["grasper"]

@@ -33,35 +33,12 @@ defaults in ``tasks/suction_debris_v1.toml`` with their sources:
 
 from __future__ import annotations
 
-from pettingzoo.utils.conversions import parallel_to_aec
-
-from dvrl_marl.envs.suction_debris_v0 import AGENTS, SuctionDebrisEnv
+from dvrl_marl.envs.suction_debris_v0 import AGENTS
+from dvrl_marl.envs.versions import entry_points
 
 __all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK"]
 
 #: The task file of this version.
 TASK = "suction_debris_v1"
 
-
-def _with_task(kwargs: dict) -> dict:
-    return {"task": TASK, **kwargs}
-
-
-def parallel_env(**kwargs) -> SuctionDebrisEnv:
-    """The parallel environment (the native form); keyword arguments as ``suction_debris_v0.parallel_env``."""
-    return SuctionDebrisEnv(**_with_task(kwargs))
-
-
-raw_env = parallel_env
-
-
-def batched_env(num_envs: int = 1, **kwargs):
-    """N worlds stepped as arrays (see :mod:`dvrl_marl.envs.suction_debris_batched`)."""
-    from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
-
-    return SuctionDebrisBatchedEnv(num_envs, **_with_task(kwargs))
-
-
-def env(**kwargs):
-    """The AEC form, through PettingZoo's parallel-to-AEC conversion."""
-    return parallel_to_aec(parallel_env(**kwargs))
+parallel_env, raw_env, batched_env, env = entry_points(TASK)

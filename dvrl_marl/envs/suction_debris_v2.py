@@ -34,31 +34,12 @@ version; only these two rules change trajectories.
 
 from __future__ import annotations
 
-from pettingzoo.utils.conversions import parallel_to_aec
-
-from dvrl_marl.envs.suction_debris_v0 import AGENTS, SuctionDebrisEnv
+from dvrl_marl.envs.suction_debris_v0 import AGENTS
+from dvrl_marl.envs.versions import entry_points
 
 __all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK"]
 
 #: The task file of this version (the environment takes its name from it).
 TASK = "suction_debris_v2"
 
-
-def parallel_env(**kwargs) -> SuctionDebrisEnv:
-    """The parallel environment (the native form); keyword arguments as ``suction_debris_v0.parallel_env``."""
-    return SuctionDebrisEnv(**{"task": TASK, **kwargs})
-
-
-raw_env = parallel_env
-
-
-def batched_env(num_envs: int = 1, **kwargs):
-    """N worlds stepped as arrays (see :mod:`dvrl_marl.envs.suction_debris_batched`)."""
-    from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
-
-    return SuctionDebrisBatchedEnv(num_envs, **{"task": TASK, **kwargs})
-
-
-def env(**kwargs):
-    """The AEC form, through PettingZoo's parallel-to-AEC conversion."""
-    return parallel_to_aec(parallel_env(**kwargs))
+parallel_env, raw_env, batched_env, env = entry_points(TASK)
