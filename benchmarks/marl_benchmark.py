@@ -59,13 +59,23 @@ def _task_options(level: str) -> dict:
                            f"suction_debris_{level}.yaml").read_text())
 
 
+#: Task-file options that change the scene itself (not the reward or the observation): a record's scene is its
+#: version with these, and cells of different scenes are never pooled.
+SCENE_OPTIONS = ("tool_speed",)
+
+
+def _scene_of(options: dict) -> str:
+    """The scene a run used: its version, and any scene option, e.g. ``suction_debris_v3_tool_speed0.05``."""
+    return options["task"] + "".join(f"_{key}{options[key]:g}" for key in SCENE_OPTIONS if key in options)
+
+
 def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int) -> Path:
-    return results / f"{library}_{algorithm}_{_task_options(level)['task']}_{level}_seed{seed}.json"
+    return results / f"{library}_{algorithm}_{_scene_of(_task_options(level))}_{level}_seed{seed}.json"
 
 
 def _task_of(record: dict) -> str:
-    """The scene version a record ran on (its task file's ``task``)."""
-    return record["env_options"]["task"]
+    """The scene a record ran on (see :func:`_scene_of`)."""
+    return _scene_of(record["env_options"])
 
 
 def _machine_of(runs: list[dict]) -> str:

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from dvrl_marl import kinematics
-from dvrl_marl.core import sliding
+from dvrl_marl.core import sliding, tools
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
@@ -180,6 +180,7 @@ class CollaborativeCore:
         self.rewarded_agents = tuple(template.possible_agents)
         c, d = self.cavities.count, p.debris_count
         self.valve_open = np.zeros(n, dtype=bool)
+        self.valve_opening = np.zeros(n)  # the valve's stroke, 0 closed .. 1 open (core.tools)
         self.initial_ml = np.tile(np.asarray(p.blood_ml, dtype=np.float64), (n, 1))
         self.remaining_ml = self.initial_ml.copy()
         self.surface_z = np.zeros((n, c))
@@ -255,6 +256,7 @@ class CollaborativeCore:
             arm.set_tips(indices, tips[agent] - arm.base_position)
         self.arms["grasper"].jaw[indices] = 1.0
         self.valve_open[indices] = False
+        self.valve_opening[indices] = 0.0
         self.remaining_ml[indices] = self.initial_ml[indices]
         self.added_ml[indices] = 0.0
         self.fall_speed[indices] = np.nan
@@ -340,10 +342,13 @@ class CollaborativeCore:
             tool = command[:, 3]
             given = ~np.isnan(tool)
             if agent == "suction":
-                self.valve_open = np.where(given, tool > 0.0, self.valve_open)
+                opening = tools.moved_towards(self.valve_opening, tools.valve_target(tool), self.params.tool_speed)
+                self.valve_opening = np.where(given, opening, self.valve_opening)
+                self.valve_open = self.valve_opening > tools.VALVE_OPEN_ABOVE
             else:
                 arm = self.arms["grasper"]
-                arm.jaw = np.where(given, (tool + 1.0) * 0.5, arm.jaw)
+                jaw = tools.moved_towards(arm.jaw, tools.jaw_target(tool), self.params.tool_speed)
+                arm.jaw = np.where(given, jaw, arm.jaw)
         removed = self._suction()
         self._bleed()
         lifted, delivered = self._grasping()
@@ -583,7 +588,7 @@ class CollaborativeCore:
         n, c, d = self.num_worlds, self.cavities.count, self.params.debris_count
         out = np.empty((n, 10 + c + 6 * d))
         out[:, 0:3] = self.normalise(self.arms[agent].tip_world())
-        out[:, 3] = np.where(self.valve_open, 1.0, -1.0) if agent == "suction" else 2.0 * self.arms["grasper"].jaw - 1.0
+        out[:, 3] = 2.0 * (self.valve_opening if agent == "suction" else self.arms["grasper"].jaw) - 1.0
         out[:, 4:7] = self.normalise(self.arms[other].tip_world())
         out[:, 7:7 + c] = self._blood_fraction()
         debris = out[:, 7 + c:7 + c + 6 * d].reshape(n, d, 6)
@@ -598,7 +603,7 @@ class CollaborativeCore:
         n, c, d = self.num_worlds, self.cavities.count, self.params.debris_count
         out = np.empty((n, 11 + c + 6 * d))
         out[:, 0:3] = self.normalise(self.arms["suction"].tip_world())
-        out[:, 3] = np.where(self.valve_open, 1.0, -1.0)
+        out[:, 3] = 2.0 * self.valve_opening - 1.0
         out[:, 4:7] = self.normalise(self.arms["grasper"].tip_world())
         out[:, 7] = 2.0 * self.arms["grasper"].jaw - 1.0
         out[:, 8:8 + c] = self._blood_fraction()
@@ -624,6 +629,7 @@ class CollaborativeCore:
             "tips": {agent: self.arms[agent].tip[world].copy() for agent in AGENTS},
             "jaw": float(self.arms["grasper"].jaw[world]),
             "valve_open": bool(self.valve_open[world]),
+            "valve_opening": float(self.valve_opening[world]),
             "blood_ml": self.remaining_ml[world].copy(),
             "debris_positions": self.debris_position[world].copy(),
             "debris_yaws": self.debris_yaw[world].copy(),

@@ -35,6 +35,12 @@ window (or ESC) ends the episode at that step: every agent truncates with ``info
 | ``"suction"`` | Suction & Irrigation | [Delta (3), valve: open when > 0] |
 | ``"grasper"`` | Large Needle Driver | [Delta (3), phi: jaw j = (phi + 1) / 2] |
 
+The tool is set at once, as in the paper, unless ``tool_speed`` (an option of every version; 1, the default, is
+the paper's instant tool) gives it a finite speed: the jaw moves towards j, and the valve's stroke (0 closed .. 1
+open) towards open or closed, by at most ``tool_speed`` per step (:mod:`dvrl_marl.core.tools`); the valve draws while
+more than half open. Exploration noise on the tool dimension then averages out over a stroke, and the mean action
+and a sampled one move the tool alike (``benchmarks/tool_noise.py``).
+
 ``p <- p + eta * Delta`` (eta = 1 mm), projected into the workspace box, above the phantom, cavity floors and
 table, and within the joint limits. A move that would make the instruments intersect is refused (the tip stays)
 and counts as a contact. Values outside [-1, 1] are clipped; a missing or unknown agent key, NaN/inf or a wrong
@@ -47,7 +53,7 @@ x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris.toml``
 | slice | content |
 |---|---|
 | 0:3 | own tip~ |
-| 3 | own tool: jaw 2j - 1 (grasper) or valve +1 open / -1 closed (suction) |
+| 3 | own tool: jaw 2j - 1 (grasper) or valve +1 open / -1 closed (suction; 2 x stroke - 1 with ``tool_speed``) |
 | 4:7 | other arm's tip~ |
 | 7:7+C | blood fraction left in each of the C = 2 cavities |
 | then 6 per debris | [position~ (zeros while hidden), visible, held, delivered] |
@@ -98,7 +104,7 @@ Options that help learning (issue 37; off by default): ``reward_type="guided"`` 
 ``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.policies.features.FEATURES`): each
 agent's observation gets those features appended (relative targets computed from the observation alone: the pin
 to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
-ones the learned seats read.
+ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open.
 
 ## Batched form
 ``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
@@ -110,7 +116,8 @@ rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s``
   ``render_mode="human"`` became a window of the project's own, drawn in ``step()`` and paced to 50 Hz, with ENTER
   to start for a person's device (frames and timing only: trajectories are unchanged).
   Options added without a version change, their defaults the published behaviour (issue 37):
-  ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option.
+  ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option;
+  ``tool_speed``.
 """
 
 from __future__ import annotations
@@ -146,7 +153,7 @@ from dvrl_marl.core.collaborative import (
     sample_debris,
 )
 from dvrl_marl.core.collaborative import Cavities
-from dvrl_marl.core import sliding
+from dvrl_marl.core import sliding, tools
 from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
@@ -208,6 +215,8 @@ class SuctionDebrisParams:
     pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
     # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
     blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
+    # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
+    tool_speed: float = 1.0  # fraction of the jaw's / valve's stroke per control step (dvrl_marl.core.tools)
 
     @classmethod
     def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
@@ -442,6 +451,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._rng = np.random.default_rng()
         self._step_count = 0
         self.valve_open = False
+        self.valve_opening = 0.0  # the valve's stroke, 0 closed .. 1 open (core.tools)
         self.bleeding = []
         self._blocked = {agent: False for agent in AGENTS}  # the last move was refused: the other instrument
         self._drawn_ml = 0.0  # blood the suction drew in the last step
@@ -578,6 +588,7 @@ class SuctionDebrisEnv(ParallelEnv):
             if arm.tool.has_jaw:
                 arm.set_jaw(1.0)
         self.valve_open = False
+        self.valve_opening = 0.0
         self.blood.reset()
         for index in range(len(self._blood_geoms)):
             self._update_blood_visual(index)
@@ -624,11 +635,15 @@ class SuctionDebrisEnv(ParallelEnv):
         for agent in AGENTS:
             dx, dy, dz, tool_value = commands[agent]
             contact |= self._move(agent, eta * dx, eta * dy, eta * dz)
+            if tool_value is None:
+                continue
             if agent == "suction":
-                if tool_value is not None:
-                    self.valve_open = tool_value > 0.0
-            elif tool_value is not None:
-                self.arms["grasper"].set_jaw((tool_value + 1.0) * 0.5)
+                self.valve_opening = float(tools.moved_towards(self.valve_opening, tools.valve_target(tool_value),
+                                                               p.tool_speed))
+                self.valve_open = self.valve_opening > tools.VALVE_OPEN_ABOVE
+            else:
+                grasper = self.arms["grasper"]
+                grasper.set_jaw(float(tools.moved_towards(grasper.jaw, tools.jaw_target(tool_value), p.tool_speed)))
         removed = self._drawn_ml = self._suction()
         self._bleed()
         lifted, delivered = self._grasping()
@@ -680,7 +695,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """The global state: tips, jaw, valve, blood, every debris (hidden included), hand-off point."""
-        values = [*self._norm(*self.arms["suction"].tip_world()), 1.0 if self.valve_open else -1.0,
+        values = [*self._norm(*self.arms["suction"].tip_world()), 2.0 * self.valve_opening - 1.0,
                   *self._norm(*self.arms["grasper"].tip_world()), 2.0 * self.arms["grasper"].jaw - 1.0]
         values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
         for pin in self.debris:
@@ -833,12 +848,15 @@ class SuctionDebrisEnv(ParallelEnv):
             values.append("the other instrument is in the way")
         return labels, values
 
-    def set_state(self, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible, delivered) -> None:
-        """Put the scene in a given state (tips in each arm's base frame), e.g. to render a batched world."""
+    def set_state(self, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible, delivered,
+                  valve_opening=None) -> None:
+        """Put the scene in a given state (tips in each arm's base frame), e.g. to render a batched world.
+        ``valve_opening`` (0..1, see :mod:`dvrl_marl.core.tools`): the valve's stroke; by default all or nothing."""
         for agent in AGENTS:
             self.arms[agent].set_tip(*np.asarray(tips[agent], dtype=np.float64).tolist())
         self.arms["grasper"].set_jaw(float(jaw))
         self.valve_open = bool(valve_open)
+        self.valve_opening = float(valve_open) if valve_opening is None else float(valve_opening)
         self.blood.set_remaining(blood_ml)
         for index in range(len(self._blood_geoms)):
             self._update_blood_visual(index)
@@ -1210,7 +1228,7 @@ class SuctionDebrisEnv(ParallelEnv):
     def _observe(self, agent) -> np.ndarray:
         own = self.arms[agent]
         other = self.arms["grasper" if agent == "suction" else "suction"]
-        tool = (1.0 if self.valve_open else -1.0) if agent == "suction" else 2.0 * own.jaw - 1.0
+        tool = 2.0 * (self.valve_opening if agent == "suction" else own.jaw) - 1.0
         values = [*self._norm(*own.tip_world()), tool, *self._norm(*other.tip_world())]
         values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
         for pin in self.debris:

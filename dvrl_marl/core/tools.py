@@ -1,0 +1,36 @@
+"""The instruments' tools (the LND's jaw, the suction's valve) as the commands move them.
+
+The paper sets the jaw to the command at once: ``j = (phi + 1) / 2``, and the valve is open while the command
+is positive. ``tool_speed`` (a task parameter, 1 by default: the paper's) gives the tool a finite speed: each
+control step it moves at most that fraction of its stroke towards what the command asks. A policy's exploration
+noise on the tool then averages out over the steps of a stroke instead of opening the jaw on one unlucky sample
+(a tanh-Gaussian of scale 1 around a closed command opens it every few steps: the scripted team, which never
+fails without noise, delivered nothing with it; ``benchmarks/tool_noise.py``), and the mean action and the
+sampled one drive the tool to the same place.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Fraction of the valve's stroke above which it is open (it draws): the command's own threshold (open when > 0),
+#: ``(0 + 1) / 2``.
+VALVE_OPEN_ABOVE = 0.5
+
+
+def jaw_target(command):
+    """The paper's jaw mapping: ``j = (phi + 1) / 2`` (0 closed, 1 open)."""
+    return (command + 1.0) * 0.5
+
+
+def valve_target(command):
+    """The valve's stroke the command asks for: fully open (1) when it is positive, else closed (0)."""
+    return (command > 0.0) * 1.0  # (a float for a scalar command, an array for an array)
+
+
+def moved_towards(current, target, speed: float):
+    """``current`` moved towards ``target`` by at most ``speed`` (scalars or arrays alike); ``speed >= 1`` is
+    the paper's instant tool (the target itself, exactly)."""
+    if speed >= 1.0:
+        return target
+    return current + np.clip(target - current, -speed, speed)
