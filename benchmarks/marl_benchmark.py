@@ -7,8 +7,10 @@ One row per run, one command per row (each writes one JSON record; nothing is ov
     python benchmarks/marl_benchmark.py table            # the table (markdown), its JSON and the plot
 
 Every run uses the same env options, the shipped BenchMARL task files
-(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v2``, the guided reward,
-the observation features, the start level). ``benchmarl`` runs BenchMARL's own algorithm and experiment defaults
+(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v3``, the guided reward,
+the observation features, the start level, a tool with a finite speed). Records are named by scene: the version and
+any option that changes the scene itself (``SCENE_OPTIONS``: ``tool_speed``), so that runs on different scenes are
+never pooled in one cell. ``benchmarl`` runs BenchMARL's own algorithm and experiment defaults
 with the shipped experiment overrides (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO
 settings of the configuration of record; :func:`dvrl_marl.integrations.benchmarl.experiment_config`), only the
 frame budget and the evaluation interval set here; ``dvrl-marl`` runs this project's trainer with the configuration of

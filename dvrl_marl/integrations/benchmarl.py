@@ -18,7 +18,7 @@ worlds in one env): both arms in one group ``"agents"``, continuous actions in [
 centralised critic, and the share of ended episodes that succeeded logged as ``collection/success_rate``.
 :func:`suction_debris_task` reads one of the shipped task files, one per start level
 (``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: the guided reward, the observation
-features, the level), or a file of your own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
+features, the level, ``tool_speed`` so that a Gaussian policy's noise cannot flick the jaw open), or a file of your own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
 :func:`experiment_config` is BenchMARL's experiment defaults with the shipped overrides
 (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO settings of this project's
 configuration of record); nothing inside BenchMARL's algorithms is changed. :class:`SuccessCurve` records the
