@@ -17,20 +17,26 @@ marl_benchmark = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(marl_benchmark)
 
 
-def _shipped_task() -> str:
-    """The scene the shipped task files run (read from their YAML: needs PyYAML, as the script's runs do)."""
+def _shipped_options() -> dict:
+    """The shipped task file's options (read from its YAML: needs PyYAML, as the script's runs do)."""
     pytest.importorskip("yaml")
-    return marl_benchmark._task_options("easy")["task"]
+    return marl_benchmark._task_options("easy")
 
 
-def _record(results, library, level, seed, success, reached, task=None):
-    task = task or _shipped_task()
+def _shipped_task() -> str:
+    """The scene the shipped task files run: the version and its scene options (tool_speed)."""
+    return marl_benchmark._scene_of(_shipped_options())
+
+
+def _record(results, library, level, seed, success, reached, task=None, options=None):
+    options = options or ({"task": task} if task else _shipped_options())
+    task = marl_benchmark._scene_of(options)
     curve = [{"frames": 1000 * (i + 1), "wall_seconds": 10.0 * (i + 1), "success_rate": s}
              for i, s in enumerate([0.2, success])]
     out = {"library": library, "algorithm": "mappo", "level": level, "seed": seed, "frames": 2000,
            "wall_seconds": 20.0, "final": {"success_rate": success}, "curve": curve,
            "frames_to_target": 2000 if reached else None, "wall_to_target": 20.0 if reached else None,
-           "env_options": {"task": task}, "machine": {"cpus": 2, "python": "3.11.7"}}
+           "env_options": options, "machine": {"cpus": 2, "python": "3.11.7"}}
     path = results / f"{library}_mappo_{task}_{level}_seed{seed}.json"
     path.write_text(json.dumps(out))
 
@@ -53,6 +59,22 @@ def test_table_aggregates_iqm_intervals_and_frames_to_target(tmp_path):
     assert ours["ci95"][0] <= ours["iqm_success"] <= ours["ci95"][1]
     assert rows["benchmarl", "easy"]["iqm_success"] == 0.0 and rows["benchmarl", "easy"]["frames_to_target"] is None
     assert (tmp_path / "benchmark.png").stat().st_size > 1000
+
+
+def test_runs_on_different_scenes_are_never_pooled(tmp_path):
+    """The same version with and without a scene option (tool_speed) is two scenes: two cells, two record names."""
+    pytest.importorskip("rliable")
+    for seed in range(3):
+        _record(tmp_path, "benchmarl", "default", seed, 0.0, False, options={"task": "suction_debris_v3"})
+        _record(tmp_path, "benchmarl", "default", seed, 0.5, False,
+                options={"task": "suction_debris_v3", "tool_speed": 0.1})
+    assert sorted(p.name for p in tmp_path.glob("*seed0.json")) == [
+        "benchmarl_mappo_suction_debris_v3_default_seed0.json",
+        "benchmarl_mappo_suction_debris_v3_tool_speed0.1_default_seed0.json"]
+    assert marl_benchmark.main(["table", "--results", str(tmp_path)]) == 0
+    table = json.loads((tmp_path / "table.json").read_text())
+    assert {row["task"]: row["iqm_success"] for row in table["rows"]} == {
+        "suction_debris_v3": 0.0, "suction_debris_v3_tool_speed0.1": 0.5}
 
 
 def test_a_run_never_overwrites_a_record(tmp_path, capsys):
