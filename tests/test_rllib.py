@@ -66,6 +66,7 @@ def test_multi_agent_recipe_takes_the_envs_learning_options(local_ray):
     assert summary["test"]["episodes"] == 2 and summary["test"]["level"] == "easy" and summary["test"]["guided"]
     assert 0.0 <= summary["test"]["success_rate"] <= 1.0
     assert recipe.env_options(guided=True, level="easy")["observation_features"] == "suction_debris_cleared_pins_zoom"
+    assert recipe.env_options(guided=True)["tool_speed"] == 0.1  # the benchmark's slow tool
 
 
 def test_single_arm_recipe_runs_a_vector_of_envs_per_runner(tmp_path, local_ray):
