@@ -119,3 +119,45 @@ def test_a_slow_tool_averages_out_the_noise_of_a_gaussian_tool_dimension():
     instant = tool_noise.success_rate("suction_debris_v3", 1.0, 1.0, worlds=16)
     slow = tool_noise.success_rate("suction_debris_v3", 0.05, 1.0, worlds=16)
     assert slow >= 0.9 and instant <= 0.25, (instant, slow)
+
+
+def test_every_form_takes_the_option():
+    """AEC, TorchRL, SB3 and the surgeon seat's Gymnasium env: the option reaches the scene and a steady closing
+    command moves the jaw by the option's step (the paper's instant jaw would be shut after one step)."""
+    import gymnasium as gym
+
+    import dvrl_marl  # noqa: F401  (registers the environments)
+
+    aec = suction_debris_v3.env(tool_speed=0.1)
+    aec.reset(seed=0)
+    for agent in aec.agent_iter(2):  # one step of each agent: the cycle's step
+        aec.step(np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32))
+    assert aec.unwrapped.arms["grasper"].jaw == pytest.approx(0.9)
+    seat = gym.make("dvrl_marl/SurgeonSeat-v2", tool_speed=0.1)
+    seat.reset(seed=0)
+    scene = seat.unwrapped.scene
+    if seat.unwrapped.seat == "grasper":
+        seat.step(np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32))
+        assert scene.arms["grasper"].jaw == pytest.approx(0.9)
+    else:
+        seat.step(np.array([0.0, 0.0, 0.0, 1.0], dtype=np.float32))
+        assert scene.valve_opening == pytest.approx(0.1)
+    assert scene.params.tool_speed == 0.1
+    seat.close()
+    if importlib.util.find_spec("torchrl") is not None:
+        import torch
+
+        from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+        env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, task="suction_debris_v3", tool_speed=0.1)
+        td = env.reset()
+        td["agents", "action"] = torch.tensor([[[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]]] * 2)
+        env.step(td)
+        assert np.allclose(env.batched.core.valve_opening, 0.1) and np.allclose(env.batched.core.arms["grasper"].jaw, 0.9)
+    if importlib.util.find_spec("supersuit") is not None:
+        from dvrl_marl.integrations.sb3 import make_collaborative_vec_env
+
+        venv = make_collaborative_vec_env(n_envs=1, seed=0, task="suction_debris_v3", tool_speed=0.1)
+        venv.reset()
+        venv.step(np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]], dtype=np.float32))
+        venv.close()
