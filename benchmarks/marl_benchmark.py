@@ -61,6 +61,11 @@ TARGET = 0.9
 DVRL_MARL_OVERRIDES = {"initial_tool_logit": {"grasper": 0.0}}
 
 
+def _trainer_overrides(level: str) -> dict:
+    """:data:`DVRL_MARL_OVERRIDES` where the level's task file has a slow tool, else none."""
+    return DVRL_MARL_OVERRIDES if _task_options(level).get("tool_speed", 1.0) < 1.0 else {}
+
+
 def _task_options(level: str) -> dict:
     import yaml
 
@@ -153,8 +158,8 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
 
     config = mappo.load_config(ROOT / "baselines" / "configs" / f"suction_debris_{algorithm}.toml")
     config.env = _task_options(level)
-    if config.env.get("tool_speed", 1.0) < 1.0:
-        config.initial_tool_logit = {**config.initial_tool_logit, **DVRL_MARL_OVERRIDES["initial_tool_logit"]}
+    for key, value in _trainer_overrides(level).items():  # a table (per agent) is merged into the record's
+        setattr(config, key, {**getattr(config, key), **value} if isinstance(value, dict) else value)
     if level == "easy":
         config.levels = []  # every episode easy (the task file's start level)
     config.eval_every = config.checkpoint_every = int(eval_every)
@@ -208,8 +213,8 @@ def command_run(args) -> int:
            "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
            "target": TARGET, "env_options": _task_options(args.level),
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
-           **({"trainer_overrides": DVRL_MARL_OVERRIDES} if args.library == "dvrl-marl"
-              and _task_options(args.level).get("tool_speed", 1.0) < 1.0 else {}),
+           **({"trainer_overrides": _trainer_overrides(args.level)}
+              if args.library == "dvrl-marl" and _trainer_overrides(args.level) else {}),
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
     record.write_text(json.dumps(out, indent=2) + "\n")

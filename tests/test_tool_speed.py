@@ -159,5 +159,7 @@ def test_every_form_takes_the_option():
 
         venv = make_collaborative_vec_env(n_envs=1, seed=0, task="suction_debris_v3", tool_speed=0.1)
         venv.reset()
-        venv.step(np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]], dtype=np.float32))
+        observations, *_ = venv.step(np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]], dtype=np.float32))
         venv.close()
+        # slot 0 the suction, slot 1 the grasper: their own-tool entries (2 x stroke - 1) moved by one step of 0.1
+        assert observations[0, 3] == pytest.approx(-0.8) and observations[1, 3] == pytest.approx(0.8)

@@ -179,7 +179,6 @@ class CollaborativeCore:
         self.handoff_normalised = self.normalise(self.handoff)
         self.rewarded_agents = tuple(template.possible_agents)
         c, d = self.cavities.count, p.debris_count
-        self.valve_open = np.zeros(n, dtype=bool)
         self.valve_opening = np.zeros(n)  # the valve's stroke, 0 closed .. 1 open (core.tools)
         self.initial_ml = np.tile(np.asarray(p.blood_ml, dtype=np.float64), (n, 1))
         self.remaining_ml = self.initial_ml.copy()
@@ -255,7 +254,6 @@ class CollaborativeCore:
         for agent, arm in self.arms.items():
             arm.set_tips(indices, tips[agent] - arm.base_position)
         self.arms["grasper"].jaw[indices] = 1.0
-        self.valve_open[indices] = False
         self.valve_opening[indices] = 0.0
         self.remaining_ml[indices] = self.initial_ml[indices]
         self.added_ml[indices] = 0.0
@@ -344,7 +342,6 @@ class CollaborativeCore:
             if agent == "suction":
                 opening = tools.moved_towards(self.valve_opening, tools.valve_target(tool), self.params.tool_speed)
                 self.valve_opening = np.where(given, opening, self.valve_opening)
-                self.valve_open = self.valve_opening > tools.VALVE_OPEN_ABOVE
             else:
                 arm = self.arms["grasper"]
                 jaw = tools.moved_towards(arm.jaw, tools.jaw_target(tool), self.params.tool_speed)
@@ -359,6 +356,11 @@ class CollaborativeCore:
         truncated = (self.elapsed >= self.limit) & ~self.complete
         rewards = self._rewards(removed, lifted, delivered, contact)
         return rewards, self.complete.copy(), truncated
+
+    @property
+    def valve_open(self) -> np.ndarray:
+        """(N,) bool: the valve draws (more than half open; :mod:`dvrl_marl.core.tools`)."""
+        return self.valve_opening > tools.VALVE_OPEN_ABOVE
 
     def _floor(self, x, y):
         return self.cavities.surface_height(x, y) + self.params.tip_clearance
@@ -407,7 +409,8 @@ class CollaborativeCore:
 
     def _suction(self) -> np.ndarray:
         removed = np.zeros(self.num_worlds)
-        if not self.valve_open.any():
+        open_ = self.valve_open
+        if not open_.any():
             return removed
         tip = self.arms["suction"].tip_world()
         cavity = self.cavities.cavity_at(tip[:, 0], tip[:, 1])
@@ -419,7 +422,7 @@ class CollaborativeCore:
             flow = np.where(height < 0.0, 1.0, 0.0)
         else:  # the single env's arithmetic: 1 at or below the surface, falling linearly to 0 at reach above it
             flow = np.where(height <= 0.0, 1.0, np.where(height < reach, 1.0 - height / reach, 0.0))
-        sucking = self.valve_open & (cavity >= 0) & (remaining > 0.0) & (flow > 0.0)
+        sucking = open_ & (cavity >= 0) & (remaining > 0.0) & (flow > 0.0)
         if not sucking.any():
             return removed
         worlds, cavity = np.flatnonzero(sucking), safe[sucking]

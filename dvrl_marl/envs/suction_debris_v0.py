@@ -450,8 +450,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._pending_teleop = None
         self._rng = np.random.default_rng()
         self._step_count = 0
-        self.valve_open = False
-        self.valve_opening = 0.0  # the valve's stroke, 0 closed .. 1 open (core.tools)
+        self.valve_opening = 0.0  # the valve's stroke, 0 closed .. 1 open (core.tools); valve_open derives from it
         self.bleeding = []
         self._blocked = {agent: False for agent in AGENTS}  # the last move was refused: the other instrument
         self._drawn_ml = 0.0  # blood the suction drew in the last step
@@ -587,7 +586,6 @@ class SuctionDebrisEnv(ParallelEnv):
             arm.set_tip(*arm.to_base(start).tolist())
             if arm.tool.has_jaw:
                 arm.set_jaw(1.0)
-        self.valve_open = False
         self.valve_opening = 0.0
         self.blood.reset()
         for index in range(len(self._blood_geoms)):
@@ -640,7 +638,6 @@ class SuctionDebrisEnv(ParallelEnv):
             if agent == "suction":
                 self.valve_opening = float(tools.moved_towards(self.valve_opening, tools.valve_target(tool_value),
                                                                p.tool_speed))
-                self.valve_open = self.valve_opening > tools.VALVE_OPEN_ABOVE
             else:
                 grasper = self.arms["grasper"]
                 grasper.set_jaw(float(tools.moved_towards(grasper.jaw, tools.jaw_target(tool_value), p.tool_speed)))
@@ -848,6 +845,11 @@ class SuctionDebrisEnv(ParallelEnv):
             values.append("the other instrument is in the way")
         return labels, values
 
+    @property
+    def valve_open(self) -> bool:
+        """The valve draws (more than half open; :mod:`dvrl_marl.core.tools`)."""
+        return self.valve_opening > tools.VALVE_OPEN_ABOVE
+
     def set_state(self, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible, delivered,
                   valve_opening=None) -> None:
         """Put the scene in a given state (tips in each arm's base frame), e.g. to render a batched world.
@@ -855,8 +857,7 @@ class SuctionDebrisEnv(ParallelEnv):
         for agent in AGENTS:
             self.arms[agent].set_tip(*np.asarray(tips[agent], dtype=np.float64).tolist())
         self.arms["grasper"].set_jaw(float(jaw))
-        self.valve_open = bool(valve_open)
-        self.valve_opening = float(valve_open) if valve_opening is None else float(valve_opening)
+        self.valve_opening = float(bool(valve_open)) if valve_opening is None else float(valve_opening)
         self.blood.set_remaining(blood_ml)
         for index in range(len(self._blood_geoms)):
             self._update_blood_visual(index)
