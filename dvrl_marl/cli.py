@@ -9,6 +9,7 @@ import signal
 import sys
 from pathlib import Path
 
+from dvrl_marl.registration import COLLABORATIVE_TASKS
 from dvrl_marl.schemas import cli_number
 
 __all__ = ["main"]
@@ -114,8 +115,7 @@ def resolve_config(name: str) -> str:
 
 #: The scene's task of each env a seat policy names (multi-agent policies name the PettingZoo env they learnt on).
 _SEAT_TASKS = {"dvrl_marl/SurgeonSeat-v1": "suction_debris_v1", "dvrl_marl/SurgeonSeat-v2": "suction_debris_v2",
-               "suction_debris_v0": "suction_debris", "suction_debris_v1": "suction_debris_v1",
-               "suction_debris_v2": "suction_debris_v2", "suction_debris_v3": "suction_debris_v3"}
+               **{("suction_debris_v0" if task == "suction_debris" else task): task for task in COLLABORATIVE_TASKS}}
 
 
 def _evaluate(args) -> int:
@@ -318,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--episodes", type=COUNT, default=100)
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
-    team.add_argument("--task", choices=["suction_debris", "suction_debris_v1", "suction_debris_v2", "suction_debris_v3"],
+    team.add_argument("--task", choices=COLLABORATIVE_TASKS,
                       default="suction_debris_v2",
                       help="the scene's task (default: the demo's, suction_debris_v2; figures recorded before "
                            "2026-11-25 used suction_debris, v0's)")

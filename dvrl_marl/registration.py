@@ -55,7 +55,14 @@ MULTI_AGENT_ENV_IDS = {
         "dvrl_marl.envs.suction_debris_v3:parallel_env",
         "dvrl_marl.envs.suction_debris_v3:env",
     ),
+    "dvrl_marl/suction_debris-v4": (
+        "dvrl_marl.envs.suction_debris_v4:parallel_env",
+        "dvrl_marl.envs.suction_debris_v4:env",
+    ),
 }
+#: The collaborative scene's task files, one per version (v0's is ``suction_debris``; ``tasks/<name>.toml``).
+COLLABORATIVE_TASKS = tuple("suction_debris" if env_id.endswith("-v0") else "suction_debris_" + env_id.rsplit("-", 1)[1]
+                            for env_id in MULTI_AGENT_ENV_IDS)
 
 
 def register_envs() -> None:

@@ -169,6 +169,7 @@ class CollaborativeTask(BaseModel):
     deliver_at_grip: Flag = False
     pins_stay_on_phantom: Flag = False
     blocked_moves: Literal["stop", "slide"] = "stop"
+    held_pin_at_grip: Flag = False
     tool_speed: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
 
 

@@ -575,7 +575,7 @@ class CollaborativeCore:
             holding = self.holding >= 0
             if holding.any():
                 worlds = np.flatnonzero(holding)
-                held = self.debris_position[worlds, self.holding[worlds]]
+                held = self.shown_positions()[worlds, self.holding[worlds]]
                 nearest[worlds] = _distance(held, self.handoff)
         return nearest
 
@@ -596,10 +596,23 @@ class CollaborativeCore:
         out[:, 7:7 + c] = self._blood_fraction()
         debris = out[:, 7 + c:7 + c + 6 * d].reshape(n, d, 6)
         shown = self.visible & ~self.delivered
-        debris[..., 0:3] = np.where(shown[..., None], self.normalise(self.debris_position), 0.0)
+        debris[..., 0:3] = np.where(shown[..., None], self.normalise(self.shown_positions()), 0.0)
         debris[..., 3], debris[..., 4], debris[..., 5] = self.visible, self.held, self.delivered
         out[:, 7 + c + 6 * d:] = self.handoff_normalised
         return out
+
+    def shown_positions(self) -> np.ndarray:
+        """(N, D, 3) world: where observations, the state and the dense reward's carry place the pins: their centres,
+        a held pin in v4 (``held_pin_at_grip``) where the jaws hold it, the point the hand-off judges."""
+        if not (self.params.held_pin_at_grip and self.params.deliver_at_grip):  # (without v2's rule: the centre)
+            return self.debris_position
+        holding = self.holding >= 0
+        if not holding.any():
+            return self.debris_position
+        shown = self.debris_position.copy()
+        worlds = np.flatnonzero(holding)
+        shown[worlds, self.holding[worlds]] = self.arms["grasper"].tip_world()[worlds] + self.grip_offset[worlds]
+        return shown
 
     def state(self) -> np.ndarray:
         """(N, state_dim): tips, valve, jaw, blood, every debris (hidden included), hand-off point."""
@@ -611,7 +624,7 @@ class CollaborativeCore:
         out[:, 7] = 2.0 * self.arms["grasper"].jaw - 1.0
         out[:, 8:8 + c] = self._blood_fraction()
         debris = out[:, 8 + c:8 + c + 6 * d].reshape(n, d, 6)
-        debris[..., 0:3] = self.normalise(self.debris_position)
+        debris[..., 0:3] = self.normalise(self.shown_positions())
         debris[..., 3], debris[..., 4], debris[..., 5] = self.visible, self.held, self.delivered
         out[:, 8 + c + 6 * d:] = self.handoff_normalised
         return out

@@ -215,6 +215,8 @@ class SuctionDebrisParams:
     pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
     # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
     blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
+    # Added with suction_debris_v4 (default: v0-v3's behaviour; tasks/suction_debris_v4.toml sets v4's):
+    held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
     tool_speed: float = 1.0  # fraction of the jaw's / valve's stroke per control step (dvrl_marl.core.tools)
 
@@ -696,7 +698,8 @@ class SuctionDebrisEnv(ParallelEnv):
                   *self._norm(*self.arms["grasper"].tip_world()), 2.0 * self.arms["grasper"].jaw - 1.0]
         values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
         for pin in self.debris:
-            values += [*self._norm(*pin.position), float(pin.visible), float(pin.held), float(pin.delivered)]
+            values += [*self._norm(*self._shown_position(pin)), float(pin.visible), float(pin.held),
+                       float(pin.delivered)]
         values += self._norm(*self.handoff)
         return np.array(values)
 
@@ -1153,6 +1156,13 @@ class SuctionDebrisEnv(ParallelEnv):
             return [tip[i] + self._grip_offset[i] for i in range(3)]
         return pin.position
 
+    def _shown_position(self, pin):
+        """Where observations, the state and the dense reward's carry place ``pin``: its centre, or while it is held
+        in v4 (``held_pin_at_grip``) the point the hand-off judges (:meth:`_judged_point`)."""
+        if pin.held and self.params.held_pin_at_grip:
+            return self._judged_point(self.arms["grasper"].tip_world(), pin)
+        return pin.position
+
     def _complete(self) -> bool:
         threshold = self.params.blood_threshold_ml
         return all(v < threshold or v <= 0.0 for v in self.blood.remaining_ml) and all(p.delivered for p in self.debris)
@@ -1211,7 +1221,7 @@ class SuctionDebrisEnv(ParallelEnv):
                        if v >= self.params.blood_threshold_ml and v > 0.0]
             return min((math.dist(tip, t) for t in targets), default=0.0)
         if self._held is not None:
-            return math.dist(self.debris[self._held].position, self.handoff)
+            return math.dist(self._shown_position(self.debris[self._held]), self.handoff)
         targets = [pin.position for pin in self.debris if pin.visible and not pin.delivered]
         return min((math.dist(tip, t) for t in targets), default=0.0)
 
@@ -1234,7 +1244,7 @@ class SuctionDebrisEnv(ParallelEnv):
         values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
         for pin in self.debris:
             if pin.visible and not pin.delivered:
-                values += self._norm(*pin.position)
+                values += self._norm(*self._shown_position(pin))
             else:
                 values += (0.0, 0.0, 0.0)
             values += (float(pin.visible), float(pin.held), float(pin.delivered))
