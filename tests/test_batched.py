@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2, suction_debris_v3, suction_debris_v4
+from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2, suction_debris_v3, suction_debris_v4, \
+    suction_debris_v5
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -182,7 +183,7 @@ def test_vector_env_renders_the_chosen_world():
 
 
 def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, surgeon=None, scripted=False,
-                                        module=suction_debris_v0, drop_probability=0.0, **kwargs):
+                                        module=suction_debris_v0, drop_probability=0.0, pull=None, **kwargs):
     env = module.batched_env(num_envs=num_envs, surgeon=surgeon, **kwargs)
     singles = [module.parallel_env(surgeon=surgeon, **kwargs) for _ in range(num_envs)]
     observations, _ = env.reset(seed=seed)
@@ -196,6 +197,9 @@ def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, sur
     for _ in range(steps):
         if scripted:
             actions = {a: experts[a](observations[a]) + rng.normal(0.0, 0.3, (num_envs, 4)) for a in env.agents}
+        elif pull is not None:  # commands around a direction per agent (into a blocker, say)
+            actions = {a: np.concatenate([np.asarray(pull[a]) + rng.uniform(-0.4, 0.4, (num_envs, 3)),
+                                          rng.uniform(-1.0, 1.0, (num_envs, 1))], axis=1) for a in env.agents}
         else:
             actions = {a: rng.uniform(-1.3, 1.3, (num_envs, 4)) for a in env.agents}
         if drop_probability and "grasper" in actions:  # open the jaw now and then: held pins drop mid-air
@@ -270,6 +274,14 @@ def test_batched_v4_equals_single_env_with_held_pins_at_their_grip():
     assert_batched_collaborative_matches(3, seed=26, steps=1250, action_seed=10, scripted=True, reward_type="guided",
                                          max_cycles=600, module=suction_debris_v4, drop_probability=0.03,
                                          observation_features="suction_debris_cleared_pins_zoom")
+
+
+def test_batched_v5_equals_single_env_while_descents_climb():
+    # Commands pulled toward the other arm's side and down press the tips out of the cavities into the bowls'
+    # walls, along their normals now and then: v5's climbs (and v3's slides), world by world.
+    assert_batched_collaborative_matches(3, seed=27, steps=1000, action_seed=11, max_cycles=250,
+                                         module=suction_debris_v5,
+                                         pull={"suction": [0.8, 0.0, -0.6], "grasper": [-0.8, 0.0, -0.6]})
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])

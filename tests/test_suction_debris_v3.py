@@ -10,7 +10,7 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl import kinematics
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v2, suction_debris_v3
+from dvrl_marl.envs import suction_debris_v2, suction_debris_v3, suction_debris_v5
 
 PUSH_SUCTION_PAST_GRASPER = np.array([1.0, 0.0, -0.1, 1.0])
 
@@ -122,15 +122,17 @@ def test_the_scripted_team_plays_v2_step_for_step():
     np.testing.assert_array_equal(traces[0], traces[1])
 
 
-@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), action_seed=st.integers(0, 2**31 - 1),
-       bias=st.sampled_from(["into_phantom", "into_each_other", "up_and_out", "uniform"]))
-def test_sliding_keeps_every_tip_in_the_box_above_the_surface_within_its_joints_and_apart(seed, action_seed, bias):
+       bias=st.sampled_from(["into_phantom", "into_each_other", "up_and_out", "uniform"]),
+       module=st.sampled_from([suction_debris_v3, suction_debris_v5]))
+def test_sliding_keeps_every_tip_in_the_box_above_the_surface_within_its_joints_and_apart(seed, action_seed, bias,
+                                                                                          module):
     # Commands biased into the blockers (the phantom, the other instrument, the joint limits near the RCMs): however
-    # moves slide, the tips stay in the workspace box, above every surface, within the joint limits, and the
-    # instruments never intersect.
+    # moves slide (and, in v5, climb), the tips stay in the workspace box, above every surface, within the joint
+    # limits, and the instruments never intersect.
     worlds = 8
-    env = suction_debris_v3.batched_env(num_envs=worlds)
+    env = module.batched_env(num_envs=worlds)
     env.reset(seed=seed)
     core = env.core
     rng = np.random.default_rng(action_seed)

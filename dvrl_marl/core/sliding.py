@@ -23,6 +23,13 @@ commands, so the scene resolves contacts as a frictionless constraint does (a fo
   the tip in the box, above the surface, within the joint limits and clear of the other instrument is made. Only if
   none does does the tip stay.
 
+``suction_debris_v5`` (``blocked_moves = "climb"``) adds one rule to these (``climb``): **a descending move that
+the surface and the wall slide leave (almost) nothing of gives up its descent**, and its level part is made as any
+move (slid along the wall). A tip pressed out of a cavity and down against the bowl, along the wall's normal, made
+no headway under the frictionless rule (measured, issue 37: the commonest end of the episodes the learnt teams failed
+by their mean action on v4, for both arms, heading for the other cavity); with it the tip rides up the wall the way
+it was heading and over the rim. A move that makes headway is unchanged.
+
 Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for
 N (the single env calls these functions on one row).
 """
@@ -34,10 +41,13 @@ import numpy as np
 from dvrl_marl import kinematics
 from dvrl_marl.core.instruments import contact_normal, instrument_clearance
 
-__all__ = ["wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT"]
+__all__ = ["wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT",
+           "NO_HEADWAY"]
 
 #: The lift off the other instrument of a step along it, per unit of the step's length (see :func:`resolve_blocked`).
 CONTACT_LIFT = 0.1
+#: ``climb``: a move whose made part is shorter than this share of it made no headway.
+NO_HEADWAY = 0.1
 #: The joints that place the wrist (outer yaw, outer pitch, insertion); the wrist joints keep the tool pointing down.
 OUTER_JOINTS = 3
 
@@ -59,11 +69,27 @@ def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 
 def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray, high: np.ndarray,
-                   old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True) -> np.ndarray:
+                   old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True, climb: bool = False) -> np.ndarray:
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
     the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
     slid along it (:func:`wall_slide`; v3), then, if the move still enters the wall, only its vertical part (all that
-    v0-v2 make of it: ``slide_on_walls=False``)."""
+    v0-v2 make of it: ``slide_on_walls=False``). ``climb`` (v5): a descending move of which that leaves less than
+    :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead)."""
+    target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
+    if climb:
+        length = np.sqrt((delta * delta).sum(axis=1))
+        made = np.sqrt(((target - old) ** 2).sum(axis=1))
+        stalled = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length)
+        if stalled.any():
+            level = delta * np.array([1.0, 1.0, 0.0])
+            target = np.where(stalled[:, None],
+                              _surface_target(cavities, tip_clearance, step, low, high, old, level, slide_on_walls),
+                              target)
+    return target
+
+
+def _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls):
+    """:func:`surface_target` without ``climb``."""
 
     def floor(x, y):
         return cavities.surface_height(x, y) + tip_clearance
@@ -114,11 +140,11 @@ def _clamped_to_joint_limits(tool, base, target: np.ndarray) -> np.ndarray:
 
 
 def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray, cavities, tip_clearance: float,
-                    step: float, low: np.ndarray, high: np.ndarray):
+                    step: float, low: np.ndarray, high: np.ndarray, climb: bool = False):
     """The slide of M blocked moves: ``arm`` and ``other`` ``{"tool", "base" (3,), "tip" (M, 3)}`` (world, before
     the move; the other instrument's shaft follows from its tip, as the joints do), ``delta`` (M, 3) the commanded
     move. Returns ``(made (M,), tip (M, 3) world, q (M, n), clearance (M,))`` for the first candidate of each row
-    that can be made (rows not made: unchanged, clearance NaN)."""
+    that can be made (rows not made: unchanged, clearance NaN). ``climb``: :func:`surface_target`'s (v5)."""
     tool, base, start = arm["tool"], np.asarray(arm["base"]), arm["tip"]
 
     def segment(tool, base, tip):
@@ -142,7 +168,7 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
         live = ~made & np.any(move != 0.0, axis=1)
         if not live.any():
             continue
-        target = surface_target(cavities, tip_clearance, step, low, high, start, move)
+        target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb)
         own, joints, reachable = segment(tool, base, target)
         if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
             live &= ~reachable

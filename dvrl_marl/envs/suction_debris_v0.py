@@ -215,6 +215,7 @@ class SuctionDebrisParams:
     pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
     # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
     blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
+    # ("climb", v5: as "slide", and a descent that makes no headway is given up)
     # Added with suction_debris_v4 (default: v0-v3's behaviour; tasks/suction_debris_v4.toml sets v4's):
     held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
@@ -958,7 +959,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _move(self, agent, dx, dy, dz) -> bool:
         """Move one arm's tip (world deltas); returns True when the instruments are in contact."""
-        if self.params.blocked_moves == "slide":
+        if self.params.blocked_moves in ("slide", "climb"):
             return self._slide(agent, np.array([[dx, dy, dz]]))
         arm = self.arms[agent]
         old = arm.tip_world()
@@ -984,11 +985,14 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _slide(self, agent, delta: np.ndarray) -> bool:
         """v3's move (:mod:`dvrl_marl.core.sliding`): a wall slid along, a blocked move resolved by
-        :func:`~dvrl_marl.core.sliding.resolve_blocked`; the batched core's functions, on one row."""
+        :func:`~dvrl_marl.core.sliding.resolve_blocked` (v5: a descent that makes no headway given up); the batched
+        core's functions, on one row."""
         arm, p = self.arms[agent], self.params
+        climb = p.blocked_moves == "climb"
         old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
         low, high = np.asarray(self._low), np.asarray(self._high)
-        target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta)[0]
+        target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta,
+                                        climb=climb)[0]
         previous = list(arm.tip)
         cut = arm.move(*(target - old[0]).tolist(), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
         clearance = self._instrument_distance()
@@ -999,7 +1003,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 {"tool": arm.tool, "base": arm.base_position, "tip": old},
                 {"tool": other.tool, "base": other.base_position,
                  "tip": np.asarray(other.tip_world(), dtype=np.float64)[None]},
-                agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high)
+                agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high, climb=climb)
             if made[0]:
                 arm.set_tip(*(tip[0] - arm.base_position).tolist())
                 return bool(gap[0] < _CONTACT_MARGIN)

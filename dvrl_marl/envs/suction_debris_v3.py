@@ -31,7 +31,7 @@ been motionless for 100 or more steps against a blocker. The noise, not the poli
 A scripted expert never pushes into a blocker, so the scripted team's episodes are v2's step for step.
 
 ## Version History
-- v3: blocked moves slide (this page). The benchmark's task files (``dvrl_marl.integrations.benchmarl``) run it.
+- v3: blocked moves slide (this page). The benchmark ran it until v4.
 - v2: :mod:`dvrl_marl.envs.suction_debris_v2`, unchanged; the demo and the seats a person uses run it.
 - v1: :mod:`dvrl_marl.envs.suction_debris_v1`, unchanged.
 - v0: :mod:`dvrl_marl.envs.suction_debris_v0`, unchanged.

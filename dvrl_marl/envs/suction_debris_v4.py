@@ -32,8 +32,7 @@ The scripted surgeon carries the pin it sees to the hand-off point: in v4 the gr
 a pin's centre, so the two lie within the jaw's sensor range of each other).
 
 ## Version History
-- v4: a held pin observed at its grip (this page). The benchmark's task files (``dvrl_marl.integrations.benchmarl``)
-  run it.
+- v4: a held pin observed at its grip (this page). The benchmark ran it until v5.
 - v3: :mod:`dvrl_marl.envs.suction_debris_v3`, unchanged.
 - v2: :mod:`dvrl_marl.envs.suction_debris_v2`, unchanged; the demo and the seats a person uses run it.
 - v1: :mod:`dvrl_marl.envs.suction_debris_v1`, unchanged.

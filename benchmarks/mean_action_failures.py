@@ -1,0 +1,103 @@
+"""Where a learnt team acting by its mean action fails: what each seat was doing when its test episodes ran out.
+
+A policy that succeeds with its exploration noise and fails by its mean action (what a robot is driven by) has
+resting points the noise shook it out of. For every failed test episode this prints, per seat, what its tip did over
+the episode's last ``--window`` steps: ``pushing`` (it stood still while commanding a move: the command goes into
+something, a wall, the workspace's face, the other instrument), ``resting`` (it stood still at a command of about
+zero: the policy's own fixed point) or ``moving``; whether the grasper held a pin within reach of the hand-off point;
+which cavities kept blood above the clearing mark. Counted by class, with an example episode of each.
+
+    python benchmarks/mean_action_failures.py baselines/results/benchmark/runs/<a run of this project's trainer>
+
+The run's env options are its ``config.toml``'s ``[env]``; the test episodes are the benchmark's (seeds
+``teams.EVAL_SEED`` on).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+#: A tip that moved less than this (normalised units, about 0.8 mm) over the window stood still.
+STILL = 0.01
+#: A command whose largest motion component is below this is "about zero".
+ZERO_COMMAND = 0.05
+#: Within this (normalised, 12 mm) of the hand-off point a held pin counts as "at the hand-off".
+NEAR_HANDOFF = 0.15
+
+
+def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dict]:
+    from dvrl_marl import policies
+    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.training import mappo, teams
+
+    options = {k: v for k, v in mappo.load_config(run / "config.toml").env.items() if k != "reward_type"}
+    team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v0.AGENTS}
+    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **options)
+    observations, _ = env.reset(seed=teams.EVAL_SEED)
+    layout = env.observation_layout
+    tips = {agent: [] for agent in env.agents}
+    commands = {agent: [] for agent in env.agents}
+    done = np.zeros(episodes, dtype=bool)
+    success = np.zeros(episodes, dtype=bool)
+    info = {}
+    while not done.all():
+        actions = {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
+        for agent in env.agents:  # (only the last window is kept)
+            tips[agent] = (tips[agent] + [observations[agent][:, layout["own_tip"]].copy()])[-window:]
+            commands[agent] = (commands[agent] + [actions[agent][:, :3]])[-window:]
+        observations, _, terminations, truncations, infos = env.step(actions)
+        info = infos[env.agents[0]]
+        success |= ~done & info["is_success"]
+        done |= terminations[env.agents[0]] | truncations[env.agents[0]]
+    blood = info["blood_remaining_per_cavity"]
+    threshold = env.params.blood_threshold_ml
+    grasper = observations["grasper"]
+    debris = grasper[:, layout["debris"]].reshape(episodes, -1, 6)
+    holding = debris[:, :, 4] > 0.5
+    held_at = (debris[:, :, :3] * holding[..., None]).sum(axis=1)
+    at_handoff = holding.any(axis=1) & (np.linalg.norm(held_at - grasper[:, layout["handoff"]], axis=1) < NEAR_HANDOFF)
+    classes, examples = Counter(), {}
+    for world in np.flatnonzero(~success):
+        parts = []
+        for agent in env.agents:
+            path = np.stack(tips[agent])[:, world]
+            command = np.abs(np.stack(commands[agent])[:, world]).max(axis=1).mean()
+            still = np.linalg.norm(path[-1] - path[0]) < STILL
+            parts.append(f"{agent} {'moving' if not still else 'pushing' if command > ZERO_COMMAND else 'resting'}")
+        parts.append("grasper holds a pin at the hand-off" if at_handoff[world] else
+                     "grasper holds a pin" if holding[world].any() else "grasper empty")
+        left = [str(c) for c in range(blood.shape[1]) if blood[world, c] >= threshold]
+        parts.append(f"blood left in cavity {', '.join(left)}" if left else "cavities clear")
+        key = "; ".join(parts)
+        classes[key] += 1
+        if key not in examples:
+            examples[key] = (int(world), {agent: np.round(tips[agent][-1][world], 2).tolist() for agent in env.agents},
+                             {agent: np.round(commands[agent][-1][world], 2).tolist() for agent in env.agents})
+    return float(success.mean()), classes, examples
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders of this project's trainer")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
+    args = parser.parse_args(argv)
+    if args.episodes < 1 or args.window < 2:
+        parser.error("--episodes must be >= 1 and --window >= 2")
+    for run in args.runs:
+        if not (run / "config.toml").is_file() or not (run / "policies").is_dir():
+            parser.error(f"{run}: not a run folder of this project's trainer (no config.toml / policies/)")
+        success, classes, examples = classify(run, args.episodes, args.window)
+        print(f"{run.name}: success by the mean action {success:.2f}; {sum(classes.values())} failed")
+        for key, count in classes.most_common():
+            world, tip, command = examples[key]
+            print(f"  {count:3d}  {key}   (e.g. episode {world}: tips {tip}, last commands {command})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,105 @@
+"""suction_debris_v5: a descending move the wall leaves no headway gives up its descent (it climbs); v4 stays as it
+was."""
+
+import numpy as np
+import pettingzoo
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pettingzoo.test import api_test, parallel_api_test
+
+import dvrl_marl  # noqa: F401  (registration)
+from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.core import sliding
+from dvrl_marl.core.collaborative import Cavities
+from dvrl_marl.envs import suction_debris_v4, suction_debris_v5
+
+# The suction on the wall of the left cavity near its rim, heading for the other cavity: out and down, into the
+# bowl (the measured end of issue 37's failed mean-action episodes on v4).
+ON_THE_WALL = [-0.121, -0.12]
+OUT_AND_DOWN = np.array([1.0, -0.23, -0.64, -1.0])
+
+
+def test_pettingzoo_api_and_registration():
+    parallel_api_test(suction_debris_v5.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(suction_debris_v5.env(max_cycles=100), num_cycles=200)
+    env = suction_debris_v5.parallel_env()
+    assert env.metadata["name"] == "suction_debris_v5"
+    assert env.params.blocked_moves == "climb" and env.params.held_pin_at_grip  # v4's change kept
+    assert suction_debris_v4.parallel_env().params.blocked_moves == "slide"  # v4 stays as it was
+    if hasattr(pettingzoo, "make"):
+        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v5").params.blocked_moves == "climb"
+
+
+def _on_the_wall(module):
+    """No blood, one hidden pin left (the episode goes on), the suction on the left cavity's wall near its rim."""
+    env = module.parallel_env(blood_ml=[0.0, 0.0])
+    env.reset(seed=0)
+    count = len(env.debris)
+    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*ON_THE_WALL, 0.0])
+    suction = [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
+    grasper = env.workspace_centre + env.workspace_range * np.array([0.6, 0.0, 0.2])
+    env.set_state(tips={"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)},
+                  jaw=1.0, valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
+                  debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
+    return env
+
+
+def _path(env, command, steps):
+    path = [np.array(env.arms["suction"].tip_world())]
+    for _ in range(steps):
+        env.step({"suction": command, "grasper": np.zeros(4)})
+        path.append(np.array(env.arms["suction"].tip_world()))
+    return np.array(path)
+
+
+def test_a_tip_pressed_out_and_down_against_a_wall_rides_over_the_rim_in_v5_and_stays_in_v4():
+    stuck = _path(_on_the_wall(suction_debris_v4), OUT_AND_DOWN, 60)
+    assert np.linalg.norm(stuck[-1] - stuck[0]) < 0.0005  # v4: under half a millimetre in 60 steps
+    env = _on_the_wall(suction_debris_v5)
+    path = _path(env, OUT_AND_DOWN, 60)
+    top = env.phantom.top_z + env.params.tip_clearance
+    assert path[:, 2].max() >= top - 1e-9  # up the wall onto the phantom's top
+    assert env.normalise(path[-1])[0] > 0.0  # and on, the way it was heading (+x), past the ridge
+    assert 1000 * np.linalg.norm(path[-1] - path[0]) > 40.0
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(where=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.0, 0.2)),
+       command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
+def test_climbing_changes_only_descents_that_make_no_headway_and_keeps_tips_above_the_surface(where, command):
+    env = suction_debris_v5.parallel_env()
+    cavities, p = Cavities(env.phantom), env.params
+    x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
+    old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance
+                     + lift * env.workspace_range]])
+    delta = p.step_size * np.array([command])
+    low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    plain = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta)
+    climbed = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True)
+    made = np.linalg.norm(plain - old)
+    if command[2] >= 0.0 or made >= sliding.NO_HEADWAY * np.linalg.norm(delta):
+        np.testing.assert_array_equal(climbed, plain)
+    else:  # the level part, by the same rules
+        level = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old,
+                                       delta * np.array([1.0, 1.0, 0.0]))
+        np.testing.assert_array_equal(climbed, level)
+    assert np.all(climbed >= low - 1e-12) and np.all(climbed <= high + 1e-12)
+    ground = cavities.surface_height(climbed[:, 0], climbed[:, 1]) + p.tip_clearance
+    assert climbed[0, 2] >= ground[0] - 1e-9
+
+
+def test_the_scripted_team_plays_v4_step_for_step():
+    # The experts plan over the rims and never press into a wall: their episodes are v4's exactly.
+    traces = []
+    for module in (suction_debris_v4, suction_debris_v5):
+        env = module.batched_env(num_envs=6, autoreset_mode="disabled")
+        experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
+        observations, _ = env.reset(seed=3)
+        trace, success = [], np.zeros(6, dtype=bool)
+        for _ in range(1200):
+            observations, _, _, _, infos = env.step({a: experts[a](observations[a]) for a in env.agents})
+            trace.append(np.concatenate([observations[a] for a in env.agents], axis=1))
+            success |= infos["suction"]["is_success"]
+        assert success.all()
+        traces.append(np.array(trace))
+    np.testing.assert_array_equal(traces[0], traces[1])
