@@ -61,9 +61,9 @@ TARGET = 0.9
 DVRL_MARL_OVERRIDES = {"initial_tool_logit": {"grasper": 0.0}}
 
 
-def _trainer_overrides(level: str) -> dict:
-    """:data:`DVRL_MARL_OVERRIDES` where the level's task file has a slow tool, else none."""
-    return DVRL_MARL_OVERRIDES if _task_options(level).get("tool_speed", 1.0) < 1.0 else {}
+def _trainer_overrides(options: dict) -> dict:
+    """:data:`DVRL_MARL_OVERRIDES` where the task file's ``options`` have a slow tool, else none."""
+    return DVRL_MARL_OVERRIDES if options.get("tool_speed", 1.0) < 1.0 else {}
 
 
 def _task_options(level: str) -> dict:
@@ -83,8 +83,8 @@ def _scene_of(options: dict) -> str:
     return options["task"] + "".join(f"_{key}{options[key]:g}" for key in SCENE_OPTIONS if key in options)
 
 
-def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int) -> Path:
-    return results / f"{library}_{algorithm}_{_scene_of(_task_options(level))}_{level}_seed{seed}.json"
+def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int, options: dict) -> Path:
+    return results / f"{library}_{algorithm}_{_scene_of(options)}_{level}_seed{seed}.json"
 
 
 def _task_of(record: dict) -> str:
@@ -104,7 +104,7 @@ def _first_reaching(curve: list[dict], key: str):
 
 # --- BenchMARL ----------------------------------------------------------------------------------------------------
 def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: int, eval_every: int, folder: Path,
-                  batch_frames: int = 0, test_episodes: int = TEST_EPISODES):
+                  options: dict, batch_frames: int = 0, test_episodes: int = TEST_EPISODES):
     import torch
     from benchmarl.algorithms import IppoConfig, MappoConfig, MasacConfig
     from benchmarl.experiment import Experiment
@@ -128,7 +128,7 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
     config.save_folder = str(folder)
     config.checkpoint_at_end = False
     algorithm_config = {"mappo": MappoConfig, "ippo": IppoConfig, "masac": MasacConfig}[algorithm].get_from_yaml()
-    task = suction_debris_task(level)
+    task = suction_debris_task(level, **options)  # the options the record names
     experiment = Experiment(task=task, algorithm_config=algorithm_config, model_config=MlpConfig.get_from_yaml(),
                             critic_model_config=MlpConfig.get_from_yaml(), seed=seed, config=config,
                             callbacks=[curve] + ([StartLevelSchedule(CURRICULUM)] if level == "default" else []))
@@ -149,7 +149,7 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
 
 
 # --- this project's trainer ---------------------------------------------------------------------------------------
-def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every: int, folder: Path,
+def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every: int, folder: Path, options: dict,
                   test_episodes: int = TEST_EPISODES, eval_episodes: int | None = None):
     import csv
 
@@ -157,8 +157,8 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
     from dvrl_marl.training import mappo, teams
 
     config = mappo.load_config(ROOT / "baselines" / "configs" / f"suction_debris_{algorithm}.toml")
-    config.env = _task_options(level)
-    for key, value in _trainer_overrides(level).items():  # a table (per agent) is merged into the record's
+    config.env = dict(options)
+    for key, value in _trainer_overrides(options).items():  # a table (per agent) is merged into the record's
         setattr(config, key, {**getattr(config, key), **value} if isinstance(value, dict) else value)
     if level == "easy":
         config.levels = []  # every episode easy (the task file's start level)
@@ -190,7 +190,8 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
 
 def command_run(args) -> int:
     results = Path(args.results)
-    record = _record_path(results, args.library, args.algorithm, args.level, args.seed)
+    options = _task_options(args.level)  # read once: the record says what ran, whatever the file says later
+    record = _record_path(results, args.library, args.algorithm, args.level, args.seed, options)
     if record.exists():
         print(f"{record} exists: a run is recorded once (delete it to run again)", file=sys.stderr)
         return 2
@@ -204,17 +205,19 @@ def command_run(args) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     if args.library == "benchmarl":
         curve, final, wall, frames = run_benchmarl(args.algorithm, args.level, args.seed, args.frames, args.worlds,
-                                                   args.eval_every, folder, args.batch_frames, args.test_episodes)
+                                                   args.eval_every, folder, options, args.batch_frames,
+                                                   args.test_episodes)
     else:
         curve, final, wall, frames = run_dvrl_marl(args.algorithm, args.level, args.seed, args.frames,
-                                                   args.eval_every, folder, args.test_episodes, args.eval_episodes)
+                                                   args.eval_every, folder, options, args.test_episodes,
+                                                   args.eval_episodes)
     out = {"library": args.library, "algorithm": args.algorithm, "level": args.level, "seed": args.seed,
            "frames": frames, "wall_seconds": wall, "final": final, "curve": curve,
            "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
-           "target": TARGET, "env_options": _task_options(args.level),
+           "target": TARGET, "env_options": options,
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
-           **({"trainer_overrides": _trainer_overrides(args.level)}
-              if args.library == "dvrl-marl" and _trainer_overrides(args.level) else {}),
+           **({"trainer_overrides": _trainer_overrides(options)}
+              if args.library == "dvrl-marl" and _trainer_overrides(options) else {}),
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
     record.write_text(json.dumps(out, indent=2) + "\n")
