@@ -56,16 +56,21 @@ def test_a_pin_held_off_centre_is_shown_at_its_grip_in_v4_and_at_its_centre_in_v
     along = -0.010  # 10 mm toward -x of the centre, within the 12.5 mm axis
     grip = np.array([along, 0.0, 0.0])  # from the centre: the point of the axis under the tip
     for module, shown_offset in ((suction_debris_v4, grip), (suction_debris_v3, np.zeros(3))):
-        env, observations, centre, tip = _grasped_off_centre(module, along)
+        env, observations, centre, tip = _grasped_off_centre(module, along, reward_type="dense")
         layout, state_layout = env.observation_layout, env.state_layout
         expected = env.normalise(centre + shown_offset)
         for agent in env.agents:
             np.testing.assert_allclose(observations[agent][layout["debris"]][:3], expected, atol=1e-9)
         np.testing.assert_allclose(env.state()[state_layout["debris"]][:3], expected, atol=1e-9)
-        # the dense reward's carry is measured from the same point
-        assert env._work_distance("grasper") == pytest.approx(np.linalg.norm(centre + shown_offset - env.handoff))
         if module is suction_debris_v4:
             assert np.linalg.norm(centre + shown_offset - tip) <= PIN_SENSOR_RANGE
+        # the dense reward's carry is measured from the same point: one step toward the assistant pays 10 x the
+        # metres that point came closer to the hand-off point
+        before = np.linalg.norm(centre + shown_offset - np.asarray(env.handoff))
+        observations, rewards, *_ = env.step({"suction": STILL, "grasper": np.array([1.0, 0.0, 0.5, -1.0])})
+        shown = env.workspace_centre + env.workspace_range * observations["grasper"][layout["debris"]][:3]
+        after = np.linalg.norm(shown - np.asarray(env.handoff))
+        assert rewards["grasper"] == pytest.approx(10.0 * (before - after), abs=1e-12)
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
