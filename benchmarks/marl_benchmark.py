@@ -26,7 +26,9 @@ Reported as the MARL evaluation protocol asks (Gorsane et al. 2022): success on 
 is driven by, and BenchMARL's evaluation) and, beside it, sampling its actions as in training (``_sampled``); per cell the interquartile mean over
 seeds with a 95 % stratified-bootstrap interval (``rliable``), and frames and wall clock until the validation
 success first reached 0.9 during training. Records: ``baselines/results/benchmark/*.json`` (one per run; the curve,
-the final figures, the command, the machine), the aggregate ``table.json`` and ``benchmark.png``.
+the final figures, the command, the machine), the aggregate ``table.json`` and ``benchmark.png``. A BenchMARL run whose
+policy diverges (NaN actions, which the env refuses by name) is recorded with success 0 and ``final["diverged"]``:
+a cell counts every seed it ran.
 """
 
 from __future__ import annotations
@@ -132,7 +134,15 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
     experiment = Experiment(task=task, algorithm_config=algorithm_config, model_config=MlpConfig.get_from_yaml(),
                             critic_model_config=MlpConfig.get_from_yaml(), seed=seed, config=config,
                             callbacks=[curve] + ([StartLevelSchedule(CURRICULUM)] if level == "default" else []))
-    experiment.run()
+    try:
+        experiment.run()
+    except ValueError as error:  # its policy's actions became NaN, which the env refuses by name: it diverged
+        if "NaN" not in str(error):
+            raise
+        # a run that did not learn: recorded as such (success 0), so that a cell counts every seed it ran
+        return curve.points, {"episodes": test_episodes, "success_rate": 0.0, "success_rate_sampled": 0.0,
+                              "diverged": f"at {int(experiment.total_frames):,} frames: {error}"[:300]}, \
+            time.perf_counter() - started, int(experiment.total_frames)
     wall = time.perf_counter() - started
     test_env = task.get_env_fun(num_envs=test_episodes, continuous_actions=True, seed=teams.EVAL_SEED,
                                 device="cpu")()
@@ -144,8 +154,7 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
             rollout = test_env.rollout(max_steps=task.max_steps(test_env), policy=experiment.policy,
                                        break_when_any_done=False)
         final[key] = float(np.mean([first_episode_success(r) for r in rollout.unbind(0)]))
-    return curve.points, final, wall, int(
-        experiment.total_frames)
+    return curve.points, final, wall, int(experiment.total_frames)
 
 
 # --- this project's trainer ---------------------------------------------------------------------------------------
@@ -257,6 +266,7 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
                      "iqm_success_sampled": None if sampled is None else sampled[0], "seeds_sampled": with_sampled,
                      "ci95_sampled": None if sampled is None else sampled[1],
                      "seed_success": [run["final"]["success_rate"] for run in runs],
+                     "seed_diverged": [bool(run["final"].get("diverged")) for run in runs],
                      "frames": int(np.median([run["frames"] for run in runs])),
                      "wall_minutes": float(np.median([run["wall_seconds"] for run in runs]) / 60),
                      "reached_target": f"{len(reached)}/{len(runs)}",
@@ -284,7 +294,8 @@ def command_table(args) -> int:
         to_frames = f"{row['frames_to_target']:,}" if row["frames_to_target"] is not None else "-"
         to_minutes = f"{row['minutes_to_target']:.0f}" if row["minutes_to_target"] is not None else "-"
         print(f"| {row['task']} | {row['library']} | {row['algorithm'].upper()} | {row['level']} | {row['seeds']} | "
-              f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}] | {', '.join(f'{s:.2f}' for s in row['seed_success'])} | "
+              f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}] | "
+              f"{', '.join(f'{s:.2f}' + (' (diverged)' if d else '') for s, d in zip(row['seed_success'], row['seed_diverged']))} | "
               + (f"{row['iqm_success_sampled']:.2f} [{row['ci95_sampled'][0]:.2f}, {row['ci95_sampled'][1]:.2f}]"
                  + (f" (n={row['seeds_sampled']})" if row["seeds_sampled"] != row["seeds"] else "") + " | "
                  if row["iqm_success_sampled"] is not None else "- | ") +

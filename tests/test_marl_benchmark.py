@@ -28,13 +28,14 @@ def _shipped_task() -> str:
     return marl_benchmark._scene_of(_shipped_options())
 
 
-def _record(results, library, level, seed, success, reached, task=None, options=None):
+def _record(results, library, level, seed, success, reached, task=None, options=None, diverged=None):
     options = options or ({"task": task} if task else _shipped_options())
     task = marl_benchmark._scene_of(options)
     curve = [{"frames": 1000 * (i + 1), "wall_seconds": 10.0 * (i + 1), "success_rate": s}
              for i, s in enumerate([0.2, success])]
     out = {"library": library, "algorithm": "mappo", "level": level, "seed": seed, "frames": 2000,
-           "wall_seconds": 20.0, "final": {"success_rate": success}, "curve": curve,
+           "wall_seconds": 20.0, "final": {"success_rate": success, **({"diverged": diverged} if diverged else {})},
+           "curve": curve,
            "frames_to_target": 2000 if reached else None, "wall_to_target": 20.0 if reached else None,
            "env_options": options, "machine": {"cpus": 2, "python": "3.11.7"}}
     path = results / f"{library}_mappo_{task}_{level}_seed{seed}.json"
@@ -59,6 +60,17 @@ def test_table_aggregates_iqm_intervals_and_frames_to_target(tmp_path):
     assert ours["ci95"][0] <= ours["iqm_success"] <= ours["ci95"][1]
     assert rows["benchmarl", "easy"]["iqm_success"] == 0.0 and rows["benchmarl", "easy"]["frames_to_target"] is None
     assert (tmp_path / "benchmark.png").stat().st_size > 1000
+
+
+def test_a_diverged_seed_counts_as_one_that_did_not_learn_and_says_so(tmp_path, capsys):
+    pytest.importorskip("rliable")
+    for seed, success in enumerate([1.0, 1.0, 1.0, 1.0]):
+        _record(tmp_path, "benchmarl", "default", seed, success, True)
+    _record(tmp_path, "benchmarl", "default", 4, 0.0, False, diverged="at 2,600,000 frames: NaN actions")
+    assert marl_benchmark.main(["table", "--results", str(tmp_path)]) == 0
+    row = json.loads((tmp_path / "table.json").read_text())["rows"][0]
+    assert row["seeds"] == 5 and row["seed_diverged"] == [False] * 4 + [True]
+    assert "0.00 (diverged)" in capsys.readouterr().out
 
 
 def test_runs_on_different_scenes_are_never_pooled(tmp_path):
