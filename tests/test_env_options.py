@@ -273,5 +273,8 @@ def test_easy_episodes_can_take_the_tasks_time_limit():
         if term["suction"] or trunc["suction"]:
             break
     assert step == 120 and trunc["suction"]
-    with pytest.raises(ValueError, match="easy_episode_steps"):
-        suction_debris_v0.parallel_env(easy_episode_steps=0)
+    # 0 is None where there is no null (a TOML configuration); a negative count or a fraction is refused by name
+    assert suction_debris_v0.parallel_env(easy_episode_steps=0).easy_episode_steps is None
+    for bad in (-1, 1.5, "300"):
+        with pytest.raises(ValueError, match="easy_episode_steps"):
+            suction_debris_v0.parallel_env(easy_episode_steps=bad)

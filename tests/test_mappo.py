@@ -386,6 +386,23 @@ def test_run_folder_configuration_reads_back(tmp_path):
     assert {k: v for k, v in vars(again).items() if k != "name"} == {k: v for k, v in vars(config).items() if k != "name"}
 
 
+def test_the_benchmarks_easy_task_file_reads_back_from_a_run_folder_and_none_is_refused_by_name(tmp_path):
+    """The easy level's options (the task's own time limit: easy_episode_steps 0) survive config.toml; an env option
+    of None, which TOML cannot hold, is refused by name rather than written as a file the trainer cannot read."""
+    import yaml
+
+    from dvrl_marl.integrations import __file__ as integrations
+
+    config = mappo.load_config(_config(tmp_path))
+    config.env = yaml.safe_load((Path(integrations).parent / "benchmarl_tasks" / "suction_debris_easy.yaml").read_text())
+    path = tmp_path / "written.toml"
+    path.write_text(mappo.config_toml(config))
+    assert mappo.load_config(path).env == config.env
+    config.env = {**config.env, "easy_episode_steps": None}
+    with pytest.raises(ValueError, match="easy_episode_steps"):
+        mappo.config_toml(config)
+
+
 def test_refused_placement_moves_no_tip():
     env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
     env.reset(seed=0)

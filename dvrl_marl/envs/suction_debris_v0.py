@@ -83,7 +83,7 @@ the ones after it); other keys are ignored with a warning.
 Start levels (:mod:`dvrl_marl.envs.start_levels`): ``reset(options={"level": x})`` (``start_level=x`` when made;
 ``"easy"`` = 0, ``"default"`` = 1, the default) draws an easy episode with probability ``1 - x``: cavities
 emptier, fewer debris, the grasper starting near a visible pin (receding from it as ``x`` rises), 300 steps at
-most (``easy_episode_steps``; ``None``: the task's own limit, so that every easy episode can be completed). Level
+most (``easy_episode_steps``; ``None`` or 0: the task's own limit, so that every easy episode can be completed). Level
 1 is the default task, bit for bit. The level holds for later episodes until set again, so a
 library's curriculum can drive it at each reset (the batched env also takes one level per world, and
 ``set_start_level``).
@@ -463,9 +463,11 @@ class SuctionDebrisEnv(ParallelEnv):
         # Options that help learning (issue 37): start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
         if easy_episode_steps is not None:
-            from dvrl_marl.schemas import PositiveInt, validated
+            from dvrl_marl.schemas import NonNegativeInt, validated
 
-            easy_episode_steps = validated(PositiveInt, easy_episode_steps, f"{self.name}: easy_episode_steps")
+            # 0 says what None does where there is no null (a TOML configuration): no limit of its own
+            easy_episode_steps = validated(NonNegativeInt, easy_episode_steps,
+                                           f"{self.name}: easy_episode_steps") or None
         #: an easy episode's time limit (None: the task's max_cycles)
         self.easy_episode_steps = easy_episode_steps
         self._level_rng = start_levels.level_generator(None)

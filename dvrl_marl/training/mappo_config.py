@@ -257,6 +257,10 @@ def config_toml(config: MappoConfig) -> str:
             continue
         lines.append(f"{f.name} = {toml_value(value)}")
     lines.append("[env]")
+    missing = sorted(k for k, v in config.env.items() if v is None)
+    if missing:  # an absent key would read back as the env's default, not as None
+        raise ValueError(f"[env] {', '.join(missing)}: None cannot be written to TOML (it has no null); give the "
+                         "value the option takes for it (easy_episode_steps: 0)")
     lines += [f"{k} = {toml_value(v)}" for k, v in config.env.items()]
     return "\n".join(lines) + "\n"
 
