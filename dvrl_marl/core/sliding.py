@@ -73,8 +73,8 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
     the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
     slid along it (:func:`wall_slide`; v3), then, if the move still enters the wall, only its vertical part (all that
-    v0-v2 make of it: ``slide_on_walls=False``). ``climb`` (v5): a descending move of which that leaves less than
-    :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead)."""
+    v0-v2 make of it: ``slide_on_walls=False``). ``climb`` (v5): a descending move of which these rules make less
+    than :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead)."""
     target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
     if climb:
         length = np.sqrt((delta * delta).sum(axis=1))
