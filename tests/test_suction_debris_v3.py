@@ -10,7 +10,7 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl import kinematics
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v2, suction_debris_v3, suction_debris_v5
+from dvrl_marl.envs import suction_debris_v2, suction_debris_v3, suction_debris_v4, suction_debris_v5
 
 PUSH_SUCTION_PAST_GRASPER = np.array([1.0, 0.0, -0.1, 1.0])
 
@@ -105,10 +105,12 @@ def test_a_move_into_a_joint_limit_slides_along_it_in_v3():
     assert travelled[suction_debris_v3] > 20.0  # mm along the limit
 
 
-def test_the_scripted_team_plays_v2_step_for_step():
-    # An expert never pushes into a blocker: its episodes are v2's exactly (the change is only where moves block).
+@pytest.mark.parametrize("before,after", [(suction_debris_v2, suction_debris_v3), (suction_debris_v4, suction_debris_v5)])
+def test_the_scripted_team_plays_the_earlier_version_step_for_step(before, after):
+    # An expert never pushes into a blocker (v3) nor presses a descent into a wall (v5): its episodes are the earlier
+    # version's exactly (the change is only where moves block).
     traces = []
-    for module in (suction_debris_v2, suction_debris_v3):
+    for module in (before, after):
         env = module.batched_env(num_envs=6, autoreset_mode="disabled")
         experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
         observations, _ = env.reset(seed=3)
