@@ -34,6 +34,7 @@ a cell counts every seed it ran.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import platform
@@ -85,13 +86,48 @@ def _scene_of(options: dict) -> str:
     return options["task"] + "".join(f"_{key}{options[key]:g}" for key in SCENE_OPTIONS if key in options)
 
 
-def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int, options: dict) -> Path:
-    return results / f"{library}_{algorithm}_{_scene_of(options)}_{level}_seed{seed}.json"
+def _settings_label(settings: dict | None) -> str:
+    """A short name of a BenchMARL run's settings (the algorithm's and the model's overrides of BenchMARL's
+    defaults): ``""`` for none (BenchMARL's own), else ``"settings"`` and 6 hex digits of their hash, so that runs of
+    different settings are never pooled in one cell nor written over each other."""
+    if not settings or not any(settings.values()):
+        return ""
+    digest = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:6]
+    return f"settings{digest}"
+
+
+def _record_path(results: Path, library: str, algorithm: str, level: str, seed: int, options: dict,
+                 settings: dict | None = None) -> Path:
+    label = _settings_label(settings)
+    return results / f"{library}_{algorithm}_{_scene_of(options)}_{level}{'_' + label if label else ''}_seed{seed}.json"
 
 
 def _task_of(record: dict) -> str:
     """The scene a record ran on (see :func:`_scene_of`)."""
     return _scene_of(record["env_options"])
+
+
+def _library_of(record: dict) -> str:
+    """The library of a record's cell, with the label of its BenchMARL settings where it has some."""
+    label = _settings_label(record.get("benchmarl_settings"))
+    return f"{record['library']} ({label})" if label else record["library"]
+
+
+def _benchmarl_settings(algorithm: str, algorithm_file: str | None, model_file: str | None,
+                        experiment_file: str | None = None) -> dict:
+    """What a BenchMARL run changes in BenchMARL's defaults: in its algorithm's and its model's, the shipped files
+    (``benchmarl_tasks/<algorithm>.yaml``, ``mlp.yaml``) or the ones given; in its experiment's, the shipped
+    ``experiment.yaml`` and then the file given."""
+    folder = ROOT / "dvrl_marl" / "integrations" / "benchmarl_tasks"
+    for given in (algorithm_file, model_file, experiment_file):
+        if given is not None and not Path(given).is_file():
+            raise SystemExit(f"{given}: no such settings file")
+    from dvrl_marl.integrations.benchmarl import settings_overrides
+
+    return {"algorithm": settings_overrides(algorithm_file or folder / f"{algorithm}.yaml"),
+            "model": settings_overrides(model_file or folder / "mlp.yaml"),
+            "experiment": {**settings_overrides(folder / "experiment.yaml"),
+                           **(settings_overrides(experiment_file) if experiment_file else {})}}
 
 
 def _machine_of(runs: list[dict]) -> str:
@@ -106,21 +142,22 @@ def _first_reaching(curve: list[dict], key: str):
 
 # --- BenchMARL ----------------------------------------------------------------------------------------------------
 def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: int, eval_every: int, folder: Path,
-                  options: dict, batch_frames: int = 0, test_episodes: int = TEST_EPISODES):
+                  options: dict, batch_frames: int = 0, test_episodes: int = TEST_EPISODES,
+                  settings: dict | None = None):
     import torch
-    from benchmarl.algorithms import IppoConfig, MappoConfig, MasacConfig
     from benchmarl.experiment import Experiment
-    from benchmarl.models.mlp import MlpConfig
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    from dvrl_marl.integrations.benchmarl import (StartLevelSchedule, SuccessCurve, experiment_config,
-                                                  first_episode_success, suction_debris_task)
+    from dvrl_marl.integrations.benchmarl import (StartLevelSchedule, SuccessCurve, algorithm_config,
+                                                  experiment_config, first_episode_success, model_config,
+                                                  suction_debris_task)
     from dvrl_marl.training import teams
 
     torch.set_num_threads(1)
     started = time.perf_counter()
     curve = SuccessCurve()
-    config = experiment_config()  # BenchMARL's defaults with the shipped overrides
+    settings = settings or {}
+    config = experiment_config(**settings.get("experiment", {}))  # BenchMARL's defaults, the shipped overrides
     config.max_n_frames = int(frames)
     config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = int(worlds)
     if batch_frames:
@@ -129,10 +166,13 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
     config.evaluation_interval = int(eval_every)
     config.save_folder = str(folder)
     config.checkpoint_at_end = False
-    algorithm_config = {"mappo": MappoConfig, "ippo": IppoConfig, "masac": MasacConfig}[algorithm].get_from_yaml()
+    # BenchMARL's defaults with exactly the overrides the record names (read once, in command_run)
+    algorithm_settings = algorithm_config(algorithm, shipped=False, **settings.get("algorithm", {}))
     task = suction_debris_task(level, **options)  # the options the record names
-    experiment = Experiment(task=task, algorithm_config=algorithm_config, model_config=MlpConfig.get_from_yaml(),
-                            critic_model_config=MlpConfig.get_from_yaml(), seed=seed, config=config,
+    experiment = Experiment(task=task, algorithm_config=algorithm_settings,
+                            model_config=model_config(shipped=False, **settings.get("model", {})),
+                            critic_model_config=model_config(shipped=False, **settings.get("model", {})),
+                            seed=seed, config=config,
                             callbacks=[curve] + ([StartLevelSchedule(CURRICULUM)] if level == "default" else []))
     try:
         experiment.run()
@@ -200,7 +240,9 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
 def command_run(args) -> int:
     results = Path(args.results)
     options = _task_options(args.level)  # read once: the record says what ran, whatever the file says later
-    record = _record_path(results, args.library, args.algorithm, args.level, args.seed, options)
+    settings = (_benchmarl_settings(args.algorithm, args.algorithm_file, args.model_file, args.experiment_file)
+                if args.library == "benchmarl" else None)  # read once, as the options
+    record = _record_path(results, args.library, args.algorithm, args.level, args.seed, options, settings)
     if record.exists():
         print(f"{record} exists: a run is recorded once (delete it to run again)", file=sys.stderr)
         return 2
@@ -215,7 +257,7 @@ def command_run(args) -> int:
     if args.library == "benchmarl":
         curve, final, wall, frames = run_benchmarl(args.algorithm, args.level, args.seed, args.frames, args.worlds,
                                                    args.eval_every, folder, options, args.batch_frames,
-                                                   args.test_episodes)
+                                                   args.test_episodes, settings)
     else:
         curve, final, wall, frames = run_dvrl_marl(args.algorithm, args.level, args.seed, args.frames,
                                                    args.eval_every, folder, options, args.test_episodes,
@@ -224,6 +266,7 @@ def command_run(args) -> int:
            "frames": frames, "wall_seconds": wall, "final": final, "curve": curve,
            "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
            "target": TARGET, "env_options": options,
+           **({"benchmarl_settings": settings} if settings is not None else {}),
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
            **({"trainer_overrides": _trainer_overrides(options)}
               if args.library == "dvrl-marl" and _trainer_overrides(options) else {}),
@@ -244,7 +287,7 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
 
     cells = {}
     for record in records:
-        cells.setdefault((_task_of(record), record["library"], record["algorithm"], record["level"]), []).append(record)
+        cells.setdefault((_task_of(record), _library_of(record), record["algorithm"], record["level"]), []).append(record)
     rows = []
     for (task, library, algorithm, level), runs in sorted(cells.items()):
         def iqm(key):
@@ -352,6 +395,13 @@ def main(argv=None) -> int:
     run.add_argument("--test-episodes", type=int, default=TEST_EPISODES, help="held-out test episodes (default %(default)s)")
     run.add_argument("--eval-episodes", type=int, default=0,
                      help="dvrl-marl: validation episodes (0: the configuration's)")
+    run.add_argument("--algorithm-file", default=None,
+                     help="BenchMARL: a YAML of the algorithm's settings to change (default: the shipped "
+                          "benchmarl_tasks/<algorithm>.yaml, where there is one)")
+    run.add_argument("--model-file", default=None,
+                     help="BenchMARL: a YAML of the MLP's settings to change (default: the shipped benchmarl_tasks/mlp.yaml)")
+    run.add_argument("--experiment-file", default=None,
+                     help="BenchMARL: a YAML of experiment settings to change beyond the shipped experiment.yaml")
     run.add_argument("--results", default=str(RESULTS))
     table = sub.add_parser("table", help="the table of the records, its JSON and plot")
     table.add_argument("--results", default=str(RESULTS))

@@ -7,6 +7,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -88,3 +89,38 @@ def test_start_level_schedule_drives_the_training_worlds_level(tmp_path):
     assert len(curve.points) >= 1 and all(0.0 <= p["success_rate"] <= 1.0 for p in curve.points)
     with pytest.raises(ValueError, match="not a BenchMARL experiment setting"):
         experiment_config(learning_rate=1e-3)
+
+
+def test_shipped_settings_change_only_what_their_files_say(tmp_path):
+    """The algorithm's and the model's settings: BenchMARL's defaults, then the shipped files, then overrides."""
+    from benchmarl.algorithms import IppoConfig, MappoConfig, MasacConfig
+    from benchmarl.models.mlp import MlpConfig
+
+    from dvrl_marl.integrations.benchmarl import algorithm_config, model_config, settings_overrides
+
+    for name, stock in (("mappo", MappoConfig), ("ippo", IppoConfig)):
+        shipped = algorithm_config(name)
+        assert shipped.share_param_critic is False and shipped.lmbda == 0.95  # one critic per arm
+        assert algorithm_config(name, shipped=False) == stock.get_from_yaml()
+        changed = {key for key, value in vars(shipped).items() if value != getattr(stock.get_from_yaml(), key)}
+        assert changed == set(settings_overrides(Path(__file__).parents[1] / "dvrl_marl" / "integrations" /
+                                                 "benchmarl_tasks" / f"{name}.yaml"))
+    assert algorithm_config("masac") == MasacConfig.get_from_yaml()  # no shipped file: BenchMARL's own
+    assert algorithm_config("mappo", lmbda=0.8).lmbda == 0.8
+    assert model_config().num_cells == [64, 64] and model_config(shipped=False) == MlpConfig.get_from_yaml()
+    own = tmp_path / "mine.yaml"
+    own.write_text("entropy_coef: 0.01\n")
+    mine = algorithm_config("mappo", path=own)
+    assert mine.entropy_coef == 0.01 and mine.share_param_critic is True  # the file given, not the shipped one
+    with pytest.raises(ValueError, match="mine.yaml: num_cells: not a BenchMARL mappo setting"):
+        own.write_text("num_cells: [8]\n")
+        algorithm_config("mappo", path=own)
+    with pytest.raises(ValueError, match="'ppo': not one of"):
+        algorithm_config("ppo")
+    with pytest.raises(ValueError, match="no such file"):
+        model_config(path=tmp_path / "missing.yaml")
+    with pytest.raises(ValueError, match="holds a mapping"):
+        own.write_text("- 64\n")
+        model_config(path=own)
+    with pytest.raises(ValueError, match="overrides: width: not a BenchMARL MLP model setting"):
+        model_config(width=3)

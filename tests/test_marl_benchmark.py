@@ -28,7 +28,7 @@ def _shipped_task() -> str:
     return marl_benchmark._scene_of(_shipped_options())
 
 
-def _record(results, library, level, seed, success, reached, task=None, options=None, diverged=None):
+def _record(results, library, level, seed, success, reached, task=None, options=None, diverged=None, settings=None):
     options = options or ({"task": task} if task else _shipped_options())
     task = marl_benchmark._scene_of(options)
     curve = [{"frames": 1000 * (i + 1), "wall_seconds": 10.0 * (i + 1), "success_rate": s}
@@ -37,8 +37,9 @@ def _record(results, library, level, seed, success, reached, task=None, options=
            "wall_seconds": 20.0, "final": {"success_rate": success, **({"diverged": diverged} if diverged else {})},
            "curve": curve,
            "frames_to_target": 2000 if reached else None, "wall_to_target": 20.0 if reached else None,
-           "env_options": options, "machine": {"cpus": 2, "python": "3.11.7"}}
-    path = results / f"{library}_mappo_{task}_{level}_seed{seed}.json"
+           "env_options": options, "machine": {"cpus": 2, "python": "3.11.7"},
+           **({"benchmarl_settings": settings} if settings else {})}
+    path = marl_benchmark._record_path(results, library, "mappo", level, seed, options, settings)
     path.write_text(json.dumps(out))
 
 
@@ -118,7 +119,17 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
                              "--level", "easy", "--seed", "0", "--test-episodes", "3", "--results", str(tmp_path),
                              *flags], capture_output=True, text=True, env=env, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
-    record = json.loads((tmp_path / f"{library}_mappo_{_shipped_task()}_easy_seed0.json").read_text())
+    records = list(tmp_path.glob("*_seed0.json"))
+    assert len(records) == 1
+    record = json.loads(records[0].read_text())
+    if library == "benchmarl":  # what it changed in BenchMARL's defaults, named in the record and its file name
+        assert record["benchmarl_settings"]["algorithm"] == {"share_param_critic": False, "lmbda": 0.95}
+        assert record["benchmarl_settings"]["model"] == {"num_cells": [64, 64]}
+        assert record["benchmarl_settings"]["experiment"]["clip_grad_val"] == 1.0
+        label = marl_benchmark._settings_label(record["benchmarl_settings"])
+        assert records[0].name == f"benchmarl_mappo_{_shipped_task()}_easy_{label}_seed0.json"
+    else:
+        assert records[0].name == f"dvrl-marl_mappo_{_shipped_task()}_easy_seed0.json"
     assert record["final"]["episodes"] == 3 and 0.0 <= record["final"]["success_rate"] <= 1.0
     assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
     assert record["command"].startswith("python benchmarks/marl_benchmark.py run")
@@ -135,3 +146,33 @@ def test_a_cells_interval_does_not_depend_on_the_other_cells():
     alone = marl_benchmark.aggregate(records, reps=200)
     beside = [row for row in marl_benchmark.aggregate(other + records, reps=200) if row["library"] == "dvrl-marl"]
     assert alone[0]["ci95"] == beside[0]["ci95"]
+
+
+def test_runs_of_different_benchmarl_settings_are_kept_apart(tmp_path):
+    """Records of BenchMARL's own settings and of other settings are separate cells and separate files."""
+    pytest.importorskip("rliable")
+    options = _shipped_options()
+    ours = {"algorithm": {"share_param_critic": False}, "model": {}, "experiment": {"lr": 0.0001}}
+    label = marl_benchmark._settings_label(ours)
+    assert label.startswith("settings") and marl_benchmark._settings_label({"algorithm": {}, "model": {}}) == ""
+    assert marl_benchmark._settings_label({**ours, "model": {"num_cells": [8]}}) != label
+    stock = marl_benchmark._record_path(tmp_path, "benchmarl", "mappo", "default", 0, options)
+    tuned = marl_benchmark._record_path(tmp_path, "benchmarl", "mappo", "default", 0, options, ours)
+    assert stock != tuned and label in tuned.name
+    for seed in range(3):
+        _record(tmp_path, "benchmarl", "default", seed, 0.0, False)  # BenchMARL's own settings
+        _record(tmp_path, "benchmarl", "default", seed, 1.0, True, settings=ours)
+    assert len(list(tmp_path.glob("*.json"))) == 6  # none written over another
+    rows = {row["library"]: row for row in marl_benchmark.aggregate(
+        [json.loads(p.read_text()) for p in sorted(tmp_path.glob("*.json"))], reps=100)}
+    assert rows["benchmarl"]["iqm_success"] == 0.0 and rows["benchmarl"]["seeds"] == 3
+    assert rows[f"benchmarl ({label})"]["iqm_success"] == 1.0 and rows[f"benchmarl ({label})"]["seeds"] == 3
+
+
+def test_a_missing_settings_file_is_named(tmp_path):
+    pytest.importorskip("benchmarl")
+    result = subprocess.run([sys.executable, str(SCRIPT), "run", "--library", "benchmarl", "--algorithm", "mappo",
+                             "--level", "easy", "--seed", "0", "--algorithm-file", str(tmp_path / "nope.yaml"),
+                             "--results", str(tmp_path)], capture_output=True, text=True)
+    assert result.returncode != 0 and "nope.yaml: no such settings file" in result.stderr
+    assert not list(tmp_path.glob("*.json"))

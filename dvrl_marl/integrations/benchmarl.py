@@ -1,14 +1,12 @@
 """BenchMARL task for the collaborative scene: ``pip install "dvrl-marl[benchmarl]"``.
 
 ```python
-from benchmarl.algorithms import MappoConfig
 from benchmarl.experiment import Experiment
-from benchmarl.models.mlp import MlpConfig
-from dvrl_marl.integrations.benchmarl import experiment_config, suction_debris_task
+from dvrl_marl.integrations.benchmarl import algorithm_config, experiment_config, model_config, suction_debris_task
 
-experiment = Experiment(task=suction_debris_task("easy"), algorithm_config=MappoConfig.get_from_yaml(),
-                        model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(),
-                        seed=0, config=experiment_config())
+experiment = Experiment(task=suction_debris_task("easy"), algorithm_config=algorithm_config("mappo"),
+                        model_config=model_config(), critic_model_config=model_config(), seed=0,
+                        config=experiment_config())
 experiment.run()
 ```
 
@@ -18,11 +16,15 @@ worlds in one env): both arms in one group ``"agents"``, continuous actions in [
 centralised critic, and the share of ended episodes that succeeded logged as ``collection/success_rate``.
 :func:`suction_debris_task` reads one of the shipped task files, one per start level
 (``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: the guided reward, the observation
-features, the level, ``tool_speed`` so that a Gaussian policy's noise cannot flick the jaw open), or a file of your own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
-:func:`experiment_config` is BenchMARL's experiment defaults with the shipped overrides
-(``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO settings of this project's
-configuration of record); nothing inside BenchMARL's algorithms is changed. :class:`SuccessCurve` records the
-evaluation's success rate.
+features, the level, ``tool_speed`` so that a Gaussian policy's noise cannot flick the jaw open), or a file of your
+own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
+
+The settings the benchmark runs ship beside them, each a YAML of what it changes in BenchMARL's own defaults:
+:func:`experiment_config` (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO settings of
+this project's configuration of record), :func:`algorithm_config` (``mappo.yaml``, ``ippo.yaml``: a critic per arm,
+whose rewards differ; BenchMARL's own for the others) and :func:`model_config` (``mlp.yaml``: 64 x 64). Nothing
+inside BenchMARL's algorithms is changed. :class:`SuccessCurve` records the evaluation's success rate;
+:class:`StartLevelSchedule` drives the start level from outside the algorithm (a curriculum).
 """
 
 from __future__ import annotations
@@ -42,8 +44,8 @@ from torchrl.data import Composite
 from dvrl_marl.envs.start_levels import checked_schedule, scheduled_level
 from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
-__all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_debris_task", "experiment_config", "first_episode_success", "TASK_FILES",
-           "LEVELS"]
+__all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_debris_task", "experiment_config",
+           "algorithm_config", "model_config", "settings_overrides", "first_episode_success", "TASK_FILES", "LEVELS"]
 
 #: The shipped task files.
 TASK_FILES = Path(__file__).with_name("benchmarl_tasks")
@@ -171,21 +173,67 @@ class StartLevelSchedule(Callback):
         self._apply()
 
 
+def _overridden(config, path: Path, overrides: dict, what: str):
+    """``config`` (a BenchMARL config dataclass) with the values of the YAML file ``path`` (None or a missing
+    shipped file: none), then ``overrides``; an unknown key is a ``ValueError`` naming it and the file."""
+    from_file = settings_overrides(path) if path is not None else {}
+    for key, value in {**from_file, **overrides}.items():
+        if not hasattr(config, key):
+            raise ValueError(f"{'overrides' if key in overrides else path}: {key}: not a BenchMARL {what} setting")
+        setattr(config, key, value)
+    return config
+
+
 def experiment_config(path=None, **overrides):
     """BenchMARL's ``ExperimentConfig``: its own defaults, then the shipped overrides for this task
     (``benchmarl_tasks/experiment.yaml``: the record's PPO settings, 256 worlds per batch) or those of ``path``,
     then ``overrides``. An unknown key is a ``ValueError`` naming it."""
-    import yaml
     from benchmarl.experiment import ExperimentConfig
 
-    config = ExperimentConfig.get_from_yaml()
     path = Path(path) if path is not None else TASK_FILES / "experiment.yaml"
-    values = {**(yaml.safe_load(path.read_text()) or {}), **overrides}
-    for key, value in values.items():
-        if not hasattr(config, key):
-            raise ValueError(f"{path}: {key}: not a BenchMARL experiment setting")
-        setattr(config, key, value)
-    return config
+    if not path.is_file():
+        raise ValueError(f"BenchMARL experiment settings {str(path)!r}: no such file")
+    return _overridden(ExperimentConfig.get_from_yaml(), path, overrides, "experiment")
+
+
+def algorithm_config(name: str, path=None, shipped: bool = True, **overrides):
+    """BenchMARL's config of the algorithm ``name`` (``"mappo"``, ``"ippo"``, ``"masac"``, ...): its own defaults,
+    then the shipped overrides for this task where there are some (``benchmarl_tasks/<name>.yaml``; none with
+    ``shipped=False``) or those of ``path``, then ``overrides``. Settings only: nothing inside the algorithm
+    changes. An unknown key is a ``ValueError`` naming it."""
+    from benchmarl.algorithms import algorithm_config_registry
+
+    if name not in algorithm_config_registry:
+        raise ValueError(f"BenchMARL algorithm {name!r}: not one of {', '.join(sorted(algorithm_config_registry))}")
+    if path is not None and not Path(path).is_file():
+        raise ValueError(f"BenchMARL {name} settings {str(path)!r}: no such file")
+    path = Path(path) if path is not None else TASK_FILES / f"{name}.yaml" if shipped else None
+    return _overridden(algorithm_config_registry[name].get_from_yaml(), path, overrides, f"{name}")
+
+
+def model_config(path=None, shipped: bool = True, **overrides):
+    """BenchMARL's ``MlpConfig`` (the policies' and critics' network): its own defaults, then the shipped
+    overrides for this task (``benchmarl_tasks/mlp.yaml``; none with ``shipped=False``) or those of ``path``,
+    then ``overrides``."""
+    from benchmarl.models.mlp import MlpConfig
+
+    if path is not None and not Path(path).is_file():
+        raise ValueError(f"BenchMARL model settings {str(path)!r}: no such file")
+    path = Path(path) if path is not None else TASK_FILES / "mlp.yaml" if shipped else None
+    return _overridden(MlpConfig.get_from_yaml(), path, overrides, "MLP model")
+
+
+def settings_overrides(path) -> dict:
+    """The values a settings file (an algorithm's, the model's) overrides, as written (``{}`` for no file)."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    values = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(values, dict):
+        raise ValueError(f"{path}: a settings file holds a mapping of settings, got {type(values).__name__}")
+    return dict(values)
 
 
 def suction_debris_task(level_or_file: str = "default", **overrides) -> SuctionDebrisTask:
