@@ -184,6 +184,9 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
                               "diverged": f"at {int(experiment.total_frames):,} frames: {error}"[:300]}, \
             time.perf_counter() - started, int(experiment.total_frames)
     wall = time.perf_counter() - started
+    # the final policy and its env options, for a look at its failures (benchmarks/mean_action_failures.py)
+    torch.save(experiment.policy, folder / "policy.pt")
+    (folder / "env_options.json").write_text(json.dumps(options, indent=2) + "\n")
     test_env = task.get_env_fun(num_envs=test_episodes, continuous_actions=True, seed=teams.EVAL_SEED,
                                 device="cpu")()
     final = {"episodes": test_episodes}

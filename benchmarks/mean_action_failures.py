@@ -7,10 +7,11 @@ something, a wall, the workspace's face, the other instrument), ``resting`` (it 
 zero: the policy's own fixed point) or ``moving``; whether the grasper held a pin within reach of the hand-off point;
 which cavities kept blood above the clearing mark. Counted by class, with an example episode of each.
 
-    python benchmarks/mean_action_failures.py baselines/results/benchmark/runs/<a run of this project's trainer>
+    python benchmarks/mean_action_failures.py baselines/results/benchmark/runs/<a run>
 
-The run's env options are its ``config.toml``'s ``[env]``; the test episodes are the benchmark's (seeds
-``teams.EVAL_SEED`` on).
+A run of this project's trainer (its env options: its ``config.toml``'s ``[env]``, its policies: ``policies/``) or a
+BenchMARL run of ``marl_benchmark.py`` (``env_options.json`` and the final ``policy.pt`` it saves; needs BenchMARL's
+environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on).
 """
 
 from __future__ import annotations
@@ -29,13 +30,50 @@ ZERO_COMMAND = 0.05
 NEAR_HANDOFF = 0.15
 
 
-def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dict]:
-    from dvrl_marl import policies
-    from dvrl_marl.envs import suction_debris_v0
-    from dvrl_marl.training import mappo, teams
+def is_benchmarl_run(run: Path) -> bool:
+    return (run / "policy.pt").is_file() and (run / "env_options.json").is_file()
 
-    options = {k: v for k, v in mappo.load_config(run / "config.toml").env.items() if k != "reward_type"}
-    team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v0.AGENTS}
+
+def team_of(run: Path):
+    """A run's env options and its team's mean action, ``act({agent: (N, obs)}) -> {agent: (N, 4)}``."""
+    from dvrl_marl.envs import suction_debris_v0
+
+    if is_benchmarl_run(run):
+        import json
+
+        import torch
+        from tensordict import TensorDict
+        from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+        policy = torch.load(run / "policy.pt", weights_only=False)
+        agents = suction_debris_v0.AGENTS
+
+        def act(observations):
+            stacked = torch.as_tensor(np.stack([observations[a] for a in agents], axis=1), dtype=torch.float32)
+            batch = TensorDict({"agents": TensorDict({"observation": stacked}, batch_size=stacked.shape[:2])},
+                               batch_size=stacked.shape[:1])
+            with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+                action = policy(batch).get(("agents", "action")).numpy().astype(np.float64)
+            return {agent: action[:, index] for index, agent in enumerate(agents)}
+
+        options = json.loads((run / "env_options.json").read_text())
+    else:
+        from dvrl_marl import policies
+        from dvrl_marl.training import mappo
+
+        options = mappo.load_config(run / "config.toml").env
+        team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v0.AGENTS}
+
+        def act(observations):
+            return {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in observations}
+    return {k: v for k, v in options.items() if k != "reward_type"}, act
+
+
+def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dict]:
+    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.training import teams
+
+    options, act = team_of(run)
     env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **options)
     observations, _ = env.reset(seed=teams.EVAL_SEED)
     layout = env.observation_layout
@@ -45,7 +83,7 @@ def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dic
     success = np.zeros(episodes, dtype=bool)
     info = {}
     while not done.all():
-        actions = {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
+        actions = act(observations)
         for agent in env.agents:  # (only the last window is kept)
             tips[agent] = (tips[agent] + [observations[agent][:, layout["own_tip"]].copy()])[-window:]
             commands[agent] = (commands[agent] + [actions[agent][:, :3]])[-window:]
@@ -60,6 +98,7 @@ def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dic
     holding = debris[:, :, 4] > 0.5
     held_at = (debris[:, :, :3] * holding[..., None]).sum(axis=1)
     at_handoff = holding.any(axis=1) & (np.linalg.norm(held_at - grasper[:, layout["handoff"]], axis=1) < NEAR_HANDOFF)
+    jaw_closed = env.core.arms["grasper"].jaw < env.params.grasp_threshold
     classes, examples = Counter(), {}
     for world in np.flatnonzero(~success):
         parts = []
@@ -69,7 +108,8 @@ def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dic
             still = np.linalg.norm(path[-1] - path[0]) < STILL
             parts.append(f"{agent} {'moving' if not still else 'pushing' if command > ZERO_COMMAND else 'resting'}")
         parts.append("grasper holds a pin at the hand-off" if at_handoff[world] else
-                     "grasper holds a pin" if holding[world].any() else "grasper empty")
+                     "grasper holds a pin" if holding[world].any() else
+                     f"grasper empty, jaw {'closed' if jaw_closed[world] else 'open'}")
         left = [str(c) for c in range(blood.shape[1]) if blood[world, c] >= threshold]
         parts.append(f"blood left in cavity {', '.join(left)}" if left else "cavities clear")
         key = "; ".join(parts)
@@ -82,15 +122,16 @@ def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dic
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("runs", nargs="+", type=Path, help="run folders of this project's trainer")
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders (this project's trainer's, BenchMARL's)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.window < 2:
         parser.error("--episodes must be >= 1 and --window >= 2")
     for run in args.runs:
-        if not (run / "config.toml").is_file() or not (run / "policies").is_dir():
-            parser.error(f"{run}: not a run folder of this project's trainer (no config.toml / policies/)")
+        if not is_benchmarl_run(run) and not ((run / "config.toml").is_file() and (run / "policies").is_dir()):
+            parser.error(f"{run}: neither a run folder of this project's trainer (config.toml, policies/) nor a "
+                         f"BenchMARL run of marl_benchmark.py (policy.pt, env_options.json)")
         success, classes, examples = classify(run, args.episodes, args.window)
         print(f"{run.name}: success by the mean action {success:.2f}; {sum(classes.values())} failed")
         for key, count in classes.most_common():

@@ -12,9 +12,16 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "marl_benchmark.py"
-spec = importlib.util.spec_from_file_location("marl_benchmark", SCRIPT)
-marl_benchmark = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(marl_benchmark)
+
+
+def _load_script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+marl_benchmark = _load_script("marl_benchmark")
 
 
 def _shipped_options() -> dict:
@@ -133,6 +140,11 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     assert record["final"]["episodes"] == 3 and 0.0 <= record["final"]["success_rate"] <= 1.0
     assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
     assert record["command"].startswith("python benchmarks/marl_benchmark.py run")
+    # the run's folder holds what benchmarks/mean_action_failures.py reads: its failures, classified
+    failures = _load_script("mean_action_failures")
+    success, classes, examples = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10)
+    assert 0.0 <= success <= 1.0 and sum(classes.values()) == round(3 * (1.0 - success))
+    assert set(examples) == set(classes)
 
 
 def test_a_cells_interval_does_not_depend_on_the_other_cells():
