@@ -103,6 +103,18 @@ class Arm:
         self.q = q
         self.tip[0], self.tip[1], self.tip[2] = x, y, z
 
+    def set_solved_tip(self, x: float, y: float, z: float, q) -> None:
+        """Put the tip at (x, y, z) (base frame) with the joints ``q`` that the batched IK solved for it, within the
+        limits. Why: the scalar IK of :meth:`set_tip` can judge a point the batched IK put exactly on a joint limit
+        (a move slid along it) a last bit outside; the batched core keeps the batched solution, and so does the
+        single env that mirrors it."""
+        if self.tool_point_drop:
+            raise ValueError("set_solved_tip: the batched IK solves for the tool point, this arm's tip is the measured_cp")
+        q = tuple(float(v) for v in q)
+        self.data.qpos[self._joint_qpos] = q
+        self.q = q
+        self.tip[0], self.tip[1], self.tip[2] = x, y, z
+
     def reachable(self, x: float, y: float, z: float) -> bool:
         """Whether IK can reach (x, y, z) within the joint limits."""
         try:
@@ -133,6 +145,8 @@ class Arm:
                 good = mid
             else:
                 bad = mid
+        if good == 0.0:  # none of the move can be made: the tip and its joints stay as they are (set_solved_tip's
+            return True  # tip on a limit may be one the scalar IK judges a last bit outside)
         self.set_tip(x0 + good * (x - x0), y0 + good * (y - y0), z0 + good * (z - z0))
         return True
 

@@ -101,6 +101,9 @@ class UnreachableError(ValueError):
             reason = f"joint {joint!r} would be {value:.6g}, outside its limits [{limits[0]:.6g}, {limits[1]:.6g}]"
         super().__init__(f"{tool}: tip position {self.position.tolist()} (m) is unreachable: {reason}")
 
+    def __reduce__(self):  # copied and pickled with its arguments (Ray copies and ships the errors of its workers)
+        return type(self), (self.tool, self.position.tolist(), self.joint, self.value, self.limits)
+
 
 @dataclass(frozen=True)
 class DHRow:

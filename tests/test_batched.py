@@ -375,3 +375,12 @@ def test_batched_experts_act_as_the_single_experts_on_every_row():
         lifted = max(lifted, int(env.core.lifted.sum()))
         delivered = max(delivered, int(env.core.delivered.sum()))
     assert compared > 3000 and lifted > 0 and delivered > 0
+
+
+def test_batched_v5_equals_single_env_along_the_joint_limits():
+    # Commands pulled up and sideways drive the tips onto their outer pitch limits, where a blocked move slides along
+    # the limit (v3): the single env keeps the batched IK's solution for a tip slid exactly onto a limit, which its
+    # scalar IK can judge a last bit outside (an RLlib run of the recipe crashed there, UnreachableError).
+    assert_batched_collaborative_matches(3, seed=28, steps=800, action_seed=12, max_cycles=400,
+                                         module=suction_debris_v5,
+                                         pull={"suction": [0.0, 0.8, 0.7], "grasper": [0.0, 0.8, 0.7]})

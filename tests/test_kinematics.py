@@ -148,3 +148,15 @@ def test_ik_either_solves_exactly_within_limits_or_raises(x, y, z, tool):
     assert all(lo <= v <= hi for v, lo, hi in zip(q, tool.lower, tool.upper))
     tip = forward_kinematics(tool, q)[:3, 3]
     assert math.dist(tip, (x, y, z)) < 1e-9
+
+
+def test_unreachable_error_copies_and_pickles_with_its_facts():
+    # Ray copies and ships a worker's exception: one that cannot be rebuilt hides the real error behind a TypeError.
+    import copy
+    import pickle
+
+    error = kinematics.UnreachableError("lnd", (0.01, 0.02, -0.04), "outer_pitch", -0.9251, (-0.925, 0.925))
+    for clone in (copy.copy(error), pickle.loads(pickle.dumps(error))):
+        assert type(clone) is kinematics.UnreachableError and str(clone) == str(error)
+        assert (clone.tool, clone.joint, clone.value, clone.limits) == ("lnd", "outer_pitch", -0.9251, (-0.925, 0.925))
+        assert clone.position.tolist() == [0.01, 0.02, -0.04]

@@ -995,21 +995,21 @@ class SuctionDebrisEnv(ParallelEnv):
         low, high = np.asarray(self._low), np.asarray(self._high)
         target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta,
                                         climb=climb)[0]
-        previous = list(arm.tip)
+        previous, previous_q = list(arm.tip), arm.q  # (restored as they were: no IK, see Arm.set_solved_tip)
         cut = arm.move(*(target - old[0]).tolist(), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
         clearance = self._instrument_distance()
         self._blocked[agent] = refused = clearance < 0.0
         if refused or (cut and list(arm.tip) == previous):
             other = self.arms[AGENTS[1 - AGENTS.index(agent)]]
-            made, tip, _, gap = sliding.resolve_blocked(
+            made, tip, q, gap = sliding.resolve_blocked(
                 {"tool": arm.tool, "base": arm.base_position, "tip": old},
                 {"tool": other.tool, "base": other.base_position,
                  "tip": np.asarray(other.tip_world(), dtype=np.float64)[None]},
                 agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high, climb=climb)
-            if made[0]:
-                arm.set_tip(*(tip[0] - arm.base_position).tolist())
+            if made[0]:  # the batched solution as is: a tip slid onto a joint limit stays on it (Arm.set_solved_tip)
+                arm.set_solved_tip(*(tip[0] - arm.base_position).tolist(), q[0])
                 return bool(gap[0] < _CONTACT_MARGIN)
-            arm.set_tip(*previous)
+            arm.set_solved_tip(*previous, previous_q)
             if refused:
                 return True
         return clearance < _CONTACT_MARGIN
