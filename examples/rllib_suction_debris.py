@@ -35,8 +35,10 @@ GUIDED = {"task": "suction_debris_v5", "reward_type": "guided", "observation_fea
 
 
 def env_options(*, guided: bool = False, level: str = "default", max_cycles: int = 1500) -> dict:
-    """The env's keyword arguments for this recipe."""
-    return {**(GUIDED if guided else {"reward_type": "dense"}), "start_level": level, "max_cycles": max_cycles}
+    """The env's keyword arguments for this recipe (with ``guided``, the benchmark's task file of ``level``: at the
+    easy level its episodes keep the task's time limit, ``easy_episode_steps=0``, as the benchmark's)."""
+    easy = {"easy_episode_steps": 0} if guided and level == "easy" else {}
+    return {**(GUIDED if guided else {"reward_type": "dense"}), "start_level": level, **easy, "max_cycles": max_cycles}
 
 
 def build_config(*, shared: bool = False, env_runners: int = 0, train_batch: int = 4000, minibatch: int = 500,

@@ -68,12 +68,13 @@ def test_multi_agent_recipe_takes_the_envs_learning_options(local_ray):
     assert summary["test"]["episodes"] == 2 and summary["test"]["level"] == "easy" and summary["test"]["guided"]
     assert 0.0 <= summary["test"]["success_rate"] <= 1.0
     assert recipe.env_options(guided=True, level="easy")["observation_features"] == "suction_debris_cleared_pins_zoom"
-    # the benchmark's options, its task files' (but for the start level)
+    # the benchmark's options: its task file of each level
     import yaml
 
-    task_file = Path(dvrl_marl.__file__).parent / "integrations" / "benchmarl_tasks" / "suction_debris_default.yaml"
-    shipped = {k: v for k, v in yaml.safe_load(task_file.read_text()).items() if k != "start_level"}
-    assert {k: v for k, v in recipe.env_options(guided=True).items() if k not in ("start_level", "max_cycles")} == shipped
+    for level in ("easy", "default"):
+        task_file = Path(dvrl_marl.__file__).parent / "integrations" / "benchmarl_tasks" / f"suction_debris_{level}.yaml"
+        shipped = yaml.safe_load(task_file.read_text())
+        assert {k: v for k, v in recipe.env_options(guided=True, level=level).items() if k != "max_cycles"} == shipped
 
 
 def test_single_arm_recipe_runs_a_vector_of_envs_per_runner(tmp_path, local_ray):
