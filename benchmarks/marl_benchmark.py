@@ -7,15 +7,17 @@ One row per run, one command per row (each writes one JSON record; nothing is ov
     python benchmarks/marl_benchmark.py table            # the table (markdown), its JSON and the plot
 
 Every run uses the same env options, the shipped BenchMARL task files
-(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v3``, the guided reward,
+(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v5``, the guided reward,
 the observation features, the start level, a tool with a finite speed). Records are named by scene: the version and
 any option that changes the scene itself (``SCENE_OPTIONS``: ``tool_speed``), so that runs on different scenes are
-never pooled in one cell. ``benchmarl`` runs BenchMARL's own algorithm and experiment defaults
-with the shipped experiment overrides (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO
-settings of the configuration of record; :func:`dvrl_marl.integrations.benchmarl.experiment_config`), only the
-frame budget and the evaluation interval set here; ``dvrl-marl`` runs this project's trainer with the configuration of
-record (``baselines/configs/suction_debris_<algorithm>.toml``; the test figure is its final policies, as
-BenchMARL's), its ``[env]`` replaced by the same task file (on a scene with a slow tool, the jaw's initial logit as
+never pooled in one cell. ``benchmarl`` runs BenchMARL's own algorithms with the shipped settings, each a YAML
+of what it changes in BenchMARL's defaults (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the
+PPO settings of the configuration of record; ``mappo.yaml``, ``ippo.yaml``: a critic per arm; ``mlp.yaml``: 64 x 64;
+or files of your own, ``--algorithm-file``, ``--model-file``, ``--experiment-file``), only the frame budget and the
+evaluation interval set here; a record names its settings (``benchmarl_settings``) and its cell their hash.
+``dvrl-marl`` runs this project's trainer with the configuration of record
+(``baselines/configs/suction_debris_<algorithm>.toml``; the test figure is its final policies, as BenchMARL's), its
+``[env]`` replaced by the same task file (on a scene with a slow tool, the jaw's initial logit as
 ``DVRL_MARL_OVERRIDES`` says, written into the record); at the easy
 level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
 ending on the default task); BenchMARL's default-level runs get the same schedule through a callback
@@ -87,8 +89,8 @@ def _scene_of(options: dict) -> str:
 
 
 def _settings_label(settings: dict | None) -> str:
-    """A short name of a BenchMARL run's settings (the algorithm's and the model's overrides of BenchMARL's
-    defaults): ``""`` for none (BenchMARL's own), else ``"settings"`` and 6 hex digits of their hash, so that runs of
+    """A short name of a BenchMARL run's settings (its overrides of BenchMARL's algorithm, model and experiment
+    defaults, :func:`_benchmarl_settings`): ``""`` for none (the records written before they were named), else ``"settings"`` and 6 hex digits of their hash, so that runs of
     different settings are never pooled in one cell nor written over each other."""
     if not settings or not any(settings.values()):
         return ""
