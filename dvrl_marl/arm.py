@@ -98,10 +98,7 @@ class Arm:
     # --- motion -----------------------------------------------------------------------------------------
     def set_tip(self, x: float, y: float, z: float) -> None:
         """Put the tip at (x, y, z) (base frame); raises :class:`~dvrl_marl.kinematics.UnreachableError`."""
-        q = kinematics.inverse_kinematics_point(self.tool, x, y, z - self.tool_point_drop)
-        self.data.qpos[self._joint_qpos] = q
-        self.q = q
-        self.tip[0], self.tip[1], self.tip[2] = x, y, z
+        self._place(x, y, z, kinematics.inverse_kinematics_point(self.tool, x, y, z - self.tool_point_drop))
 
     def set_solved_tip(self, x: float, y: float, z: float, q) -> None:
         """Put the tip at (x, y, z) (base frame) with the joints ``q`` that the batched IK solved for it, within the
@@ -110,7 +107,9 @@ class Arm:
         single env that mirrors it."""
         if self.tool_point_drop:
             raise ValueError("set_solved_tip: the batched IK solves for the tool point, this arm's tip is the measured_cp")
-        q = tuple(float(v) for v in q)
+        self._place(x, y, z, tuple(float(v) for v in q))
+
+    def _place(self, x: float, y: float, z: float, q: tuple) -> None:
         self.data.qpos[self._joint_qpos] = q
         self.q = q
         self.tip[0], self.tip[1], self.tip[2] = x, y, z
