@@ -8,9 +8,10 @@ One row per run, one command per row (each writes one JSON record; nothing is ov
 
 Every run uses the same env options, the shipped BenchMARL task files
 (``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v5``, the guided reward,
-the observation features, the start level, a tool with a finite speed). Records are named by scene: the version and
-any option that changes the scene itself (``SCENE_OPTIONS``: ``tool_speed``), so that runs on different scenes are
-never pooled in one cell. ``benchmarl`` runs BenchMARL's own algorithms with the shipped settings, each a YAML
+the observation features, the start level, a tool with a finite speed, the jaw a switch that holds a pin until the
+hand-off). Records are named by scene: the version and any option that changes the scene itself (``SCENE_OPTIONS``:
+``tool_speed``, ``jaw_command``, ``hold_until_handoff``), so that runs on different scenes are never pooled in one
+cell. ``benchmarl`` runs BenchMARL's own algorithms with the shipped settings, each a YAML
 of what it changes in BenchMARL's defaults (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the
 PPO settings of the configuration of record; ``mappo.yaml``, ``ippo.yaml``: a critic per arm; ``mlp.yaml``: 64 x 64;
 or files of your own, ``--algorithm-file``, ``--model-file``, ``--experiment-file``), only the frame budget and the
@@ -80,12 +81,22 @@ def _task_options(level: str) -> dict:
 
 #: Task-file options that change the scene itself (not the reward or the observation): a record's scene is its
 #: version with these, and cells of different scenes are never pooled.
-SCENE_OPTIONS = ("tool_speed",)
+SCENE_OPTIONS = ("tool_speed", "jaw_command", "hold_until_handoff")
+
+
+def _scene_option(key: str, value) -> str:
+    """One scene option in a scene's name: ``tool_speed0.05``, ``jaw_command-switch``, ``hold_until_handoff`` (a
+    flag that is on; off, its default, is left out)."""
+    if isinstance(value, bool):
+        return f"_{key}" if value else ""
+    if isinstance(value, str):
+        return f"_{key}-{value}"
+    return f"_{key}{value:g}"
 
 
 def _scene_of(options: dict) -> str:
     """The scene a run used: its version, and any scene option, e.g. ``suction_debris_v3_tool_speed0.05``."""
-    return options["task"] + "".join(f"_{key}{options[key]:g}" for key in SCENE_OPTIONS if key in options)
+    return options["task"] + "".join(_scene_option(key, options[key]) for key in SCENE_OPTIONS if key in options)
 
 
 def _settings_label(settings: dict | None) -> str:

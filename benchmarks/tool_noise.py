@@ -4,9 +4,11 @@ The scripted team (``ScriptedSuction`` + ``ScriptedSurgeon``, which never fails 
 exactly; only its tool command (valve, jaw) is replaced by a tanh-Gaussian sample around a decided command
 (pre-tanh mean +/-1.5 for open / closed, scale ``sigma``), as a library's Gaussian policy explores it (BenchMARL's
 and RLlib's start at scale 1). With the paper's instant tool (``tool_speed = 1``) one sample above the jaw's
-threshold drops the held pin; with a finite speed the noise averages out over a stroke.
+threshold drops the held pin; with a finite speed the noise averages out over a stroke. ``--jaw-command switch``
+and ``--hold-until-handoff`` run the scene's other tool options (a jaw set by the command's sign; a held pin kept
+until the hand-off).
 
-    python benchmarks/tool_noise.py [--worlds 64] [--task suction_debris_v3]
+    python benchmarks/tool_noise.py [--worlds 64] [--task suction_debris_v3] [--jaw-command switch] [--hold-until-handoff]
 """
 
 from __future__ import annotations
@@ -22,9 +24,11 @@ from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
 DECIDED = 1.5
 
 
-def success_rate(task: str, tool_speed: float, sigma: float, worlds: int, seed: int = 0) -> float:
-    """Fraction of ``worlds`` first episodes the scripted team completes with noise ``sigma`` on its tool."""
-    env = importlib.import_module(f"dvrl_marl.envs.{task}").batched_env(num_envs=worlds, tool_speed=tool_speed)
+def success_rate(task: str, tool_speed: float, sigma: float, worlds: int, seed: int = 0, **options) -> float:
+    """Fraction of ``worlds`` first episodes the scripted team completes with noise ``sigma`` on its tool
+    (``options``: more keyword arguments of the env, e.g. ``jaw_command="switch"``)."""
+    env = importlib.import_module(f"dvrl_marl.envs.{task}").batched_env(num_envs=worlds, tool_speed=tool_speed,
+                                                                        **options)
     observations, _ = env.reset(seed=seed)
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     rng = np.random.default_rng(seed)
@@ -50,11 +54,15 @@ def main() -> None:
     parser.add_argument("--task", default="suction_debris_v3")
     parser.add_argument("--sigmas", type=float, nargs="+", default=[0.0, 0.3, 0.6, 1.0])
     parser.add_argument("--speeds", type=float, nargs="+", default=[1.0, 0.1, 0.05])
+    parser.add_argument("--jaw-command", choices=("proportional", "switch"), default="proportional")
+    parser.add_argument("--hold-until-handoff", action="store_true")
     args = parser.parse_args()
-    print(f"{args.task}: the scripted team's success ({args.worlds} episodes) with tanh-Gaussian noise on its tool")
+    options = {"jaw_command": args.jaw_command, "hold_until_handoff": args.hold_until_handoff}
+    print(f"{args.task} ({options}): the scripted team's success ({args.worlds} episodes) with tanh-Gaussian noise "
+          "on its tool")
     print(f"  {'sigma':>6s}" + "".join(f"  speed {speed:<5g}" for speed in args.speeds))
     for sigma in args.sigmas:
-        rates = [success_rate(args.task, speed, sigma, args.worlds) for speed in args.speeds]
+        rates = [success_rate(args.task, speed, sigma, args.worlds, **options) for speed in args.speeds]
         print(f"  {sigma:6.2f}" + "".join(f"  {rate:11.2f}" for rate in rates), flush=True)
 
 

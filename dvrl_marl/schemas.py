@@ -171,6 +171,8 @@ class CollaborativeTask(BaseModel):
     blocked_moves: Literal["stop", "slide", "climb"] = "stop"
     held_pin_at_grip: Flag = False
     tool_speed: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
+    jaw_command: Literal["proportional", "switch"] = "proportional"
+    hold_until_handoff: Flag = False
 
 
 # --- training configurations without a dataclass of their own --------------------------------------------------------

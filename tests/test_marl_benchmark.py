@@ -31,7 +31,7 @@ def _shipped_options() -> dict:
 
 
 def _shipped_task() -> str:
-    """The scene the shipped task files run: the version and its scene options (tool_speed)."""
+    """The scene the shipped task files run: the version and its scene options (tool_speed, the grasp's)."""
     return marl_benchmark._scene_of(_shipped_options())
 
 
@@ -95,6 +95,18 @@ def test_runs_on_different_scenes_are_never_pooled(tmp_path):
     table = json.loads((tmp_path / "table.json").read_text())
     assert {row["task"]: row["iqm_success"] for row in table["rows"]} == {
         "suction_debris_v3": 0.0, "suction_debris_v3_tool_speed0.1": 0.5}
+
+
+def test_the_grasp_options_name_their_own_scene():
+    """A switch jaw and the hold are scene options: in the scene's name (a flag only when on), never pooled."""
+    base = {"task": "suction_debris_v5", "tool_speed": 0.1}
+    assert marl_benchmark._scene_of(base) == "suction_debris_v5_tool_speed0.1"
+    assert marl_benchmark._scene_of({**base, "jaw_command": "switch", "hold_until_handoff": True}) == (
+        "suction_debris_v5_tool_speed0.1_jaw_command-switch_hold_until_handoff")
+    assert marl_benchmark._scene_of({**base, "jaw_command": "proportional", "hold_until_handoff": False}) == (
+        "suction_debris_v5_tool_speed0.1_jaw_command-proportional")
+    shipped = _shipped_options()
+    assert shipped["jaw_command"] == "switch" and shipped["hold_until_handoff"] is True
 
 
 def test_a_run_never_overwrites_a_record(tmp_path, capsys):

@@ -345,7 +345,10 @@ class CollaborativeCore:
                 self.valve_opening = np.where(given, opening, self.valve_opening)
             else:
                 arm = self.arms["grasper"]
-                jaw = tools.moved_towards(arm.jaw, tools.jaw_target(tool), self.params.tool_speed)
+                jaw = tools.moved_towards(arm.jaw, tools.jaw_target(tool, self.params.jaw_command),
+                                          self.params.tool_speed)
+                if self.params.hold_until_handoff:  # a held pin's jaw stays shut until the hand-off
+                    given &= self.holding < 0
                 arm.jaw = np.where(given, jaw, arm.jaw)
         removed = self._suction()
         self._bleed()

@@ -7,6 +7,12 @@ noise on the tool then averages out over the steps of a stroke instead of openin
 (a tanh-Gaussian of scale 1 around a closed command opens it every few steps: the scripted team, which never
 fails without noise, delivered nothing with it; ``benchmarks/tool_noise.py``), and the mean action and the
 sampled one drive the tool to the same place.
+
+Two more options (issue 37; off by default, the paper's behaviour) make the grasp a decision a Gaussian policy can
+take, as the valve already is: ``jaw_command = "switch"`` sets the jaw's target by the command's sign (closed when it is
+not positive, open when it is: the valve's rule) instead of the paper's proportional ``j = (phi + 1) / 2``, and
+``hold_until_handoff`` (applied by the scenes, which know what is held) keeps a held pin's jaw shut, whatever the
+command, until the pin is handed off.
 """
 
 from __future__ import annotations
@@ -18,8 +24,15 @@ import numpy as np
 VALVE_OPEN_ABOVE = 0.5
 
 
-def jaw_target(command):
-    """The paper's jaw mapping: ``j = (phi + 1) / 2`` (0 closed, 1 open)."""
+#: How the command sets the jaw's target: the paper's proportional mapping, or a switch (the valve's rule).
+JAW_COMMANDS = ("proportional", "switch")
+
+
+def jaw_target(command, rule: str = "proportional"):
+    """The jaw's target opening (0 closed, 1 open): the paper's ``j = (phi + 1) / 2``, or with ``rule="switch"``
+    open when the command is positive, else closed."""
+    if rule == "switch":
+        return valve_target(command)
     return (command + 1.0) * 0.5
 
 

@@ -39,7 +39,11 @@ The tool is set at once, as in the paper, unless ``tool_speed`` (an option of ev
 the paper's instant tool) gives it a finite speed: the jaw moves towards j, and the valve's stroke (0 closed .. 1
 open) towards open or closed, by at most ``tool_speed`` per step (:mod:`dvrl_marl.core.tools`); the valve draws while
 more than half open. Exploration noise on the tool dimension then averages out over a stroke, and the mean action
-and a sampled one move the tool alike (``benchmarks/tool_noise.py``).
+and a sampled one move the tool alike (``benchmarks/tool_noise.py``). Two more options of every version (off by
+default: the paper's jaw) make the grasp one decision, as the valve is: ``jaw_command="switch"`` sets the jaw's target
+by the command's sign (closed when phi <= 0, open when phi > 0) instead of j = (phi + 1) / 2, and
+``hold_until_handoff=True`` keeps a held pin's jaw shut, whatever phi says, until the pin is handed off (it is never
+dropped; the jaw follows phi again from the step after the hand-off).
 
 ``p <- p + eta * Delta`` (eta = 1 mm), projected into the workspace box, above the phantom, cavity floors and
 table, and within the joint limits. A move that would make the instruments intersect is refused (the tip stays)
@@ -104,7 +108,8 @@ Options that help learning (issue 37; off by default): ``reward_type="guided"`` 
 ``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.policies.features.FEATURES`): each
 agent's observation gets those features appended (relative targets computed from the observation alone: the pin
 to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
-ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open.
+ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
+``jaw_command`` and ``hold_until_handoff`` (above): a grasp a Gaussian policy decides once and cannot undo by noise.
 
 ## Batched form
 ``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
@@ -117,7 +122,7 @@ rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s``
   to start for a person's device (frames and timing only: trajectories are unchanged).
   Options added without a version change, their defaults the published behaviour (issue 37):
   ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option;
-  ``tool_speed``.
+  ``tool_speed``; ``jaw_command`` and ``hold_until_handoff``.
 """
 
 from __future__ import annotations
@@ -220,6 +225,8 @@ class SuctionDebrisParams:
     held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
     tool_speed: float = 1.0  # fraction of the jaw's / valve's stroke per control step (dvrl_marl.core.tools)
+    jaw_command: str = "proportional"  # "switch": the jaw's target by the command's sign, as the valve's
+    hold_until_handoff: bool = False  # a held pin's jaw stays shut, whatever the command, until the hand-off
 
     @classmethod
     def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
@@ -644,8 +651,11 @@ class SuctionDebrisEnv(ParallelEnv):
                 self.valve_opening = float(tools.moved_towards(self.valve_opening, tools.valve_target(tool_value),
                                                                p.tool_speed))
             else:
+                if p.hold_until_handoff and self._held is not None:  # a held pin's jaw stays shut until the hand-off
+                    continue
                 grasper = self.arms["grasper"]
-                grasper.set_jaw(float(tools.moved_towards(grasper.jaw, tools.jaw_target(tool_value), p.tool_speed)))
+                grasper.set_jaw(float(tools.moved_towards(grasper.jaw, tools.jaw_target(tool_value, p.jaw_command),
+                                                          p.tool_speed)))
         removed = self._drawn_ml = self._suction()
         self._bleed()
         lifted, delivered = self._grasping()

@@ -16,8 +16,9 @@ worlds in one env): both arms in one group ``"agents"``, continuous actions in [
 centralised critic, and the share of ended episodes that succeeded logged as ``collection/success_rate``.
 :func:`suction_debris_task` reads one of the shipped task files, one per start level
 (``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: the guided reward, the observation
-features, the level, ``tool_speed`` so that a Gaussian policy's noise cannot flick the jaw open), or a file of your
-own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
+features, the level, ``tool_speed`` so that a Gaussian policy's noise cannot flick the valve, and the jaw a switch
+that holds a pin until the hand-off, ``jaw_command`` and ``hold_until_handoff``: a grasp is one decision), or a file
+of your own (its keys: any of ``SuctionDebrisTorchRLEnv``'s keyword arguments).
 
 The settings the benchmark runs ship beside them, each a YAML of what it changes in BenchMARL's own defaults:
 :func:`experiment_config` (``benchmarl_tasks/experiment.yaml``: one policy per arm, 256 worlds, the PPO settings of
