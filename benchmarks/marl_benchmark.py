@@ -18,8 +18,7 @@ or files of your own, ``--algorithm-file``, ``--model-file``, ``--experiment-fil
 evaluation interval set here; a record names its settings (``benchmarl_settings``) and its cell their hash.
 ``dvrl-marl`` runs this project's trainer with the configuration of record
 (``baselines/configs/suction_debris_<algorithm>.toml``; the test figure is its final policies, as BenchMARL's), its
-``[env]`` replaced by the same task file (on a scene with a slow tool, the jaw's initial logit as
-``DVRL_MARL_OVERRIDES`` says, written into the record); at the easy
+``[env]`` replaced by the same task file (its run folder keeps the ``config.toml`` it ran); at the easy
 level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
 ending on the default task); BenchMARL's default-level runs get the same schedule through a callback
 (``StartLevelSchedule``, outside the algorithm). Validation and test episodes are always at the record's level.
@@ -59,17 +58,6 @@ TEST_EPISODES = 100
 #: ``[curriculum] levels``): BenchMARL through :class:`dvrl_marl.integrations.benchmarl.StartLevelSchedule`.
 CURRICULUM = ((0.0, 0.0), (0.3, 0.5), (1.0, 1.0))
 TARGET = 0.9
-#: What this project's trainer changes in its configuration of record for the benchmark's scene, and why. The
-#: record's switch head starts the jaw's Bernoulli at logit 2 (open 88 % of the steps): with the instant jaw of the
-#: record's scene that still closed it on one step in eight, but a slow jaw (``tool_speed``) is pushed up by it and
-#: never reaches the grasp threshold by chance (0.00 test success, no grasp in training, seed 0); at even odds it
-#: random-walks through the threshold (seed 0: 0.51 by the mean action). Written into each record.
-DVRL_MARL_OVERRIDES = {"initial_tool_logit": {"grasper": 0.0}}
-
-
-def _trainer_overrides(options: dict) -> dict:
-    """:data:`DVRL_MARL_OVERRIDES` where the task file's ``options`` have a slow tool, else none."""
-    return DVRL_MARL_OVERRIDES if options.get("tool_speed", 1.0) < 1.0 else {}
 
 
 def _task_options(level: str) -> dict:
@@ -223,8 +211,6 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
 
     config = mappo.load_config(ROOT / "baselines" / "configs" / f"suction_debris_{algorithm}.toml")
     config.env = dict(options)
-    for key, value in _trainer_overrides(options).items():  # a table (per agent) is merged into the record's
-        setattr(config, key, {**getattr(config, key), **value} if isinstance(value, dict) else value)
     if level == "easy":
         config.levels = []  # every episode easy (the task file's start level)
     config.eval_every = config.checkpoint_every = int(eval_every)
@@ -284,8 +270,6 @@ def command_run(args) -> int:
            "target": TARGET, "env_options": options,
            **({"benchmarl_settings": settings} if settings is not None else {}),
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
-           **({"trainer_overrides": _trainer_overrides(options)}
-              if args.library == "dvrl-marl" and _trainer_overrides(options) else {}),
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
     record.write_text(json.dumps(out, indent=2) + "\n")

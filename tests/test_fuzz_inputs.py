@@ -120,7 +120,7 @@ from dvrl_marl.training import clone as clone_training  # noqa: E402
 from dvrl_marl.training import runner  # noqa: E402
 
 _MAPPO_NUMBERS = sorted(f.name for f in fields(mappo.MappoConfig)
-                        if f.name not in ("name", "env", "surgeon", "initial_tool_logit", "held_tool_logit",
+                        if f.name not in ("name", "env", "surgeon", "initial_tool_logit",
                                           "observation_features", "device", "hidden", "algorithm", "surgeon_seat",
                                           "tool_head", "critic_input", "bc_expert"))
 

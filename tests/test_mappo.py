@@ -169,6 +169,8 @@ def test_cli_train_mappo(tmp_path):
     ("[shaping]\noff_centre_grasps = 1.0\n", "[shaping] shaping: retired by issue 37 (now the env's guided reward"),
     ("[curriculum]\nreceding_starts = 0.3\n", "[curriculum] receding_starts: retired by issue 37 (now the env's start levels"),
     ("[model]\nobservation_features = \"suction_debris_routes\"\n", "commit ea6d143"),
+    ("[model]\nheld_tool_logit = { grasper = -8.0 }\n", "commit c59ae5f"),
+    ("[model]\nheld_tool_logit = { grasper = -8.0 }\n[curriculum]\nreceding_starts = 0.3\n", "commit ea6d143"),
     ("[env]\nreward_type = \"guided\"\n[env.guidance]\nhold_bonus = -1.0\n", "hold_bonus"),
     ("[run]\nsurgeon = []\n", "non-empty list"),
     ("[run]\nsurgeon = 3\n", "[run] surgeon"),
@@ -519,28 +521,31 @@ def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
     assert grasp.potential(state)[0] == pytest.approx(plain.potential(state)[0])
 
 
-def test_trainer_runs_with_the_open_approach_and_zoomed_features(tmp_path):
-    """held_tool_logit and the zoomed feature set through a whole tiny run: the exported grasper computes both
-    (its numpy policy reads the plain observation) and leans its jaw by whether it holds a pin."""
+def test_trainer_runs_with_the_switch_head_the_envs_hold_and_zoomed_features(tmp_path):
+    """The switch head, the env's grasp options (a held pin kept until the hand-off: what the retired
+    held_tool_logit prior did) and the zoomed feature set through a whole tiny run: the exported grasper computes the
+    features from the plain observation and decides its jaw as a sign; the retired key is refused naming its commit."""
     text = TINY.format(algorithm="ippo", surgeon="none", seat="grasper").replace(
         "hidden = [16, 16]\n", 'hidden = [16, 16]\ntool_head = "switch"\n'
-                        'initial_tool_logit = { suction = 3.0, grasper = 2.0 }\nheld_tool_logit = { grasper = -10.0 }\n').replace(
-        "max_cycles = 40\n", 'max_cycles = 40\nobservation_features = "suction_debris_cleared_pins_zoom"\n')
-    path = tmp_path / "open_zoom.toml"
+                        'initial_tool_logit = { suction = 3.0, grasper = 0.0 }\n').replace(
+        "max_cycles = 40\n", 'max_cycles = 40\nobservation_features = "suction_debris_cleared_pins_zoom"\n'
+                           'jaw_command = "switch"\nhold_until_handoff = true\n')
+    path = tmp_path / "hold_zoom.toml"
     path.write_text(text)
     config = mappo.load_config(path)
-    assert config.held_tool_logit == {"grasper": -10.0}
+    assert config.env["hold_until_handoff"] is True
     run = tmp_path / "run"
     mappo.train(config, 0, run, progress=False, log=lambda *_: None)
     grasper = policies.load(run / "policies" / "marl-grasper")
     assert grasper.spec["features"]["name"] == "suction_debris_cleared_pins_zoom"
-    assert grasper.spec["layer_sizes"][1:3] == [17, 17]  # the hidden layers carry the "holding" unit
-    observation = np.zeros(30)
-    free = grasper(observation)
-    observation[9 + 3:9 + 5] = 1.0  # pin 0 visible and held
-    held = grasper(observation)
-    assert free[3] == 1.0 and held[3] == -1.0  # open on the way, closed while it carries
-    assert mappo.load_config(run / "config.toml").held_tool_logit == {"grasper": -10.0}
+    assert grasper.spec["layer_sizes"][1:3] == [16, 16]  # the network alone: no unit of a prior
+    assert grasper(np.zeros(30))[3] in (-1.0, 1.0)
+    assert mappo.load_config(run / "config.toml").env["hold_until_handoff"] is True
+    retired = tmp_path / "held_prior.toml"
+    retired.write_text(text.replace('tool_head = "switch"\n', 'tool_head = "switch"\nheld_tool_logit = { grasper = -10.0 }\n'))
+    with pytest.raises(ValueError, match=r"\[model\] held_tool_logit: retired by issue 37 \(now the env's option: "
+                                         r"\[env\] hold_until_handoff = true.*reproducible from commit c59ae5f"):
+        mappo.load_config(retired)
 
 
 def test_mappo_critic_on_the_agent_specific_state_trains_and_resumes(tmp_path):
@@ -578,9 +583,12 @@ def test_every_recorded_configuration_before_the_env_options_names_its_commit(pa
     import tomllib
 
     table = tomllib.loads(path.read_text())
-    if any(key in mappo_config.RETIRED for name, content in table.items() if name != "env" for key in content) or (
-            "shaping" in table):
-        with pytest.raises(ValueError, match="reproducible from commit ea6d143"):
+    retired = [key for name, content in table.items() if name != "env" for key in content
+               if key in mappo_config.RETIRED] + (["shaping"] if "shaping" in table else [])
+    if retired:  # the oldest commit that reads every retired key the record has
+        commit = ("ea6d143" if any(key not in mappo_config.RETIRED_AT for key in retired)
+                  else mappo_config.RETIRED_AT[retired[0]])
+        with pytest.raises(ValueError, match=f"reproducible from commit {commit}"):
             mappo.load_config(path)
     else:
         mappo.load_config(path)

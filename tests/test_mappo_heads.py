@@ -262,28 +262,6 @@ def test_switch_head_samples_open_or_closed_with_its_log_probability():
     assert torch.equal(td["agents", "action"][..., 3], torch.tensor([1.0, -1.0]).expand(4000, 2))
 
 
-def test_held_tool_logit_leans_the_jaw_by_whether_a_pin_is_held():
-    """Open while the grasper holds nothing (sigmoid(2) = 0.88), closed while it holds a pin (sigmoid(-8)); the
-    suction's valve, which has no offset, leans the same way in both."""
-    from tensordict import TensorDict
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-    config = _config(tool_head="switch", initial_tool_logit={"suction": 2.0, "grasper": 2.0},
-                     held_tool_logit={"grasper": -10.0})
-    actor, _, _, _ = models.build_models(config, AGENTS, OBS_DIM, 31, 4)
-    observations = torch.zeros(4000, 2, OBS_DIM)
-    observations[2000:, :, 9 + 6 * 2 + 3:9 + 6 * 2 + 5] = 1.0  # pin 2 visible and held in the second half
-    td = TensorDict({"agents": TensorDict({"observation": observations}, batch_size=[4000, 2])}, batch_size=[4000])
-    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-        actor(td)
-    opened = (td["agents", "action"][..., 3] > 0).float()
-    assert abs(float(opened[:2000, 1].mean()) - 0.881) < 0.03  # grasper, holding nothing
-    assert float(opened[2000:, 1].mean()) < 0.003  # grasper, holding
-    assert abs(float(opened[:2000, 0].mean()) - 0.881) < 0.03 and abs(float(opened[2000:, 0].mean()) - 0.881) < 0.03
-    np.testing.assert_allclose(td["agents", "loc"][2000:, 1, 3].numpy(), td["agents", "loc"][:2000, 1, 3].numpy() - 10.0,
-                               atol=0.05)  # (the flags are inputs too: the small initial head moves a little)
-
-
 @pytest.mark.parametrize("model", [
     {"tool_head": "switch", "initial_tool_logit": {"grasper": -3.0}},
     {"observation_features": "suction_debris_targets"},
@@ -291,8 +269,8 @@ def test_held_tool_logit_leans_the_jaw_by_whether_a_pin_is_held():
     {"tool_head": "switch", "observation_features": "suction_debris_routes"},
     {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins"},
     {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins",
-     "initial_tool_logit": {"grasper": 2.0}, "held_tool_logit": {"grasper": -10.0}},
-    {"tool_head": "switch", "held_tool_logit": {"grasper": -4.0, "suction": 1.0}, "hidden": []},
+     "initial_tool_logit": {"grasper": 2.0}},
+    {"tool_head": "switch", "initial_tool_logit": {"grasper": -4.0, "suction": 1.0}, "hidden": []},
     {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins_zoom"},
 ])
 def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
@@ -307,7 +285,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     env = suction_debris_v0.batched_env(num_envs=40, surgeon=None)
     spec = features.spec(feature_set, env.layout(), env.params.debris_count) if feature_set else None
     width = OBS_DIM + (features.feature_count(feature_set) if feature_set else 0)
-    actor, _, actor_net, norms = models.build_models(config, AGENTS, width, 31, 4, held_flags=models.held_flag_indices(OBS_DIM),
+    actor, _, actor_net, norms = models.build_models(config, AGENTS, width, 31, 4,
                                                      feature_spec=spec)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -345,8 +323,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[env]\nreward_type = 'guided'\n[env.guidance]\ncentred_grasps = 1\n", "centred_grasps"),
     ("[ppo]\nbounds_loss_coef = -1.0\n", "[ppo] bounds_loss_coef: must be >= 0"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "[model] initial_tool_logit.scalpel"),
-    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = 'closed' }\n", "[model] held_tool_logit.grasper: must be a number"),
-    ("[model]\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit needs tool_head = \"switch\""),
+    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit: retired by issue 37"),
     ("[model]\ncritic_input = 'everything'\n", "[model] critic_input: must be one of"),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):

@@ -22,7 +22,7 @@ import socket
 import numpy as np
 
 from dvrl_marl.training.mappo_config import TRAIN_SEED_BASE, partner
-from dvrl_marl.training.models import build_models, held_flag_indices, limit_threads, require_torch
+from dvrl_marl.training.models import build_models, limit_threads, require_torch
 
 __all__ = ["RolloutCollector", "LocalCollectors", "RayCollectors", "make_collectors", "split_worlds"]
 
@@ -69,8 +69,7 @@ class RolloutCollector:
         self.agents = list(env.possible_agents)
         obs_dim, state_dim = env.observation_space(self.agents[0]).shape[0], env.state_space.shape[0]
         self.actor = actor if actor is not None else build_models(
-            config, self.agents, obs_dim, state_dim, 4, held_flags=held_flag_indices(env.observation_layout),
-            feature_spec=env.feature_spec)[0]
+            config, self.agents, obs_dim, state_dim, 4, feature_spec=env.feature_spec)[0]
         self.rng = np.random.default_rng(seed if index == 0 else [seed, index])
         if rng_state is not None:
             self.rng.bit_generator.state = rng_state

@@ -23,8 +23,7 @@
   can use the same options; this trainer only schedules the level.
 - **What the measurements of this trainer added** (``[model]`` and ``[ppo]`` options, off by default;
   ``baselines/README.md`` has the figures): ``tool_head = "switch"`` decides the valve / jaw as open or closed (a
-  Bernoulli, :func:`dvrl_marl.training.models.switch_gaussian`; ``initial_tool_logit`` leans it at the start;
-  ``held_tool_logit`` adds a fixed offset while the agent holds a pin: :func:`~dvrl_marl.training.models.held_pin_prior`);
+  Bernoulli, :func:`dvrl_marl.training.models.switch_gaussian`; ``initial_tool_logit`` leans it at the start);
   ``critic_input = "state_and_observation"`` gives MAPPO's critic each agent's own observation beside the state
   (Yu et al. 2022's agent-specific global state; measured: the state-only critic left MAPPO at 0.5 where this one
   reached 1.00); ``final_std`` replaces the learnt exploration noise by a schedule; ``[ppo] bounds_loss_coef`` keeps
@@ -64,7 +63,7 @@ from dvrl_marl.envs import suction_debris_v0
 from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
                                              MappoConfig, config_toml, demonstrations, load_config, partner, partners)
-from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, held_flag_indices, learner_device,
+from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, learner_device,
                                        limit_threads, require_torch)
 from dvrl_marl.training.teams import evaluate_team_batched
 
@@ -102,7 +101,6 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     state_dim = env.state_space.shape[0]
     torch.manual_seed(seed)
     actor, critic, actor_net, norms = build_models(config, agents, obs_dim, state_dim, 4,
-                                                   held_flags=held_flag_indices(env.observation_layout),
                                                    feature_spec=env.feature_spec)
 
     def easy_share(progress: float) -> float:

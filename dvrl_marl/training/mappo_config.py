@@ -16,8 +16,8 @@ from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonN
                                UnitInterval)
 from dvrl_marl.training import teams
 
-__all__ = ["MappoConfig", "load_config", "TABLE_KEYS", "RETIRED", "TRAIN_SEED_BASE", "ALGORITHMS", "TOOL_HEADS",
-           "CRITIC_INPUTS", "check_surgeon", "partner", "partners", "demonstrations", "config_toml"]
+__all__ = ["MappoConfig", "load_config", "TABLE_KEYS", "RETIRED", "RETIRED_AT", "TRAIN_SEED_BASE", "ALGORITHMS",
+           "TOOL_HEADS", "CRITIC_INPUTS", "check_surgeon", "partner", "partners", "demonstrations", "config_toml"]
 
 #: Training worlds of seed s draw from TRAIN_SEED_BASE * (s + 1) + i; evaluation seeds (teams.EVAL_SEED on) lie
 #: far beyond them.
@@ -75,9 +75,6 @@ class MappoConfig:
     # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
     tool_head: Literal[TOOL_HEADS] = "gaussian"
     initial_tool_logit: dict[Literal[suction_debris_v0.AGENTS], Finite] = field(default_factory=dict)
-    # with the switch head, a fixed offset added to an agent's tool logit while its observation says it holds a pin
-    # (see held_pin_prior): the grasper's jaw can lean open while it approaches and closed while it carries
-    held_tool_logit: dict[Literal[suction_debris_v0.AGENTS], Finite] = field(default_factory=dict)
     # MAPPO's critic input: "state" (the env's state()), or "state_and_observation": the state and the agent's own
     # observation (with its features), one value network per agent (Yu et al. 2022's agent-specific global state)
     critic_input: Literal[CRITIC_INPUTS] = "state"
@@ -122,8 +119,7 @@ TABLE_KEYS = {
     "env": None,
     "ppo": ("learning_rate", "anneal_lr", "epochs", "minibatches", "clip_epsilon", "gamma", "gae_lambda",
             "entropy_coef", "value_coef", "max_grad_norm", "bounds_loss_coef"),
-    "model": ("hidden", "initial_std", "final_std", "tool_head", "initial_tool_logit", "held_tool_logit",
-              "critic_input"),
+    "model": ("hidden", "initial_std", "final_std", "tool_head", "initial_tool_logit", "critic_input"),
     "curriculum": ("levels",),
     "pretrain": ("bc_expert", "bc_episodes", "bc_action_noise", "bc_epochs", "bc_learning_rate", "bc_dagger_rounds",
                  "critic_warmup_steps"),
@@ -145,7 +141,10 @@ RETIRED = {
     **dict.fromkeys(("grasp_path_shaping", "hold_bonus", "wait_at_home", "cleared_pins_only", "centred_grasps",
                      "off_centre_grasps", "suction_route_shaping", "clear_bonus", "route_to_park", "shaping_over_rims"),
                     _TO_GUIDANCE),
+    "held_tool_logit": "now the env's option: [env] hold_until_handoff = true, a held pin's jaw shut until the hand-off",
 }
+#: Keys retired later, and the last commit whose trainer read each (the others: LAST_COMMIT_BEFORE_ENV_OPTIONS).
+RETIRED_AT = {"held_tool_logit": "c59ae5f"}
 
 
 def _check_env(path, config: MappoConfig) -> None:
@@ -167,13 +166,17 @@ def load_config(path) -> MappoConfig:
     table = read_toml(path)
     values: dict = {"name": path.stem}
     where: dict = {}  # key -> the table it came from, for the messages
+    retired = [("shaping", "shaping")] if "shaping" in table else []
+    retired += [(section, key) for section, content in table.items() if section != "env" and isinstance(content, dict)
+                for key in content if key in RETIRED]
+    if retired:
+        section, key = retired[0]
+        # the oldest commit among those of the retired keys present reads them all
+        commit = (LAST_COMMIT_BEFORE_ENV_OPTIONS if any(name not in RETIRED_AT for _, name in retired)
+                  else RETIRED_AT[key])
+        raise ValueError(f"{path}: [{section}] {key}: retired by issue 37 ({RETIRED.get(key, RETIRED['shaping'])}); "
+                         f"a run recorded with it is reproducible from commit {commit} (baselines/README.md)")
     for section, content in table.items():
-        if section == "shaping" or (section != "env" and isinstance(content, dict)
-                                    and any(key in RETIRED for key in content)):
-            key = "shaping" if section == "shaping" else next(key for key in content if key in RETIRED)
-            raise ValueError(f"{path}: [{section}] {key}: retired by issue 37 ({RETIRED.get(key, RETIRED['shaping'])}); "
-                             f"a run recorded with it is reproducible from commit {LAST_COMMIT_BEFORE_ENV_OPTIONS} "
-                             "(baselines/README.md)")
         if section not in TABLE_KEYS or not isinstance(content, dict):
             raise ValueError(f"{path}: unknown table [{section}] (known: {', '.join(TABLE_KEYS)})")
         if section == "env":
@@ -195,9 +198,6 @@ def load_config(path) -> MappoConfig:
         raise ValueError(f"{path}: device must be \"cpu\", \"auto\" or \"cuda\" (\"cuda:N\"), got {config.device!r}")
     if config.critic_input != "state" and config.algorithm != "mappo":
         raise ValueError(f"{path}: critic_input is MAPPO's (IPPO's critics read each agent's own observation)")
-    if any(config.held_tool_logit.values()) and config.tool_head != "switch":
-        raise ValueError(f"{path}: held_tool_logit needs tool_head = \"switch\" (it leans the open/closed "
-                         f"decision), got tool_head = {config.tool_head!r}")
     start_levels.checked_schedule(config.levels, f"{path}: [curriculum] levels")
     return config
 

@@ -11,8 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["require_torch", "switch_gaussian", "bounds_loss", "held_flag_indices", "held_pin_prior", "build_models",
-           "export_actor", "limit_threads", "learner_device", "SWITCH_EXPORT_GAIN"]
+__all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "limit_threads", "learner_device", "SWITCH_EXPORT_GAIN"]
 
 #: Gain folded into an exported switch head's last layer: clip(gain x logit) is the sign of the logit, the
 #: distribution's most likely tool value, in the numpy policy format's plain layers.
@@ -109,41 +108,10 @@ def bounds_loss(loc, tool_head: str = "gaussian"):
 
 
 
-def held_flag_indices(obs_dim_or_layout) -> list[int]:
-    """Where a collaborative agent's observation says which pin is held (one flag per debris slot; at most one is
-    set, so their sum is 1 while the arm holds a pin and 0 otherwise): from the env's ``observation_layout``, or
-    from the length of a plain observation (10 + cavities + 6 x debris values)."""
-    if isinstance(obs_dim_or_layout, dict):
-        debris = obs_dim_or_layout["debris"]
-        return [debris.start + 6 * slot + 4 for slot in range((debris.stop - debris.start) // 6)]
-    from dvrl_marl import assets
-
-    cavities = len(assets.CAVITY_CENTRES)
-    slots = (int(obs_dim_or_layout) - 10 - cavities) // 6
-    return [7 + cavities + 6 * slot + 4 for slot in range(slots)]
-
-
-def held_pin_prior(config, agents) -> list[float]:
-    """Per agent, the fixed offset ``held_tool_logit`` adds to its tool logit while it holds a pin (0: none).
-
-    Why: with one leaning for the jaw in every state, a grasper from scratch either keeps it closed (the grasp rule
-    then takes a pin wherever the tip first passes within 3 mm of its axis, and where that happens is decided by the
-    whole approach path, many steps before; measured: a fifth to a quarter of such grasps took a pin by its end,
-    which can never be delivered) or leans it open (and drops every pin it carries). Leaning the jaw open while the
-    arm holds nothing and closed while it holds a pin makes the grasp a decision of one step, at the place where it
-    closes, which PPO credits directly (the scripted surgeon approaches open and closes over the pin's centre). The
-    prior is a function of the agent's own observation (its held flags), a fixed part of the actor that the
-    network's own logit can outweigh; the exported numpy policy computes it too (:func:`export_actor`)."""
-    return [float(config.held_tool_logit.get(agent, 0.0)) for agent in agents]
-
-
-
-def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, *, held_flags=None,
-                 feature_spec: dict | None = None):
+def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, *, feature_spec: dict | None = None):
     """The actors (one per agent), the critic (MAPPO: centralised; IPPO: per agent), the actors' network and the
     running normalisers. ``obs_dim``: the observation as the env gives it (with the env's ``observation_features``
-    appended when it has them; ``feature_spec`` records them for the exported policies); ``held_flags``: where the
-    observation says which pin is held (default: a plain observation of ``obs_dim``, see :func:`held_flag_indices`)."""
+    appended when it has them; ``feature_spec`` records them for the exported policies)."""
     torch = require_torch()
     from tensordict.nn import TensorDictModule
     from torch import nn
@@ -180,40 +148,22 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
         layers.append(nn.Linear(width, outputs))
         return nn.Sequential(*layers)
 
-    flags = list(held_flags) if held_flags is not None else held_flag_indices(obs_dim)
-
     class PerAgent(nn.Module):
         """One network per agent: input (..., A, d) -> output (..., A, k)."""
 
-        def __init__(self, inputs, outputs, norm, held_prior=None):
+        def __init__(self, inputs, outputs, norm):
             super().__init__()
             self.norm = norm
             self.feature_spec = feature_spec
             self.nets = nn.ModuleList(mlp(inputs, outputs) for _ in agents)
-            # the tool logit's fixed offset while a pin is held (held_pin_prior), per agent; None: no offset
-            self.held_prior = held_prior if held_prior is not None and any(held_prior) else None
-            self.held_flags = flags if self.held_prior is not None else []
-
-        def _leaning(self, raw, output, offset):
-            """``output`` with ``offset`` added to its last (tool) value where ``raw`` says a pin is held."""
-            holding = raw[..., self.held_flags].sum(-1, keepdim=True).to(output.dtype)
-            return torch.cat([output[..., :-1], output[..., -1:] + offset * holding], dim=-1)
 
         def agent_forward(self, x, index: int):
             """Agent ``index``'s output on its own observations ``(..., d)`` (behaviour cloning)."""
-            out = self.nets[index](self.norm(x))
-            if self.held_prior is not None and self.held_prior[index]:
-                out = self._leaning(x, out, self.held_prior[index])
-            return out
+            return self.nets[index](self.norm(x))
 
         def forward(self, x):
-            raw = x
             x = self.norm(x)
-            outputs = [net(x[..., i, :]) for i, net in enumerate(self.nets)]
-            if self.held_prior is not None:
-                outputs = [self._leaning(raw[..., i, :], out, offset) if offset else out
-                           for i, (out, offset) in enumerate(zip(outputs, self.held_prior))]
-            return torch.stack(outputs, dim=-2)
+            return torch.stack([net(x[..., i, :]) for i, net in enumerate(self.nets)], dim=-2)
 
     class CentralCritic(nn.Module):
         """MAPPO's critic: the global state in, one value per agent out (..., A, 1)."""
@@ -259,7 +209,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
             return loc, self.log_std.exp().expand_as(loc)
 
     obs_norm = RunningNorm((obs_dim,))
-    actor_net = PerAgent(obs_dim, action_dim, obs_norm, held_pin_prior(config, agents))
+    actor_net = PerAgent(obs_dim, action_dim, obs_norm)
     with torch.no_grad():  # small initial means: exploration starts from the standard deviation alone
         for agent, net in zip(agents, actor_net.nets):
             net[-1].weight.mul_(0.01)
@@ -312,9 +262,6 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
         layers.append([weight, bias])
-    held_prior = getattr(actor_net, "held_prior", None)
-    if held_prior is not None and held_prior[index]:
-        _fold_held_prior(layers, actor_net.held_flags, held_prior[index])
     if tool_head == "switch":  # clip(gain x logit) = sign(logit): the plain format's layers suffice
         layers[-1][0][-1] *= SWITCH_EXPORT_GAIN
         layers[-1][1][-1] *= SWITCH_EXPORT_GAIN
@@ -330,37 +277,6 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
     return write_policy(directory, layers, name=name, env_id=env_id, algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
-
-
-
-#: Gain of the exported policy's "holding" unit: tanh(gain x (flags - 1/2)) is +-1 to float precision.
-_HELD_UNIT_GAIN = 40.0
-
-
-
-def _fold_held_prior(layers: list, held_flags: list[int], offset: float) -> None:
-    """Widen every hidden layer of ``layers`` ([weight, bias] pairs, float64, normalisation folded) by one unit that
-    carries whether a pin is held (+1) or not (-1) to the last layer, which adds ``offset`` x holding to the tool
-    logit: :func:`held_pin_prior` in the plain numpy format (tanh layers), exact to float precision."""
-    first_weight, first_bias = layers[0]
-    if len(layers) == 1:  # no hidden layer: the flags reach the logit directly
-        first_weight[-1, held_flags] += offset
-        return
-    row = np.zeros((1, first_weight.shape[1]))
-    row[0, held_flags] = _HELD_UNIT_GAIN  # the flags sum to 1 while holding, 0 otherwise
-    layers[0] = [np.vstack([first_weight, row]), np.append(first_bias, -0.5 * _HELD_UNIT_GAIN)]
-    for position in range(1, len(layers)):
-        weight, bias = layers[position]
-        column = np.zeros((weight.shape[0], 1))
-        if position == len(layers) - 1:  # logit + offset x (u + 1) / 2, u = +-1
-            column[-1, 0] = 0.5 * offset
-            bias = bias.copy()
-            bias[-1] += 0.5 * offset
-            layers[position] = [np.hstack([weight, column]), bias]
-        else:  # pass the unit on: tanh(gain x (+-1)) = +-1
-            row = np.zeros((1, weight.shape[1] + 1))
-            row[0, -1] = _HELD_UNIT_GAIN
-            layers[position] = [np.vstack([np.hstack([weight, column]), row]), np.append(bias, 0.0)]
 
 
 
