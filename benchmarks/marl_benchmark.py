@@ -67,9 +67,9 @@ def _task_options(level: str) -> dict:
                            f"suction_debris_{level}.yaml").read_text())
 
 
-#: Task-file options that change the scene itself (not the reward or the observation): a record's scene is its
-#: version with these, and cells of different scenes are never pooled.
-SCENE_OPTIONS = ("tool_speed", "jaw_command", "hold_until_handoff")
+#: Task-file options that change the scene itself (and ``state_observations``, what MAPPO's critic reads): a
+#: record's scene is its version with these, and cells of different scenes are never pooled.
+SCENE_OPTIONS = ("tool_speed", "jaw_command", "hold_until_handoff", "state_observations")
 
 
 def _scene_option(key: str, value) -> str:

@@ -32,7 +32,8 @@ from pathlib import Path
 #: with a Gaussian, which an instant tool reads as a threshold and a held pin's jaw as a chance to drop it:
 #: dvrl_marl.core.tools).
 GUIDED = {"task": "suction_debris_v5", "reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom",
-          "contact_penalty": 0.1, "tool_speed": 0.1, "jaw_command": "switch", "hold_until_handoff": True}
+          "contact_penalty": 0.1, "tool_speed": 0.1, "jaw_command": "switch", "hold_until_handoff": True,
+          "state_observations": True}  # (the state for a centralised critic; RLlib's PPO here reads observations)
 
 
 def env_options(*, guided: bool = False, level: str = "default", max_cycles: int = 1500) -> dict:

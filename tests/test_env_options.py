@@ -278,3 +278,48 @@ def test_easy_episodes_can_take_the_tasks_time_limit():
     for bad in (-1, 1.5, "300"):
         with pytest.raises(ValueError, match="easy_episode_steps"):
             suction_debris_v0.parallel_env(easy_episode_steps=bad)
+
+
+def test_state_observations_append_every_arms_observation_single_and_batched():
+    """state_observations: the state, then the suction's and the grasper's observations (features included), named
+    by state_layout; the batched worlds' states (and final states) are the single envs' bit for bit; off by default."""
+    kwargs = dict(task="suction_debris_v5", state_observations=True, **OPTIONS)
+    plain = suction_debris_v0.parallel_env(task="suction_debris_v5", **OPTIONS)
+    batched = suction_debris_v0.batched_env(num_envs=2, max_cycles=60, **kwargs)
+    singles = [suction_debris_v0.parallel_env(max_cycles=60, **kwargs) for _ in range(2)]
+    batched.reset(seed=4)
+    observations = [single.reset(seed=4 + index)[0] for index, single in enumerate(singles)]
+    layout = singles[0].state_layout
+    assert batched.state_space.shape[0] == plain.state_space.shape[0] + 2 * plain.observation_space("suction").shape[0]
+    rng = np.random.default_rng(3)
+    finals = 0
+    for _ in range(130):
+        actions = {agent: rng.uniform(-1, 1, (2, 4)) for agent in batched.agents}
+        _, _, terminations, truncations, infos = batched.step(actions)
+        for index, single in enumerate(singles):
+            obs, *_ = single.step({agent: actions[agent][index] for agent in single.agents})
+            state = single.state()
+            assert single.state_space.contains(state)
+            for agent in single.agents:
+                assert np.array_equal(state[layout[f"{agent}_observation"]], obs[agent])
+            if not single.agents:  # ended: the batched env reports this final state and starts the next episode
+                finals += 1
+                assert np.array_equal(infos["suction"]["final_state"][index], state)
+                single.reset()
+            assert np.array_equal(batched.state()[index], single.state())
+    assert finals >= 2
+    assert plain.state_observations is False and "suction_observation" not in plain.state_layout
+    with pytest.raises(ValueError, match="state_observations"):
+        suction_debris_v0.parallel_env(state_observations="yes")
+
+
+def test_torchrl_state_carries_both_observations():
+    pytest.importorskip("torchrl")
+    from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+    env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, state_observations=True, **OPTIONS)
+    td = env.reset()
+    width = td["agents", "observation"].shape[-1]
+    assert td["state"].shape[-1] == env.batched.template.state_space.shape[0]
+    np.testing.assert_allclose(td["state"][:, -2 * width:].reshape(2, 2, width).numpy(),
+                               td["agents", "observation"].numpy(), rtol=0, atol=1e-6)

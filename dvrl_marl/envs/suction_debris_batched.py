@@ -296,7 +296,7 @@ class SuctionDebrisBatchedEnv:
         infos = {agent: dict(info) for agent in self.agents}
         done = terminated | truncated
         if self.autoreset_mode == "same_step" and done.any():
-            final_state = core.state()
+            final_state = self.state()
             for agent in self.agents:
                 infos[agent].update(final_observation=observations[agent], final_state=final_state, _final=done)
             self._start_episodes(np.flatnonzero(done))
@@ -314,8 +314,14 @@ class SuctionDebrisBatchedEnv:
 
 
     def state(self) -> np.ndarray:
-        """(N, state_dim): the global state of every world, for centralised critics."""
-        return self.core.state()
+        """(N, state_dim): the global state of every world, for centralised critics (with ``state_observations``,
+        every arm's observation after it, as the single env's)."""
+        if not self.template.state_observations:
+            return self.core.state()
+        observations = [self.core.observation(agent) for agent in AGENTS]
+        if self.feature_spec is not None:
+            observations = [features.apply(self.feature_spec, observation) for observation in observations]
+        return np.concatenate([self.core.state(), *observations], axis=1)
 
     def render(self, world: int | None = None):
         """World ``world`` (default :attr:`render_world`) from the endoscope, through the single env's scene."""

@@ -65,7 +65,10 @@ x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris.toml``
 
 ``state()`` / ``state_space`` give the global state for centralised critics: both tips, jaw, valve, blood
 fractions, every debris with its true position (hidden ones included) and flags, the hand-off point.
-``observation_layout`` and ``state_layout`` name the slices.
+``observation_layout`` and ``state_layout`` name the slices. With ``state_observations=True`` (an option, off by
+default) every arm's observation, its features included, follows (``state_layout["suction_observation"]``,
+``["grasper_observation"]``): a critic per arm then reads what its actor reads beside the state (the agent-specific
+global state of Yu et al. 2022), as this project's trainer's MAPPO critic does.
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
@@ -109,7 +112,8 @@ Options that help learning (issue 37; off by default): ``reward_type="guided"`` 
 agent's observation gets those features appended (relative targets computed from the observation alone: the pin
 to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
 ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
-``jaw_command`` and ``hold_until_handoff`` (above): a grasp a Gaussian policy decides once and cannot undo by noise.
+``jaw_command`` and ``hold_until_handoff`` (above): a grasp a Gaussian policy decides once and cannot undo by noise;
+``state_observations`` (above): both arms' observations in the state, for a library's centralised critics.
 
 ## Batched form
 ``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
@@ -122,7 +126,7 @@ rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s``
   to start for a person's device (frames and timing only: trajectories are unchanged).
   Options added without a version change, their defaults the published behaviour (issue 37):
   ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option;
-  ``tool_speed``; ``jaw_command`` and ``hold_until_handoff``.
+  ``tool_speed``; ``jaw_command``, ``hold_until_handoff`` and ``state_observations``.
 """
 
 from __future__ import annotations
@@ -367,6 +371,7 @@ class SuctionDebrisEnv(ParallelEnv):
         observation_features: str = "",
         start_level: float | str = 1.0,
         easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
+        state_observations: bool = False,
         **params,
     ):
         #: The environment's name (its version), as its messages say it.
@@ -442,6 +447,16 @@ class SuctionDebrisEnv(ParallelEnv):
         self._action_spaces = {a: self._action_space for a in AGENTS}
         self.state_space = spaces.Box(-_OBS_POSITION_BOUND, _OBS_POSITION_BOUND, shape=(11 + n_cav + 6 * p.debris_count,),
                                       dtype=np.float64)
+        from dvrl_marl.schemas import Flag, validated
+
+        #: ``state()`` followed by every arm's observation, features included (the option; see the module's docs)
+        self.state_observations = validated(Flag, state_observations, f"{self.name}: state_observations")
+        if self.state_observations:
+            width, plain = self._observation_space.shape[0], self.state_space.shape[0]
+            for index, agent in enumerate(AGENTS):
+                self.state_layout[f"{agent}_observation"] = slice(plain + index * width, plain + (index + 1) * width)
+            low = np.concatenate([self.state_space.low, *([self._observation_space.low] * len(AGENTS))])
+            self.state_space = spaces.Box(low, -low, dtype=np.float64)
         # Seats and agents (a scripted surgeon reads the layout above).
         self.surgeon_seat = surgeon_seat if surgeon is not None else None
         self._surgeon, self._surgeon_is_device = self._bind_surgeon(surgeon, surgeon_seat)
@@ -619,7 +634,8 @@ class SuctionDebrisEnv(ParallelEnv):
         self._episodes += 1
         self._work_distances = {agent: self._work_distance(agent) for agent in AGENTS}
         if self._guided is not None:
-            self._potential = self._guided.potentials(self.state()[None], np.asarray(self.blood.remaining_ml)[None])
+            self._potential = self._guided.potentials(self._plain_state()[None],
+                                                      np.asarray(self.blood.remaining_ml)[None])
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
         if self._display is not None:
@@ -667,7 +683,7 @@ class SuctionDebrisEnv(ParallelEnv):
         truncated = self._step_count >= self._limit and not complete
         rewards = self._rewards(removed, lifted, delivered, complete, contact)
         if self._guided is not None:  # the guided terms' change over the step (potential-based)
-            potential = self._guided.potentials(self.state()[None], np.asarray(self.blood.remaining_ml)[None])
+            potential = self._guided.potentials(self._plain_state()[None], np.asarray(self.blood.remaining_ml)[None])
             for agent in rewards:
                 rewards[agent] += float(potential[agent][0] - self._potential[agent][0])
             self._potential = potential
@@ -706,7 +722,13 @@ class SuctionDebrisEnv(ParallelEnv):
         return self._display.stats() if self._display is not None else None
 
     def state(self) -> np.ndarray:
-        """The global state: tips, jaw, valve, blood, every debris (hidden included), hand-off point."""
+        """The global state: tips, jaw, valve, blood, every debris (hidden included), hand-off point; with
+        ``state_observations``, every arm's observation after it."""
+        if self.state_observations:
+            return np.concatenate([self._plain_state(), *(self._observe(agent) for agent in AGENTS)])
+        return self._plain_state()
+
+    def _plain_state(self) -> np.ndarray:
         values = [*self._norm(*self.arms["suction"].tip_world()), 2.0 * self.valve_opening - 1.0,
                   *self._norm(*self.arms["grasper"].tip_world()), 2.0 * self.arms["grasper"].jaw - 1.0]
         values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
