@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2, suction_debris_v3, suction_debris_v4, \
-    suction_debris_v5
+    suction_debris_v5, suction_debris_v6
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -282,6 +282,14 @@ def test_batched_v5_equals_single_env_while_descents_climb():
     assert_batched_collaborative_matches(3, seed=27, steps=1000, action_seed=11, max_cycles=250,
                                          module=suction_debris_v5,
                                          pull={"suction": [0.8, 0.0, -0.6], "grasper": [-0.8, 0.0, -0.6]})
+
+
+def test_batched_v6_equals_single_env_while_descents_climb_ahead():
+    # Commands pulled toward the other arm's side and down, about along the bowls' normals near the rims: v6's
+    # climbs counted along the move (and v5's, v3's slides), world by world.
+    assert_batched_collaborative_matches(3, seed=28, steps=1000, action_seed=12, max_cycles=250,
+                                         module=suction_debris_v6,
+                                         pull={"suction": [0.67, 0.0, -0.82], "grasper": [-0.67, 0.0, -0.82]})
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -168,8 +168,9 @@ class CollaborativeCore:
         self.num_worlds = n = int(num_worlds)
         p = self.params = template.params
         self.sparse = template.reward_type == "sparse"
-        self.slide = p.blocked_moves in ("slide", "climb")  # v3: blocked moves slide (core.sliding)
-        self.climb = p.blocked_moves == "climb"  # v5: and a descent that makes no headway is given up
+        self.slide = p.blocked_moves in ("slide", "climb", "climb_ahead")  # v3: blocked moves slide (core.sliding)
+        self.climb = p.blocked_moves in ("climb", "climb_ahead")  # v5: and a descent that makes no headway is given up
+        self.ahead = p.blocked_moves == "climb_ahead"  # v6: headway counted along the move
         self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
@@ -374,7 +375,7 @@ class CollaborativeCore:
         old = arm.tip_world()
         p = self.params
         target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old, delta,
-                                        slide_on_walls=self.slide, climb=self.climb)
+                                        slide_on_walls=self.slide, climb=self.climb, ahead=self.ahead)
         previous_tip, previous_q = arm.tip, arm.q
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
@@ -397,7 +398,7 @@ class CollaborativeCore:
             {"tool": arm.tool, "base": arm.base_position, "tip": old[rows]},
             {"tool": other.tool, "base": other.base_position, "tip": other.tip_world()[rows]},
             agent == "suction", delta[rows], self.cavities, p.tip_clearance, p.step_size, self.low, self.high,
-            climb=self.climb)
+            climb=self.climb, ahead=self.ahead)
         chosen = rows[made]
         arm.tip[chosen], arm.q[chosen] = tip[made] - arm.base_position, q[made]
         refused[chosen], clearance[chosen] = False, gap[made]

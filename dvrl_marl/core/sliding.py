@@ -30,6 +30,12 @@ no headway under the frictionless rule (measured, issue 37: the commonest end of
 by their mean action on v4, for both arms, heading for the other cavity); with it the tip rides up the wall the way
 it was heading and over the rim. A move that makes headway is unchanged.
 
+``suction_debris_v6`` (``blocked_moves = "climb_ahead"``, ``ahead``) counts a descent's headway, for a move with a level
+part, as what its made part advances the way that level part heads: pressed almost along the wall's normal, v5's tip climbed one step and then slipped back down
+the bowl on the rest of the move (made, though away from where it heads), a cycle in place (measured, issue 37: the
+commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
+climbing the way it heads.
+
 Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for
 N (the single env calls these functions on one row).
 """
@@ -69,16 +75,24 @@ def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 
 def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray, high: np.ndarray,
-                   old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True, climb: bool = False) -> np.ndarray:
+                   old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True, climb: bool = False,
+                   ahead: bool = False) -> np.ndarray:
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
     the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
     slid along it (:func:`wall_slide`; v3), then, if the move still enters the wall, only its vertical part (all that
     v0-v2 make of it: ``slide_on_walls=False``). ``climb`` (v5): a descending move of which these rules make less
-    than :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead)."""
+    than :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead).
+    ``ahead`` (v6): for a move with a level part (at least :data:`NO_HEADWAY` of it), the headway is what the made
+    part advances the way the move heads, level (a slide back down the wall, away from where it heads, is none)."""
     target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
     if climb:
         length = np.sqrt((delta * delta).sum(axis=1))
         made = np.sqrt(((target - old) ** 2).sum(axis=1))
+        if ahead:  # a move with a level part: the made part's advance the way it heads
+            level = delta * np.array([1.0, 1.0, 0.0])
+            level_length = np.sqrt((level * level).sum(axis=1))
+            advance = ((target - old) * level).sum(axis=1) / np.maximum(level_length, 1e-300)
+            made = np.where(level_length >= NO_HEADWAY * length, advance, made)
         stalled = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length)
         if stalled.any():
             level = delta * np.array([1.0, 1.0, 0.0])
@@ -140,11 +154,12 @@ def _clamped_to_joint_limits(tool, base, target: np.ndarray) -> np.ndarray:
 
 
 def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray, cavities, tip_clearance: float,
-                    step: float, low: np.ndarray, high: np.ndarray, climb: bool = False):
+                    step: float, low: np.ndarray, high: np.ndarray, climb: bool = False, ahead: bool = False):
     """The slide of M blocked moves: ``arm`` and ``other`` ``{"tool", "base" (3,), "tip" (M, 3)}`` (world, before
     the move; the other instrument's shaft follows from its tip, as the joints do), ``delta`` (M, 3) the commanded
     move. Returns ``(made (M,), tip (M, 3) world, q (M, n), clearance (M,))`` for the first candidate of each row
-    that can be made (rows not made: unchanged, clearance NaN). ``climb``: :func:`surface_target`'s (v5)."""
+    that can be made (rows not made: unchanged, clearance NaN). ``climb``, ``ahead``: :func:`surface_target`'s (v5,
+    v6)."""
     tool, base, start = arm["tool"], np.asarray(arm["base"]), arm["tip"]
 
     def segment(tool, base, tip):
@@ -168,7 +183,7 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
         live = ~made & np.any(move != 0.0, axis=1)
         if not live.any():
             continue
-        target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb)
+        target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb, ahead=ahead)
         own, joints, reachable = segment(tool, base, target)
         if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
             live &= ~reachable

@@ -1,0 +1,100 @@
+"""suction_debris_v6: a descent's headway is what it advances the way it heads, so a tip pressed out of a cavity almost
+along the wall's normal keeps climbing (v5's tip cycled in place); v5 stays as it was."""
+
+import numpy as np
+import pettingzoo
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pettingzoo.test import api_test, parallel_api_test
+
+import dvrl_marl  # noqa: F401  (registration)
+from dvrl_marl.core import sliding
+from dvrl_marl.core.collaborative import Cavities
+from dvrl_marl.envs import suction_debris_v5, suction_debris_v6
+
+# The suction on the wall of the left cavity near its rim (as tests/test_suction_debris_v5.py's), heading for the
+# other cavity and down, almost along the wall's normal: the command a learnt BenchMARL suction sent there, by its
+# mean action, for the rest of its failed test episodes on v5.
+ON_THE_WALL = [-0.121, -0.12]
+ALONG_THE_NORMAL = np.array([0.67, -0.03, -0.82, -1.0])
+
+
+def test_pettingzoo_api_and_registration():
+    parallel_api_test(suction_debris_v6.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(suction_debris_v6.env(max_cycles=100), num_cycles=200)
+    env = suction_debris_v6.parallel_env()
+    assert env.metadata["name"] == "suction_debris_v6"
+    assert env.params.blocked_moves == "climb_ahead" and env.params.held_pin_at_grip  # v4's change kept
+    assert suction_debris_v5.parallel_env().params.blocked_moves == "climb"  # v5 stays as it was
+    if hasattr(pettingzoo, "make"):
+        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v6").params.blocked_moves == "climb_ahead"
+
+
+def _on_the_wall(module):
+    """No blood, one hidden pin left (the episode goes on), the suction on the left cavity's wall near its rim."""
+    env = module.parallel_env(blood_ml=[0.0, 0.0])
+    env.reset(seed=0)
+    count = len(env.debris)
+    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*ON_THE_WALL, 0.0])
+    suction = [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
+    grasper = env.workspace_centre + env.workspace_range * np.array([0.6, 0.0, 0.2])
+    env.set_state(tips={"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)},
+                  jaw=1.0, valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
+                  debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
+    return env
+
+
+def _path(env, command, steps):
+    path = [np.array(env.arms["suction"].tip_world())]
+    for _ in range(steps):
+        env.step({"suction": command, "grasper": np.zeros(4)})
+        path.append(np.array(env.arms["suction"].tip_world()))
+    return np.array(path)
+
+
+def test_a_tip_pressed_along_the_walls_normal_climbs_out_in_v6_and_cycles_in_place_in_v5():
+    stuck = _on_the_wall(suction_debris_v5)
+    cycling = _path(stuck, ALONG_THE_NORMAL, 60)
+    top = stuck.phantom.top_z + stuck.params.tip_clearance
+    assert np.abs(cycling[:, 0] - cycling[0, 0]).max() < 0.002  # v5: within 2 mm of where it began, the way it heads
+    assert cycling[:, 2].max() < top - 0.001  # never onto the top
+    assert np.abs(np.diff(cycling[:, 2])).max() > 0.0005  # ... though it moves: up a step, then back down
+    env = _on_the_wall(suction_debris_v6)
+    path = _path(env, ALONG_THE_NORMAL, 60)
+    top = env.phantom.top_z + env.params.tip_clearance
+    assert path[:, 2].max() >= top - 1e-9  # up the wall onto the phantom's top
+    assert np.all(np.diff(path[:12, 0]) > 0.0)  # climbing all the way, the way it heads (+x): no slip back
+    assert env.normalise(path[-1])[0] > 0.0 and 1000 * np.linalg.norm(path[-1] - path[0]) > 30.0
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(where=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.0, 0.2)),
+       command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
+def test_ahead_changes_only_descents_that_advance_too_little_and_keeps_tips_above_the_surface(where, command):
+    env = suction_debris_v6.parallel_env()
+    cavities, p = Cavities(env.phantom), env.params
+    x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
+    old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance
+                     + lift * env.workspace_range]])
+    delta = p.step_size * np.array([command])
+    low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    plain = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta)
+    ahead = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True, ahead=True)
+    length = np.linalg.norm(delta)
+    level = delta * np.array([1.0, 1.0, 0.0])
+    heading = np.linalg.norm(level) >= sliding.NO_HEADWAY * length  # a move with a level part: its advance that way
+    advance = (float(((plain - old) * level).sum()) / np.linalg.norm(level) if heading
+               else float(np.linalg.norm(plain - old)))
+    if command[2] >= 0.0 or advance >= sliding.NO_HEADWAY * length:
+        np.testing.assert_array_equal(ahead, plain)
+    else:  # the level part, by the same rules
+        level = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old,
+                                       delta * np.array([1.0, 1.0, 0.0]))
+        np.testing.assert_array_equal(ahead, level)
+    assert np.all(ahead >= low - 1e-12) and np.all(ahead <= high + 1e-12)
+    ground = cavities.surface_height(ahead[:, 0], ahead[:, 1]) + p.tip_clearance
+    assert ahead[0, 2] >= ground[0] - 1e-9
+
+
+# The scripted team plays v5 step for step on v6: tests/test_suction_debris_v3.py (the earlier version's episodes);
+# single == batched on v6: tests/test_batched.py.
