@@ -59,9 +59,10 @@ def team_of(run: Path):
         options = json.loads((run / "env_options.json").read_text())
     else:
         from dvrl_marl import policies
-        from dvrl_marl.training import mappo
+        from dvrl_marl.files import read_toml
 
-        options = mappo.load_config(run / "config.toml").env
+        # the run's [env] table alone: a run recorded with a trainer key retired since still names its scene
+        options = dict(read_toml(run / "config.toml").get("env", {}))
         team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v0.AGENTS}
 
         def act(observations):
