@@ -85,15 +85,27 @@ def test_ahead_changes_only_descents_that_advance_too_little_and_keeps_tips_abov
     heading = np.linalg.norm(level) >= sliding.NO_HEADWAY * length  # a move with a level part: its advance that way
     advance = (float(((plain - old) * level).sum()) / np.linalg.norm(level) if heading
                else float(np.linalg.norm(plain - old)))
-    if command[2] >= 0.0 or advance >= sliding.NO_HEADWAY * length:
+    climbed = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, level)
+    further = (not heading) or float(((climbed - old) * level).sum()) / np.linalg.norm(level) > advance
+    if command[2] >= 0.0 or advance >= sliding.NO_HEADWAY * length or not further:
         np.testing.assert_array_equal(ahead, plain)
     else:  # the level part, by the same rules
-        level = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old,
-                                       delta * np.array([1.0, 1.0, 0.0]))
-        np.testing.assert_array_equal(ahead, level)
+        np.testing.assert_array_equal(ahead, climbed)
     assert np.all(ahead >= low - 1e-12) and np.all(ahead <= high + 1e-12)
     ground = cavities.surface_height(ahead[:, 0], ahead[:, 1]) + p.tip_clearance
     assert ahead[0, 2] >= ground[0] - 1e-9
+
+
+def test_a_descent_pressed_into_the_boxs_face_is_made_as_in_v5():
+    """Out through the workspace's face and down (a carry pressed toward the assistant): the face stops the level part,
+    so the descent is made, as in v5 (giving it up would leave the tip where it was)."""
+    env = suction_debris_v6.parallel_env()
+    cavities, p = Cavities(env.phantom), env.params
+    low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    old = np.array([[high[0], env.workspace_centre[1], env.workspace_centre[2]]])
+    delta = p.step_size * np.array([[0.6, 0.0, -0.43]])
+    ahead = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True, ahead=True)
+    np.testing.assert_allclose(ahead - old, [[0.0, 0.0, -0.43 * p.step_size]], atol=1e-15)
 
 
 # The scripted team plays v5 step for step on v6: tests/test_suction_debris_v3.py (the earlier version's episodes);

@@ -83,22 +83,27 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
     v0-v2 make of it: ``slide_on_walls=False``). ``climb`` (v5): a descending move of which these rules make less
     than :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead).
     ``ahead`` (v6): for a move with a level part (at least :data:`NO_HEADWAY` of it), the headway is what the made
-    part advances the way the move heads, level (a slide back down the wall, away from where it heads, is none)."""
+    part advances the way the move heads, level (a slide back down the wall, away from where it heads, is none), and
+    the level part replaces the move only where it advances further that way (a descent pressed into the box's face
+    is made as in v5)."""
     target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
     if climb:
         length = np.sqrt((delta * delta).sum(axis=1))
         made = np.sqrt(((target - old) ** 2).sum(axis=1))
+        level = delta * np.array([1.0, 1.0, 0.0])
+        heading = np.zeros(len(delta), dtype=bool)
         if ahead:  # a move with a level part: the made part's advance the way it heads
-            level = delta * np.array([1.0, 1.0, 0.0])
             level_length = np.sqrt((level * level).sum(axis=1))
+            heading = level_length >= NO_HEADWAY * length
             advance = ((target - old) * level).sum(axis=1) / np.maximum(level_length, 1e-300)
-            made = np.where(level_length >= NO_HEADWAY * length, advance, made)
+            made = np.where(heading, advance, made)
         stalled = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length)
         if stalled.any():
-            level = delta * np.array([1.0, 1.0, 0.0])
-            target = np.where(stalled[:, None],
-                              _surface_target(cavities, tip_clearance, step, low, high, old, level, slide_on_walls),
-                              target)
+            climbed = _surface_target(cavities, tip_clearance, step, low, high, old, level, slide_on_walls)
+            if ahead:  # only where the level part gets further that way (not into the box's face, say)
+                further = ((climbed - old) * level).sum(axis=1) / np.maximum(level_length, 1e-300) > made
+                stalled &= ~heading | further
+            target = np.where(stalled[:, None], climbed, target)
     return target
 
 
