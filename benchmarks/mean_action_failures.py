@@ -11,12 +11,15 @@ which cavities kept blood above the clearing mark. Counted by class, with an exa
 
 A run of this project's trainer (its env options: its ``config.toml``'s ``[env]``, its policies: ``policies/``) or a
 BenchMARL run of ``marl_benchmark.py`` (``env_options.json`` and the final ``policy.pt`` it saves; needs BenchMARL's
-environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on).
+environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on). ``--option KEY=VALUE`` plays the
+policies on a changed scene (an env keyword argument over the run's own, the value read as JSON where it parses,
+else as text), e.g. ``--option task=suction_debris_v6``: what a scene's change does to a learnt team, untrained.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from collections import Counter
 from pathlib import Path
 
@@ -70,11 +73,12 @@ def team_of(run: Path):
     return {k: v for k, v in options.items() if k != "reward_type"}, act
 
 
-def classify(run: Path, episodes: int, window: int) -> tuple[float, Counter, dict]:
+def classify(run: Path, episodes: int, window: int, changes: dict | None = None) -> tuple[float, Counter, dict]:
     from dvrl_marl.envs import suction_debris_v0
     from dvrl_marl.training import teams
 
     options, act = team_of(run)
+    options = {**options, **(changes or {})}
     env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **options)
     observations, _ = env.reset(seed=teams.EVAL_SEED)
     layout = env.observation_layout
@@ -126,15 +130,30 @@ def main(argv=None) -> int:
     parser.add_argument("runs", nargs="+", type=Path, help="run folders (this project's trainer's, BenchMARL's)")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                        help="an env keyword argument over the run's own (repeatable), e.g. task=suction_debris_v6")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.window < 2:
         parser.error("--episodes must be >= 1 and --window >= 2")
+    changes = {}
+    for option in args.option:
+        key, sep, value = option.partition("=")
+        if not sep or not key:
+            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. task=suction_debris_v6")
+        try:
+            changes[key] = json.loads(value)
+        except json.JSONDecodeError:
+            changes[key] = value
     for run in args.runs:
         if not is_benchmarl_run(run) and not ((run / "config.toml").is_file() and (run / "policies").is_dir()):
             parser.error(f"{run}: neither a run folder of this project's trainer (config.toml, policies/) nor a "
                          f"BenchMARL run of marl_benchmark.py (policy.pt, env_options.json)")
-        success, classes, examples = classify(run, args.episodes, args.window)
-        print(f"{run.name}: success by the mean action {success:.2f}; {sum(classes.values())} failed")
+        try:
+            success, classes, examples = classify(run, args.episodes, args.window, changes)
+        except (TypeError, ValueError) as error:  # an option the scene refuses, named
+            parser.error(f"{run}: {error}")
+        on = f" on {changes}" if changes else ""
+        print(f"{run.name}{on}: success by the mean action {success:.2f}; {sum(classes.values())} failed")
         for key, count in classes.most_common():
             world, tip, command = examples[key]
             print(f"  {count:3d}  {key}   (e.g. episode {world}: tips {tip}, last commands {command})")

@@ -157,6 +157,11 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     success, classes, examples = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10)
     assert 0.0 <= success <= 1.0 and sum(classes.values()) == round(3 * (1.0 - success))
     assert set(examples) == set(classes)
+    # ... and played on a changed scene (--option): the same policies, another version
+    again, changed, _ = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10, {"task": "suction_debris_v5"})
+    assert 0.0 <= again <= 1.0 and sum(changed.values()) == round(3 * (1.0 - again))
+    with pytest.raises(SystemExit):
+        failures.main([str(tmp_path / "runs" / records[0].stem), "--episodes", "2", "--option", "tool_speed=fast"])
 
 
 def test_a_cells_interval_does_not_depend_on_the_other_cells():
