@@ -8,7 +8,8 @@ threshold drops the held pin; with a finite speed the noise averages out over a 
 and ``--hold-until-handoff`` run the scene's other tool options (a jaw set by the command's sign; a held pin kept
 until the hand-off).
 
-    python benchmarks/tool_noise.py [--worlds 64] [--task suction_debris_v3] [--jaw-command switch] [--hold-until-handoff]
+    python benchmarks/tool_noise.py [--worlds 64] [--task suction_debris_v3]
+    python benchmarks/tool_noise.py --task suction_debris_v5 --jaw-command switch --hold-until-handoff
 """
 
 from __future__ import annotations

@@ -9,7 +9,8 @@
 
 ``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v6``,
 ``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
-tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), ``--level`` its start level (``easy`` ... ``default``,
+tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), ``--level``
+its start level (``easy`` ... ``default``,
 ``dvrl_marl.envs.start_levels``); the trained team is then tested on ``--test-episodes`` held-out episodes at that
 level.
 

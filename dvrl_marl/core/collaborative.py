@@ -170,7 +170,7 @@ class CollaborativeCore:
         self.sparse = template.reward_type == "sparse"
         self.slide = p.blocked_moves in ("slide", "climb", "climb_ahead")  # v3: blocked moves slide (core.sliding)
         self.climb = p.blocked_moves in ("climb", "climb_ahead")  # v5: and a descent that makes no headway is given up
-        self.ahead = p.blocked_moves == "climb_ahead"  # v6: headway counted along the move
+        self.ahead = p.blocked_moves == "climb_ahead"  # v6: headway counted the way the move heads
         self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)

@@ -30,10 +30,11 @@ no headway under the frictionless rule (measured, issue 37: the commonest end of
 by their mean action on v4, for both arms, heading for the other cavity); with it the tip rides up the wall the way
 it was heading and over the rim. A move that makes headway is unchanged.
 
-``suction_debris_v6`` (``blocked_moves = "climb_ahead"``, ``ahead``) counts a descent's headway, for a move with a level
-part, as what its made part advances the way that level part heads: pressed almost along the wall's normal, v5's tip climbed one step and then slipped back down
-the bowl on the rest of the move (made, though away from where it heads), a cycle in place (measured, issue 37: the
-commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
+``suction_debris_v6`` (``blocked_moves = "climb_ahead"``, ``ahead``) counts a descent's headway, for a move with a
+level part, as what its made part advances the way that level part heads, and gives the descent up only where the
+level part gets further that way. Pressed almost along the wall's normal, v5's tip climbed one step and then slipped
+back down the bowl on the rest of the move (made, though away from where it heads), a cycle in place (measured, issue
+37: the commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
 climbing the way it heads.
 
 Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for

@@ -141,7 +141,8 @@ RETIRED = {
     **dict.fromkeys(("grasp_path_shaping", "hold_bonus", "wait_at_home", "cleared_pins_only", "centred_grasps",
                      "off_centre_grasps", "suction_route_shaping", "clear_bonus", "route_to_park", "shaping_over_rims"),
                     _TO_GUIDANCE),
-    "held_tool_logit": "now the env's option: [env] hold_until_handoff = true, a held pin's jaw shut until the hand-off",
+    "held_tool_logit": "now the env's option: [env] hold_until_handoff = true, a held pin's jaw shut until the "
+                       "hand-off",
 }
 #: Keys retired later, and the last commit whose trainer read each (the others: LAST_COMMIT_BEFORE_ENV_OPTIONS).
 RETIRED_AT = {"held_tool_logit": "c59ae5f"}

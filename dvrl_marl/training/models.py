@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "limit_threads", "learner_device", "SWITCH_EXPORT_GAIN"]
+__all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "limit_threads",
+           "learner_device", "SWITCH_EXPORT_GAIN"]
 
 #: Gain folded into an exported switch head's last layer: clip(gain x logit) is the sign of the logit, the
 #: distribution's most likely tool value, in the numpy policy format's plain layers.
