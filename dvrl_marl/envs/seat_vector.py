@@ -101,7 +101,9 @@ class SeatVectorEnv(gym.vector.VectorEnv):
         return self.batched.render()
 
     def close_extras(self, **kwargs):
-        self.batched.close()
+        batched = getattr(self, "batched", None)  # None when the constructor refused its arguments
+        if batched is not None:
+            batched.close()
 
 
 def _batched_partner(partner):
