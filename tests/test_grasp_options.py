@@ -14,7 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v5
+from dvrl_marl.envs import suction_debris_v5
+from test_batched import assert_batched_collaborative_matches
 
 ROOT = Path(__file__).resolve().parents[1]
 GRASP = dict(jaw_command="switch", hold_until_handoff=True)
@@ -119,29 +120,12 @@ def test_bad_grasp_options_are_refused_by_name(key, value):
 
 
 def test_single_and_batched_agree_with_the_grasp_options():
-    """Random commands and easy / default starts, a slow tool, the guided reward and features: bit for bit."""
-    kwargs = dict(task="suction_debris_v5", tool_speed=0.2, reward_type="guided",
-                  observation_features="suction_debris_cleared_pins_zoom", **GRASP)
-    batched = suction_debris_v0.batched_env(num_envs=3, **kwargs)
-    batched.reset(seed=7, options={"level": [0.0, 0.0, 1.0]})
-    singles = [suction_debris_v0.parallel_env(**kwargs) for _ in range(3)]
-    for index, single in enumerate(singles):
-        single.reset(seed=7 + index, options={"level": [0.0, 0.0, 1.0][index]})
-    rng = np.random.default_rng(2)
-    held_steps = 0
-    for _ in range(600):
-        actions = {agent: rng.uniform(-1, 1, (3, 4)) for agent in batched.agents}
-        actions["grasper"][:, 2] -= 0.5  # down, towards the pins
-        observations, rewards, *_ = batched.step(actions)
-        held_steps += int((batched.core.holding >= 0).sum())
-        for index, single in enumerate(singles):
-            obs, reward, term, trunc, _ = single.step({agent: actions[agent][index] for agent in single.agents})
-            if term["suction"] or trunc["suction"]:
-                obs, _ = single.reset()
-            for agent in batched.agents:
-                assert np.array_equal(obs[agent], observations[agent][index])
-                assert abs(reward[agent] - rewards[agent][index]) < 1e-9
-    assert held_steps > 50  # the hold ran
+    """Noisy scripted experts that drop now and then (the hold keeps the pin), a slow tool, the guided reward and
+    features: the batched worlds are the single envs bit for bit (tests/test_batched.py's comparison)."""
+    assert_batched_collaborative_matches(3, seed=29, steps=1000, action_seed=13, scripted=True, reward_type="guided",
+                                         max_cycles=400, module=suction_debris_v5, drop_probability=0.05,
+                                         observation_features="suction_debris_cleared_pins_zoom", tool_speed=0.2,
+                                         **GRASP)
 
 
 def test_every_form_takes_the_grasp_options():

@@ -29,7 +29,7 @@ def test_pettingzoo_api_and_registration():
         assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v5").params.blocked_moves == "climb"
 
 
-def _on_the_wall(module):
+def suction_on_the_wall(module):
     """No blood, one hidden pin left (the episode goes on), the suction on the left cavity's wall near its rim."""
     env = module.parallel_env(blood_ml=[0.0, 0.0])
     env.reset(seed=0)
@@ -43,7 +43,7 @@ def _on_the_wall(module):
     return env
 
 
-def _path(env, command, steps):
+def suction_path(env, command, steps):
     path = [np.array(env.arms["suction"].tip_world())]
     for _ in range(steps):
         env.step({"suction": command, "grasper": np.zeros(4)})
@@ -52,10 +52,10 @@ def _path(env, command, steps):
 
 
 def test_a_tip_pressed_out_and_down_against_a_wall_rides_over_the_rim_in_v5_and_stays_in_v4():
-    stuck = _path(_on_the_wall(suction_debris_v4), OUT_AND_DOWN, 60)
+    stuck = suction_path(suction_on_the_wall(suction_debris_v4), OUT_AND_DOWN, 60)
     assert np.linalg.norm(stuck[-1] - stuck[0]) < 0.0005  # v4: under half a millimetre in 60 steps
-    env = _on_the_wall(suction_debris_v5)
-    path = _path(env, OUT_AND_DOWN, 60)
+    env = suction_on_the_wall(suction_debris_v5)
+    path = suction_path(env, OUT_AND_DOWN, 60)
     top = env.phantom.top_z + env.params.tip_clearance
     assert path[:, 2].max() >= top - 1e-9  # up the wall onto the phantom's top
     assert env.normalise(path[-1])[0] > 0.0  # and on, the way it was heading (+x), past the ridge

@@ -11,11 +11,11 @@ import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
 from dvrl_marl.envs import suction_debris_v5, suction_debris_v6
+from test_suction_debris_v5 import suction_on_the_wall, suction_path
 
-# The suction on the wall of the left cavity near its rim (as tests/test_suction_debris_v5.py's), heading for the
+# The suction on the wall of the left cavity near its rim (tests/test_suction_debris_v5.py's place), heading for the
 # other cavity and down, almost along the wall's normal: the command a learnt BenchMARL suction sent there, by its
 # mean action, for the rest of its failed test episodes on v5.
-ON_THE_WALL = [-0.121, -0.12]
 ALONG_THE_NORMAL = np.array([0.67, -0.03, -0.82, -1.0])
 
 
@@ -30,37 +30,15 @@ def test_pettingzoo_api_and_registration():
         assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v6").params.blocked_moves == "climb_ahead"
 
 
-def _on_the_wall(module):
-    """No blood, one hidden pin left (the episode goes on), the suction on the left cavity's wall near its rim."""
-    env = module.parallel_env(blood_ml=[0.0, 0.0])
-    env.reset(seed=0)
-    count = len(env.debris)
-    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*ON_THE_WALL, 0.0])
-    suction = [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
-    grasper = env.workspace_centre + env.workspace_range * np.array([0.6, 0.0, 0.2])
-    env.set_state(tips={"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)},
-                  jaw=1.0, valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
-                  debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
-    return env
-
-
-def _path(env, command, steps):
-    path = [np.array(env.arms["suction"].tip_world())]
-    for _ in range(steps):
-        env.step({"suction": command, "grasper": np.zeros(4)})
-        path.append(np.array(env.arms["suction"].tip_world()))
-    return np.array(path)
-
-
 def test_a_tip_pressed_along_the_walls_normal_climbs_out_in_v6_and_cycles_in_place_in_v5():
-    stuck = _on_the_wall(suction_debris_v5)
-    cycling = _path(stuck, ALONG_THE_NORMAL, 60)
+    stuck = suction_on_the_wall(suction_debris_v5)
+    cycling = suction_path(stuck, ALONG_THE_NORMAL, 60)
     top = stuck.phantom.top_z + stuck.params.tip_clearance
     assert np.abs(cycling[:, 0] - cycling[0, 0]).max() < 0.002  # v5: within 2 mm of where it began, the way it heads
     assert cycling[:, 2].max() < top - 0.001  # never onto the top
     assert np.abs(np.diff(cycling[:, 2])).max() > 0.0005  # ... though it moves: up a step, then back down
-    env = _on_the_wall(suction_debris_v6)
-    path = _path(env, ALONG_THE_NORMAL, 60)
+    env = suction_on_the_wall(suction_debris_v6)
+    path = suction_path(env, ALONG_THE_NORMAL, 60)
     top = env.phantom.top_z + env.params.tip_clearance
     assert path[:, 2].max() >= top - 1e-9  # up the wall onto the phantom's top
     assert np.all(np.diff(path[:12, 0]) > 0.0)  # climbing all the way, the way it heads (+x): no slip back
