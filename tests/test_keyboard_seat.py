@@ -213,22 +213,28 @@ def desktop(x_display):
     return x_display
 
 
+def _focus(display, name, pid):
+    """Wait for process ``pid``'s window called ``name`` and give it the keyboard focus (keys go where the focus is,
+    as at a desktop; no window manager here gives it); its id. By process, not by name alone: a loaded X server can
+    still list the window of the test before, whose process has exited (measured in CI: the close messages went to
+    it, and the demo ran its whole episode)."""
+    environment = {**os.environ, "DISPLAY": display}
+    window = _xdotool(display, "search", "--sync", "--all", "--pid", str(pid), "--name", name).split()[0]
+    for _ in range(100):
+        subprocess.run(["xdotool", "windowfocus", window], env=environment, capture_output=True, timeout=30)
+        if _xdotool(display, "getwindowfocus").strip() == window:
+            return window
+        time.sleep(0.1)
+    raise AssertionError(f"the window {name!r} never took the keyboard focus")
+
+
 def _start_demo(display, tmp_path, max_cycles):
     environment = {**os.environ, "DISPLAY": display}
     environment.pop("MUJOCO_GL", None)  # as a desktop user runs it
     command = [sys.executable, "-m", "dvrl_marl.cli", "demo", "--surgeon", "keyboard", "--max-cycles", str(max_cycles),
                "--record", str(tmp_path / "seat.npz"), "--out", str(tmp_path / "run"), "--no-progress"]
     process = subprocess.Popen(command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    window = _xdotool(display, "search", "--sync", "--name", "dvrl-marl").split()[0]  # waits for the window
-    for _ in range(100):  # keys go where the focus is, as at a desktop (no window manager here to give it)
-        subprocess.run(["xdotool", "windowfocus", window], env=environment, capture_output=True, timeout=30)
-        if subprocess.run(["xdotool", "getwindowfocus"], env=environment, capture_output=True, text=True,
-                          timeout=30).stdout.strip() == window:
-            break
-        time.sleep(0.1)
-    else:
-        raise AssertionError("the demo's window never took the keyboard focus")
-    return process, window
+    return process, _focus(display, "dvrl-marl", process.pid)
 
 
 def _finish(process, tmp_path):
@@ -348,17 +354,6 @@ class _WindowKeys(KeyboardDevice):
     human_operated = False  # the test sets the scene up first; the keys still come from the window
 
 
-def _focus(display, name):
-    environment = {**os.environ, "DISPLAY": display}
-    window = _xdotool(display, "search", "--sync", "--name", name).split()[0]
-    for _ in range(100):
-        subprocess.run(["xdotool", "windowfocus", window], env=environment, capture_output=True, timeout=30)
-        if _xdotool(display, "getwindowfocus").strip() == window:
-            return window
-        time.sleep(0.1)
-    raise AssertionError(f"the window {name!r} never took the keyboard focus")
-
-
 def _overlay_text(env):
     return "\n".join(left + "|" + right for _, left, right in env.overlay())
 
@@ -377,7 +372,7 @@ def test_the_desktop_seat_shows_the_cues_and_delivers_a_pin_gripped_off_centre(d
                   valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.04, 0.02, height]] * 3,
                   debris_yaws=[0.0] * 3, visible=[True] * 3, delivered=[False, True, True])
     env.step({"suction": np.zeros(4)})
-    _focus(desktop, "dvrl-marl: suction")
+    _focus(desktop, "dvrl-marl: suction", os.getpid())
     assert "pin IN REACH" in _overlay_text(env) and "Tip height" in _overlay_text(env)
     _xdotool(desktop, "key", "space")  # a person closes the jaw: 9 mm from the pin's centre
     for _ in range(10):
