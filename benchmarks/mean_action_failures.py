@@ -13,7 +13,7 @@ A run of this project's trainer (its env options: its ``config.toml``'s ``[env]`
 BenchMARL run of ``marl_benchmark.py`` (``env_options.json`` and the final ``policy.pt`` it saves; needs BenchMARL's
 environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on). ``--option KEY=VALUE`` plays the
 policies on a changed scene (an env keyword argument over the run's own, the value read as JSON where it parses,
-else as text), e.g. ``--option task=suction_debris_v6``: what a scene's change does to a learnt team, untrained.
+else as text), e.g. ``--option task=suction_debris_v7``: what a scene's change does to a learnt team, untrained.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                        help="an env keyword argument over the run's own (repeatable), e.g. task=suction_debris_v6")
+                        help="an env keyword argument over the run's own (repeatable), e.g. task=suction_debris_v7")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.window < 2:
         parser.error("--episodes must be >= 1 and --window >= 2")
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
     for option in args.option:
         key, sep, value = option.partition("=")
         if not sep or not key:
-            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. task=suction_debris_v6")
+            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. task=suction_debris_v7")
         try:
             changes[key] = json.loads(value)
         except json.JSONDecodeError:

@@ -67,6 +67,10 @@ MULTI_AGENT_ENV_IDS = {
         "dvrl_marl.envs.suction_debris_v6:parallel_env",
         "dvrl_marl.envs.suction_debris_v6:env",
     ),
+    "dvrl_marl/suction_debris-v7": (
+        "dvrl_marl.envs.suction_debris_v7:parallel_env",
+        "dvrl_marl.envs.suction_debris_v7:env",
+    ),
 }
 #: The collaborative scene's task files, one per version (v0's is ``suction_debris``; ``tasks/<name>.toml``).
 COLLABORATIVE_TASKS = tuple("suction_debris" if env_id.endswith("-v0") else "suction_debris_" + env_id.rsplit("-", 1)[1]

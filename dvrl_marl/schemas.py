@@ -168,7 +168,7 @@ class CollaborativeTask(BaseModel):
     bleeding_onset_s: NonNegative = 0.0
     deliver_at_grip: Flag = False
     pins_stay_on_phantom: Flag = False
-    blocked_moves: Literal["stop", "slide", "climb", "climb_ahead"] = "stop"
+    blocked_moves: Literal["stop", "slide", "climb", "climb_ahead", "settle"] = "stop"
     held_pin_at_grip: Flag = False
     tool_speed: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
     jaw_command: Literal["proportional", "switch"] = "proportional"

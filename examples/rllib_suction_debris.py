@@ -7,7 +7,7 @@
     python examples/rllib_suction_debris.py --iterations 1 --video rllib.mp4   # and a video of the learned team
     python examples/rllib_suction_debris.py --guided --level easy --test-episodes 20   # the env's learning options
 
-``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v6``,
+``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v7``,
 ``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
 tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), ``--level``
 its start level (``easy`` ... ``default``,
@@ -28,11 +28,11 @@ from pathlib import Path
 
 
 #: ``--guided``: the benchmark's env options (its task files, dvrl_marl/integrations/benchmarl_tasks/, but for the
-#: start level): its scene (suction_debris_v6), the guided reward and features of the configuration of record, and the
+#: start level): its scene (suction_debris_v7), the guided reward and features of the configuration of record, and the
 #: slow tool and the jaw as a switch that holds a pin until the hand-off (RLlib's PPO explores the jaw and the valve
 #: with a Gaussian, which an instant tool reads as a threshold and a held pin's jaw as a chance to drop it:
 #: dvrl_marl.core.tools).
-GUIDED = {"task": "suction_debris_v6", "reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom",
+GUIDED = {"task": "suction_debris_v7", "reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom",
           "contact_penalty": 0.1, "tool_speed": 0.1, "jaw_command": "switch", "hold_until_handoff": True,
           "state_observations": True}  # (the state for a centralised critic; RLlib's PPO here reads observations)
 

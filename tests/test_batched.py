@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2, suction_debris_v3, suction_debris_v4, \
-    suction_debris_v5, suction_debris_v6
+    suction_debris_v5, suction_debris_v6, suction_debris_v7
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -290,6 +290,14 @@ def test_batched_v6_equals_single_env_while_descents_climb_ahead():
     assert_batched_collaborative_matches(3, seed=28, steps=1000, action_seed=12, max_cycles=250,
                                          module=suction_debris_v6,
                                          pull={"suction": [0.67, 0.0, -0.82], "grasper": [-0.67, 0.0, -0.82]})
+
+
+def test_batched_v7_equals_single_env_while_descents_settle():
+    # Commands pulled straight down, a little toward the other arm's side: the tips press into the bowls' slopes and
+    # settle down them (v7), climb (v5, v6) and slide (v3), world by world.
+    assert_batched_collaborative_matches(3, seed=29, steps=1000, action_seed=13, max_cycles=250,
+                                         module=suction_debris_v7,
+                                         pull={"suction": [0.1, 0.0, -0.9], "grasper": [-0.1, 0.0, -0.9]})
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])

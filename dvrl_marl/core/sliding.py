@@ -37,6 +37,13 @@ back down the bowl on the rest of the move (made, though away from where it head
 37: the commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
 climbing the way it heads.
 
+``suction_debris_v7`` (``blocked_moves = "settle"``, ``settle``) adds one rule to v6's: **a descending move that
+still makes less than a tenth of its length slides down the bowl** (over a cavity: its component into the bowl
+taken away, :func:`wall_slide`, on the gentle slopes as on the steep walls). On a slope a tip may climb by a step, the
+rules above keep a move's horizontal part and lift the tip onto the surface, so a command straight down was made as
+nothing: a suction pressed down a few millimetres above the last of a cavity's blood, above the pool, stayed there
+(measured, issue 37: the commonest end of the episodes a learnt BenchMARL team failed by its mean action on v6).
+
 Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for
 N (the single env calls these functions on one row).
 """
@@ -77,7 +84,7 @@ def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray, high: np.ndarray,
                    old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True, climb: bool = False,
-                   ahead: bool = False) -> np.ndarray:
+                   ahead: bool = False, settle: bool = False) -> np.ndarray:
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
     the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
     slid along it (:func:`wall_slide`; v3), then, if the move still enters the wall, only its vertical part (all that
@@ -86,7 +93,9 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
     ``ahead`` (v6): for a move with a level part (at least :data:`NO_HEADWAY` of it), the headway is what the made
     part advances the way the move heads, level (a slide back down the wall, away from where it heads, is none), and
     the level part replaces the move only where it advances further that way (a descent pressed into the box's face
-    is made as in v5)."""
+    is made as in v5). ``settle`` (v7): a descending move that still makes less than :data:`NO_HEADWAY` of its
+    length, over a cavity, slides down the bowl where that makes more (its component into the wall taken away,
+    :func:`wall_slide`, on the gentle slopes too)."""
     target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
     if climb:
         length = np.sqrt((delta * delta).sum(axis=1))
@@ -105,6 +114,15 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
                 further = ((climbed - old) * level).sum(axis=1) / np.maximum(level_length, 1e-300) > made
                 stalled &= ~heading | further
             target = np.where(stalled[:, None], climbed, target)
+    if settle:
+        length = np.sqrt((delta * delta).sum(axis=1))
+        made = np.sqrt(((target - old) ** 2).sum(axis=1))
+        resting = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length) & (cavities.cavity_at(old[:, 0], old[:, 1]) >= 0)
+        if resting.any():
+            settled = _surface_target(cavities, tip_clearance, step, low, high, old, wall_slide(cavities, old, delta),
+                                      slide_on_walls)
+            resting &= np.sqrt(((settled - old) ** 2).sum(axis=1)) > made  # never less than v6 makes
+            target = np.where(resting[:, None], settled, target)
     return target
 
 
@@ -160,12 +178,13 @@ def _clamped_to_joint_limits(tool, base, target: np.ndarray) -> np.ndarray:
 
 
 def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray, cavities, tip_clearance: float,
-                    step: float, low: np.ndarray, high: np.ndarray, climb: bool = False, ahead: bool = False):
+                    step: float, low: np.ndarray, high: np.ndarray, climb: bool = False, ahead: bool = False,
+                    settle: bool = False):
     """The slide of M blocked moves: ``arm`` and ``other`` ``{"tool", "base" (3,), "tip" (M, 3)}`` (world, before
     the move; the other instrument's shaft follows from its tip, as the joints do), ``delta`` (M, 3) the commanded
     move. Returns ``(made (M,), tip (M, 3) world, q (M, n), clearance (M,))`` for the first candidate of each row
-    that can be made (rows not made: unchanged, clearance NaN). ``climb``, ``ahead``: :func:`surface_target`'s (v5,
-    v6)."""
+    that can be made (rows not made: unchanged, clearance NaN). ``climb``, ``ahead``, ``settle``:
+    :func:`surface_target`'s (v5, v6, v7)."""
     tool, base, start = arm["tool"], np.asarray(arm["base"]), arm["tip"]
 
     def segment(tool, base, tip):
@@ -189,7 +208,8 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
         live = ~made & np.any(move != 0.0, axis=1)
         if not live.any():
             continue
-        target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb, ahead=ahead)
+        target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb, ahead=ahead,
+                                settle=settle)
         own, joints, reachable = segment(tool, base, target)
         if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
             live &= ~reachable

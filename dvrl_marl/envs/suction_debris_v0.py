@@ -225,7 +225,7 @@ class SuctionDebrisParams:
     # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
     blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
     # ("climb", v5: as "slide", and a descent that makes no headway is given up; "climb_ahead", v6: headway counted
-    # along the move)
+    # along the move; "settle", v7: as "climb_ahead", and a descent still without headway slides down the bowl)
     # Added with suction_debris_v4 (default: v0-v3's behaviour; tasks/suction_debris_v4.toml sets v4's):
     held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
@@ -994,7 +994,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _move(self, agent, dx, dy, dz) -> bool:
         """Move one arm's tip (world deltas); returns True when the instruments are in contact."""
-        if self.params.blocked_moves in ("slide", "climb", "climb_ahead"):
+        if self.params.blocked_moves in ("slide", "climb", "climb_ahead", "settle"):
             return self._slide(agent, np.array([[dx, dy, dz]]))
         arm = self.arms[agent]
         old = arm.tip_world()
@@ -1023,11 +1023,12 @@ class SuctionDebrisEnv(ParallelEnv):
         :func:`~dvrl_marl.core.sliding.resolve_blocked` (v5: a descent that makes no headway given up); the batched
         core's functions, on one row."""
         arm, p = self.arms[agent], self.params
-        climb, ahead = p.blocked_moves in ("climb", "climb_ahead"), p.blocked_moves == "climb_ahead"
+        climb, ahead = p.blocked_moves in ("climb", "climb_ahead", "settle"), p.blocked_moves in ("climb_ahead", "settle")
+        settle = p.blocked_moves == "settle"
         old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
         low, high = np.asarray(self._low), np.asarray(self._high)
         target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta,
-                                        climb=climb, ahead=ahead)[0]
+                                        climb=climb, ahead=ahead, settle=settle)[0]
         previous, previous_q = list(arm.tip), arm.q  # (restored as they were: no IK, see Arm.set_solved_tip)
         cut = arm.move(*(target - old[0]).tolist(), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
         clearance = self._instrument_distance()
@@ -1039,7 +1040,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 {"tool": other.tool, "base": other.base_position,
                  "tip": np.asarray(other.tip_world(), dtype=np.float64)[None]},
                 agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high, climb=climb,
-                ahead=ahead)
+                ahead=ahead, settle=settle)
             if made[0]:  # the batched solution as is: a tip slid onto a joint limit stays on it (Arm.set_solved_tip)
                 arm.set_solved_tip(*(tip[0] - arm.base_position).tolist(), q[0])
                 return bool(gap[0] < _CONTACT_MARGIN)
