@@ -1,5 +1,6 @@
-"""suction_debris_v7: a tip pressed down into a cavity's bowl slides down it, so a suction pressed straight down on the
-slope above the last of the blood reaches the pool (v6's stayed where it was); v6 stays as it was."""
+"""suction_debris_v7: the suction pressed down into a cavity's bowl slides down it, so a suction pressed straight down on
+the slope above the last of the blood reaches the pool (v6's stayed where it was); the grasper pressing down onto a pin
+stays over it; v6 stays as it was."""
 
 import numpy as np
 import pettingzoo
@@ -30,13 +31,18 @@ def test_pettingzoo_api_and_registration():
         assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v7").params.blocked_moves == "settle"
 
 
-def _suction_above_the_last_blood(module):
+def _on_the_slope(env, where):
+    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*where, 0.0])
+    return [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
+
+
+def _suction_above_the_last_blood(module, grasper_on_the_slope=False):
     env = module.parallel_env()
     env.reset(seed=0)
     count = len(env.debris)  # one hidden pin left: the episode goes on
-    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*ON_THE_SLOPE, 0.0])
-    suction = [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
-    grasper = env.workspace_centre + env.workspace_range * np.array([0.6, -0.7, 0.0])
+    suction = _on_the_slope(env, ON_THE_SLOPE)
+    grasper = (_on_the_slope(env, (-ON_THE_SLOPE[0], ON_THE_SLOPE[1])) if grasper_on_the_slope  # the other cavity's
+               else env.workspace_centre + env.workspace_range * np.array([0.6, -0.7, 0.0]))
     env.set_state(tips={"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)},
                   jaw=1.0, valve_open=True, blood_ml=[0.56, 0.0], debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
                   debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
@@ -62,6 +68,16 @@ def test_a_suction_pressed_down_the_slope_reaches_the_last_blood_in_v7_and_rests
     assert abs(path[-1, 0] - centre) < abs(path[0, 0] - centre) - 0.005  # down the slope toward the floor's centre
     assert np.all(np.diff(path[:, 2]) <= 1e-12)  # never up
     assert blood[-1] < env.params.blood_threshold_ml  # the cavity cleared
+
+
+def test_the_grasper_pressed_down_on_the_slope_stays_where_it_is_as_in_v6():
+    # A grasper coming down onto a pin on the slope must stay over it: the slide is the suction's alone.
+    for module in (suction_debris_v6, suction_debris_v7):
+        env = _suction_above_the_last_blood(module, grasper_on_the_slope=True)
+        start = np.array(env.arms["grasper"].tip_world())
+        for _ in range(50):
+            env.step({"suction": np.zeros(4), "grasper": STRAIGHT_DOWN})
+        assert np.linalg.norm(np.array(env.arms["grasper"].tip_world()) - start) < 1e-9, module.__name__
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -171,7 +171,7 @@ class CollaborativeCore:
         self.slide = p.blocked_moves in ("slide", "climb", "climb_ahead", "settle")  # v3: blocked moves slide
         self.climb = p.blocked_moves in ("climb", "climb_ahead", "settle")  # v5: a descent without headway given up
         self.ahead = p.blocked_moves in ("climb_ahead", "settle")  # v6: headway counted the way the move heads
-        self.settle = p.blocked_moves == "settle"  # v7: a descent still without headway slides down the bowl
+        self.settle = p.blocked_moves == "settle"  # v7: the suction's descent still without headway slides down
         self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
@@ -377,7 +377,7 @@ class CollaborativeCore:
         p = self.params
         target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old, delta,
                                         slide_on_walls=self.slide, climb=self.climb, ahead=self.ahead,
-                                        settle=self.settle)
+                                        settle=self.settle and agent == "suction")
         previous_tip, previous_q = arm.tip, arm.q
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
@@ -400,7 +400,7 @@ class CollaborativeCore:
             {"tool": arm.tool, "base": arm.base_position, "tip": old[rows]},
             {"tool": other.tool, "base": other.base_position, "tip": other.tip_world()[rows]},
             agent == "suction", delta[rows], self.cavities, p.tip_clearance, p.step_size, self.low, self.high,
-            climb=self.climb, ahead=self.ahead, settle=self.settle)
+            climb=self.climb, ahead=self.ahead, settle=self.settle and agent == "suction")
         chosen = rows[made]
         arm.tip[chosen], arm.q[chosen] = tip[made] - arm.base_position, q[made]
         refused[chosen], clearance[chosen] = False, gap[made]

@@ -37,12 +37,13 @@ back down the bowl on the rest of the move (made, though away from where it head
 37: the commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
 climbing the way it heads.
 
-``suction_debris_v7`` (``blocked_moves = "settle"``, ``settle``) adds one rule to v6's: **a descending move that
-still makes less than a tenth of its length slides down the bowl** (over a cavity: its component into the bowl
-taken away, :func:`wall_slide`, on the gentle slopes as on the steep walls). On a slope a tip may climb by a step, the
-rules above keep a move's horizontal part and lift the tip onto the surface, so a command straight down was made as
-nothing: a suction pressed down a few millimetres above the last of a cavity's blood, above the pool, stayed there
-(measured, issue 37: the commonest end of the episodes a learnt BenchMARL team failed by its mean action on v6).
+``suction_debris_v7`` (``blocked_moves = "settle"``, ``settle``, the suction's moves only) adds one rule to v6's:
+**a descending move that still makes less than a tenth of its length slides down the bowl** (over a cavity: its
+component into the bowl taken away, :func:`wall_slide`, on the gentle slopes as on the steep walls). On a slope a tip
+may climb by a step, the rules above keep a move's horizontal part and lift the tip onto the surface, so a command
+straight down was made as nothing: a suction pressed down a few millimetres above the last of a cavity's blood, above
+the pool, stayed there (measured, issue 37: the commonest end of the episodes a learnt BenchMARL team failed by its
+mean action on v6). A grasper pressing down onto a pin must stay over it, so its moves are v6's.
 
 Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for
 N (the single env calls these functions on one row).

@@ -225,7 +225,8 @@ class SuctionDebrisParams:
     # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
     blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
     # ("climb", v5: as "slide", and a descent that makes no headway is given up; "climb_ahead", v6: headway counted
-    # along the move; "settle", v7: as "climb_ahead", and a descent still without headway slides down the bowl)
+    # along the move; "settle", v7: as "climb_ahead", and the suction's descent still without headway slides down the
+    # bowl)
     # Added with suction_debris_v4 (default: v0-v3's behaviour; tasks/suction_debris_v4.toml sets v4's):
     held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
@@ -1024,7 +1025,7 @@ class SuctionDebrisEnv(ParallelEnv):
         core's functions, on one row."""
         arm, p = self.arms[agent], self.params
         climb, ahead = p.blocked_moves in ("climb", "climb_ahead", "settle"), p.blocked_moves in ("climb_ahead", "settle")
-        settle = p.blocked_moves == "settle"
+        settle = p.blocked_moves == "settle" and agent == "suction"  # v7: a grasper stays over the pin it presses on
         old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
         low, high = np.asarray(self._low), np.asarray(self._high)
         target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta,

@@ -30,7 +30,7 @@ seeds that succeeded already unchanged or better (0.87 -> 0.87, 0.72 -> 0.93, 0.
 The scripted experts plan over the rims and never press into a wall, so the scripted team's episodes are v4's.
 
 ## Version History
-- v7: :mod:`dvrl_marl.envs.suction_debris_v7`, a descent pressed into the bowl slides down it (the benchmark's task
+- v7: :mod:`dvrl_marl.envs.suction_debris_v7`, the suction's descent pressed into the bowl slides down it (the benchmark's task
   files run it).
 - v6: :mod:`dvrl_marl.envs.suction_debris_v6`, a descent's headway counted along the move.
 - v5: a descent the wall stops climbs (this page).

@@ -32,7 +32,7 @@ The same policies, untrained, in v6's scene: 0.28 -> 0.92 and 0.81 -> 0.95 test 
 The scripted experts plan over the rims and never press into a wall, so the scripted team's episodes are v5's.
 
 ## Version History
-- v7: :mod:`dvrl_marl.envs.suction_debris_v7` (a descent pressed into the bowl slides down it); the benchmark's
+- v7: :mod:`dvrl_marl.envs.suction_debris_v7` (the suction's descent pressed into the bowl slides down it); the benchmark's
   task files run it.
 - v6: a descent's headway counted along the move (this page).
 - v5: :mod:`dvrl_marl.envs.suction_debris_v5`, unchanged.
