@@ -21,8 +21,7 @@ v6 pages) with one change, set in ``tasks/suction_debris_v7.toml`` (``blocked_mo
   down the slope with the rest, as on the steep walls (where that makes more than v6 does). The grasper's moves are
   v6's: a grasper pressing down onto a pin stays over it (with the slide, a tip coming down onto a pin on the slope
   slid away from it: measured, ``baselines/README.md``, a frictionless slope for both arms broke the learnt graspers
-  of v4, and a first v7 for both arms gave a BenchMARL seed whose grasper never learnt to grasp). Every move those
-  rules make is made as in v6.
+  of v4). Every move those rules make is made as in v6.
 
 Why: measured (issue 37; ``python benchmarks/mean_action_failures.py <run>``), the commonest end of the test episodes
 that a learnt BenchMARL MAPPO team failed by its mean action on v6 (16 of 34 failures of seed 0): the suction pressed
