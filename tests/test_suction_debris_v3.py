@@ -10,8 +10,8 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl import kinematics
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import (suction_debris_v2, suction_debris_v3, suction_debris_v4, suction_debris_v5, suction_debris_v6,
-                            suction_debris_v7)
+from dvrl_marl.envs import (suction_debris_v2, suction_debris_v3, suction_debris_v4, suction_debris_v5,
+                            suction_debris_v6, suction_debris_v7)
 
 PUSH_SUCTION_PAST_GRASPER = np.array([1.0, 0.0, -0.1, 1.0])
 
@@ -107,7 +107,8 @@ def test_a_move_into_a_joint_limit_slides_along_it_in_v3():
 
 
 @pytest.mark.parametrize("before,after", [(suction_debris_v2, suction_debris_v3), (suction_debris_v4, suction_debris_v5),
-                                          (suction_debris_v5, suction_debris_v6), (suction_debris_v6, suction_debris_v7)])
+                                          (suction_debris_v5, suction_debris_v6),
+                                          (suction_debris_v6, suction_debris_v7)])
 def test_the_scripted_team_plays_the_earlier_version_step_for_step(before, after):
     # An expert never pushes into a blocker (v3) nor presses a descent into a wall (v5): its episodes are the earlier
     # version's exactly (the change is only where moves block).

@@ -1,6 +1,6 @@
-"""suction_debris_v7: the suction pressed down into a cavity's bowl slides down it, so a suction pressed straight down on
-the slope above the last of the blood reaches the pool (v6's stayed where it was); the grasper pressing down onto a pin
-stays over it; v6 stays as it was."""
+"""suction_debris_v7: the suction pressed down into a cavity's bowl slides down it, so a suction pressed straight down
+on the slope above the last of the blood reaches the pool (v6's stayed where it was); the grasper pressing down onto a
+pin stays over it; v6 stays as it was."""
 
 import numpy as np
 import pettingzoo
@@ -43,8 +43,9 @@ def _suction_above_the_last_blood(module, grasper_on_the_slope=False):
     suction = _on_the_slope(env, ON_THE_SLOPE)
     grasper = (_on_the_slope(env, (-ON_THE_SLOPE[0], ON_THE_SLOPE[1])) if grasper_on_the_slope  # the other cavity's
                else env.workspace_centre + env.workspace_range * np.array([0.6, -0.7, 0.0]))
-    env.set_state(tips={"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)},
-                  jaw=1.0, valve_open=True, blood_ml=[0.56, 0.0], debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
+    tips = {"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)}
+    env.set_state(tips=tips, jaw=1.0, valve_open=True, blood_ml=[0.56, 0.0],
+                  debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
                   debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
     return env
 

@@ -1024,7 +1024,8 @@ class SuctionDebrisEnv(ParallelEnv):
         :func:`~dvrl_marl.core.sliding.resolve_blocked` (v5: a descent that makes no headway given up); the batched
         core's functions, on one row."""
         arm, p = self.arms[agent], self.params
-        climb, ahead = p.blocked_moves in ("climb", "climb_ahead", "settle"), p.blocked_moves in ("climb_ahead", "settle")
+        climb = p.blocked_moves in ("climb", "climb_ahead", "settle")
+        ahead = p.blocked_moves in ("climb_ahead", "settle")
         settle = p.blocked_moves == "settle" and agent == "suction"  # v7: a grasper stays over the pin it presses on
         old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
         low, high = np.asarray(self._low), np.asarray(self._high)
