@@ -29,17 +29,26 @@ def test_pettingzoo_api_and_registration():
         assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v5").params.blocked_moves == "climb"
 
 
-def suction_on_the_wall(module):
-    """No blood, one hidden pin left (the episode goes on), the suction on the left cavity's wall near its rim."""
-    env = module.parallel_env(blood_ml=[0.0, 0.0])
+def on_the_surface(env, where):
+    """The tip's place (world) on the phantom's surface at ``where`` (normalised x, y)."""
+    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*where, 0.0])
+    return [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
+
+
+def suction_on_the_wall(module, where=ON_THE_WALL, blood_ml=(0.0, 0.0), valve_open=False, grasper_at=None):
+    """One hidden pin left (the episode goes on), the suction on the surface at ``where`` (by default the left
+    cavity's wall near its rim), ``blood_ml`` in the cavities; the grasper on the surface at ``grasper_at``, else
+    above the right cavity."""
+    env = module.parallel_env(blood_ml=list(blood_ml))
     env.reset(seed=0)
     count = len(env.debris)
-    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*ON_THE_WALL, 0.0])
-    suction = [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
-    grasper = env.workspace_centre + env.workspace_range * np.array([0.6, 0.0, 0.2])
-    env.set_state(tips={"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)},
-                  jaw=1.0, valve_open=False, blood_ml=[0.0, 0.0], debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
-                  debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
+    grasper = (on_the_surface(env, grasper_at) if grasper_at is not None
+               else env.workspace_centre + env.workspace_range * np.array([0.6, 0.0, 0.2]))
+    tips = {"suction": env.arms["suction"].to_base(on_the_surface(env, where)),
+            "grasper": env.arms["grasper"].to_base(grasper)}
+    env.set_state(tips=tips, jaw=1.0, valve_open=valve_open, blood_ml=list(blood_ml),
+                  debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count, debris_yaws=[0.0] * count,
+                  visible=[False] * count, delivered=[False] + [True] * (count - 1))
     return env
 
 

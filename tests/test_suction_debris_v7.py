@@ -3,6 +3,7 @@ on the slope above the last of the blood reaches the pool (v6's stayed where it 
 pin stays over it; v6 stays as it was."""
 
 import numpy as np
+import pytest
 import pettingzoo
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -12,6 +13,7 @@ import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
 from dvrl_marl.envs import suction_debris_v6, suction_debris_v7
+from test_suction_debris_v5 import suction_on_the_wall, suction_path
 
 # Where a learnt BenchMARL suction (seed 0, by its mean action) rested on v6 for the rest of its failed test episodes:
 # on the left cavity's slope, toward the ridge, a few millimetres above the last half millilitre, pressing straight down
@@ -31,44 +33,21 @@ def test_pettingzoo_api_and_registration():
         assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v7").params.blocked_moves == "settle"
 
 
-def _on_the_slope(env, where):
-    x, y, _ = env.workspace_centre + env.workspace_range * np.array([*where, 0.0])
-    return [x, y, env.phantom.surface_height(x, y) + env.params.tip_clearance]
-
-
 def _suction_above_the_last_blood(module, grasper_on_the_slope=False):
-    env = module.parallel_env()
-    env.reset(seed=0)
-    count = len(env.debris)  # one hidden pin left: the episode goes on
-    suction = _on_the_slope(env, ON_THE_SLOPE)
-    grasper = (_on_the_slope(env, (-ON_THE_SLOPE[0], ON_THE_SLOPE[1])) if grasper_on_the_slope  # the other cavity's
-               else env.workspace_centre + env.workspace_range * np.array([0.6, -0.7, 0.0]))
-    tips = {"suction": env.arms["suction"].to_base(suction), "grasper": env.arms["grasper"].to_base(grasper)}
-    env.set_state(tips=tips, jaw=1.0, valve_open=True, blood_ml=[0.56, 0.0],
-                  debris_positions=[[0.0, 0.0, env.phantom.top_z]] * count,
-                  debris_yaws=[0.0] * count, visible=[False] * count, delivered=[False] + [True] * (count - 1))
-    return env
-
-
-def _press(env, steps):
-    path, blood = [np.array(env.arms["suction"].tip_world())], []
-    for _ in range(steps):
-        _, _, _, _, infos = env.step({"suction": STRAIGHT_DOWN, "grasper": np.zeros(4)})
-        path.append(np.array(env.arms["suction"].tip_world()))
-        blood.append(infos["suction"]["blood_remaining_per_cavity"][0])
-    return np.array(path), np.array(blood)
+    return suction_on_the_wall(module, where=ON_THE_SLOPE, blood_ml=(0.56, 0.0), valve_open=True,
+                               grasper_at=(-ON_THE_SLOPE[0], ON_THE_SLOPE[1]) if grasper_on_the_slope else None)
 
 
 def test_a_suction_pressed_down_the_slope_reaches_the_last_blood_in_v7_and_rests_above_it_in_v6():
     stuck = _suction_above_the_last_blood(suction_debris_v6)
-    path, blood = _press(stuck, 100)
-    assert np.linalg.norm(path[-1] - path[0]) < 1e-9 and blood[-1] == 0.56  # v6: not a micrometre, not a drop
+    path = suction_path(stuck, STRAIGHT_DOWN, 100)
+    assert np.linalg.norm(path[-1] - path[0]) < 1e-9 and stuck.blood.remaining_ml[0] == 0.56  # v6: not a drop
     env = _suction_above_the_last_blood(suction_debris_v7)
-    path, blood = _press(env, 100)
+    path = suction_path(env, STRAIGHT_DOWN, 100)
     centre = env.phantom.cavities[0].centre_x
     assert abs(path[-1, 0] - centre) < abs(path[0, 0] - centre) - 0.005  # down the slope toward the floor's centre
     assert np.all(np.diff(path[:, 2]) <= 1e-12)  # never up
-    assert blood[-1] < env.params.blood_threshold_ml  # the cavity cleared
+    assert env.blood.remaining_ml[0] < env.params.blood_threshold_ml  # the cavity cleared
 
 
 def test_the_grasper_pressed_down_on_the_slope_stays_where_it_is_as_in_v6():
@@ -113,3 +92,14 @@ def test_settle_changes_only_descents_left_without_headway_over_a_cavity_and_kee
 
 # The scripted team plays v6 step for step on v7: tests/test_suction_debris_v3.py (the earlier version's episodes);
 # single == batched on v7: tests/test_batched.py.
+
+
+def test_the_move_rules_of_each_version_and_a_bad_value_named():
+    rules = {value: {agent: sliding.MoveRules.of(value, agent) for agent in ("suction", "grasper")}
+             for value in sliding.BLOCKED_MOVES}
+    assert rules["stop"]["suction"] == sliding.MoveRules()
+    assert rules["climb_ahead"]["suction"] == sliding.MoveRules(slide=True, climb=True, ahead=True)
+    assert rules["settle"]["suction"].settle and not rules["settle"]["grasper"].settle  # the suction's alone
+    assert rules["settle"]["grasper"] == rules["climb_ahead"]["grasper"]
+    with pytest.raises(ValueError, match="blocked_moves.*'glide'"):
+        sliding.MoveRules.of("glide", "suction")

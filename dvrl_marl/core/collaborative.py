@@ -168,10 +168,7 @@ class CollaborativeCore:
         self.num_worlds = n = int(num_worlds)
         p = self.params = template.params
         self.sparse = template.reward_type == "sparse"
-        self.slide = p.blocked_moves in ("slide", "climb", "climb_ahead", "settle")  # v3: blocked moves slide
-        self.climb = p.blocked_moves in ("climb", "climb_ahead", "settle")  # v5: a descent without headway given up
-        self.ahead = p.blocked_moves in ("climb_ahead", "settle")  # v6: headway counted the way the move heads
-        self.settle = p.blocked_moves == "settle"  # v7: the suction's descent still without headway slides down
+        self.move_rules = {agent: sliding.MoveRules.of(p.blocked_moves, agent) for agent in AGENTS}  # v3-v7
         self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
@@ -374,15 +371,14 @@ class CollaborativeCore:
     def _move(self, agent: str, delta: np.ndarray) -> np.ndarray:
         arm = self.arms[agent]
         old = arm.tip_world()
-        p = self.params
+        p, rules = self.params, self.move_rules[agent]
         target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old, delta,
-                                        slide_on_walls=self.slide, climb=self.climb, ahead=self.ahead,
-                                        settle=self.settle and agent == "suction")
+                                        slide_on_walls=rules.slide, **rules.descents)
         previous_tip, previous_q = arm.tip, arm.q
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
         refused = clearance < 0.0  # instruments never pass through each other
-        if self.slide:
+        if rules.slide:
             stuck = refused | (cut & np.all(arm.tip == previous_tip, axis=1))
             if stuck.any():
                 self._fall_back(agent, np.flatnonzero(stuck), old, delta, refused, clearance)
@@ -400,7 +396,7 @@ class CollaborativeCore:
             {"tool": arm.tool, "base": arm.base_position, "tip": old[rows]},
             {"tool": other.tool, "base": other.base_position, "tip": other.tip_world()[rows]},
             agent == "suction", delta[rows], self.cavities, p.tip_clearance, p.step_size, self.low, self.high,
-            climb=self.climb, ahead=self.ahead, settle=self.settle and agent == "suction")
+            **self.move_rules[agent].descents)
         chosen = rows[made]
         arm.tip[chosen], arm.q[chosen] = tip[made] - arm.base_position, q[made]
         refused[chosen], clearance[chosen] = False, gap[made]

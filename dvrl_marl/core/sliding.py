@@ -51,12 +51,14 @@ N (the single env calls these functions on one row).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from dvrl_marl import kinematics
 from dvrl_marl.core.instruments import contact_normal, instrument_clearance
 
-__all__ = ["wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT",
+__all__ = ["MoveRules", "BLOCKED_MOVES", "wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT",
            "NO_HEADWAY"]
 
 #: The lift off the other instrument of a step along it, per unit of the step's length (see :func:`resolve_blocked`).
@@ -65,6 +67,34 @@ CONTACT_LIFT = 0.1
 NO_HEADWAY = 0.1
 #: The joints that place the wrist (outer yaw, outer pitch, insertion); the wrist joints keep the tool pointing down.
 OUTER_JOINTS = 3
+
+
+#: The task files' ``blocked_moves`` values, each adding its rule to those before it (v0-v2, v3, v5, v6, v7).
+BLOCKED_MOVES = ("stop", "slide", "climb", "climb_ahead", "settle")
+
+
+@dataclass(frozen=True)
+class MoveRules:
+    """Which of this module's rules one arm's moves follow (:meth:`of` a ``blocked_moves`` value): the one place
+    that says so, for the batched core and the single env alike."""
+
+    slide: bool = False  # v3: blocked moves slide (:func:`resolve_blocked`, :func:`wall_slide`)
+    climb: bool = False  # v5: a descent without headway gives up its descent
+    ahead: bool = False  # v6: headway counted the way the move heads
+    settle: bool = False  # v7: the suction's descent still without headway slides down the bowl
+
+    @classmethod
+    def of(cls, blocked_moves: str, agent: str) -> MoveRules:
+        if blocked_moves not in BLOCKED_MOVES:
+            raise ValueError(f"blocked_moves must be one of {', '.join(BLOCKED_MOVES)}, got {blocked_moves!r}")
+        level = BLOCKED_MOVES.index(blocked_moves)
+        # a grasper pressing down onto a pin must stay over it: the settle is the suction's alone
+        return cls(slide=level >= 1, climb=level >= 2, ahead=level >= 3, settle=level >= 4 and agent == "suction")
+
+    @property
+    def descents(self) -> dict:
+        """The keyword arguments of :func:`surface_target` and :func:`resolve_blocked` these rules set."""
+        return {"climb": self.climb, "ahead": self.ahead, "settle": self.settle}
 
 
 def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -118,8 +148,9 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
     if settle:
         length = np.sqrt((delta * delta).sum(axis=1))
         made = np.sqrt(((target - old) ** 2).sum(axis=1))
-        resting = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length) & (cavities.cavity_at(old[:, 0], old[:, 1]) >= 0)
-        if resting.any():
+        resting = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length)
+        if resting.any():  # (the cavity lookup only then: most steps make headway)
+            resting &= cavities.cavity_at(old[:, 0], old[:, 1]) >= 0
             settled = _surface_target(cavities, tip_clearance, step, low, high, old, wall_slide(cavities, old, delta),
                                       slide_on_walls)
             resting &= np.sqrt(((settled - old) ** 2).sum(axis=1)) > made  # never less than v6 makes

@@ -406,6 +406,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self.phantom = self._phantom_from_model()
         self.blood = BloodState(self.phantom, p.blood_ml, p.suction_rate_ml_s)
         self._cavities = Cavities(self.phantom)  # the batched geometry v3's sliding reads (core.sliding)
+        self._move_rules = {agent: sliding.MoveRules.of(self.params.blocked_moves, agent) for agent in AGENTS}
         self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.phantom.cavities))]
         self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
         self.handoff = tuple(float(v) for v in self.data.site_xpos[object_id(self.model, "site", "handoff")])
@@ -995,7 +996,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _move(self, agent, dx, dy, dz) -> bool:
         """Move one arm's tip (world deltas); returns True when the instruments are in contact."""
-        if self.params.blocked_moves in ("slide", "climb", "climb_ahead", "settle"):
+        if self._move_rules[agent].slide:
             return self._slide(agent, np.array([[dx, dy, dz]]))
         arm = self.arms[agent]
         old = arm.tip_world()
@@ -1023,14 +1024,11 @@ class SuctionDebrisEnv(ParallelEnv):
         """v3's move (:mod:`dvrl_marl.core.sliding`): a wall slid along, a blocked move resolved by
         :func:`~dvrl_marl.core.sliding.resolve_blocked` (v5: a descent that makes no headway given up); the batched
         core's functions, on one row."""
-        arm, p = self.arms[agent], self.params
-        climb = p.blocked_moves in ("climb", "climb_ahead", "settle")
-        ahead = p.blocked_moves in ("climb_ahead", "settle")
-        settle = p.blocked_moves == "settle" and agent == "suction"  # v7: a grasper stays over the pin it presses on
+        arm, p, descents = self.arms[agent], self.params, self._move_rules[agent].descents
         old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
         low, high = np.asarray(self._low), np.asarray(self._high)
         target = sliding.surface_target(self._cavities, p.tip_clearance, p.step_size, low, high, old, delta,
-                                        climb=climb, ahead=ahead, settle=settle)[0]
+                                        **descents)[0]
         previous, previous_q = list(arm.tip), arm.q  # (restored as they were: no IK, see Arm.set_solved_tip)
         cut = arm.move(*(target - old[0]).tolist(), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
         clearance = self._instrument_distance()
@@ -1041,8 +1039,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 {"tool": arm.tool, "base": arm.base_position, "tip": old},
                 {"tool": other.tool, "base": other.base_position,
                  "tip": np.asarray(other.tip_world(), dtype=np.float64)[None]},
-                agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high, climb=climb,
-                ahead=ahead, settle=settle)
+                agent == "suction", delta, self._cavities, p.tip_clearance, p.step_size, low, high, **descents)
             if made[0]:  # the batched solution as is: a tip slid onto a joint limit stays on it (Arm.set_solved_tip)
                 arm.set_solved_tip(*(tip[0] - arm.base_position).tolist(), q[0])
                 return bool(gap[0] < _CONTACT_MARGIN)
