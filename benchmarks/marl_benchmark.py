@@ -69,7 +69,7 @@ def _task_options(level: str) -> dict:
 
 #: Task-file options that change the scene itself (and ``state_observations``, what MAPPO's critic reads): a
 #: record's scene is its version with these, and cells of different scenes are never pooled.
-SCENE_OPTIONS = ("tool_speed", "jaw_command", "hold_until_handoff", "state_observations")
+SCENE_OPTIONS = ("tool_speed", "jaw_command", "hold_until_handoff", "state_observations", "normalize_observations")
 
 
 def _scene_option(key: str, value) -> str:
@@ -229,7 +229,9 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
     wall = curve[-1]["wall_seconds"]  # the training's own clock (the test episodes below are not training)
     # the final policies, as BenchMARL's experiment.policy (the best validation checkpoint stays in policies_best/)
     team = {agent: policies.load(folder / "policies" / f"marl-{agent}") for agent in ("suction", "grasper")}
-    options = {k: v for k, v in config.env.items() if k not in ("reward_type", "observation_features")}
+    # (the exported policies compute their features and normalisation from the plain observation)
+    options = {k: v for k, v in config.env.items()
+               if k not in ("reward_type", "observation_features", "normalize_observations")}
     final = teams.evaluate_team_batched(team, test_episodes, seed=teams.EVAL_SEED, **options)
     sampled = teams.evaluate_team_batched({agent: policy.with_noise(teams.noise_seed(agent, teams.EVAL_SEED))
                                            for agent, policy in team.items()}, test_episodes, seed=teams.EVAL_SEED,

@@ -66,6 +66,7 @@ def team_of(run: Path):
 
         # the run's [env] table alone: a run recorded with a trainer key retired since still names its scene
         options = dict(read_toml(run / "config.toml").get("env", {}))
+        options.pop("normalize_observations", None)  # the exported policies fold it in: they read the scene's units
         team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v0.AGENTS}
 
         def act(observations):
@@ -87,10 +88,15 @@ def classify(run: Path, episodes: int, window: int, changes: dict | None = None)
     done = np.zeros(episodes, dtype=bool)
     success = np.zeros(episodes, dtype=bool)
     info = {}
+    scaling = env.observation_scaling  # (a run with normalize_observations: positions are read in the scene's units)
+
+    def plain(agent, observation):
+        return observation if scaling is None else scaling.plain_observation(agent, observation)
+
     while not done.all():
         actions = act(observations)
         for agent in env.agents:  # (only the last window is kept)
-            tips[agent] = (tips[agent] + [observations[agent][:, layout["own_tip"]].copy()])[-window:]
+            tips[agent] = (tips[agent] + [plain(agent, observations[agent])[:, layout["own_tip"]].copy()])[-window:]
             commands[agent] = (commands[agent] + [actions[agent][:, :3]])[-window:]
         observations, _, terminations, truncations, infos = env.step(actions)
         info = infos[env.agents[0]]
@@ -98,7 +104,7 @@ def classify(run: Path, episodes: int, window: int, changes: dict | None = None)
         done |= terminations[env.agents[0]] | truncations[env.agents[0]]
     blood = info["blood_remaining_per_cavity"]
     threshold = env.params.blood_threshold_ml
-    grasper = observations["grasper"]
+    grasper = plain("grasper", observations["grasper"])
     debris = grasper[:, layout["debris"]].reshape(episodes, -1, 6)
     holding = debris[:, :, 4] > 0.5
     held_at = (debris[:, :, :3] * holding[..., None]).sum(axis=1)

@@ -323,3 +323,135 @@ def test_torchrl_state_carries_both_observations():
     assert td["state"].shape[-1] == env.batched.template.state_space.shape[0]
     np.testing.assert_allclose(td["state"][:, -2 * width:].reshape(2, 2, width).numpy(),
                                td["agents", "observation"].numpy(), rtol=0, atol=1e-6)
+
+
+# --- normalize_observations (dvrl_marl.envs.observation_scaling) ------------------------------------------------
+
+def _normalized_pair(**kwargs):
+    from dvrl_marl.envs.observation_scaling import ObservationScaling
+
+    kwargs = dict(task="suction_debris_v7", state_observations=True, **OPTIONS, **kwargs)
+    return (suction_debris_v0.parallel_env(**kwargs),
+            suction_debris_v0.parallel_env(normalize_observations=True, **kwargs), ObservationScaling)
+
+
+def test_normalize_observations_maps_what_the_agents_read_and_nothing_else():
+    """The option's observations and state are the plain ones mapped by the shipped centres and spreads, dimension by
+    dimension; the episode itself (rewards, ends) is the plain one's step for step; observations stay in their
+    spaces; the batched worlds read what the single envs read."""
+    plain, normalized, _ = _normalized_pair(max_cycles=200)
+    scaling = normalized.observation_scaling
+    assert plain.observation_scaling is None
+    batched = suction_debris_v0.batched_env(num_envs=1, normalize_observations=True, max_cycles=200, autoreset_mode="disabled",
+                                            task="suction_debris_v7", state_observations=True, **OPTIONS)
+    a, _ = plain.reset(seed=5)
+    b, _ = normalized.reset(seed=5)
+    c, _ = batched.reset(seed=5)
+    rng = np.random.default_rng(5)
+    moved = {agent: 0.0 for agent in a}
+    for _ in range(250):
+        for agent in a:
+            assert normalized.observation_space(agent).contains(b[agent])
+            np.testing.assert_allclose(b[agent], scaling.observation(agent, a[agent]), rtol=0, atol=0)
+            np.testing.assert_array_equal(c[agent][0], b[agent])
+            moved[agent] = max(moved[agent], float(np.abs(b[agent] - a[agent]).max()))
+        assert normalized.state_space.contains(normalized.state())
+        np.testing.assert_array_equal(normalized.state(), scaling.state(plain.state()))
+        np.testing.assert_array_equal(batched.state()[0], normalized.state())
+        if not plain.agents:
+            break
+        actions = {agent: rng.uniform(-1, 1, 4) for agent in plain.agents}
+        a, ra, ta, ua, _ = plain.step(actions)
+        b, rb, tb, ub, _ = normalized.step(actions)
+        c, *_ = batched.step({agent: value[None] for agent, value in actions.items()})
+        assert ra == rb and ta == tb and ua == ub
+    assert min(moved.values()) > 1.0  # the map is not the identity
+    # the state's observation parts are each arm's normalised observation
+    layout = normalized.state_layout
+    for agent in normalized.agents:
+        np.testing.assert_array_equal(normalized.state()[layout[f"{agent}_observation"]], b[agent])
+
+
+def test_normalize_observations_gives_the_scripted_team_unit_scale_inputs():
+    """What the option is for: over the scripted team's episode, every dimension that varies reads at about unit
+    scale (no spread left 25-100 times below the rest, as the plain pins' y and carry offsets are)."""
+    from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
+
+    env = suction_debris_v0.batched_env(num_envs=4, normalize_observations=True, autoreset_mode="disabled",
+                                        task="suction_debris_v7", **OPTIONS)
+    experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
+    plain = env.observation_layout["handoff"].stop
+    scaling = env.observation_scaling
+    observations, _ = env.reset(seed=11)
+    seen = {agent: [] for agent in env.agents}
+    for _ in range(1500):
+        for agent in env.agents:
+            seen[agent].append(observations[agent])
+        actions = {agent: experts[agent](scaling.plain_observation(agent, observations[agent])[:, :plain])
+                   for agent in env.agents}
+        observations, _, terminations, truncations, infos = env.step(actions)
+        if (terminations["suction"] | truncations["suction"]).all():
+            break
+    assert infos["suction"]["is_success"].all()  # the scripted team, given the plain observations back, succeeds
+    for agent, rows in seen.items():
+        spread = np.concatenate(rows).std(axis=0)
+        varying = spread > 1e-9
+        assert np.all(spread[varying] > 0.05) and np.all(spread < 20.0), (agent, spread.round(3))
+
+
+def test_normalize_observations_keeps_the_seat_plain_and_checks_its_value():
+    """A scripted surgeon in the seat reads the scene's units with the option on: the same episode as without it;
+    a value that is not a flag, or an observation the statistics were not measured on, is a ValueError naming it."""
+    rewards = []
+    for normalize in (False, True):
+        env = suction_debris_v0.parallel_env(surgeon="scripted", max_cycles=300, normalize_observations=normalize,
+                                             task="suction_debris_v7", **OPTIONS)
+        env.reset(seed=2)
+        total = 0.0
+        while env.agents:
+            _, reward, *_ = env.step({"suction": np.array([0.3, -0.2, -0.5, 1.0])})
+            total += reward["suction"]
+        rewards.append(total)
+    assert rewards[0] == rewards[1]
+    with pytest.raises(ValueError, match="normalize_observations"):
+        suction_debris_v0.parallel_env(normalize_observations="yes")
+    with pytest.raises(ValueError, match="normalize_observations.*debris"):
+        suction_debris_v0.parallel_env(normalize_observations=True, debris_count=2)
+    with pytest.raises(ValueError, match="normalize_observations.*observation_features"):
+        from dvrl_marl.envs.observation_scaling import ObservationScaling
+
+        ObservationScaling.for_env("env", "no_such_features", ("suction",), 62, 31, False)
+
+
+def test_shipped_observation_scales_are_what_measure_gives():
+    """The shipped centres and spreads are the measurement's (deterministic): rerunning it for the benchmark's feature
+    set gives the file's numbers."""
+    import json
+
+    from dvrl_marl.envs import observation_scaling
+
+    shipped = json.loads(observation_scaling.SCALES_FILE.read_text())
+    name = OPTIONS["observation_features"]
+    assert shipped["feature_sets"][name] == observation_scaling.measure(name)
+    assert set(shipped["feature_sets"]) == {"", *features.FEATURES}
+
+
+def test_normalize_observations_passes_the_pettingzoo_and_torchrl_checks():
+    from pettingzoo.test import parallel_api_test
+
+    parallel_api_test(suction_debris_v0.parallel_env(normalize_observations=True, max_cycles=60,
+                                                     task="suction_debris_v7", **OPTIONS), num_cycles=80)
+    pytest.importorskip("torchrl")
+    from torchrl.envs.utils import check_env_specs
+
+    from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+    env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, state_observations=True, normalize_observations=True,
+                                  task="suction_debris_v7", **OPTIONS)
+    check_env_specs(env)
+    td = env.reset()
+    scaling = env.batched.observation_scaling
+    assert scaling is not None
+    width = td["agents", "observation"].shape[-1]
+    np.testing.assert_allclose(td["state"][:, -2 * width:].reshape(2, 2, width).numpy(),
+                               td["agents", "observation"].numpy(), rtol=0, atol=1e-5)

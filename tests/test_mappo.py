@@ -115,6 +115,56 @@ def test_export_matches_the_torch_actor(tmp_path):
         np.testing.assert_allclose(policies.load(folder)(observations[:, index]), expected[:, index], atol=2e-5)
 
 
+
+def test_export_folds_the_envs_observation_normalisation(tmp_path):
+    """An actor trained on ``normalize_observations``' inputs exports a policy that reads the scene's units (what the
+    surgeon seat and the benchmark's test episodes give it): its actions on a plain observation are the torch
+    actor's on that observation normalised."""
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    config = mappo.load_config(_config(tmp_path))
+    actor, _, actor_net, norms = models.build_models(config, ["suction", "grasper"], 30, 31, 4)
+    rng = np.random.default_rng(1)
+    norms["observation"].update(torch.from_numpy(rng.normal(0.0, 1.0, (500, 2, 30))))
+    for net in actor_net.nets:
+        torch.nn.init.normal_(net[-1].weight, std=0.5)
+    centre, spread = rng.normal(0.0, 0.3, (2, 30)), rng.uniform(0.01, 0.5, (2, 30))
+    plain = rng.normal(0.0, 0.3, (20, 2, 30))
+    normalized = (plain - centre) / spread
+    td = TensorDict({"agents": TensorDict({"observation": torch.from_numpy(normalized).float()},
+                                          batch_size=[20, 2])}, batch_size=[20])
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        expected = np.clip(actor(td)["agents", "action"].numpy(), -1.0, 1.0)
+    for index, agent in enumerate(["suction", "grasper"]):
+        folder = mappo.export_actor(actor_net, index, tmp_path / agent, name=agent, agent=agent, metadata={},
+                                    input_scaling=(centre[index], spread[index]))
+        np.testing.assert_allclose(policies.load(folder)(plain[:, index]), expected[:, index], atol=5e-5)
+
+
+def test_training_on_normalized_observations_exports_policies_that_read_the_scenes_units(tmp_path, monkeypatch):
+    """With ``normalize_observations`` in [env] the trainer hands each agent's map to the export (and validates the
+    exported policies on the plain env, as the seat and the benchmark's test episodes run them)."""
+    from dvrl_marl.envs.observation_scaling import ObservationScaling
+
+    path = _config(tmp_path)
+    path.write_text(path.read_text().replace('reward_type = "guided"', 'reward_type = "guided"\nnormalize_observations = true'))
+    config = mappo.load_config(path)
+    handed = {}
+    real_export = mappo.export_actor
+
+    def export(*args, agent, input_scaling=None, **kwargs):
+        handed[agent] = input_scaling
+        return real_export(*args, agent=agent, input_scaling=input_scaling, **kwargs)
+
+    monkeypatch.setattr(mappo, "export_actor", export)
+    mappo.train(config, 0, tmp_path / "run", total_steps=1024, progress=False, log=lambda *_: None)
+    env = suction_debris_v0.batched_env(num_envs=1, max_cycles=40, normalize_observations=True)
+    assert isinstance(env.observation_scaling, ObservationScaling)
+    for agent in ("suction", "grasper"):
+        for mine, expected in zip(handed[agent], env.observation_scaling.observation_affine(agent)):
+            np.testing.assert_array_equal(mine, expected)
+
 def test_resume_continues_from_the_checkpoint(tmp_path):
     config = mappo.load_config(_config(tmp_path))
     run = tmp_path / "run"

@@ -105,6 +105,7 @@ class SuctionDebrisBatchedEnv:
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
         # Options that help learning (issue 37; validated by the template): features, start levels, guided reward.
         self.feature_spec = self.template.feature_spec
+        self.observation_scaling = self.template.observation_scaling
         self.levels = np.full(self.num_envs, self.template.start_level)  # each world's start level
         self._level_rngs = [start_levels.level_generator(None) for _ in range(self.num_envs)]
         self._rims = None  # the way around the rims, for easy starts that recede (built on first use)
@@ -308,20 +309,25 @@ class SuctionDebrisBatchedEnv:
     def observations(self) -> dict:
         """The current observations of every world, ``{agent: (N, obs_dim)}`` (after ``set_tip_positions``, or
         several masked resets in a row)."""
-        if self.feature_spec is None:
-            return {agent: self.core.observation(agent) for agent in self.agents}
-        return {agent: features.apply(self.feature_spec, self.core.observation(agent)) for agent in self.agents}
+        observations = {agent: self.core.observation(agent) for agent in self.agents}
+        if self.feature_spec is not None:
+            observations = {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
+        if self.observation_scaling is not None:
+            observations = {agent: self.observation_scaling.observation(agent, value)
+                            for agent, value in observations.items()}
+        return observations
 
 
     def state(self) -> np.ndarray:
         """(N, state_dim): the global state of every world, for centralised critics (with ``state_observations``,
         every arm's observation after it, as the single env's)."""
-        if not self.template.state_observations:
-            return self.core.state()
-        observations = [self.core.observation(agent) for agent in AGENTS]
-        if self.feature_spec is not None:
-            observations = [features.apply(self.feature_spec, observation) for observation in observations]
-        return np.concatenate([self.core.state(), *observations], axis=1)
+        state = self.core.state()
+        if self.template.state_observations:
+            observations = [self.core.observation(agent) for agent in AGENTS]
+            if self.feature_spec is not None:
+                observations = [features.apply(self.feature_spec, observation) for observation in observations]
+            state = np.concatenate([state, *observations], axis=1)
+        return state if self.observation_scaling is None else self.observation_scaling.state(state)
 
     def render(self, world: int | None = None):
         """World ``world`` (default :attr:`render_world`) from the endoscope, through the single env's scene."""

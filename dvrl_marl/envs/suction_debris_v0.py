@@ -114,6 +114,11 @@ to collect, the carry, the routes out of the cavities, zoomed offsets; ``observa
 ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
 ``jaw_command`` and ``hold_until_handoff`` (above): a grasp a Gaussian policy decides once and cannot undo by noise;
 ``state_observations`` (above): both arms' observations in the state, for a library's centralised critics.
+``normalize_observations``: every agent's observation (features included) and the state as ``(x - centre) / spread``
+per dimension, fixed centres and spreads measured on the scripted team's and random episodes
+(:mod:`dvrl_marl.envs.observation_scaling`; ``observation_scaling`` maps back): inputs at one scale for a library
+whose networks do not normalise their own (the pins' y and a carry's offsets vary 25-100 times less than a tip's
+position). The surgeon seat reads the scene's units either way.
 
 ## Batched form
 ``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
@@ -126,7 +131,7 @@ rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s``
   to start for a person's device (frames and timing only: trajectories are unchanged).
   Options added without a version change, their defaults the published behaviour (issue 37):
   ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option;
-  ``tool_speed``; ``jaw_command``, ``hold_until_handoff`` and ``state_observations``.
+  ``tool_speed``; ``jaw_command``, ``hold_until_handoff`` and ``state_observations``; ``normalize_observations``.
 """
 
 from __future__ import annotations
@@ -166,6 +171,7 @@ from dvrl_marl.core import sliding, tools
 from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
+from dvrl_marl.envs.observation_scaling import ObservationScaling
 from dvrl_marl.policies import features
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
 from dvrl_marl.rendering import SceneRenderer, render_modes_here
@@ -374,6 +380,7 @@ class SuctionDebrisEnv(ParallelEnv):
         start_level: float | str = 1.0,
         easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
         state_observations: bool = False,
+        normalize_observations: bool = False,
         **params,
     ):
         #: The environment's name (its version), as its messages say it.
@@ -460,6 +467,20 @@ class SuctionDebrisEnv(ParallelEnv):
                 self.state_layout[f"{agent}_observation"] = slice(plain + index * width, plain + (index + 1) * width)
             low = np.concatenate([self.state_space.low, *([self._observation_space.low] * len(AGENTS))])
             self.state_space = spaces.Box(low, -low, dtype=np.float64)
+        #: ``normalize_observations``: every agent's observation and the state mapped by fixed, measured centres and
+        #: spreads (:mod:`dvrl_marl.envs.observation_scaling`); None without the option. The seat's observation stays
+        #: plain (a scripted surgeon and an exported policy read the scene's units).
+        self.observation_scaling = None
+        if validated(Flag, normalize_observations, f"{self.name}: normalize_observations"):
+            scaling = ObservationScaling.for_env(self.name, observation_features, AGENTS,
+                                                 self._observation_space.shape[0], 11 + n_cav + 6 * p.debris_count,
+                                                 self.state_observations)
+            self._observation_spaces = {
+                a: spaces.Box(*scaling.observation_bounds(a, self._observation_space.low, self._observation_space.high),
+                              dtype=np.float64) for a in AGENTS}
+            self.state_space = spaces.Box(*scaling.state_bounds(self.state_space.low, self.state_space.high),
+                                          dtype=np.float64)
+            self.observation_scaling = scaling
         # Seats and agents (a scripted surgeon reads the layout above).
         self.surgeon_seat = surgeon_seat if surgeon is not None else None
         self._surgeon, self._surgeon_is_device = self._bind_surgeon(surgeon, surgeon_seat)
@@ -643,7 +664,7 @@ class SuctionDebrisEnv(ParallelEnv):
             self._safe_device_call(self._surgeon.reset) if self._surgeon_is_device else self._surgeon.reset()
         if self._display is not None:
             self._display.start_episode(wait_for_enter=self.human_seat)
-        observations = {agent: self._observe(agent) for agent in self.agents}
+        observations = {agent: self._agent_observation(agent) for agent in self.agents}
         infos = {agent: self._info(False, False) for agent in self.agents}
         return observations, infos
 
@@ -690,7 +711,7 @@ class SuctionDebrisEnv(ParallelEnv):
             for agent in rewards:
                 rewards[agent] += float(potential[agent][0] - self._potential[agent][0])
             self._potential = potential
-        observations = {agent: self._observe(agent) for agent in self.agents}
+        observations = {agent: self._agent_observation(agent) for agent in self.agents}
         infos = {agent: self._info(contact, complete) for agent in self.agents}
         if teleop_lost:
             for info in infos.values():
@@ -727,9 +748,10 @@ class SuctionDebrisEnv(ParallelEnv):
     def state(self) -> np.ndarray:
         """The global state: tips, jaw, valve, blood, every debris (hidden included), hand-off point; with
         ``state_observations``, every arm's observation after it."""
+        state = self._plain_state()
         if self.state_observations:
-            return np.concatenate([self._plain_state(), *(self._observe(agent) for agent in AGENTS)])
-        return self._plain_state()
+            state = np.concatenate([state, *(self._observe(agent) for agent in AGENTS)])
+        return state if self.observation_scaling is None else self.observation_scaling.state(state)
 
     def _plain_state(self) -> np.ndarray:
         values = [*self._norm(*self.arms["suction"].tip_world()), 2.0 * self.valve_opening - 1.0,
@@ -1275,6 +1297,11 @@ class SuctionDebrisEnv(ParallelEnv):
             return features.spec(name, self.layout(), debris)
         except ValueError as error:
             raise ValueError(f"{self.name}: observation_features: {error}") from None
+
+    def _agent_observation(self, agent) -> np.ndarray:
+        """What ``agent`` is given: its observation, normalised with the option."""
+        observation = self._observe(agent)
+        return observation if self.observation_scaling is None else self.observation_scaling.observation(agent, observation)
 
     def _observe(self, agent) -> np.ndarray:
         own = self.arms[agent]

@@ -184,7 +184,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         """Validation of the current actors (with the scripted partner, if any): a progress row, the best
         checkpoint's policies, TensorBoard and the log."""
         nonlocal best_success, best_blood
-        seats = _learned_seats(actor_net, agents, out, config, seed, steps, actor_head.log_std)
+        seats = _learned_seats(actor_net, agents, out, config, seed, steps, actor_head.log_std,
+                               env.observation_scaling)
         if surgeon is not None:
             seats[config.surgeon_seat] = partner(config, env, noise_from=teams.VALIDATION_SEED)
         result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
@@ -411,8 +412,8 @@ def _update_running(stats: dict, x: np.ndarray) -> None:
 
 #: The env options that shape learning only: validation runs the task at the configured start level (a fixed
 #: ``start_level`` is the task being learnt; the ``[curriculum]`` schedule is not), and the exported policies compute
-#: their observation features from the plain observation.
-_LEARNING_OPTIONS = ("reward_type", "guidance", "observation_features")
+#: their observation features and normalisation from the plain observation.
+_LEARNING_OPTIONS = ("reward_type", "guidance", "observation_features", "normalize_observations")
 
 
 def _eval_kwargs(config: MappoConfig) -> dict:
@@ -420,7 +421,8 @@ def _eval_kwargs(config: MappoConfig) -> dict:
 
 
 
-def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int, steps: int, log_std=None) -> dict:
+def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int, steps: int, log_std=None,
+                   scaling=None) -> dict:
     """Export the current actors and load them back as numpy policies (what users get is what is evaluated);
     with ``evaluate_with_noise`` they act with their exploration noise (seeded), as ``evaluate-team --noise``."""
     from dvrl_marl import policies
@@ -433,7 +435,8 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                             "steps": steps, "partners": partners(config),
                                             **demonstrations(config)}},
-                     log_std=None if log_std is None else log_std[index])
+                     log_std=None if log_std is None else log_std[index],
+                     input_scaling=None if scaling is None else scaling.observation_affine(agent))
         seats[agent] = policies.load(folder)
         if config.evaluate_with_noise:
             seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))

@@ -244,16 +244,22 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
 
 # --- numpy export ---------------------------------------------------------------------------------------------
 def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
-                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v0") -> Path:
+                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v0",
+                 input_scaling=None) -> Path:
     """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box; with the switch
     tool head the tool's more likely value, +1 or -1) as a numpy policy folder, the observation normalisation
     folded into the first layer. ``log_std``: this agent's exploration noise (log standard deviation per action
-    dimension), recorded for :meth:`dvrl_marl.policies.NumpyPolicy.with_noise`."""
+    dimension), recorded for :meth:`dvrl_marl.policies.NumpyPolicy.with_noise`. ``input_scaling``: the env's
+    ``normalize_observations`` map of this agent, ``(centre, spread)``, folded in too, so that the exported policy
+    reads the scene's units as every seat gives them."""
     from dvrl_marl.training.export import write_policy
 
     norm, net = actor_net.norm, actor_net.nets[index]
     mean = norm.mean.detach().cpu().numpy()
     std = norm.std().detach().cpu().numpy()
+    if input_scaling is not None:  # ((x - c) / r - m) / s = (x - (c + r m)) / (r s)
+        centre, spread = (np.asarray(v, dtype=np.float64) for v in input_scaling)
+        mean, std = centre + spread * mean, spread * std
     linears = [m for m in net if hasattr(m, "weight")]
     layers = []
     for position, linear in enumerate(linears):

@@ -153,17 +153,22 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     remaining = initial.copy()
     delivered = np.zeros(episodes)
     tip = env.observation_layout["own_tip"]
+    scaling = env.observation_scaling  # normalize_observations: the team reads it, the paths are the scene's
+
+    def tip_of(agent, observation):
+        return (observation if scaling is None else scaling.plain_observation(agent, observation))[:, tip]
+
     path = {agent: np.zeros(episodes) for agent in env.agents}
     change = {agent: np.zeros(episodes) for agent in env.agents}
     last = {}
     while not done.all():
         actions = {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
-        before = {agent: observations[agent][:, tip].copy() for agent in env.agents}
+        before = {agent: tip_of(agent, observations[agent]) for agent in env.agents}
         observations, _, terminations, truncations, infos = env.step(actions)
         info = infos[first]
         live = ~done
         for agent in env.agents:
-            path[agent] += live * np.linalg.norm(observations[agent][:, tip] - before[agent], axis=1)
+            path[agent] += live * np.linalg.norm(tip_of(agent, observations[agent]) - before[agent], axis=1)
             if agent in last:
                 change[agent] += live * np.abs(actions[agent] - last[agent]).mean(axis=1)
             last[agent] = actions[agent]
