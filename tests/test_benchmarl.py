@@ -105,6 +105,7 @@ def test_shipped_settings_change_only_what_their_files_say(tmp_path):
         changed = {key for key, value in vars(shipped).items() if value != getattr(stock.get_from_yaml(), key)}
         assert changed == set(settings_overrides(Path(__file__).parents[1] / "dvrl_marl" / "integrations" /
                                                  "benchmarl_tasks" / f"{name}.yaml"))
+    assert algorithm_config("mappo").entropy_coef == 0.001 and algorithm_config("ippo").entropy_coef == 0.0
     assert algorithm_config("masac") == MasacConfig.get_from_yaml()  # no shipped file: BenchMARL's own
     assert algorithm_config("mappo", lmbda=0.8).lmbda == 0.8
     assert model_config().num_cells == [64, 64] and model_config(shipped=False) == MlpConfig.get_from_yaml()
