@@ -142,7 +142,8 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     assert len(records) == 1
     record = json.loads(records[0].read_text())
     if library == "benchmarl":  # what it changed in BenchMARL's defaults, named in the record and its file name
-        assert record["benchmarl_settings"]["algorithm"] == {"share_param_critic": False, "lmbda": 0.95}
+        assert record["benchmarl_settings"]["algorithm"] == {"share_param_critic": False, "lmbda": 0.95,
+                                                              "entropy_coef": 0.001}
         assert record["benchmarl_settings"]["model"] == {"num_cells": [64, 64]}
         assert record["benchmarl_settings"]["experiment"]["clip_grad_val"] == 1.0
         label = marl_benchmark._settings_label(record["benchmarl_settings"])
