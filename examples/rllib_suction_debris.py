@@ -44,23 +44,55 @@ def env_options(*, guided: bool = False, level: str = "default", max_cycles: int
     return {**(GUIDED if guided else {"reward_type": "dense"}), "start_level": level, **easy, "max_cycles": max_cycles}
 
 
-def build_config(*, shared: bool = False, env_runners: int = 0, train_batch: int = 4000, minibatch: int = 500,
-                 epochs: int = 5, max_cycles: int = 1500, reward_type: str = "dense", seed: int = 0,
-                 options: dict | None = None):
+def benchmark_ppo_settings() -> dict:
+    """``--guided``: the benchmark's PPO settings in RLlib's terms, read from the shipped BenchMARL files
+    (``dvrl_marl/integrations/benchmarl_tasks/``: ``experiment.yaml``'s learning rate, gradient clip, batch, minibatch
+    and epochs, ``mappo.yaml``'s GAE lambda and entropy bonus, ``mlp.yaml``'s width), so that RLlib's PPO learns with
+    what BenchMARL's MAPPO learnt with. Where RLlib's defaults differ from BenchMARL's PPO: its policy and value share
+    their layers (the value's loss then dominates a policy whose returns run to 20 per episode), its lambda is 1.0, it
+    adds a KL penalty and clips the value loss at 10, and its PPO clip is 0.3; here they are BenchMARL's (separate
+    networks, lambda 0.95, no KL term, no value-loss clip, clip 0.2)."""
+    import yaml
+
+    import dvrl_marl
+
+    tasks = Path(dvrl_marl.__file__).parent / "integrations" / "benchmarl_tasks"
+    experiment, mappo, mlp = (yaml.safe_load((tasks / f"{name}.yaml").read_text())
+                              for name in ("experiment", "mappo", "mlp"))
+    return {"train_batch": experiment["on_policy_collected_frames_per_batch"],
+            "minibatch": experiment["on_policy_minibatch_size"], "epochs": experiment["on_policy_n_minibatch_iters"],
+            "lr": experiment["lr"], "grad_clip": experiment["clip_grad_val"], "gamma": experiment["gamma"],
+            "lambda_": mappo["lmbda"], "entropy_coeff": mappo["entropy_coef"], "hidden": list(mlp["num_cells"]),
+            "clip_param": 0.2, "use_kl_loss": False, "vf_clip_param": float("inf"), "vf_share_layers": False}
+
+
+#: The recipe's PPO settings without ``--guided`` (RLlib's own defaults but for these).
+PLAIN_PPO = {"train_batch": 4000, "minibatch": 500, "epochs": 5, "lr": 3e-4, "gamma": 0.99}
+
+
+def build_config(*, shared: bool = False, env_runners: int = 0, envs_per_runner: int = 1, max_cycles: int = 1500,
+                 reward_type: str = "dense", seed: int = 0, options: dict | None = None, ppo: dict | None = None):
     """The PPOConfig of this recipe (``options``: the env's keyword arguments, else ``reward_type`` and
-    ``max_cycles``)."""
+    ``max_cycles``; ``ppo``: PPO settings, :data:`PLAIN_PPO`'s keys or :func:`benchmark_ppo_settings`')."""
     from ray.rllib.algorithms.ppo import PPOConfig
+    from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
 
     from dvrl_marl.integrations.rllib import policy_per_agent, register_suction_debris, shared_policy
 
+    ppo = dict(ppo or PLAIN_PPO)
+    hidden, share = ppo.pop("hidden", None), ppo.pop("vf_share_layers", None)
+    batch, minibatch, epochs = ppo.pop("train_batch"), ppo.pop("minibatch"), ppo.pop("epochs")
+    model = {**({"fcnet_hiddens": hidden} if hidden else {}), **({"vf_share_layers": share} if share is not None else {})}
     name = register_suction_debris()
-    return (PPOConfig()
-            .environment(name, env_config=options or {"reward_type": reward_type, "max_cycles": max_cycles})
-            .multi_agent(**(shared_policy() if shared else policy_per_agent()))
-            .env_runners(num_env_runners=env_runners)
-            .training(train_batch_size=train_batch, minibatch_size=minibatch, num_epochs=epochs, gamma=0.99,
-                      lr=3e-4)
-            .debugging(seed=seed))
+    config = (PPOConfig()
+              .environment(name, env_config=options or {"reward_type": reward_type, "max_cycles": max_cycles})
+              .multi_agent(**(shared_policy() if shared else policy_per_agent()))
+              .env_runners(num_env_runners=env_runners, num_envs_per_env_runner=envs_per_runner)
+              .training(train_batch_size=batch, minibatch_size=minibatch, num_epochs=epochs, **ppo)
+              .debugging(seed=seed))
+    if model:
+        config = config.rl_module(model_config=DefaultModelConfig(**model))
+    return config
 
 
 def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1500, video: str | None = None,
@@ -102,9 +134,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--iterations", type=int, default=50, help="training iterations")
     parser.add_argument("--shared", action="store_true", help="one policy for both arms")
     parser.add_argument("--env-runners", type=int, default=0, help="RLlib env runners (0: sample in the driver)")
-    parser.add_argument("--train-batch", type=int, default=4000, help="env steps per iteration")
-    parser.add_argument("--minibatch", type=int, default=500, help="PPO minibatch size")
-    parser.add_argument("--epochs", type=int, default=5, help="PPO epochs per iteration")
+    parser.add_argument("--envs-per-runner", type=int, default=1,
+                        help="envs each env runner steps together (RLlib batches their policy calls)")
+    parser.add_argument("--train-batch", type=int, help="env steps per iteration (default: 4000; --guided: 8192)")
+    parser.add_argument("--minibatch", type=int, help="PPO minibatch size (default: 500; --guided: 2048)")
+    parser.add_argument("--epochs", type=int, help="PPO epochs per iteration (default: 5)")
     parser.add_argument("--max-cycles", type=int, default=1500, help="steps before an episode is cut")
     parser.add_argument("--address", help="Ray cluster address (none: a Ray instance of this process)")
     parser.add_argument("--checkpoint", help="save the algorithm here at the end")
@@ -114,16 +148,20 @@ def main(argv=None) -> dict:
     parser.add_argument("--level", default="default", choices=("easy", "default"), help="the env's start level")
     parser.add_argument("--test-episodes", type=int, default=1, help="held-out episodes the trained team plays")
     args = parser.parse_args(argv)
-    if args.iterations < 0 or args.test_episodes < 1:
-        parser.error("--iterations must be >= 0 and --test-episodes >= 1")
+    if args.iterations < 0 or args.test_episodes < 1 or args.envs_per_runner < 1:
+        parser.error("--iterations must be >= 0, --test-episodes and --envs-per-runner >= 1")
+    sizes = {"train_batch": args.train_batch, "minibatch": args.minibatch, "epochs": args.epochs}
+    if any(value is not None and value < 1 for value in sizes.values()):
+        parser.error("--train-batch, --minibatch and --epochs must be >= 1")
+    ppo = {**(benchmark_ppo_settings() if args.guided else PLAIN_PPO),
+           **{key: value for key, value in sizes.items() if value is not None}}
 
     from dvrl_marl.integrations.rllib import init_ray, train
 
     init_ray(args.address)
     options = env_options(guided=args.guided, level=args.level, max_cycles=args.max_cycles)
-    config = build_config(shared=args.shared, env_runners=args.env_runners, train_batch=args.train_batch,
-                          minibatch=args.minibatch, epochs=args.epochs, max_cycles=args.max_cycles, seed=args.seed,
-                          options=options)
+    config = build_config(shared=args.shared, env_runners=args.env_runners, envs_per_runner=args.envs_per_runner,
+                          max_cycles=args.max_cycles, seed=args.seed, options=options, ppo=ppo)
     algo = config.build_algo()
     result = train(algo, args.iterations, log=lambda line: print(line, flush=True))
     summary = {"iterations": args.iterations,

@@ -1,6 +1,7 @@
 """The environments' own inputs and messages, as a careless user meets them: every bad value is refused by name, and
 every message names the environment (its version) and what to do."""
 
+import gc
 import subprocess
 import sys
 from pathlib import Path
@@ -70,10 +71,14 @@ def test_a_reset_mask_never_wraps_or_overflows(mask, message):
     env.reset(options={"reset_mask": [3, 0]})  # indices that exist are fine
 
 
-def test_make_vec_refuses_episodes_that_end_before_they_begin():
+def test_make_vec_refuses_episodes_that_end_before_they_begin(monkeypatch):
+    unraisable = []  # what Python reports from a __del__ that raised (the refused env is collected)
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
     for env_id in ("dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"):
         with pytest.raises(ValueError, match="max_episode_steps: must be >= 1, got 0"):
             gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", max_episode_steps=0)
+    gc.collect()
+    assert not unraisable, [str(report.exc_value) for report in unraisable]  # the refused env closes cleanly
 
 
 def test_render_lists_only_the_scenes_it_can_render():

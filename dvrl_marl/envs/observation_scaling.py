@@ -32,7 +32,8 @@ SCALES_FILE = Path(__file__).with_name("observation_scales.json")
 MEASURE_WORLDS = 16
 #: The seed of the measured episodes (worlds and random actions).
 MEASURE_SEED = 0
-#: The smallest spread (normalised units): this project's trainer's normaliser's floor (dvrl_marl.training.models).
+#: The smallest spread (normalised units), also the floor of this project's trainer's running normaliser
+#: (dvrl_marl.training.models reads it from here).
 MIN_SPREAD = 0.01
 #: The task the statistics were measured on (its observation is every version's).
 MEASURE_TASK = "suction_debris_v7"

@@ -60,6 +60,7 @@ class GoalVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, core_class, template, num_envs: int, max_episode_steps: int | None,
                  autoreset_mode: str = "next_step", render_world: int = 0):
+        self.template = template  # first: close() (Gymnasium's __del__ too) closes it even when a check below fails
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
         from dvrl_marl.schemas import PositiveInt, validated
@@ -68,7 +69,6 @@ class GoalVectorEnv(gym.vector.VectorEnv):
             max_episode_steps = validated(PositiveInt, max_episode_steps, "make_vec: max_episode_steps")
         num_envs = validated(PositiveInt, num_envs, "make_vec: num_envs")
         self.core = core_class(template, num_envs, max_episode_steps)
-        self.template = template
         self.num_envs = self.core.num_worlds
         self.autoreset_mode = autoreset_mode
         self.metadata = {**template.metadata, "autoreset_mode": autoreset_metadata(autoreset_mode)}

@@ -86,11 +86,15 @@ def init_ray(address: str | None = None) -> None:
 
 
 def train(algo, iterations: int, log=print) -> dict:
-    """``iterations`` of ``algo.train()``, a line each (env steps so far, mean episode return); the last result."""
-    result = {}
+    """``iterations`` of ``algo.train()``, a line each (env steps so far, mean episode return, seconds since the
+    start); the last result."""
+    import time
+
+    result, start = {}, time.perf_counter()
     for iteration in range(int(iterations)):
         result = algo.train()
         runners = result.get("env_runners", {})
-        log(f"iteration {iteration + 1}: {result.get('num_env_steps_sampled_lifetime', 0):,} env steps, "
-            f"episode return {runners.get('episode_return_mean', float('nan')):.2f}")
+        log(f"iteration {iteration + 1}: {result.get('num_env_steps_sampled_lifetime', 0):,.0f} env steps, "
+            f"episode return {runners.get('episode_return_mean', float('nan')):.2f}, "
+            f"{time.perf_counter() - start:.0f} s")
     return result

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.envs.observation_scaling import MIN_SPREAD
+
 __all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "limit_threads",
            "learner_device", "SWITCH_EXPORT_GAIN"]
 
@@ -136,7 +138,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
             self.count.fill_(total)
 
         def std(self):
-            return torch.sqrt(self.var).clamp_min(1e-2)  # constant features (the hand-off point) stay finite
+            return torch.sqrt(self.var).clamp_min(MIN_SPREAD)  # constant features (the hand-off point) stay finite
 
         def forward(self, x):
             return ((x - self.mean.float()) / self.std().float())
