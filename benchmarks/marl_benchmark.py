@@ -4,6 +4,7 @@ One row per run, one command per row (each writes one JSON record; nothing is ov
 
     python benchmarks/marl_benchmark.py run --library benchmarl --algorithm mappo --level easy --seed 0 --frames 2000000
     python benchmarks/marl_benchmark.py run --library dvrl-marl --algorithm mappo --level default --seed 0 --frames 4000000
+    python benchmarks/marl_benchmark.py run --library rllib --algorithm ippo --level easy --seed 0 --frames 983040
     python benchmarks/marl_benchmark.py table            # the table (markdown), its JSON and the plot
 
 Every run uses the same env options, the shipped BenchMARL task files
@@ -21,7 +22,10 @@ evaluation interval set here; a record names its settings (``benchmarl_settings`
 ``[env]`` replaced by the same task file (its run folder keeps the ``config.toml`` it ran); at the easy
 level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
 ending on the default task); BenchMARL's default-level runs get the same schedule through a callback
-(``StartLevelSchedule``, outside the algorithm). Validation and test episodes are always at the record's level.
+(``StartLevelSchedule``, outside the algorithm). ``rllib`` runs RLlib's PPO with a policy and a critic per arm
+(IPPO) as ``examples/rllib_suction_debris.py --guided`` does (the PPO settings of BenchMARL's shipped files, its
+record's ``rllib_settings``; 2 env runners of 8 envs), on the PettingZoo env with the same options; its start level is
+the task file's throughout (no schedule). Validation and test episodes are always at the record's level.
 
 Reported as the MARL evaluation protocol asks (Gorsane et al. 2022): success on 100 held-out test episodes (seeds
 ``teams.EVAL_SEED`` on, the record's level) per run, with the deterministic policy (the mean action: what a robot
@@ -50,8 +54,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "baselines" / "results" / "benchmark"
-LIBRARIES = ("benchmarl", "dvrl-marl")
-ALGORITHMS = {"benchmarl": ("mappo", "ippo", "masac"), "dvrl-marl": ("mappo", "ippo")}
+LIBRARIES = ("benchmarl", "dvrl-marl", "rllib")
+#: RLlib's PPO with a policy and a critic per arm, each on its own observation: IPPO.
+ALGORITHMS = {"benchmarl": ("mappo", "ippo", "masac"), "dvrl-marl": ("mappo", "ippo"), "rllib": ("ippo",)}
+#: RLlib's sampling: env runners and envs per runner (on 2 cores about 880 env steps/s, against 300 for RLlib's
+#: default of one env in the driver; examples/rllib_suction_debris.py).
+RLLIB_ENV_RUNNERS, RLLIB_ENVS_PER_RUNNER = 2, 8
+#: RLlib's validation episodes during training (BenchMARL's: experiment.yaml's evaluation_episodes).
+RLLIB_EVAL_EPISODES = 20
 LEVELS = ("easy", "default")
 TEST_EPISODES = 100
 #: The start-level schedule of the default level's runs, both libraries (the configuration of record's
@@ -109,8 +119,8 @@ def _task_of(record: dict) -> str:
 
 
 def _library_of(record: dict) -> str:
-    """The library of a record's cell, with the label of its BenchMARL settings where it has some."""
-    label = _settings_label(record.get("benchmarl_settings"))
+    """The library of a record's cell, with the label of its BenchMARL (or RLlib) settings where it has some."""
+    label = _settings_label(record.get("benchmarl_settings") or record.get("rllib_settings"))
     return f"{record['library']} ({label})" if label else record["library"]
 
 
@@ -241,11 +251,63 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
                    "validation_best": float(result.get("success_rate", float("nan")))}, wall, int(frames)
 
 
+# --- RLlib --------------------------------------------------------------------------------------------------------
+def _rllib_recipe():
+    """examples/rllib_suction_debris.py: the RLlib recipe a user runs (its PPO settings, its team as seats)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("rllib_suction_debris", ROOT / "examples" / "rllib_suction_debris.py")
+    recipe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(recipe)
+    return recipe
+
+
+def _rllib_settings() -> dict:
+    """What an RLlib run sets (the recipe's ``--guided`` PPO settings, its sampling), JSON-safe (an unclipped value
+    loss, ``inf``, as a string)."""
+    ppo = _rllib_recipe().benchmark_ppo_settings()
+    return {"ppo": {k: (str(v) if isinstance(v, float) and not np.isfinite(v) else v) for k, v in ppo.items()},
+            "env_runners": RLLIB_ENV_RUNNERS, "envs_per_runner": RLLIB_ENVS_PER_RUNNER}
+
+
+def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path, options: dict,
+              test_episodes: int = TEST_EPISODES, eval_episodes: int | None = None):
+    """RLlib's PPO, a policy per arm, as examples/rllib_suction_debris.py --guided runs it (the benchmark's PPO settings),
+    for ``frames`` env steps; validation every ``eval_every`` (the mean action, ``teams.VALIDATION_SEED`` on; its time
+    is not training's), the test as every row's."""
+    from dvrl_marl.integrations.rllib import init_ray
+    from dvrl_marl.training import teams
+
+    recipe = _rllib_recipe()
+    init_ray(None)
+    algo = recipe.build_config(env_runners=RLLIB_ENV_RUNNERS, envs_per_runner=RLLIB_ENVS_PER_RUNNER, seed=seed,
+                               options=dict(options), ppo=recipe.benchmark_ppo_settings()).build_algo()
+    curve, done, wall, next_eval = [], 0, 0.0, int(eval_every)
+    while done < frames:
+        start = time.perf_counter()
+        done = int(algo.train().get("num_env_steps_sampled_lifetime", 0))
+        wall += time.perf_counter() - start
+        if done >= next_eval or done >= frames:
+            validation = recipe.test_team(algo, shared=False, episodes=eval_episodes or RLLIB_EVAL_EPISODES,
+                                          options=options, seed=teams.VALIDATION_SEED)
+            curve.append({"frames": done, "wall_seconds": wall, "success_rate": float(validation["success_rate"])})
+            print(f"{done:,} frames, {wall / 60:.1f} min: validation {validation['success_rate']:.2f}", flush=True)
+            next_eval = (done // int(eval_every) + 1) * int(eval_every)
+    algo.save(str((folder / "checkpoint").resolve()))
+    final = recipe.test_team(algo, shared=False, episodes=test_episodes, options=options)
+    sampled = recipe.test_team(algo, shared=False, episodes=test_episodes, options=options, sampled=True)
+    algo.stop()
+    return curve, {"success_rate": float(final["success_rate"]), "episodes": test_episodes,
+                   "success_rate_sampled": float(sampled["success_rate"]),
+                   "validation_best": max(point["success_rate"] for point in curve)}, wall, done
+
+
 def command_run(args) -> int:
     results = Path(args.results)
     options = _task_options(args.level)  # read once: the record says what ran, whatever the file says later
     settings = (_benchmarl_settings(args.algorithm, args.algorithm_file, args.model_file, args.experiment_file)
-                if args.library == "benchmarl" else None)  # read once, as the options
+                if args.library == "benchmarl" else _rllib_settings() if args.library == "rllib"
+                else None)  # read once, as the options
     record = _record_path(results, args.library, args.algorithm, args.level, args.seed, options, settings)
     if record.exists():
         print(f"{record} exists: a run is recorded once (delete it to run again)", file=sys.stderr)
@@ -262,6 +324,9 @@ def command_run(args) -> int:
         curve, final, wall, frames = run_benchmarl(args.algorithm, args.level, args.seed, args.frames, args.worlds,
                                                    args.eval_every, folder, options, args.batch_frames,
                                                    args.test_episodes, settings)
+    elif args.library == "rllib":
+        curve, final, wall, frames = run_rllib(args.level, args.seed, args.frames, args.eval_every, folder, options,
+                                               args.test_episodes, args.eval_episodes)
     else:
         curve, final, wall, frames = run_dvrl_marl(args.algorithm, args.level, args.seed, args.frames,
                                                    args.eval_every, folder, options, args.test_episodes,
@@ -270,7 +335,7 @@ def command_run(args) -> int:
            "frames": frames, "wall_seconds": wall, "final": final, "curve": curve,
            "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
            "target": TARGET, "env_options": options,
-           **({"benchmarl_settings": settings} if settings is not None else {}),
+           **({f"{args.library}_settings": settings} if settings is not None else {}),
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
@@ -396,7 +461,7 @@ def main(argv=None) -> int:
     run.add_argument("--eval-every", type=int, default=245_760, help="frames between validations (default %(default)s)")
     run.add_argument("--test-episodes", type=int, default=TEST_EPISODES, help="held-out test episodes (default %(default)s)")
     run.add_argument("--eval-episodes", type=int, default=0,
-                     help="dvrl-marl: validation episodes (0: the configuration's)")
+                     help="dvrl-marl, rllib: validation episodes (0: the configuration's; RLlib's: 20)")
     run.add_argument("--algorithm-file", default=None,
                      help="BenchMARL: a YAML of the algorithm's settings to change (default: the shipped "
                           "benchmarl_tasks/<algorithm>.yaml, where there is one)")

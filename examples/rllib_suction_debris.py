@@ -9,15 +9,16 @@
 
 ``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v7``,
 ``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
-tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), ``--level``
-its start level (``easy`` ... ``default``,
-``dvrl_marl.envs.start_levels``); the trained team is then tested on ``--test-episodes`` held-out episodes at that
-level.
+tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), and the
+PPO settings BenchMARL's MAPPO learns it with (:func:`benchmark_ppo_settings`); ``--level`` its start level
+(``easy`` ... ``default``, ``dvrl_marl.envs.start_levels``); the trained team is then tested on ``--test-episodes``
+held-out episodes at that level, by the mean action.
 
 The env is registered with RLlib as ``dvrl_marl/suction_debris-v1`` (``dvrl_marl.integrations.rllib``; its
-wrapper renders, RLlib's own does not) and steps the PettingZoo parallel env unmodified, at a few hundred steps/s
-on 2 cores (measured: 300-420). For speed, the project's own trainer (``dvrl-marl train``, MAPPO on the batched
-env, optionally on Ray) is the way; this recipe is for people whose stack is RLlib.
+wrapper renders, RLlib's own does not) and steps the PettingZoo parallel env unmodified: on 2 cores about 300
+steps/s with RLlib's defaults, about 750 with ``--env-runners 2 --envs-per-runner 8``. For speed, the project's own
+trainer (``dvrl-marl train``, MAPPO on the batched env, optionally on Ray) is the way; this recipe is for people whose
+stack is RLlib.
 """
 
 from __future__ import annotations
@@ -95,26 +96,61 @@ def build_config(*, shared: bool = False, env_runners: int = 0, envs_per_runner:
     return config
 
 
+def learned_team(algo, *, shared: bool, noise_seed=None) -> dict:
+    """The trained team as seats: per arm, a callable from observations ``(N, obs_dim)`` to actions ``(N, 4)``, the
+    distributions' means (what drives a robot), or with ``noise_seed(agent)`` a seed per arm, actions sampled from them
+    as in training."""
+    import numpy as np
+    import torch
+
+    from dvrl_marl.integrations.rllib import AGENTS
+
+    def seat(agent):
+        module = algo.get_module("shared" if shared else agent)
+        rng = np.random.default_rng(noise_seed(agent)) if noise_seed else None
+
+        def act(observations):
+            with torch.no_grad():
+                output = module.forward_inference({"obs": torch.as_tensor(np.asarray(observations),
+                                                                          dtype=torch.float32)})
+            mean, log_std = np.split(output["action_dist_inputs"].numpy(), 2, axis=-1)  # RLlib's diagonal Gaussian
+            if rng is not None:
+                mean = mean + np.exp(log_std) * rng.standard_normal(mean.shape)
+            return np.clip(mean, -1.0, 1.0)
+
+        return act
+
+    return {agent: seat(agent) for agent in AGENTS}
+
+
+def test_team(algo, *, shared: bool, episodes: int, options: dict, seed: int | None = None,
+              sampled: bool = False) -> dict:
+    """``episodes`` held-out episodes of the trained team at once (``dvrl_marl.training.teams``: the test seeds every
+    benchmark row is scored on, batched), by the mean action or ``sampled``; ``options``: the env's keyword arguments
+    it trained with (the observation features among them)."""
+    from dvrl_marl.training import teams
+
+    seed = teams.EVAL_SEED if seed is None else seed
+    noise = (lambda agent: teams.noise_seed(agent, seed)) if sampled else None
+    return teams.evaluate_team_batched(learned_team(algo, shared=shared, noise_seed=noise), episodes, seed=seed,
+                                       **options)
+
+
 def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1500, video: str | None = None,
              options: dict | None = None) -> dict:
     """One episode of the trained team (deterministic actions: the distributions' means), optionally filmed;
     ``options``: the env's keyword arguments it trained with (the observation features among them)."""
     import numpy as np
-    import torch
 
     from dvrl_marl.envs import suction_debris_v1
 
+    team = learned_team(algo, shared=shared)
     options = {k: v for k, v in (options or {"max_cycles": max_cycles}).items() if k != "reward_type"}
     env = suction_debris_v1.parallel_env(render_mode="rgb_array" if video else None, **options)
     observations, _ = env.reset(seed=seed)
     frames, steps, info = [], 0, {}
     while env.agents:
-        actions = {}
-        for agent, observation in observations.items():
-            module = algo.get_module("shared" if shared else agent)
-            output = module.forward_inference({"obs": torch.as_tensor(observation[None], dtype=torch.float32)})
-            mean = output["action_dist_inputs"][0, :4].detach().numpy()  # Gaussian: means, then log stds
-            actions[agent] = np.clip(mean, -1.0, 1.0)
+        actions = {agent: team[agent](observation[None])[0] for agent, observation in observations.items()}
         observations, _, _, _, infos = env.step(actions)
         info = next(iter(infos.values()))
         steps += 1
@@ -169,11 +205,11 @@ def main(argv=None) -> dict:
                "policies": sorted(algo.config.policies)}
     if args.checkpoint:
         summary["checkpoint"] = str(algo.save(str(Path(args.checkpoint).resolve())).checkpoint.path)
-    episodes = [roll_out(algo, shared=args.shared, seed=900_000_000 + k, max_cycles=args.max_cycles,
-                         video=args.video if k == 0 else None, options=options) for k in range(args.test_episodes)]
-    summary["episode"] = episodes[0]
-    summary["test"] = {"episodes": len(episodes), "level": args.level, "guided": args.guided,
-                       "success_rate": sum(e["success"] for e in episodes) / len(episodes)}
+    summary["episode"] = roll_out(algo, shared=args.shared, max_cycles=args.max_cycles, video=args.video,
+                                  options=options)
+    test = test_team(algo, shared=args.shared, episodes=args.test_episodes, options=options)
+    summary["test"] = {"episodes": args.test_episodes, "level": args.level, "guided": args.guided,
+                       "success_rate": test["success_rate"]}
     print(json.dumps(summary))
     algo.stop()
     return summary

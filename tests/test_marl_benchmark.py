@@ -124,17 +124,21 @@ def test_bad_flags_are_named():
     assert result.returncode == 2 and "--frames" in result.stderr
 
 
-@pytest.mark.parametrize("library", ["dvrl-marl", "benchmarl"])
+@pytest.mark.parametrize("library", ["dvrl-marl", "benchmarl", "rllib"])
 def test_a_tiny_run_writes_its_record(tmp_path, library):
     pytest.importorskip("torchrl")
     if library == "benchmarl":
         pytest.importorskip("benchmarl")
+    elif library == "rllib":
+        pytest.importorskip("ray.rllib", reason='RLlib\'s row needs the extra: pip install "dvrl-marl[rllib]"')
     else:
         pytest.importorskip("yaml")
-    flags = ["--frames", "1200", "--worlds", "4", "--batch-frames", "600", "--eval-every", "600"] if library == \
-        "benchmarl" else ["--frames", "2048", "--eval-every", "8192", "--eval-episodes", "2"]
+    flags = {"benchmarl": ["--frames", "1200", "--worlds", "4", "--batch-frames", "600", "--eval-every", "600"],
+             "dvrl-marl": ["--frames", "2048", "--eval-every", "8192", "--eval-episodes", "2"],
+             "rllib": ["--frames", "16384", "--eval-every", "8192", "--eval-episodes", "2"]}[library]
+    algorithm = "ippo" if library == "rllib" else "mappo"
     env = {**os.environ, "MUJOCO_GL": "egl"}
-    result = subprocess.run([sys.executable, str(SCRIPT), "run", "--library", library, "--algorithm", "mappo",
+    result = subprocess.run([sys.executable, str(SCRIPT), "run", "--library", library, "--algorithm", algorithm,
                              "--level", "easy", "--seed", "0", "--test-episodes", "3", "--results", str(tmp_path),
                              *flags], capture_output=True, text=True, env=env, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -148,11 +152,22 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
         assert record["benchmarl_settings"]["experiment"]["clip_grad_val"] == 1.0
         label = marl_benchmark._settings_label(record["benchmarl_settings"])
         assert records[0].name == f"benchmarl_mappo_{_shipped_task()}_easy_{label}_seed0.json"
+    elif library == "rllib":  # the recipe's --guided PPO settings, named in the record and its file name
+        recipe_settings = marl_benchmark._rllib_recipe().benchmark_ppo_settings()
+        assert record["rllib_settings"]["ppo"]["lr"] == recipe_settings["lr"]
+        assert record["rllib_settings"]["ppo"]["vf_clip_param"] == "inf"  # JSON-safe
+        label = marl_benchmark._settings_label(record["rllib_settings"])
+        assert records[0].name == f"rllib_ippo_{_shipped_task()}_easy_{label}_seed0.json"
+        assert [point["frames"] for point in record["curve"]] == [8192, 16384]  # validated every --eval-every
+        assert (tmp_path / "runs" / records[0].stem / "checkpoint").is_dir()
     else:
         assert records[0].name == f"dvrl-marl_mappo_{_shipped_task()}_easy_seed0.json"
     assert record["final"]["episodes"] == 3 and 0.0 <= record["final"]["success_rate"] <= 1.0
+    assert 0.0 <= record["final"]["success_rate_sampled"] <= 1.0
     assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
     assert record["command"].startswith("python benchmarks/marl_benchmark.py run")
+    if library == "rllib":
+        return  # (mean_action_failures.py reads a BenchMARL run's folder)
     # the run's folder holds what benchmarks/mean_action_failures.py reads: its failures, classified
     failures = _load_script("mean_action_failures")
     success, classes, examples = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10)

@@ -77,6 +77,37 @@ def test_multi_agent_recipe_takes_the_envs_learning_options(local_ray):
         assert {k: v for k, v in recipe.env_options(guided=True, level=level).items() if k != "max_cycles"} == shipped
 
 
+def test_guided_recipe_learns_with_the_benchmarks_ppo_settings():
+    """--guided: RLlib's PPO gets the settings BenchMARL's MAPPO learns the task with, read from the shipped files
+    (one place), and RLlib's defaults that differ from them (shared policy/value layers, lambda 1, a KL term, a value
+    loss clipped at 10) are replaced."""
+    import yaml
+
+    recipe = load("rllib_suction_debris")
+    tasks = Path(dvrl_marl.__file__).parent / "integrations" / "benchmarl_tasks"
+    experiment, mappo, mlp = (yaml.safe_load((tasks / f"{name}.yaml").read_text())
+                              for name in ("experiment", "mappo", "mlp"))
+    config = recipe.build_config(ppo=recipe.benchmark_ppo_settings(), envs_per_runner=8,
+                                 options=recipe.env_options(guided=True, level="easy"))
+    assert config.lr == experiment["lr"] and config.grad_clip == experiment["clip_grad_val"]
+    assert config.train_batch_size == experiment["on_policy_collected_frames_per_batch"]
+    assert config.minibatch_size == experiment["on_policy_minibatch_size"]
+    assert config.num_epochs == experiment["on_policy_n_minibatch_iters"]
+    assert config.lambda_ == mappo["lmbda"] and config.entropy_coeff == mappo["entropy_coef"] > 0
+    assert config.model_config["fcnet_hiddens"] == mlp["num_cells"] and not config.model_config["vf_share_layers"]
+    assert not config.use_kl_loss and config.vf_clip_param == float("inf") and config.clip_param == 0.2
+    assert config.num_envs_per_env_runner == 8
+    plain = recipe.build_config()  # without --guided: RLlib's own model, the recipe's plain sizes
+    assert plain.train_batch_size == recipe.PLAIN_PPO["train_batch"] and plain.lr == recipe.PLAIN_PPO["lr"]
+
+
+@pytest.mark.parametrize("flag", ["--envs-per-runner", "--train-batch", "--minibatch", "--epochs"])
+def test_recipe_refuses_sizes_below_one(flag, capsys):
+    with pytest.raises(SystemExit):
+        load("rllib_suction_debris").main([flag, "0"])
+    assert flag in capsys.readouterr().err
+
+
 def test_single_arm_recipe_runs_a_vector_of_envs_per_runner(tmp_path, local_ray):
     recipe = load("rllib_single_arm")
     summary = recipe.main([*TINY, "--envs-per-runner", "4", "--episodes", "2", "--video", str(tmp_path / "reach.mp4")])
