@@ -288,14 +288,14 @@ def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path,
         done = int(algo.train().get("num_env_steps_sampled_lifetime", 0))
         wall += time.perf_counter() - start
         if done >= next_eval or done >= frames:
-            validation = recipe.test_team(algo, shared=False, episodes=eval_episodes or RLLIB_EVAL_EPISODES,
+            validation = recipe.score_team(algo, shared=False, episodes=eval_episodes or RLLIB_EVAL_EPISODES,
                                           options=options, seed=teams.VALIDATION_SEED)
             curve.append({"frames": done, "wall_seconds": wall, "success_rate": float(validation["success_rate"])})
             print(f"{done:,} frames, {wall / 60:.1f} min: validation {validation['success_rate']:.2f}", flush=True)
             next_eval = (done // int(eval_every) + 1) * int(eval_every)
     algo.save(str((folder / "checkpoint").resolve()))
-    final = recipe.test_team(algo, shared=False, episodes=test_episodes, options=options)
-    sampled = recipe.test_team(algo, shared=False, episodes=test_episodes, options=options, sampled=True)
+    final = recipe.score_team(algo, shared=False, episodes=test_episodes, options=options)
+    sampled = recipe.score_team(algo, shared=False, episodes=test_episodes, options=options, sampled=True)
     algo.stop()
     return curve, {"success_rate": float(final["success_rate"]), "episodes": test_episodes,
                    "success_rate_sampled": float(sampled["success_rate"]),

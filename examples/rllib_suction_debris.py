@@ -16,7 +16,7 @@ held-out episodes at that level, by the mean action.
 
 The env is registered with RLlib as ``dvrl_marl/suction_debris-v1`` (``dvrl_marl.integrations.rllib``; its
 wrapper renders, RLlib's own does not) and steps the PettingZoo parallel env unmodified: on 2 cores about 300
-steps/s with RLlib's defaults, about 750 with ``--env-runners 2 --envs-per-runner 8``. For speed, the project's own
+steps/s with RLlib's defaults, 750-900 with ``--env-runners 2 --envs-per-runner 8``. For speed, the project's own
 trainer (``dvrl-marl train``, MAPPO on the batched env, optionally on Ray) is the way; this recipe is for people whose
 stack is RLlib.
 """
@@ -123,7 +123,7 @@ def learned_team(algo, *, shared: bool, noise_seed=None) -> dict:
     return {agent: seat(agent) for agent in AGENTS}
 
 
-def test_team(algo, *, shared: bool, episodes: int, options: dict, seed: int | None = None,
+def score_team(algo, *, shared: bool, episodes: int, options: dict, seed: int | None = None,
               sampled: bool = False) -> dict:
     """``episodes`` held-out episodes of the trained team at once (``dvrl_marl.training.teams``: the test seeds every
     benchmark row is scored on, batched), by the mean action or ``sampled``; ``options``: the env's keyword arguments
@@ -207,7 +207,7 @@ def main(argv=None) -> dict:
         summary["checkpoint"] = str(algo.save(str(Path(args.checkpoint).resolve())).checkpoint.path)
     summary["episode"] = roll_out(algo, shared=args.shared, max_cycles=args.max_cycles, video=args.video,
                                   options=options)
-    test = test_team(algo, shared=args.shared, episodes=args.test_episodes, options=options)
+    test = score_team(algo, shared=args.shared, episodes=args.test_episodes, options=options)
     summary["test"] = {"episodes": args.test_episodes, "level": args.level, "guided": args.guided,
                        "success_rate": test["success_rate"]}
     print(json.dumps(summary))
