@@ -5,7 +5,8 @@
     python examples/rllib_suction_debris.py --shared --env-runners 2     # one policy for both arms, 2 env runners
     python examples/rllib_suction_debris.py --address auto               # on the Ray cluster this machine joined
     python examples/rllib_suction_debris.py --iterations 1 --video rllib.mp4   # and a video of the learned team
-    python examples/rllib_suction_debris.py --guided --level easy --test-episodes 20   # the env's learning options
+    python examples/rllib_suction_debris.py --guided --level easy --iterations 120 --env-runners 2 \
+        --envs-per-runner 8 --test-episodes 100   # the env's learning options: learns the easy level (20 minutes)
 
 ``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v7``,
 ``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
