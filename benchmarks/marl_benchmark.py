@@ -415,6 +415,15 @@ def command_table(args) -> int:
     return 0
 
 
+def _short_scene(scene: str) -> str:
+    """A scene's name for the plot's labels: ``v7 tool0.1 jaw-switch hold state`` (the table keeps the whole name)."""
+    short = scene.removeprefix("suction_debris_")
+    for option, name in (("_tool_speed", " tool"), ("_jaw_command-", " jaw-"), ("_hold_until_handoff", " hold"),
+                         ("_state_observations", " state"), ("_normalize_observations", " normalized")):
+        short = short.replace(option, name)
+    return short
+
+
 def _plot(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -425,7 +434,8 @@ def _plot(rows: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, len(LEVELS), figsize=(5.5 * len(LEVELS), height), sharex=True)
     for axis, level in zip(np.atleast_1d(axes), LEVELS):
         chosen = [row for row in rows if row["level"] == level]
-        labels = [f"{row['library']} {row['algorithm'].upper()}\n{row['task']} (n={row['seeds']})" for row in chosen]
+        labels = [f"{row['library']} {row['algorithm'].upper()}\n{_short_scene(row['task'])} (n={row['seeds']})"
+                  for row in chosen]
         y = np.arange(len(chosen))
         for offset, key, interval, colour, name in ((0.2, "iqm_success", "ci95", "#4c72b0", "mean action"),
                                                     (-0.2, "iqm_success_sampled", "ci95_sampled", "#dd8452",
