@@ -262,18 +262,17 @@ def _rllib_recipe():
     return recipe
 
 
-def _rllib_settings() -> dict:
-    """What an RLlib run sets (the recipe's ``--guided`` PPO settings, its sampling), JSON-safe (an unclipped value
-    loss, ``inf``, as a string)."""
-    ppo = _rllib_recipe().benchmark_ppo_settings()
+def _rllib_settings(ppo: dict) -> dict:
+    """What an RLlib run sets (``ppo``: the recipe's ``--guided`` PPO settings; its sampling), JSON-safe (an unclipped
+    value loss, ``inf``, as a string)."""
     return {"ppo": {k: (str(v) if isinstance(v, float) and not np.isfinite(v) else v) for k, v in ppo.items()},
             "env_runners": RLLIB_ENV_RUNNERS, "envs_per_runner": RLLIB_ENVS_PER_RUNNER}
 
 
-def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path, options: dict,
+def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path, options: dict, ppo: dict,
               test_episodes: int = TEST_EPISODES, eval_episodes: int | None = None):
-    """RLlib's PPO, a policy per arm, as examples/rllib_suction_debris.py --guided runs it (the benchmark's PPO settings),
-    for ``frames`` env steps; validation every ``eval_every`` (the mean action, ``teams.VALIDATION_SEED`` on; its time
+    """RLlib's PPO, a policy per arm, as examples/rllib_suction_debris.py --guided runs it (``ppo``: the benchmark's PPO
+    settings, its ``benchmark_ppo_settings()``), for ``frames`` env steps; validation every ``eval_every`` (the mean action, ``teams.VALIDATION_SEED`` on; its time
     is not training's), the test as every row's."""
     from dvrl_marl.integrations.rllib import init_ray
     from dvrl_marl.training import teams
@@ -281,7 +280,7 @@ def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path,
     recipe = _rllib_recipe()
     init_ray(None)
     algo = recipe.build_config(env_runners=RLLIB_ENV_RUNNERS, envs_per_runner=RLLIB_ENVS_PER_RUNNER, seed=seed,
-                               options=dict(options), ppo=recipe.benchmark_ppo_settings()).build_algo()
+                               options=dict(options), ppo=ppo).build_algo()
     curve, done, wall, next_eval = [], 0, 0.0, int(eval_every)
     while done < frames:
         start = time.perf_counter()
@@ -305,8 +304,9 @@ def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path,
 def command_run(args) -> int:
     results = Path(args.results)
     options = _task_options(args.level)  # read once: the record says what ran, whatever the file says later
+    ppo = _rllib_recipe().benchmark_ppo_settings() if args.library == "rllib" else None  # read once, as the options
     settings = (_benchmarl_settings(args.algorithm, args.algorithm_file, args.model_file, args.experiment_file)
-                if args.library == "benchmarl" else _rllib_settings() if args.library == "rllib"
+                if args.library == "benchmarl" else _rllib_settings(ppo) if args.library == "rllib"
                 else None)  # read once, as the options
     record = _record_path(results, args.library, args.algorithm, args.level, args.seed, options, settings)
     if record.exists():
@@ -326,7 +326,7 @@ def command_run(args) -> int:
                                                    args.test_episodes, settings)
     elif args.library == "rllib":
         curve, final, wall, frames = run_rllib(args.level, args.seed, args.frames, args.eval_every, folder, options,
-                                               args.test_episodes, args.eval_episodes)
+                                               ppo, args.test_episodes, args.eval_episodes)
     else:
         curve, final, wall, frames = run_dvrl_marl(args.algorithm, args.level, args.seed, args.frames,
                                                    args.eval_every, folder, options, args.test_episodes,
