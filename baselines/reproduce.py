@@ -24,18 +24,14 @@ SHIPPED = {
     "reach-lnd": ("reach_lnd_ddpg_her", {}),
     "reach-suction-irrigation": ("reach_suction_irrigation_ddpg_her", {"tool": "suction_irrigation"}),
     "pick-lnd": ("pick_lnd_ddpg_her_bc", {}),
-    # v1 environments: p is the dVRK's measured_cp frame
-    "reach-lnd-v1": ("reach_lnd_ddpg_her_v1", {}),
-    "reach-suction-irrigation-v1": ("reach_suction_irrigation_ddpg_her_v1", {"tool": "suction_irrigation"}),
-    "pick-lnd-v1": ("pick_lnd_ddpg_her_bc_v1", {}),
 }
 
 
 #: The figures of record (results/learning_curves<suffix>.png, summary<suffix>.csv) and the configurations in each.
+#: ("" was recorded on the first single-arm envs, whose p was the jaw's control point (commit 36a42a0 reproduces it);
+#: "_v1" on the current ones: the same configurations.)
 FIGURES = {
-    "": ("pick_lnd_ddpg_her", "pick_lnd_ddpg_her_bc", "pick_lnd_sac_her", "pick_lnd_tqc_her", "reach_lnd_ddpg_her",
-         "reach_lnd_sac_her", "reach_lnd_tqc_her", "reach_suction_irrigation_ddpg_her"),
-    "_v1": ("pick_lnd_ddpg_her_bc_v1", "reach_lnd_ddpg_her_v1", "reach_suction_irrigation_ddpg_her_v1"),
+    "_v1": ("pick_lnd_ddpg_her_bc", "reach_lnd_ddpg_her", "reach_suction_irrigation_ddpg_her"),
 }
 
 

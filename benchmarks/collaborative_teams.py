@@ -30,7 +30,7 @@ def main() -> None:
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
     names = ["scripted_team"]
-    if {"reach-lnd-v1", "reach-suction-irrigation-v1", "pick-lnd-v1"} <= set(policies.available()):
+    if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
         names.append("learned_team")  # the v1 policies
     if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
         names.append("learned_team_v0")  # the first release's v0 policies

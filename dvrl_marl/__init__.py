@@ -1,7 +1,7 @@
 """dvrl-marl: dVRK reinforcement-learning environments on MuJoCo.
 
-Importing the package registers the Gymnasium environments ``dvrl_marl/PSMReach-v0``, ``dvrl_marl/PSMPick-v0``
-and their dense-reward twins ``dvrl_marl/PSMReachDense-v0``, ``dvrl_marl/PSMPickDense-v0``.
+Importing the package registers the Gymnasium environments ``dvrl_marl/PSMReach-v1``, ``dvrl_marl/PSMPick-v1``
+and their dense-reward twins ``dvrl_marl/PSMReachDense-v1``, ``dvrl_marl/PSMPickDense-v1``.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ import signal
 import sys
 from pathlib import Path
 
-from dvrl_marl.registration import COLLABORATIVE_TASKS
+from dvrl_marl.envs.presets import PRESETS, scene_options
 from dvrl_marl.schemas import cli_number
 
 __all__ = ["main"]
@@ -113,9 +113,8 @@ def resolve_config(name: str) -> str:
     raise FileNotFoundError(f"no configuration file {name}; shipped configurations: {', '.join(names)}")
 
 
-#: The scene's task of each env a seat policy names (multi-agent policies name the PettingZoo env they learnt on).
-_SEAT_TASKS = {"dvrl_marl/SurgeonSeat-v1": "suction_debris_v1", "dvrl_marl/SurgeonSeat-v2": "suction_debris_v2",
-               **{("suction_debris_v0" if task == "suction_debris" else task): task for task in COLLABORATIVE_TASKS}}
+#: The env ids a seat policy of the collaborative scene names (the seat env's, or the scene's it learnt on).
+_SEAT_ENV_IDS = ("dvrl_marl/SurgeonSeat-v8", "suction_debris_v8")
 
 
 def _evaluate(args) -> int:
@@ -126,17 +125,16 @@ def _evaluate(args) -> int:
 
     policy = policies.load(args.policy)
     env_id = args.env or policy.spec["env_id"]
-    if env_id in _SEAT_TASKS or policy.spec.get("agent"):  # a seat of the collaborative scene: its team
+    if env_id in _SEAT_ENV_IDS or policy.spec.get("agent"):  # a seat of the collaborative scene: its team
         from dvrl_marl.training import teams
 
         agent = policy.spec.get("agent", "grasper")
         partner = "suction" if agent == "grasper" else "grasper"
         seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
-        task = _SEAT_TASKS.get(env_id, "suction_debris_v2")
         result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner)}, args.episodes,
-                                             seed=seed, task=task)
+                                             seed=seed)
         result = {k: v for k, v in result.items() if k not in ("success", "steps")}
-        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "task": task, "seat": agent,
+        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "seat": agent,
                           "partner": "pipeline (learned_team)", **result}, indent=2))
         return 0
     env_kwargs = {"tool": args.tool} if args.tool else {}
@@ -152,8 +150,8 @@ def _evaluate_team(args) -> int:
     from dvrl_marl.training import teams
 
     seed = teams.EVAL_SEED if args.seed is None else args.seed
-    task = {"task": args.task}
-    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, noise=args.noise, **task)
+    rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, noise=args.noise,
+                            **scene_options(args.preset))
     width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
     print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
           f"{'median steps':>13} {'contacts':>9}")
@@ -263,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--seat", choices=["grasper", "suction"], default="grasper",
                         help="the arm the person works (default: grasper, the LND)")
     teleop.add_argument("--partner", default="scripted", help="who works the other arm: scripted (default), learned "
-                        "(the learned seat: marl-suction-v2 or marl-grasper), pipeline (the Reach + Pick "
+                        "(the learned seat: marl-suction or marl-grasper), pipeline (the Reach + Pick "
                         "pipeline), or a shipped policy name or folder")
     teleop.add_argument("--port", type=PORT, default=8000, help="port (default 8000; 0: any free port)")
     teleop.add_argument("--host", default="127.0.0.1", help="interface to serve on (default 127.0.0.1: this "
@@ -318,10 +316,9 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--episodes", type=COUNT, default=100)
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", help="also write the rows to this JSON file")
-    team.add_argument("--task", choices=COLLABORATIVE_TASKS,
-                      default="suction_debris_v2",
-                      help="the scene's task (default: the demo's, suction_debris_v2; figures recorded before "
-                           "2026-11-25 used suction_debris, v0's)")
+    team.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                      help="the scene's preset (suction_debris_v8); its learning options (reward, observation "
+                           "features) are left out, since the seats compute their own features")
     team.add_argument("--noise", action="store_true",
                       help="learned seats act with the exploration noise they trained with (seeded; their policy.json "
                            "records it), not their mean action")

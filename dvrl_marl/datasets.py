@@ -9,7 +9,7 @@ observations, actions = datasets.transitions("dvrl_marl/surgeon-scripted-v1")   
 device = datasets.replay_device("dvrl_marl/surgeon-scripted-v1", episode=3)                   # a teleop device
 ```
 
-Each episode is one seat of ``suction_debris_v1`` as the Gymnasium env ``dvrl_marl/SurgeonSeat-v1`` (the partner
+Each episode is one seat of ``suction_debris_v8`` as the Gymnasium env ``dvrl_marl/SurgeonSeat-v8`` (the partner
 inside it) sees it: observations, actions, rewards, terminations, truncations and infos (``is_success``,
 ``blood_remaining``, ``debris_delivered``, ``collision`` and the partner's action), with the env spec (id and
 keyword arguments) and each episode's seed, so ``replay`` plays an episode back exactly. Minari keeps datasets
@@ -26,7 +26,7 @@ __all__ = ["record", "record_episodes", "transitions", "replay", "replay_device"
            "save_episodes", "next_free_id", "SEAT_ENV_ID"]
 
 #: The Gymnasium env every dataset here is recorded from.
-SEAT_ENV_ID = "dvrl_marl/SurgeonSeat-v1"
+SEAT_ENV_ID = "dvrl_marl/SurgeonSeat-v8"
 _INFO_KEYS = ("is_success", "blood_remaining", "debris_delivered", "collision", "partner_action")
 
 
@@ -185,7 +185,7 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
     name = policy if isinstance(policy, str) else type(policy).__name__
     return save_episodes(dataset_id, buffers, env, algorithm_name=algorithm_name or f"dvrl-marl {name}",
                          description=description or (f"{episodes} episodes of {name} in the surgeon seat of "
-                                                     f"suction_debris_v1 (seeds {seed}..{seed + episodes - 1}, "
+                                                     f"suction_debris_v8 (seeds {seed}..{seed + episodes - 1}, "
                                                      f"action noise {action_noise})"))
 
 

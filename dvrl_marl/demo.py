@@ -1,9 +1,9 @@
-"""The end-to-end demonstration: the collaborative episode (suction_debris_v2) with the shipped policies, recorded
+"""The end-to-end demonstration: the collaborative episode (suction_debris_v8) with the shipped policies, recorded
 from the endoscope.
 
 ``team="pipeline"`` (default): the suction arm runs the learned Reach policy through the ``learned_team``
 pipeline; the surgeon seat (the LND) is filled by the learned Reach + Pick pipeline, the scripted surgeon, or a
-keyboard. ``team="marl"``: the learned suction seat (the shipped ``marl-suction-v2``, cloned from the scripted
+keyboard. ``team="marl"``: the learned suction seat (the shipped ``marl-suction``, cloned from the scripted
 suction and chosen by its mean action beside scripted, learned and person-like surgeons), beside the scripted
 surgeon, a person at the keyboard, or (``surgeon="learned"``) the learned ``marl-grasper``. Learned seats act by
 their mean action, as a robot is driven (the first ``marl-suction`` needed its exploration noise: it is still
@@ -25,20 +25,20 @@ from datetime import datetime
 from pathlib import Path
 
 from dvrl_marl import policies
-from dvrl_marl.envs import suction_debris_v2 as scene_env  # the newest version of the scene
+from dvrl_marl.envs import suction_debris_v8 as scene_env  # the newest version of the scene
 from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
 __all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
 SURGEONS = ("learned", "scripted", "keyboard")
-#: The scene the demo runs: suction_debris_v2 (v1's falling pins and graded suction, no bleeding; the hand-off judged
+#: The scene the demo runs: suction_debris_v8 (v1's falling pins and graded suction, no bleeding; the hand-off judged
 #: at the grip and dropped pins kept on the phantom, so a person at the keyboard meets no trap).
-ENV_NAME = "suction_debris_v2"
+ENV_NAME = "suction_debris_v8"
 #: A person at the keyboard gets 2 minutes (6,000 steps) unless ``max_cycles`` says otherwise: the task's 1,500
 #: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.
 KEYBOARD_MAX_CYCLES = 6000
 TEAMS = ("pipeline", "marl")
-_LEARNED_POLICIES = ("reach-lnd-v1", "reach-suction-irrigation-v1", "pick-lnd-v1")  # learned_team.toml's
+_LEARNED_POLICIES = ("reach-lnd", "reach-suction-irrigation", "pick-lnd")  # learned_team.toml's
 
 
 def _pipeline_name() -> str:
@@ -47,7 +47,7 @@ def _pipeline_name() -> str:
 
 
 #: The learned seats of team="marl": deployable by their default call (benchmarks/partner_zoo.py measures them).
-MARL_SEATS = {"suction": "marl-suction-v2", "grasper": "marl-grasper"}
+MARL_SEATS = {"suction": "marl-suction", "grasper": "marl-grasper"}
 
 
 def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, max_cycles: int | None = None,

@@ -8,16 +8,12 @@ __all__ = ["register_envs", "SINGLE_ARM_ENV_IDS", "SEAT_ENV_IDS", "MULTI_AGENT_E
 
 _PAPER_EPISODE_STEPS = 100  # paper Sec. IV-A (also tasks/*.toml max_episode_steps)
 
-#: id -> (entry point, kwargs)
+#: id -> (entry point, kwargs). The current version of each single-arm env: p is the dVRK's measured_cp (the
+#: wrist-yaw origin), as on the robot and in the original dVRL code; Pick lands its object without sinking into the
+#: table (scenes/pick_lnd_v1.xml). Earlier ids (-v0) were never released; Gymnasium names the current one for them.
 SINGLE_ARM_ENV_IDS = {
-    "dvrl_marl/PSMReach-v0": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "sparse"}),
-    "dvrl_marl/PSMReachDense-v0": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "dense"}),
-    "dvrl_marl/PSMPick-v0": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "sparse"}),
-    "dvrl_marl/PSMPickDense-v0": ("dvrl_marl.envs.psm_pick:PSMPickEnv", {"reward_type": "dense"}),
-    # v1: p is the dVRK's measured_cp (wrist-yaw origin), as on the robot and in the original dVRL code.
     "dvrl_marl/PSMReach-v1": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "sparse", "tip_frame": "measured_cp"}),
     "dvrl_marl/PSMReachDense-v1": ("dvrl_marl.envs.psm_reach:PSMReachEnv", {"reward_type": "dense", "tip_frame": "measured_cp"}),
-    # Pick v1 also lands its object without sinking into the table (scenes/pick_lnd_v1.xml).
     "dvrl_marl/PSMPick-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv",
                              {"reward_type": "sparse", "tip_frame": "measured_cp", "scenes": {"lnd": "pick_lnd_v1"}}),
     "dvrl_marl/PSMPickDense-v1": ("dvrl_marl.envs.psm_pick:PSMPickEnv",
@@ -31,50 +27,19 @@ _VECTOR_ENTRY_POINTS = {
 }
 
 
-#: One seat of the collaborative scene as a Gymnasium env, the partner inside (datasets, behaviour cloning).
+#: One seat of the collaborative scene as a Gymnasium env, the partner inside (datasets, behaviour cloning); its
+#: version is the scene's.
 SEAT_ENV_IDS = {
-    "dvrl_marl/SurgeonSeat-v1": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper", "version": "v1"}),
-    "dvrl_marl/SurgeonSeat-v2": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper", "version": "v2"}),
+    "dvrl_marl/SurgeonSeat-v8": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper"}),
 }
 
-#: PettingZoo ids -> (parallel entry point, AEC entry point)
+#: PettingZoo ids -> (parallel entry point, AEC entry point): the current version of the collaborative scene.
 MULTI_AGENT_ENV_IDS = {
-    "dvrl_marl/suction_debris-v0": (
-        "dvrl_marl.envs.suction_debris_v0:parallel_env",
-        "dvrl_marl.envs.suction_debris_v0:env",
-    ),
-    "dvrl_marl/suction_debris-v1": (
-        "dvrl_marl.envs.suction_debris_v1:parallel_env",
-        "dvrl_marl.envs.suction_debris_v1:env",
-    ),
-    "dvrl_marl/suction_debris-v2": (
-        "dvrl_marl.envs.suction_debris_v2:parallel_env",
-        "dvrl_marl.envs.suction_debris_v2:env",
-    ),
-    "dvrl_marl/suction_debris-v3": (
-        "dvrl_marl.envs.suction_debris_v3:parallel_env",
-        "dvrl_marl.envs.suction_debris_v3:env",
-    ),
-    "dvrl_marl/suction_debris-v4": (
-        "dvrl_marl.envs.suction_debris_v4:parallel_env",
-        "dvrl_marl.envs.suction_debris_v4:env",
-    ),
-    "dvrl_marl/suction_debris-v5": (
-        "dvrl_marl.envs.suction_debris_v5:parallel_env",
-        "dvrl_marl.envs.suction_debris_v5:env",
-    ),
-    "dvrl_marl/suction_debris-v6": (
-        "dvrl_marl.envs.suction_debris_v6:parallel_env",
-        "dvrl_marl.envs.suction_debris_v6:env",
-    ),
-    "dvrl_marl/suction_debris-v7": (
-        "dvrl_marl.envs.suction_debris_v7:parallel_env",
-        "dvrl_marl.envs.suction_debris_v7:env",
+    "dvrl_marl/suction_debris-v8": (
+        "dvrl_marl.envs.suction_debris_v8:parallel_env",
+        "dvrl_marl.envs.suction_debris_v8:env",
     ),
 }
-#: The collaborative scene's task files, one per version (v0's is ``suction_debris``; ``tasks/<name>.toml``).
-COLLABORATIVE_TASKS = tuple("suction_debris" if env_id.endswith("-v0") else "suction_debris_" + env_id.rsplit("-", 1)[1]
-                            for env_id in MULTI_AGENT_ENV_IDS)
 
 
 def register_envs() -> None:

@@ -8,7 +8,7 @@
 The env is registered with RLlib with its ``Dict`` observation flattened (``dvrl_marl.integrations.rllib``;
 RLlib's default models read flat vectors); RLlib vectorises it with Gymnasium's vector API
 (``num_envs_per_env_runner``). The dense variants suit PPO; the sparse ones (the paper's) want HER, which RLlib does
-not have: for those, Stable-Baselines3 + HER (``dvrl-marl train baselines/configs/reach_lnd_ddpg_her_v1.toml``).
+not have: for those, Stable-Baselines3 + HER (``dvrl-marl train baselines/configs/reach_lnd_ddpg_her.toml``).
 """
 
 from __future__ import annotations

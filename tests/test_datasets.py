@@ -190,11 +190,11 @@ def test_clone_options_sharp_cleared_inputs_weights_and_annealing(recorded, tmp_
 def test_the_shipped_clone_fills_the_seat_and_finishes_the_task(capsys):
     from dvrl_marl.cli import main
 
-    assert "bc-surgeon-v1" in policies.available()
-    assert main(["evaluate", "bc-surgeon-v1", "--episodes", "10"]) == 0
+    assert "bc-surgeon" in policies.available()
+    assert main(["evaluate", "bc-surgeon", "--episodes", "10"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["seat"] == "grasper" and result["seed"] >= 900_000_000  # held-out seeds
     assert result["success_rate"] >= 0.8, result  # 0.91 over 100 episodes (baselines/README.md)
-    env = suction_debris_v1.parallel_env(surgeon=policies.load("bc-surgeon-v1"), max_cycles=20)
+    env = suction_debris_v1.parallel_env(surgeon=policies.load("bc-surgeon"), max_cycles=20)
     env.reset(seed=1)
     env.step({"suction": np.zeros(4)})

@@ -302,7 +302,7 @@ def torch_save_bytes(value) -> bytes:
     (["teleop", "--max-cycles", "0"], "--max-cycles"),
     (["teleop", "--port", "70000"], "--port"),
     (["teleop", "--seed", "-3"], "--seed"),
-    (["evaluate", "reach-lnd-v1", "--episodes", "0"], "--episodes"),
+    (["evaluate", "reach-lnd", "--episodes", "0"], "--episodes"),
     (["render", "--width", "abc"], "--width"),
 ])
 def test_a_bad_flag_is_named_and_nothing_runs(tmp_path, arguments, flag):

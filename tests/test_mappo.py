@@ -421,9 +421,9 @@ def test_demo_without_shipped_marl_policies_names_them(tmp_path, monkeypatch):
     from dvrl_marl import demo
 
     monkeypatch.setattr(policies, "shipped_dir", lambda: tmp_path)
-    with pytest.raises(FileNotFoundError, match="marl-suction-v2 and marl-grasper"):
+    with pytest.raises(FileNotFoundError, match="marl-suction and marl-grasper"):
         demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=10, video=False, progress=False)
-    with pytest.raises(FileNotFoundError, match="seats the multi-agent policies marl-suction-v2; marl-suction-v2 is not"):
+    with pytest.raises(FileNotFoundError, match="seats the multi-agent policies marl-suction; marl-suction is not"):
         demo.run_demo(team="marl", surgeon="scripted", out=tmp_path / "demo", max_cycles=10, video=False,
                       progress=False)
 

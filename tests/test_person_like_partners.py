@@ -107,11 +107,11 @@ def test_a_trainer_names_the_person_like_partners_as_a_seat():
 
 
 def test_the_deployable_suction_works_by_its_mean_action_beside_people_it_never_met():
-    # The shipped marl-suction-v2, called the way the README shows (policy(observation): its mean action), beside
+    # The shipped marl-suction, called the way the README shows (policy(observation): its mean action), beside
     # the scripted surgeon, the learned grasper and held-out person-like surgeons, on test seeds.
     from dvrl_marl import policies
 
-    suction = policies.load("marl-suction-v2")
+    suction = policies.load("marl-suction")
     assert suction.spec["agent"] == "suction" and suction.spec["env_id"] == "suction_debris_v2"
     for partner in ("scripted", "marl-grasper", "late", "slow"):
         grasper = zoo_partner(partner, "grasper", ENV) if partner in HELD_OUT else teams.seat(partner, "grasper")

@@ -1,9 +1,9 @@
-"""The batched core of the collaborative scene (suction_debris_v0): N worlds as arrays.
+"""The batched core of the collaborative scene (suction_debris_v8): N worlds as arrays.
 
 One step advances every world: eta moves of both arms (workspace box, the phantom's surface, joint limits,
 instruments that may not pass through each other), suction and the blood level in each cavity, debris revealed,
 grasped by the paper's rule, carried and delivered, the team's reward, completion and truncation. It is the same
-arithmetic as :class:`dvrl_marl.envs.suction_debris_v0.SuctionDebrisEnv`, in the same order, so world ``i`` of a
+arithmetic as :class:`dvrl_marl.envs.suction_debris_v8.SuctionDebrisEnv`, in the same order, so world ``i`` of a
 batch follows its single environment (tested over 1,000 steps with resets).
 
 Memory: about 1.5 kB per world with 3 debris (plus one ``numpy.random.Generator`` per world).
@@ -28,7 +28,7 @@ AGENTS = ("suction", "grasper")
 TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
 #: Instruments closer than this beyond touching also count as in contact (they touch after a refused move).
 CONTACT_MARGIN = 5e-4
-#: Released pins fall at g (m/s^2) when the task's ``pins_fall`` is set (suction_debris_v1).
+#: Released pins fall at g (m/s^2) when the task's ``pins_fall`` is set (suction_debris_v8).
 GRAVITY = 9.81
 #: Pin geometry (spring pins: 3 mm x 28 mm) and the spacing of the slots they lie in on a cavity floor.
 PIN_RADIUS = 0.0015
@@ -36,7 +36,7 @@ PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28
 PIN_SLOTS = (0.0, -0.004, 0.004, -0.008, 0.008)
 #: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
 PIN_SENSOR_RANGE = PIN_RADIUS + 0.0015
-#: suction_debris_v2: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
+#: suction_debris_v8: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
 #: radius and a jaw's width: it lies wholly on the top, in the endoscope's view, where the grasper can take it again).
 PHANTOM_EDGE_MARGIN = 0.005
 #: Tip start positions (world) before the seeded jitter.

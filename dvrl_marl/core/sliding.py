@@ -1,4 +1,4 @@
-"""How a blocked move resolves in ``suction_debris_v3`` (``blocked_moves = "slide"``): it slides, it does not stop.
+"""How a blocked move resolves in ``suction_debris_v8`` (``blocked_moves = "slide"``): it slides, it does not stop.
 
 Up to v2 a move that a cavity's wall, the joint limits or the other instrument blocks is stopped: the tip keeps its
 horizontal position at a wall, stays where it was when the instruments would intersect, and goes as far as it can
@@ -23,21 +23,21 @@ commands, so the scene resolves contacts as a frictionless constraint does (a fo
   the tip in the box, above the surface, within the joint limits and clear of the other instrument is made. Only if
   none does does the tip stay.
 
-``suction_debris_v5`` (``blocked_moves = "climb"``) adds one rule to these (``climb``): **a descending move that
+``suction_debris_v8`` (``blocked_moves = "climb"``) adds one rule to these (``climb``): **a descending move that
 the surface and the wall slide leave (almost) nothing of gives up its descent**, and its level part is made as any
 move (slid along the wall). A tip pressed out of a cavity and down against the bowl, along the wall's normal, made
 no headway under the frictionless rule (measured, issue 37: the commonest end of the episodes the learnt teams failed
 by their mean action on v4, for both arms, heading for the other cavity); with it the tip rides up the wall the way
 it was heading and over the rim. A move that makes headway is unchanged.
 
-``suction_debris_v6`` (``blocked_moves = "climb_ahead"``, ``ahead``) counts a descent's headway, for a move with a
+``suction_debris_v8`` (``blocked_moves = "climb_ahead"``, ``ahead``) counts a descent's headway, for a move with a
 level part, as what its made part advances the way that level part heads, and gives the descent up only where the
 level part gets further that way. Pressed almost along the wall's normal, v5's tip climbed one step and then slipped
 back down the bowl on the rest of the move (made, though away from where it heads), a cycle in place (measured, issue
 37: the commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
 climbing the way it heads.
 
-``suction_debris_v7`` (``blocked_moves = "settle"``, ``settle``, the suction's moves only) adds one rule to v6's:
+``suction_debris_v8`` (``blocked_moves = "settle"``, ``settle``, the suction's moves only) adds one rule to v6's:
 **a descending move that still makes less than a tenth of its length slides down the bowl** (over a cavity: its
 component into the bowl taken away, :func:`wall_slide`, on the gentle slopes as on the steep walls). On a slope a tip
 may climb by a step, the rules above keep a move's horizontal part and lift the tip onto the surface, so a command

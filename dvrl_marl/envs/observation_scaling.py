@@ -36,7 +36,7 @@ MEASURE_SEED = 0
 #: (dvrl_marl.training.models reads it from here).
 MIN_SPREAD = 0.01
 #: The task the statistics were measured on (its observation is every version's).
-MEASURE_TASK = "suction_debris_v7"
+MEASURE_TASK = "suction_debris_v8"
 
 
 class ObservationScaling:

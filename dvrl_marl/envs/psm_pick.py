@@ -22,8 +22,8 @@ above the table, within the joint limits; a carried object is kept above the tab
 | ``desired_goal`` | (3,) | g~ |
 
 ## Rewards
-Sparse (``PSMPick-v0``): ``-1`` while ``rho * ||o~ - g~|| > delta`` (3 mm), else ``0``. Dense
-(``PSMPickDense-v0``): minus the object-goal distance in metres.
+Sparse (``PSMPick-v1``): ``-1`` while ``rho * ||o~ - g~|| > delta`` (3 mm), else ``0``. Dense
+(``PSMPickDense-v1``): minus the object-goal distance in metres.
 
 ## Starting State
 p_0 = p_c = (0, 0, -0.10) m, jaw open, the object on the table directly below the gripper, g uniform in the
@@ -43,13 +43,13 @@ defaults in
 ``tasks/psm_pick.toml``.
 
 ## Batched form
-``gym.make_vec("dvrl_marl/PSMPick-v0", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
+``gym.make_vec("dvrl_marl/PSMPick-v1", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
 
 ## Version History
 - v1: p is the dVRK's measured_cp frame (see PSM Reach v1); the grasp rule still senses at the jaws. A released
   object lands without sinking into the table (``scenes/pick_lnd_v1.xml``: at most 0.44 mm, where v0's sank up to
-  6.3 mm). Policy: ``pick-lnd-v1``.
+  6.3 mm). Policy: ``pick-lnd``.
 - v0: initial release (MuJoCo re-creation of dVRL's PSM Pick); p is the jaw control point. Kept registered
   unchanged.
 """

@@ -5,7 +5,7 @@ A single Patient Side Manipulator holds an EndoWrist pointing down. The agent mo
 p in the PSM base (remote centre of motion) frame, towards a goal g. In ``PSMReach-v1`` p is the frame the dVRK
 itself reports and commands (``measured_cp`` / ``servo_cp``: the wrist-yaw frame origin, 10.2 mm behind the jaw
 control point), as in the original dVRL code whose p_c the task uses, so targets go to the robot unconverted
-(:mod:`dvrl_marl.frames`); in ``PSMReach-v0`` p is the tool point itself (jaw control point / tube tip). As in the paper the arm is kinematic: every
+(:mod:`dvrl_marl.frames`); in ``PSMReach-v1`` p is the tool point itself (jaw control point / tube tip). As in the paper the arm is kinematic: every
 step sets new joint values by inverse kinematics, the way the dVRK takes new set points at 50 Hz. The policy
 uses only the tip position, so it runs on any EndoWrist: ``tool="lnd"`` (Large Needle Driver) or
 ``tool="suction_irrigation"``.
@@ -25,8 +25,8 @@ clipped; NaN/inf or a wrong shape raise ``ValueError``.
 | ``desired_goal`` | (3,) | g~ |
 
 ## Rewards
-Sparse (``PSMReach-v0``): ``-1`` while ``rho * ||p~ - g~|| > delta`` (delta = 3 mm), else ``0``. Dense
-(``PSMReachDense-v0``): minus the distance in metres. ``compute_reward`` is vectorised for HER.
+Sparse (``PSMReach-v1``): ``-1`` while ``rho * ||p~ - g~|| > delta`` (delta = 3 mm), else ``0``. Dense
+(``PSMReachDense-v1``): minus the distance in metres. ``compute_reward`` is vectorised for HER.
 
 ## Starting State
 p_0 and g uniform in the reachable workspace: the box p_c +/- rho (p_c = (0, 0, -0.11) m, rho = 5 cm) above the
@@ -45,13 +45,13 @@ paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`
 (delta), ``control_dt``, ``tip_clearance``; defaults in ``tasks/psm_reach.toml``.
 
 ## Batched form
-``gym.make_vec("dvrl_marl/PSMReach-v0", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
+``gym.make_vec("dvrl_marl/PSMReach-v1", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
 
 ## Version History
 - v1: p is the dVRK's measured_cp frame (wrist-yaw origin), not the jaw control point: the scene sits 10.2 mm
-  lower relative to p_c, as on the robot and in the original code. Policies: ``reach-lnd-v1``,
-  ``reach-suction-irrigation-v1``.
+  lower relative to p_c, as on the robot and in the original code. Policies: ``reach-lnd``,
+  ``reach-suction-irrigation``.
 - v0: initial release (MuJoCo re-creation of dVRL's PSM Reach); p is the tool point. Kept registered unchanged.
 """
 

@@ -4,17 +4,17 @@
 import gymnasium as gym
 import dvrl_marl
 
-env = gym.make("dvrl_marl/SurgeonSeat-v1")                      # the LND seat; the learned suction works beside it
-env = gym.make("dvrl_marl/SurgeonSeat-v1", partner="scripted")  # the scripted suction instead
+env = gym.make("dvrl_marl/SurgeonSeat-v8")                      # the LND seat; the learned suction works beside it
+env = gym.make("dvrl_marl/SurgeonSeat-v8", partner="scripted")  # the scripted suction instead
 ```
 
 ## Description
-What a surgeon (or a policy cloned from one) sees and does in ``suction_debris_v1``: the seat's observation, its
+What a surgeon (or a policy cloned from one) sees and does in ``suction_debris_v8``: the seat's observation, its
 action, the team's reward; the other arm is driven inside ``step()``. Minari records datasets from it
 (:mod:`dvrl_marl.datasets`), behaviour cloning learns from them, and single-agent libraries train on it.
 
 ## Action and Observation Spaces
-Those of the seat's agent in :mod:`dvrl_marl.envs.suction_debris_v0`: ``Box(-1, 1, (4,), float32)`` and the flat
+Those of the seat's agent in :mod:`dvrl_marl.envs.suction_debris_v8`: ``Box(-1, 1, (4,), float32)`` and the flat
 ``Box(float64)`` observation (own tip, tool, other tip, blood, debris, hand-off point).
 
 ## Rewards, Starting State, Episode End
@@ -24,13 +24,11 @@ info for the seat plus ``partner_action``: what the partner did this step (zeros
 ## Arguments
 ``seat`` (``"grasper"``, default, or ``"suction"``); ``partner``: ``"pipeline"`` (default: the learned_team
 pipeline's arm, the learned Reach policy for the suction), ``"scripted"`` (the built-in expert), a shipped policy
-name or a policy folder, or any ``policy(observation) -> action``; ``version`` (``"v1"``, default, ``"v2"`` or
-``"v0"``: the scene's version; ``dvrl_marl/SurgeonSeat-v2`` sets ``"v2"``);
-``render_mode`` ("rgb_array"); every other keyword goes to the scene (``bleeding_ml_s=``, ``max_cycles=``...).
+name or a policy folder, or any ``policy(observation) -> action``; ``render_mode`` ("rgb_array"); every other
+keyword goes to the scene (``preset=``, ``bleeding_ml_s=``, ``max_cycles=``...).
 
 ## Version History
-- v2: on suction_debris_v2 (the hand-off judged at the grip, dropped pins stay in view); the seats a person uses.
-- v1: on suction_debris_v1.
+- v8: on suction_debris_v8 (the seat's version is its scene's).
 """
 
 from __future__ import annotations
@@ -38,19 +36,11 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["SeatEnv", "PARTNERS", "scene_module"]
+from dvrl_marl.envs import suction_debris_v8
+
+__all__ = ["SeatEnv", "PARTNERS"]
 
 PARTNERS = ("pipeline", "scripted")
-
-
-def scene_module(version: str, who: str = "SeatEnv"):
-    """The module of the collaborative scene's ``version`` ("v0", "v1", "v2")."""
-    from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2
-
-    modules = {"v0": suction_debris_v0, "v1": suction_debris_v1, "v2": suction_debris_v2}
-    if version not in modules:
-        raise ValueError(f"{who}: version must be one of {sorted(modules)}, got {version!r}")
-    return modules[version]
 
 
 class SeatEnv(gym.Env):
@@ -58,15 +48,12 @@ class SeatEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(self, seat: str = "grasper", partner="pipeline", version: str = "v1", render_mode=None,
-                 **scene_kwargs):
-        from dvrl_marl.envs import suction_debris_v0
-
-        if seat not in suction_debris_v0.AGENTS:
-            raise ValueError(f"SeatEnv: seat must be one of {suction_debris_v0.AGENTS}, got {seat!r}")
-        self.scene = scene_module(version, "SeatEnv").parallel_env(render_mode=render_mode, **scene_kwargs)
+    def __init__(self, seat: str = "grasper", partner="pipeline", render_mode=None, **scene_kwargs):
+        if seat not in suction_debris_v8.AGENTS:
+            raise ValueError(f"SeatEnv: seat must be one of {suction_debris_v8.AGENTS}, got {seat!r}")
+        self.scene = suction_debris_v8.parallel_env(render_mode=render_mode, **scene_kwargs)
         self.seat = seat
-        self.partner_seat = next(agent for agent in suction_debris_v0.AGENTS if agent != seat)
+        self.partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)
         self.partner = self._partner(partner)
         self.render_mode = render_mode
         self.observation_space = self.scene.observation_space(seat)

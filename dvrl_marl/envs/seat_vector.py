@@ -4,7 +4,7 @@
 import gymnasium as gym
 import dvrl_marl
 
-envs = gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=256, vectorization_mode="vector_entry_point",
+envs = gym.make_vec("dvrl_marl/SurgeonSeat-v8", num_envs=256, vectorization_mode="vector_entry_point",
                     partner="scripted")                     # N worlds of the batched core, the partners batched
 observations, infos = envs.reset(seed=0)                    # world i == gym.make(...).reset(seed=0 + i)
 observations, rewards, terminations, truncations, infos = envs.step(envs.action_space.sample())
@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector.utils import batch_space
 
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.envs.vector import autoreset_metadata
 
 __all__ = ["SeatVectorEnv", "make_seat_vector"]
@@ -37,19 +38,15 @@ _INFO_KEYS = ("is_success", "blood_remaining", "debris_delivered", "collision")
 class SeatVectorEnv(gym.vector.VectorEnv):
     """N seats of the collaborative scene on its batched core (see the module documentation)."""
 
-    def __init__(self, num_envs: int = 1, seat: str = "grasper", partner="scripted", version: str = "v1",
+    def __init__(self, num_envs: int = 1, seat: str = "grasper", partner="scripted",
                  autoreset_mode: str = "next_step", **scene_kwargs):
-        from dvrl_marl.envs import suction_debris_v0
-        from dvrl_marl.envs.seat import scene_module
-
-        module = scene_module(version, "SeatVectorEnv")
-        if seat not in suction_debris_v0.AGENTS:
-            raise ValueError(f"SeatVectorEnv: seat must be one of {suction_debris_v0.AGENTS}, got {seat!r}")
+        if seat not in suction_debris_v8.AGENTS:
+            raise ValueError(f"SeatVectorEnv: seat must be one of {suction_debris_v8.AGENTS}, got {seat!r}")
         if autoreset_mode not in ("next_step", "same_step"):
             raise ValueError(f"SeatVectorEnv: autoreset_mode must be 'next_step' or 'same_step', got "
                              f"{autoreset_mode!r}")
-        partner_seat = next(agent for agent in suction_debris_v0.AGENTS if agent != seat)
-        self.batched = module.batched_env(num_envs=num_envs, surgeon=_batched_partner(partner),
+        partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)
+        self.batched = suction_debris_v8.batched_env(num_envs=num_envs, surgeon=_batched_partner(partner),
                                                     surgeon_seat=partner_seat, autoreset_mode="disabled",
                                                     **scene_kwargs)
         self.seat, self.partner_seat = seat, partner_seat

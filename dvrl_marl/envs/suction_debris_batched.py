@@ -1,9 +1,9 @@
-"""Suction & debris removal, N worlds at once: the batched form of ``suction_debris_v0``.
+"""Suction & debris removal, N worlds at once: the batched form of ``suction_debris_v8``.
 
 ```python
-from dvrl_marl.envs import suction_debris_v0
-env = suction_debris_v0.batched_env(num_envs=4096)                      # both arms learn
-env = suction_debris_v0.batched_env(num_envs=4096, surgeon="scripted")  # the scripted surgeon in every world
+from dvrl_marl.envs import suction_debris_v8
+env = suction_debris_v8.batched_env(num_envs=4096)                      # both arms learn
+env = suction_debris_v8.batched_env(num_envs=4096, surgeon="scripted")  # the scripted surgeon in every world
 observations, infos = env.reset(seed=0)           # world i == parallel_env().reset(seed=0 + i)
 observations, rewards, terminations, truncations, infos = env.step(
     {agent: actions_of(agent) for agent in env.agents})                 # each (N, 4)
@@ -13,7 +13,7 @@ Every per-agent value has a leading world dimension: ``observations[agent]`` ``(
 ``terminations[agent]``, ``truncations[agent]`` ``(N,)``; ``infos[agent]`` is a dict of arrays (the single env's
 keys: ``blood_remaining``, ``blood_remaining_per_cavity``, ``debris_delivered``, ``collision``, ``is_success``).
 ``state()`` is ``(N, state_dim)``. Spaces, rewards, the observation layout and every keyword argument are those of
-:mod:`dvrl_marl.envs.suction_debris_v0`, whose documentation applies world by world.
+:mod:`dvrl_marl.envs.suction_debris_v8`, whose documentation applies world by world.
 
 ## Automatic reset
 ``autoreset_mode="same_step"`` (default): a world whose episode ended (terminated or truncated) starts its next
@@ -59,23 +59,25 @@ from dvrl_marl.core.collaborative import AGENTS, CollaborativeCore
 from dvrl_marl.core.worlds import check_action_batch
 from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.guidance import GuidedReward, OverRims
-from dvrl_marl.envs.suction_debris_v0 import SuctionDebrisEnv, env_name
+from dvrl_marl.envs.presets import accepts_preset
+from dvrl_marl.envs.suction_debris import TASK, SuctionDebrisEnv, env_name
 from dvrl_marl.policies import features
 
-__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES"]
+__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "batched_env"]
 
 AUTORESET_MODES = ("same_step", "disabled")
 
 
 class SuctionDebrisBatchedEnv:
-    """N worlds of suction_debris_v0 (see the module documentation)."""
+    """N worlds of suction_debris_v8 (see the module documentation)."""
 
-    metadata = {"name": "suction_debris_v0", "render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"name": "suction_debris_v8", "render_modes": ["rgb_array"], "render_fps": 50}
 
+    @accepts_preset
     def __init__(self, num_envs: int = 1, surgeon=None, surgeon_seat: str = "grasper", reward_type: str = "sparse",
                  render_mode: str | None = None, max_cycles: int | None = None, autoreset_mode: str = "same_step",
                  render_world: int = 0, **kwargs):
-        self.name = env_name(Path(str(kwargs.get("task", "suction_debris"))).stem)
+        self.name = env_name(Path(str(kwargs.get("task", TASK))).stem)
         self.metadata = {**self.metadata, "name": self.name}
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"{self.name}: autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
@@ -339,3 +341,9 @@ class SuctionDebrisBatchedEnv:
 
     def close(self) -> None:
         self.template.close()
+
+
+def batched_env(num_envs: int = 1, **kwargs) -> SuctionDebrisBatchedEnv:
+    """N worlds stepped as arrays; the keyword arguments of ``parallel_env``, plus ``num_envs``, ``autoreset_mode``
+    and ``render_world``."""
+    return SuctionDebrisBatchedEnv(num_envs, **kwargs)

@@ -4,7 +4,7 @@
 import gymnasium as gym
 import dvrl_marl
 
-envs = gym.make_vec("dvrl_marl/PSMReach-v0", num_envs=4096, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("dvrl_marl/PSMReach-v1", num_envs=4096, vectorization_mode="vector_entry_point")
 observations, infos = envs.reset(seed=0)          # world i == gym.make(...).reset(seed=0 + i)
 observations, rewards, terminations, truncations, infos = envs.step(envs.action_space.sample())
 ```

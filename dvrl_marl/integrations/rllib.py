@@ -42,13 +42,13 @@ class RenderableParallelPettingZooEnv(ParallelPettingZooEnv):
 
 
 def register_suction_debris(name: str = "dvrl_marl/suction_debris-v1", version: str = "v1") -> str:
-    """Register the collaborative env (``suction_debris_v0`` or ``_v1``) under ``name`` with RLlib; the env config
+    """Register the collaborative env (``suction_debris_v8`` or ``_v1``) under ``name`` with RLlib; the env config
     (``PPOConfig().environment(name, env_config={...})``) goes to ``parallel_env(**env_config)``."""
     from ray.tune.registry import register_env
 
-    from dvrl_marl.envs import suction_debris_v0, suction_debris_v1
+    from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
 
-    module = {"v0": suction_debris_v0, "v1": suction_debris_v1}[version]
+    module = {"v0": suction_debris_v8, "v1": suction_debris_v8}[version]
     register_env(name, lambda env_config: RenderableParallelPettingZooEnv(module.parallel_env(**dict(env_config))))
     return name
 

@@ -3,7 +3,7 @@
 ```python
 from stable_baselines3 import SAC, HerReplayBuffer
 from dvrl_marl.integrations.sb3 import make_sb3_vec_env
-venv = make_sb3_vec_env("dvrl_marl/PSMReach-v0", num_envs=64, seed=0)
+venv = make_sb3_vec_env("dvrl_marl/PSMReach-v1", num_envs=64, seed=0)
 model = SAC("MultiInputPolicy", venv, replay_buffer_class=HerReplayBuffer)
 ```
 
@@ -98,9 +98,9 @@ def make_collaborative_vec_env(n_envs: int = 4, seed: int | None = None, surgeon
     """
     import supersuit as ss
 
-    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.envs import suction_debris_v8
 
-    env = suction_debris_v0.parallel_env(surgeon=surgeon, **env_kwargs)
+    env = suction_debris_v8.parallel_env(surgeon=surgeon, **env_kwargs)
     env = ss.pad_observations_v0(env)
     env = ss.pad_action_space_v0(env)
     if len(env.possible_agents) > 1:

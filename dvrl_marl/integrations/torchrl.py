@@ -39,7 +39,7 @@ __all__ = ["SuctionDebrisTorchRLEnv"]
 
 
 class SuctionDebrisTorchRLEnv(EnvBase):
-    """suction_debris_v0, N worlds, as a TorchRL environment (see the module documentation)."""
+    """suction_debris_v8, N worlds, as a TorchRL environment (see the module documentation)."""
 
     def __init__(self, num_envs: int = 1, device="cpu", seed: int | None = None, **kwargs):
         if kwargs.get("autoreset_mode", "disabled") != "disabled":

@@ -5,11 +5,11 @@ single-arm policy in a frame re-centred on its sub-goal (states relative to a ce
 one place run anywhere, paper Sec. III-A), until its done condition holds, then hands over to the next stage.
 Pipelines are data (``pipelines/*.toml`` inside the package, or a user's file); see :func:`load_pipeline`.
 
->>> from dvrl_marl.envs import suction_debris_v0
+>>> from dvrl_marl.envs import suction_debris_v8
 >>> from dvrl_marl.pipeline import ArmPipeline
->>> env = suction_debris_v0.parallel_env(surgeon=...)                     # doctest: +SKIP
+>>> env = suction_debris_v8.parallel_env(surgeon=...)                     # doctest: +SKIP
 >>> surgeon = ArmPipeline.from_file("learned_team", "grasper", env)       # fills the surgeon seat
->>> env = suction_debris_v0.parallel_env(surgeon=surgeon)                 # doctest: +SKIP
+>>> env = suction_debris_v8.parallel_env(surgeon=surgeon)                 # doctest: +SKIP
 """
 
 from dvrl_marl.pipeline.core import (

@@ -167,7 +167,7 @@ class _StagePolicy:
     def __init__(self, kind: str, name: str):
         task = load_task("psm_reach" if kind == "reach" else "psm_pick")
         policy = None if name == "scripted" else policies.load(name)
-        default_id = "dvrl_marl/PSMReach-v0" if kind == "reach" else "dvrl_marl/PSMPick-v0"
+        default_id = "dvrl_marl/PSMReach-v1" if kind == "reach" else "dvrl_marl/PSMPick-v1"
         env_id = policy.spec.get("env_id", default_id) if policy is not None else default_id
         with warnings.catch_warnings():  # a v0 policy needs its v0 env, whatever Gymnasium thinks of v0
             warnings.simplefilter("ignore", DeprecationWarning)

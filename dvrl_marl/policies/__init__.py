@@ -6,8 +6,8 @@ and the evaluation figures with the command that produced them).
 
 >>> from dvrl_marl import policies
 >>> policies.available()                       # doctest: +SKIP
-['pick-lnd', 'pick-lnd-v1', 'reach-lnd', 'reach-lnd-v1', 'reach-suction-irrigation', 'reach-suction-irrigation-v1']
->>> policy = policies.load("reach-lnd-v1")     # doctest: +SKIP
+['pick-lnd', 'pick-lnd', 'reach-lnd', 'reach-lnd', 'reach-suction-irrigation', 'reach-suction-irrigation']
+>>> policy = policies.load("reach-lnd")     # doctest: +SKIP
 >>> action = policy(observation)               # the env's observation dict in, an action array out
 
 A multi-agent PPO policy also records the exploration noise it trained with (``policy.json``'s ``exploration``):

@@ -18,7 +18,7 @@ saw about 200 ms earlier and moves more slowly than the script):
   carry it to the hand-off point and bring the held pin to it (the page's "mm to the hand-off"). A refused move
   (the page's "blocked") makes it wait and go round above.
 
-:func:`run_episode` seats it in ``dvrl_marl/SurgeonSeat-v2`` through :class:`~dvrl_marl.teleop.browser.BrowserDevice`
+:func:`run_episode` seats it in ``dvrl_marl/SurgeonSeat-v8`` through :class:`~dvrl_marl.teleop.browser.BrowserDevice`
 (the page's messages, in simulated time); :func:`drive_page` puts it in front of the real page (a Playwright page
 in Chromium, in real time): it reads ``window.dvrl.status`` and presses the keys.
 """
@@ -165,7 +165,7 @@ class PersonLikeOperator:
 
 def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partner: str = "scripted",
                 reaction_s: float = 0.2, max_seconds: float = 120.0) -> dict:
-    """One episode of the grasper seat of ``dvrl_marl/SurgeonSeat-v2`` worked by ``operator`` (default: one seeded
+    """One episode of the grasper seat of ``dvrl_marl/SurgeonSeat-v8`` worked by ``operator`` (default: one seeded
     with ``seed``) through a :class:`~dvrl_marl.teleop.browser.BrowserDevice`, in simulated time: the operator sees
     :func:`~dvrl_marl.teleop.session.scene_view` as it was ``reaction_s`` earlier. Returns the success, the pins
     delivered, the seconds to success (or None) and the key presses."""
@@ -177,7 +177,7 @@ def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partne
 
     operator = operator or PersonLikeOperator(seed, reaction_s=reaction_s)
     operator.reset()
-    from dvrl_marl.envs.suction_debris_v2 import TASK  # the scene of TELEOP_ENV_ID
+    from dvrl_marl.envs.suction_debris_v8 import TASK  # the scene of TELEOP_ENV_ID
     from dvrl_marl.task import load_task_table
 
     dt = float(load_task_table(TASK)[1]["control_dt"])

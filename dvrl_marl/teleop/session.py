@@ -1,6 +1,6 @@
 """A person's episodes in the surgeon seat, run in real time in a thread of their own: what the web seat serves.
 
-:class:`TeleopSession` owns one seat of ``suction_debris_v2`` (``dvrl_marl/SurgeonSeat-v2``, the partner arm driven
+:class:`TeleopSession` owns one seat of ``suction_debris_v8`` (``dvrl_marl/SurgeonSeat-v8``, the partner arm driven
 inside it), a :class:`~dvrl_marl.teleop.browser.BrowserDevice` in the seat, and a loop that steps at the 50 Hz
 control rate once the person starts, draws the endoscope view (JPEG) at ``frames_per_second`` and publishes each
 frame with the episode's status. It records every episode it runs as a Minari episode (the seat's observations,
@@ -30,18 +30,18 @@ from dvrl_marl.teleop.pacing import RealTimePacer
 
 __all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "TELEOP_ENV_ID", "scene_view", "pack_frame", "unpack_frame"]
 
-#: ``learned`` is the learned seat for the partner's arm (``marl-suction-v2`` beside a person at the LND,
+#: ``learned`` is the learned seat for the partner's arm (``marl-suction`` beside a person at the LND,
 #: ``marl-grasper`` beside a person at the suction: deployable by their mean action); ``pipeline`` is the learned_team
 #: pipeline's arm (the learned Reach policy for the suction, Reach + Pick for the
 #: LND); a shipped policy name or folder also works.
 PARTNERS = ("scripted", "learned", "pipeline")
 #: ``--partner learned``: the learned seat that works the other arm beside a person in ``seat``.
-LEARNED_PARTNERS = {"grasper": "marl-suction-v2", "suction": "marl-grasper"}
+LEARNED_PARTNERS = {"grasper": "marl-suction", "suction": "marl-grasper"}
 #: A person gets 2 minutes (6,000 steps at 50 Hz); the task's 1,500 steps (30 s) suit a script, not a newcomer.
 TELEOP_MAX_CYCLES = 6000
 DEFAULT_DATASET_ID = "dvrl_marl/surgeon-teleop-v1"
-#: The seat a person works: suction_debris_v2, whose hand-off is judged at the grip and whose dropped pins stay in view.
-TELEOP_ENV_ID = "dvrl_marl/SurgeonSeat-v2"
+#: The seat a person works: suction_debris_v8, whose hand-off is judged at the grip and whose dropped pins stay in view.
+TELEOP_ENV_ID = "dvrl_marl/SurgeonSeat-v8"
 _TOOLS = {"grasper": "Large Needle Driver (grasper)", "suction": "Suction & Irrigation"}
 _IDLE_PUBLISH_S = 0.1  # frames while nobody moves anything (waiting to start, episode over): 10 per second
 
@@ -72,7 +72,7 @@ def _rounded(value, digits: int = 1):
 def scene_view(scene, seat: str, outline: dict | None = None) -> dict:
     """What the page shows of ``scene`` (a ``suction_debris`` parallel env) to the person in ``seat``: blood (ml and
     as read: "clear"), debris found and delivered, time, both tips (mm, world), the visible pins, the seat's cues
-    (:meth:`~dvrl_marl.envs.suction_debris_v0.SuctionDebrisEnv.cues`), the jaw and valve, and the scene's outline
+    (:meth:`~dvrl_marl.envs.suction_debris_v8.SuctionDebrisEnv.cues`), the jaw and valve, and the scene's outline
     for the top and side views (pass it in to reuse it: it never changes). A person-like script reads this and
     nothing else (:mod:`dvrl_marl.teleop.person`)."""
     progress = scene.progress()
@@ -321,7 +321,7 @@ class TeleopSession:
                 dataset_id = next_free_id(self.dataset_id)
                 dataset = save_episodes(
                     dataset_id, buffers, self.env, algorithm_name="dvrl-marl teleop (a person in the browser)",
-                    description=f"{len(buffers)} episodes of a person in the {self.seat} seat of suction_debris_v2 "
+                    description=f"{len(buffers)} episodes of a person in the {self.seat} seat of suction_debris_v8 "
                                 f"beside the {self.partner_name} partner, recorded by dvrl-marl teleop")
                 self.saved.append({"id": dataset_id, "episodes": len(buffers),
                                    "successes": sum(bool(b.infos["is_success"][-1]) for b in buffers),

@@ -97,9 +97,9 @@ def load_config(path) -> CloneConfig:
 def cleared_features() -> list[tuple[int, float]]:
     """``(observation index, threshold)`` of each cavity's blood fraction in the seat's observation, at the task's
     "cleared" level (the scripted surgeon goes for a cavity's debris once its blood is under it)."""
-    from dvrl_marl.envs import suction_debris_v1
+    from dvrl_marl.envs import suction_debris_v8
 
-    scene = suction_debris_v1.parallel_env()
+    scene = suction_debris_v8.parallel_env()
     blood = scene.observation_layout["blood"]
     thresholds = scene.layout().blood_threshold_fraction
     scene.close()
@@ -184,20 +184,20 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
         exported.append((weight.astype(np.float32), bias.astype(np.float32), "tanh"))
-    folder = write_policy(directory, exported, name=name, env_id="dvrl_marl/SurgeonSeat-v1",
+    folder = write_policy(directory, exported, name=name, env_id="dvrl_marl/SurgeonSeat-v8",
                           algorithm="behaviour cloning", observation_keys=["observation"],
                           action_low=[-1.0] * y.shape[1], action_high=[1.0] * y.shape[1], agent="grasper",
                           **(metadata or {}))
     return folder, losses
 
 
-def dagger_round(policy, partner: str, episodes: int, seed: int, task: str = "suction_debris_v1"):
+def dagger_round(policy, partner: str, episodes: int, seed: int, task: str = "suction_debris_v8"):
     """Let ``policy`` work the grasper seat beside ``partner`` on ``episodes`` worlds (seeded ``seed``, ``seed + 1``...)
     and return every observation it visited with the scripted surgeon's action for it."""
-    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.training import teams
 
-    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", task=task)
+    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", task=task)
     expert, suction = teams.seat("scripted", "grasper"), teams.seat(partner, "suction")
     observations, _ = env.reset(seed=seed)
     done = np.zeros(episodes, dtype=bool)
@@ -259,7 +259,7 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
                             actions=np.concatenate(labels[1:]))
     evaluate = {"partner": "pipeline", "episodes": 100, **config.evaluate}
     team = {"suction": teams.seat(evaluate["partner"], "suction"), "grasper": policies.load(folder)}
-    result = teams.evaluate_team_batched(team, int(evaluate["episodes"]), task="suction_debris_v1")
+    result = teams.evaluate_team_batched(team, int(evaluate["episodes"]), task="suction_debris_v8")
     summary = {"dataset": config.dataset, "transitions": int(len(actions)), "final_loss": losses[-1],
                "partner": evaluate["partner"], "policy": str(folder), "dagger": rounds,
                "wall_seconds": round(time.perf_counter() - began, 1),

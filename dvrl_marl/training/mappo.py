@@ -2,7 +2,7 @@
 
 ``dvrl-marl train baselines/configs/suction_debris_mappo.toml`` runs it. The pieces:
 
-- **Data**: :func:`suction_debris_v0.batched_env` with ``num_envs`` worlds, stepped ``rollout_steps`` times per
+- **Data**: :func:`suction_debris_v8.batched_env` with ``num_envs`` worlds, stepped ``rollout_steps`` times per
   iteration (autoreset off: the trainer resets ended worlds itself, at the scheduled start level). Worlds of training
   seed ``s`` are seeded from ``TRAIN_SEED_BASE * (s + 1)``; periodic evaluation (and the choice of the best
   checkpoint) uses the validation seeds ``teams.VALIDATION_SEED`` on, and reported figures the test seeds
@@ -59,7 +59,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs.presets import scene_options
+from dvrl_marl.envs.suction_debris import TASK, env_name
 from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
                                              MappoConfig, config_toml, demonstrations, load_config, partner, partners)
@@ -93,7 +95,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     total = int(total_steps or config.total_steps)
     surgeon = None if config.surgeon == "none" else "scripted"  # (who fills the seat does not change the spaces)
     # The learner's view of the env (spaces, layout for the partner in evaluation): one world.
-    env = suction_debris_v0.batched_env(num_envs=1, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
+    env = suction_debris_v8.batched_env(num_envs=1, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
                                         autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)
     n, horizon, count = config.num_envs, config.rollout_steps, len(agents)
@@ -410,14 +412,11 @@ def _update_running(stats: dict, x: np.ndarray) -> None:
 
 
 
-#: The env options that shape learning only: validation runs the task at the configured start level (a fixed
-#: ``start_level`` is the task being learnt; the ``[curriculum]`` schedule is not), and the exported policies compute
-#: their observation features and normalisation from the plain observation.
-_LEARNING_OPTIONS = ("reward_type", "guidance", "observation_features", "normalize_observations")
-
-
 def _eval_kwargs(config: MappoConfig) -> dict:
-    return {k: v for k, v in config.env.items() if k not in _LEARNING_OPTIONS}
+    """The scene validation runs: the configured one without its learning options (the exported policies compute
+    their observation features and normalisation from the plain observation), at the configured start level (a
+    fixed ``start_level`` is the task being learnt; the ``[curriculum]`` schedule is not)."""
+    return scene_options(**config.env)
 
 
 
@@ -431,7 +430,7 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
     for index, agent in enumerate(agents):
         folder = out / "policies" / f"marl-{agent}"
         export_actor(actor_net, index, folder, name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
-                     env_id=suction_debris_v0.env_name(str(config.env.get("task", "suction_debris"))),
+                     env_id=env_name(str(config.env.get("task", TASK))),
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                             "steps": steps, "partners": partners(config),
                                             **demonstrations(config)}},

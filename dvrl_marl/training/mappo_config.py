@@ -11,7 +11,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
-from dvrl_marl.envs import start_levels, suction_debris_v0
+from dvrl_marl.envs import start_levels, suction_debris_v8
+from dvrl_marl.envs.presets import with_preset
 from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval)
 from dvrl_marl.training import teams
@@ -50,7 +51,7 @@ class MappoConfig:
     # policy (a shipped name or a folder), or a list of these (teams.Partners: a share of the worlds each, in
     # training, demonstrations and validation alike; learned partners act with their recorded noise)
     surgeon: Text | list[Text] = "none"
-    surgeon_seat: Literal[suction_debris_v0.AGENTS] = "grasper"
+    surgeon_seat: Literal[suction_debris_v8.AGENTS] = "grasper"
     env: dict[Text, Any] = field(default_factory=lambda: {"reward_type": "dense"})
     # PPO
     learning_rate: Positive = 3e-4
@@ -74,7 +75,7 @@ class MappoConfig:
     # "gaussian": the tool value (valve / jaw) is a fourth Gaussian dimension; "switch": an open/closed decision
     # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
     tool_head: Literal[TOOL_HEADS] = "gaussian"
-    initial_tool_logit: dict[Literal[suction_debris_v0.AGENTS], Finite] = field(default_factory=dict)
+    initial_tool_logit: dict[Literal[suction_debris_v8.AGENTS], Finite] = field(default_factory=dict)
     # MAPPO's critic input: "state" (the env's state()), or "state_and_observation": the state and the agent's own
     # observation (with its features), one value network per agent (Yu et al. 2022's agent-specific global state)
     critic_input: Literal[CRITIC_INPUTS] = "state"
@@ -151,7 +152,7 @@ RETIRED_AT = {"held_tool_logit": "c59ae5f"}
 def _check_env(path, config: MappoConfig) -> None:
     """``[env]``: the scene's keyword arguments, checked by building the scene once (its own schema)."""
     try:
-        suction_debris_v0.parallel_env(**config.env).close()
+        suction_debris_v8.parallel_env(**config.env).close()
     except (TypeError, ValueError) as error:
         raise ValueError(f"{path}: [env] {error}") from None
 
@@ -181,7 +182,8 @@ def load_config(path) -> MappoConfig:
         if section not in TABLE_KEYS or not isinstance(content, dict):
             raise ValueError(f"{path}: unknown table [{section}] (known: {', '.join(TABLE_KEYS)})")
         if section == "env":
-            values["env"], where["env"] = dict(content), "env"
+            # a preset becomes its options here, so the trainer reads every option the scene runs with
+            values["env"], where["env"] = with_preset(dict(content), f"{path}: [env]"), "env"
             continue
         for key, value in content.items():
             allowed = TABLE_KEYS[section]
@@ -214,8 +216,8 @@ def check_surgeon(path, config: MappoConfig) -> None:
                          f"got {spec!r}")
     if "none" in names and len(names) > 1:
         raise ValueError(f"{path}: surgeon \"none\" cannot be one of several partners")
-    if config.surgeon_seat not in suction_debris_v0.AGENTS:
-        raise ValueError(f"{path}: surgeon_seat must be one of {suction_debris_v0.AGENTS}, got {config.surgeon_seat!r}")
+    if config.surgeon_seat not in suction_debris_v8.AGENTS:
+        raise ValueError(f"{path}: surgeon_seat must be one of {suction_debris_v8.AGENTS}, got {config.surgeon_seat!r}")
     for name in names:
         if name in ("scripted", "pipeline"):
             continue
@@ -231,7 +233,7 @@ def partner(config: MappoConfig, env, noise_from: int):
     if config.surgeon == "none":
         return None
     if env is None:
-        env = suction_debris_v0.parallel_env(**config.env)
+        env = suction_debris_v8.parallel_env(**config.env)
     return teams.partner(config.surgeon, config.surgeon_seat, env, noise_from=noise_from)
 
 

@@ -246,7 +246,7 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
 
 # --- numpy export ---------------------------------------------------------------------------------------------
 def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
-                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v0",
+                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v8",
                  input_scaling=None) -> Path:
     """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box; with the switch
     tool head the tool's more likely value, +1 or -1) as a numpy policy folder, the observation normalisation

@@ -153,6 +153,6 @@ def plot_team_curves(run_dirs, out) -> tuple[Path, Path]:
     axes[0].set_ylim(-0.02, 1.02)
     handles, labels = axes[0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
-    figure.suptitle("suction_debris_v0: multi-agent PPO (validation episodes)")
+    figure.suptitle("suction_debris_v8: multi-agent PPO (validation episodes)")
     return _save(figure, out, ["configuration", "metric", "steps", "mean", "std", "seeds"], rows, dpi=110,
                  layout_rect=(0, (legend_inches - 0.3) / (4.0 + legend_inches), 1, 1))

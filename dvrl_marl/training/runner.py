@@ -4,7 +4,7 @@ A configuration (``baselines/configs/*.toml``, one per environment x algorithm, 
 rl-baselines3-zoo's hyperparameter files)::
 
     [run]
-    env_id = "dvrl_marl/PSMReach-v0"
+    env_id = "dvrl_marl/PSMReach-v1"
     algorithm = "ddpg"          # ddpg | ddpg_bc | td3 | sac | tqc
     total_timesteps = 20000
     eval_every = 2000           # environment steps between evaluations

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 __all__ = ["evaluate_team_batched", "seat", "seats", "partner", "Partners", "cross_play", "EVAL_SEED",
            "VALIDATION_SEED"]
@@ -44,7 +44,7 @@ class _PerWorld:
 
 def noise_seed(agent: str, seed: int) -> int:
     """The seed of a learned seat's exploration noise in an evaluation starting at ``seed`` (one per seat)."""
-    return int(seed) * 2 + suction_debris_v0.AGENTS.index(agent)
+    return int(seed) * 2 + suction_debris_v8.AGENTS.index(agent)
 
 
 def seat(name, agent: str, env=None, noise_from: int | None = None):
@@ -53,11 +53,11 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     from dvrl_marl import policies
     from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
 
-    if agent not in suction_debris_v0.AGENTS:
-        raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris_v0.AGENTS)}")
+    if agent not in suction_debris_v8.AGENTS:
+        raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris_v8.AGENTS)}")
     if callable(name):
         return name
-    env = env or suction_debris_v0.parallel_env()
+    env = env or suction_debris_v8.parallel_env()
     if name == "scripted":
         return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
     if name == "person-like":  # the scripted expert as people act: late, slow, smooth, shaky, hesitant (seeded)
@@ -68,7 +68,7 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
         from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
         plan = load_pipeline("learned_team")[agent]
-        single = suction_debris_v0.parallel_env()
+        single = suction_debris_v8.parallel_env()
         return _PerWorld(lambda: ArmPipeline(plan, agent, single))
     policy = policies.load(name)
     trained_for = policy.spec.get("agent")
@@ -139,7 +139,7 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     per-episode outcomes.
     """
     env_kwargs = {k: v for k, v in env_kwargs.items() if k != "reward_type"}
-    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
+    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
     missing = set(env.possible_agents) - set(team)
     if missing:
         raise ValueError(f"evaluate_team_batched: no policy for seat(s) {sorted(missing)}")

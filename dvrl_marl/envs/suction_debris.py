@@ -1,137 +1,7 @@
-"""Suction & debris removal: two PSMs clear a surgical phantom together (PettingZoo parallel environment).
+"""The collaborative scene's implementation: :class:`SuctionDebrisEnv`, its parameters and its presets.
 
-```python
-from dvrl_marl.envs import suction_debris_v0
-env = suction_debris_v0.parallel_env()                      # both arms learn
-env = suction_debris_v0.parallel_env(surgeon="scripted")    # the LND is driven by a scripted surgeon
-```
-
-## Description
-The paper's collaborative experiment (Sec. IV-D, Figs. 1, 6, 7) in one MuJoCo scene (``scenes/collaborative.xml``).
-A Suction & Irrigation PSM (agent ``"suction"``) removes fake blood from the two cavities of a gelatin phantom; as
-the blood level falls it reveals debris, 3 x 28 mm spring pins lying on the cavity floors, which a Large Needle
-Driver PSM (agent ``"grasper"``) grasps by the paper's grasp rule and hands to the first assistant by holding
-them within delta of the hand-off point. Arms are kinematic (eta steps through the closed-form IK, as in the
-single-arm environments); debris moves only with the gripper (released elsewhere, it drops onto the surface
-below it).
-
-The **surgeon seat**: ``surgeon=None`` (default) leaves both arms to the learning agents. ``"scripted"`` puts the
-built-in expert in ``surgeon_seat`` (``"grasper"`` by default, as in the paper where the surgeon worked the LND;
-``"suction"`` also works), a callable ``policy(observation) -> action`` puts a learned surgeon there, and a
-:mod:`dvrl_marl.teleop` device puts a human there. A bound seat leaves ``possible_agents`` and is driven inside
-``step()``. A device that raises, returns an unusable action or misses ``teleop_timeout`` holds its seat still
-that step (zero Delta, jaw or valve unchanged) and every agent's info gets ``teleop_lost=True``.
-
-**A person in the seat** (``render_mode="human"`` with a ``human_operated`` device such as
-:class:`~dvrl_marl.teleop.KeyboardDevice`): ``reset()`` opens the scene's window (:mod:`dvrl_marl.viewer`), shows
-the first frame and waits until the person presses ENTER; steps then run in real time, one per 20 ms control
-period (frames are dropped before steps are; ``realtime_stats()`` gives steps late and the worst lag). The window's
-overlay shows the blood left per cavity, debris found and delivered, elapsed time and the key map. Closing the
-window (or ESC) ends the episode at that step: every agent truncates with ``infos[agent]["viewer_closed"] = True``.
-
-## Agents and Action Spaces
-| agent | tool | action ``Box(-1, 1, (4,), float32)`` |
-|---|---|---|
-| ``"suction"`` | Suction & Irrigation | [Delta (3), valve: open when > 0] |
-| ``"grasper"`` | Large Needle Driver | [Delta (3), phi: jaw j = (phi + 1) / 2] |
-
-The tool is set at once, as in the paper, unless ``tool_speed`` (an option of every version; 1, the default, is
-the paper's instant tool) gives it a finite speed: the jaw moves towards j, and the valve's stroke (0 closed .. 1
-open) towards open or closed, by at most ``tool_speed`` per step (:mod:`dvrl_marl.core.tools`); the valve draws while
-more than half open. Exploration noise on the tool dimension then averages out over a stroke, and the mean action
-and a sampled one move the tool alike (``benchmarks/tool_noise.py``). Two more options of every version (off by
-default: the paper's jaw) make the grasp one decision, as the valve is: ``jaw_command="switch"`` sets the jaw's target
-by the command's sign (closed when phi <= 0, open when phi > 0) instead of j = (phi + 1) / 2, and
-``hold_until_handoff=True`` keeps a held pin's jaw shut, whatever phi says, until the pin is handed off (it is never
-dropped; the jaw follows phi again from the step after the hand-off).
-
-``p <- p + eta * Delta`` (eta = 1 mm), projected into the workspace box, above the phantom, cavity floors and
-table, and within the joint limits. A move that would make the instruments intersect is refused (the tip stays)
-and counts as a contact. Values outside [-1, 1] are clipped; a missing or unknown agent key, NaN/inf or a wrong
-shape raises ``ValueError`` naming the agent.
-
-## Observation Space
-Per agent, a flat ``Box(float64)`` with finite bounds; positions are normalised as in the paper,
-x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris.toml``):
-
-| slice | content |
-|---|---|
-| 0:3 | own tip~ |
-| 3 | own tool: jaw 2j - 1 (grasper) or valve +1 open / -1 closed (suction; 2 x stroke - 1 with ``tool_speed``) |
-| 4:7 | other arm's tip~ |
-| 7:7+C | blood fraction left in each of the C = 2 cavities |
-| then 6 per debris | [position~ (zeros while hidden), visible, held, delivered] |
-| last 3 | hand-off point~ |
-
-``state()`` / ``state_space`` give the global state for centralised critics: both tips, jaw, valve, blood
-fractions, every debris with its true position (hidden ones included) and flags, the hand-off point.
-``observation_layout`` and ``state_layout`` name the slices. With ``state_observations=True`` (an option, off by
-default) every arm's observation, its features included, follows (``state_layout["suction_observation"]``,
-``["grasper_observation"]``): a critic per arm then reads what its actor reads beside the state (the agent-specific
-global state of Yu et al. 2022), as this project's trainer's MAPPO critic does.
-
-## Rewards
-``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
-``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and
-10 x the decrease of each agent's own distance (m) to what it should work on next (potential-based shaping).
-``"guided"``: the dense reward plus the potential-based terms that made the task learnable from scratch
-(:mod:`dvrl_marl.envs.guidance`: the grasper's path over a pin to the hand-off, centred grasps, a hold bonus and a
-waiting place; the suction's route over the cavities still to clear, a clearing bonus and a parking place; all
-measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.envs.guidance.Guidance`,
-defaults: the configuration of record). Potential-based terms leave the optimal policy unchanged, and success is
-the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``.
-
-## Starting State
-Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper jaw open, valve closed; blood
-``blood_ml`` per cavity; ``debris_count`` pins placed at seeded random slots and orientations on the cavity
-floors, hidden under the blood. ``reset(options={"blood_ml": [v0, v1]})`` sets the blood for that episode (and
-the ones after it); other keys are ignored with a warning.
-
-Start levels (:mod:`dvrl_marl.envs.start_levels`): ``reset(options={"level": x})`` (``start_level=x`` when made;
-``"easy"`` = 0, ``"default"`` = 1, the default) draws an easy episode with probability ``1 - x``: cavities
-emptier, fewer debris, the grasper starting near a visible pin (receding from it as ``x`` rises), 300 steps at
-most (``easy_episode_steps``; ``None`` or 0: the task's own limit, so that every easy episode can be completed). Level
-1 is the default task, bit for bit. The level holds for later episodes until set again, so a
-library's curriculum can drive it at each reset (the batched env also takes one level per world, and
-``set_start_level``).
-
-## Episode End
-Complete (every cavity below ``blood_threshold_ml`` and every debris delivered): all agents terminate.
-``max_cycles`` steps: all agents truncate. The person closed the window (``render_mode="human"``): all agents
-truncate, with ``viewer_closed``. ``infos[agent]``: ``blood_remaining`` (ml, total),
-``blood_remaining_per_cavity``, ``debris_delivered``, ``collision``, ``is_success``.
-
-## Arguments
-``surgeon``, ``surgeon_seat``, ``reward_type``, ``render_mode`` ("rgb_array" | "human": a window, stepped in
-real time at 50 Hz), ``max_cycles``,
-``blood_ml``, ``blood_threshold_ml``, ``suction_rate_ml_s``, ``debris_count``, ``contact_penalty``,
-``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
-``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris.toml``.
-Options that help learning (issue 37; off by default): ``reward_type="guided"`` and ``guidance``,
-``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.policies.features.FEATURES`): each
-agent's observation gets those features appended (relative targets computed from the observation alone: the pin
-to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
-ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
-``jaw_command`` and ``hold_until_handoff`` (above): a grasp a Gaussian policy decides once and cannot undo by noise;
-``state_observations`` (above): both arms' observations in the state, for a library's centralised critics.
-``normalize_observations``: every agent's observation (features included) and the state as ``(x - centre) / spread``
-per dimension, fixed centres and spreads measured on the scripted team's and random episodes
-(:mod:`dvrl_marl.envs.observation_scaling`; ``observation_scaling`` maps back): inputs at one scale for a library
-whose networks do not normalise their own (the pins' y and a carry's offsets vary 25-100 times less than a tip's
-position). The surgeon seat reads the scene's units either way.
-
-## Batched form
-``batched_env(num_envs=N, **same keyword arguments)`` steps N worlds as arrays (observations ``(N, obs_dim)``,
-rewards and flags ``(N,)``, automatic per-world reset); world ``i`` seeded ``s`` is this environment seeded
-``s + i``. ``dvrl_marl.integrations.torchrl.SuctionDebrisTorchRLEnv`` exposes it to TorchRL.
-
-## Version History
-- v0: initial release. The batched form (same trajectories) was added without a version change.
-  ``render_mode="human"`` became a window of the project's own, drawn in ``step()`` and paced to 50 Hz, with ENTER
-  to start for a person's device (frames and timing only: trajectories are unchanged).
-  Options added without a version change, their defaults the published behaviour (issue 37):
-  ``reward_type="guided"``, ``guidance``, ``observation_features``, ``start_level`` and the ``level`` reset option;
-  ``tool_speed``; ``jaw_command``, ``hold_until_handoff`` and ``state_observations``; ``normalize_observations``.
+Users import the current version, :mod:`dvrl_marl.envs.suction_debris_v8`, whose module documentation is the
+environment's page; this module holds what that version re-exports.
 """
 
 from __future__ import annotations
@@ -172,6 +42,7 @@ from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.blood import BloodState, Cavity, Phantom
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
 from dvrl_marl.envs.observation_scaling import ObservationScaling
+from dvrl_marl.envs.presets import accepts_preset
 from dvrl_marl.policies import features
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
 from dvrl_marl.rendering import SceneRenderer, render_modes_here
@@ -179,9 +50,11 @@ from dvrl_marl.teleop.pacing import PacedDisplay
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import load_task_table
 
-__all__ = ["parallel_env", "env", "raw_env", "batched_env", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS",
+__all__ = ["parallel_env", "env", "raw_env", "TASK", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS",
            "env_name"]
 
+#: The task file of the current version (``tasks/suction_debris_v8.toml``); the environment takes its name from it.
+TASK = "suction_debris_v8"
 _TOOLS = TOOLS
 _PREFIX = {"suction": "suction/", "grasper": "grasper/"}
 _OBS_POSITION_BOUND = 10.0
@@ -204,7 +77,7 @@ def _guidance_settings(values, owner: str) -> Guidance:
 
 @dataclass(frozen=True)
 class SuctionDebrisParams:
-    """The task's parameters (see ``tasks/suction_debris.toml`` for defaults and sources)."""
+    """The task's parameters (see ``tasks/suction_debris_v8.toml`` for defaults and sources)."""
 
     scene: str
     workspace_centre: tuple[float, float, float]
@@ -220,20 +93,20 @@ class SuctionDebrisParams:
     debris_count: int
     contact_penalty: float
     max_cycles: int
-    # Added with suction_debris_v1 (the defaults are v0's behaviour; tasks/suction_debris_v1.toml sets v1's):
+    # Added with suction_debris_v8 (the defaults are v0's behaviour; tasks/suction_debris_v8.toml sets v1's):
     pins_fall: bool = False  # a released pin falls under gravity (v0: it appears on the surface below at once)
     suction_reach: float = 0.0  # flow falls linearly to none this far above the surface (m; 0: v0's on/off)
     bleeding_ml_s: float = 0.0  # largest bleeding rate per cavity (0: no bleeding)
     bleeding_onset_s: float = 0.0  # each cavity starts bleeding at a seeded time in [0, this] (s)
-    # Added with suction_debris_v2 (defaults: v0's and v1's behaviour; tasks/suction_debris_v2.toml sets v2's):
+    # Added with suction_debris_v8 (defaults: v0's and v1's behaviour; tasks/suction_debris_v8.toml sets v2's):
     deliver_at_grip: bool = False  # hand-off judged where the jaws hold the pin (v0/v1: at the pin's centre)
     pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
-    # Added with suction_debris_v3 (default: v0-v2's behaviour; tasks/suction_debris_v3.toml sets v3's):
+    # Added with suction_debris_v8 (default: v0-v2's behaviour; tasks/suction_debris_v8.toml sets v3's):
     blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
     # ("climb", v5: as "slide", and a descent that makes no headway is given up; "climb_ahead", v6: headway counted
     # along the move; "settle", v7: as "climb_ahead", and the suction's descent still without headway slides down the
     # bowl)
-    # Added with suction_debris_v4 (default: v0-v3's behaviour; tasks/suction_debris_v4.toml sets v4's):
+    # Added with suction_debris_v8 (default: v0-v3's behaviour; tasks/suction_debris_v8.toml sets v4's):
     held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
     tool_speed: float = 1.0  # fraction of the jaw's / valve's stroke per control step (dvrl_marl.core.tools)
@@ -241,7 +114,7 @@ class SuctionDebrisParams:
     hold_until_handoff: bool = False  # a held pin's jaw stays shut, whatever the command, until the hand-off
 
     @classmethod
-    def from_task(cls, task: str = "suction_debris", **overrides) -> "SuctionDebrisParams":
+    def from_task(cls, task: str = TASK, **overrides) -> "SuctionDebrisParams":
         """The task file's values (checked against :class:`dvrl_marl.schemas.CollaborativeTask`: a misspelt key in
         the file is an error naming it), keyword by keyword overridden, then checked as :meth:`validated`."""
         from dvrl_marl.schemas import CollaborativeTask, validated
@@ -257,7 +130,7 @@ class SuctionDebrisParams:
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values).validated(owner)
 
-    def validated(self, owner: str = "suction_debris_v0") -> "SuctionDebrisParams":
+    def validated(self, owner: str = TASK) -> "SuctionDebrisParams":
         """Every parameter checked against :class:`dvrl_marl.schemas.CollaborativeTask` (finite numbers in range,
         true/false flags), one blood volume per cavity, at most two pins per slot; a copy with the checked values.
         (Each cavity's capacity is checked by BloodState, which knows the cavities.)"""
@@ -279,8 +152,8 @@ class SuctionDebrisParams:
 
 
 def env_name(task: str) -> str:
-    """The environment's name for a task file: ``suction_debris`` is v0's, ``suction_debris_vN`` names itself."""
-    return "suction_debris_v0" if task == "suction_debris" else task
+    """The environment's name for a task file (a path or a name): the file's stem."""
+    return Path(str(task)).stem
 
 
 @dataclass(frozen=True)
@@ -358,12 +231,13 @@ class SuctionDebrisEnv(ParallelEnv):
     """The collaborative suction and debris-removal environment (see the module documentation)."""
 
     metadata = {
-        "name": "suction_debris_v0",
+        "name": TASK,
         "render_modes": ["human", "rgb_array"],  # (each instance: what this machine can show, render_modes_here)
         "render_fps": 50,
         "is_parallelizable": True,
     }
 
+    @accepts_preset
     def __init__(
         self,
         surgeon=None,
@@ -374,7 +248,7 @@ class SuctionDebrisEnv(ParallelEnv):
         teleop_timeout: float | None = 0.5,
         width: int = 640,
         height: int = 480,
-        task: str = "suction_debris",
+        task: str = TASK,
         guidance: dict | None = None,
         observation_features: str = "",
         start_level: float | str = 1.0,
@@ -1355,14 +1229,6 @@ def parallel_env(**kwargs) -> SuctionDebrisEnv:
 
 
 raw_env = parallel_env
-
-
-def batched_env(num_envs: int = 1, **kwargs):
-    """N worlds stepped as arrays (see :mod:`dvrl_marl.envs.suction_debris_batched`); the same keyword arguments as
-    :func:`parallel_env`, plus ``num_envs``, ``autoreset_mode`` and ``render_world``."""
-    from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv  # it builds on this module
-
-    return SuctionDebrisBatchedEnv(num_envs, **kwargs)
 
 
 def env(**kwargs):
