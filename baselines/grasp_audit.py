@@ -18,7 +18,7 @@ import json
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
 #: A pin held further than this (m) toward -x of the tip cannot come within 3 mm of the hand-off point.
@@ -27,7 +27,7 @@ UNDELIVERABLE_OFFSET_X = -0.005
 
 def audit(suction: str, grasper: str, episodes: int, seed: int, noise: bool) -> dict:
     team = teams.seats(suction, grasper, noise_from=seed if noise else None)
-    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled")
     debris_slice = env.observation_layout["debris"]
     count = env.params.debris_count
     observations, _ = env.reset(seed=seed)

@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 import dvrl_marl  # noqa: F401
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 HERE = Path(__file__).resolve().parent
 
@@ -37,7 +37,7 @@ def single_goal_env(env_id: str, steps: int = 30_000) -> float:
 
 
 def single_collaborative(steps: int = 5_000) -> float:
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, 2, 4)).astype(np.float32)
     env.reset(seed=0)
     start = time.perf_counter()
@@ -66,7 +66,7 @@ def batched_goal_env(env_id: str, num_worlds: int) -> float:
 
 
 def batched_collaborative(num_worlds: int) -> float:
-    env = suction_debris_v0.batched_env(num_envs=num_worlds)
+    env = suction_debris_v8.batched_env(num_envs=num_worlds)
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (8, 2, num_worlds, 4))
     counter = iter(range(10**9))
@@ -96,8 +96,8 @@ def main() -> None:
     args = parser.parse_args()
     n = 4096
     rows = [
-        ("PSM Reach", single_goal_env("dvrl_marl/PSMReach-v0"), batched_goal_env("dvrl_marl/PSMReach-v0", n), 5e6, 50),
-        ("PSM Pick", single_goal_env("dvrl_marl/PSMPick-v0"), batched_goal_env("dvrl_marl/PSMPick-v0", n), 2e6, 30),
+        ("PSM Reach", single_goal_env("dvrl_marl/PSMReach-v1"), batched_goal_env("dvrl_marl/PSMReach-v1", n), 5e6, 50),
+        ("PSM Pick", single_goal_env("dvrl_marl/PSMPick-v1"), batched_goal_env("dvrl_marl/PSMPick-v1", n), 2e6, 30),
         ("collaborative (parallel steps)", single_collaborative(), batched_collaborative(n), 5e5, 50),
     ]
     print(f"batched core at N = {n:,} worlds vs the single env, same run (random actions, resets included)")
@@ -115,8 +115,8 @@ def main() -> None:
     curve = {"reach": [], "pick": [], "collaborative": []}
     print(f"\nscaling (steps/s per env id, N worlds)\n  {'N':>7s} {'Reach':>14s} {'Pick':>14s} {'collaborative':>14s}")
     for size in sizes:
-        curve["reach"].append(batched_goal_env("dvrl_marl/PSMReach-v0", size))
-        curve["pick"].append(batched_goal_env("dvrl_marl/PSMPick-v0", size))
+        curve["reach"].append(batched_goal_env("dvrl_marl/PSMReach-v1", size))
+        curve["pick"].append(batched_goal_env("dvrl_marl/PSMPick-v1", size))
         curve["collaborative"].append(batched_collaborative(size))
         print(f"  {size:7d} {curve['reach'][-1]:14,.0f} {curve['pick'][-1]:14,.0f} {curve['collaborative'][-1]:14,.0f}")
     with open(HERE / "batched_scaling.csv", "w", newline="") as handle:

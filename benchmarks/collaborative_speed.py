@@ -13,11 +13,11 @@ import time
 import numpy as np
 
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 
 def parallel_steps_per_second(steps: int, **kwargs) -> float:
-    env = suction_debris_v0.parallel_env(**kwargs)
+    env = suction_debris_v8.parallel_env(**kwargs)
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, size=(steps, 2, 4)).astype(np.float32)
     start = time.perf_counter()
@@ -29,7 +29,7 @@ def parallel_steps_per_second(steps: int, **kwargs) -> float:
 
 
 def scripted_team(episodes: int) -> tuple[float, float, float]:
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     successes, lengths = 0, []
     start = time.perf_counter()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from dvrl_marl import policies
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.pipeline import ArmPipeline
 from dvrl_marl.training.marl import TeamPolicy, evaluate_team
 
@@ -26,7 +26,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--ppo", help="a suction_debris_ppo run folder (with final_model.zip)")
     args = parser.parse_args()
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
     names = ["scripted_team"]
@@ -38,7 +38,7 @@ def main() -> None:
     for label, act in teams.items():
         results[label] = evaluate_team(act, args.episodes)
     for name in names:
-        env = suction_debris_v0.parallel_env()
+        env = suction_debris_v8.parallel_env()
         start = time.perf_counter()
         pipes = {agent: ArmPipeline.from_file(name, agent, env) for agent in ("suction", "grasper")}
         result = evaluate_team(lambda o, p=pipes: {agent: p[agent](o[agent]) for agent in p}, args.episodes,

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon
-from dvrl_marl.envs import suction_debris_v1
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
 
@@ -30,10 +30,10 @@ def main() -> None:
     parser.add_argument("--marl-team", help="a folder with marl-suction/ and marl-grasper/ (trained together)")
     parser.add_argument("--out", help="write the figures to this JSON file")
     args = parser.parse_args()
-    variants = {"v0": {}, "v1": {"task": "suction_debris_v1"}}
+    variants = {"v0": {}, "v1": {"task": "suction_debris_v8"}}
     for rate in args.bleeding:
-        variants[f"v1, bleeding {rate} ml/s"] = {"task": "suction_debris_v1", "bleeding_ml_s": rate}
-    layout = suction_debris_v1.parallel_env()
+        variants[f"v1, bleeding {rate} ml/s"] = {"task": "suction_debris_v8", "bleeding_ml_s": rate}
+    layout = suction_debris_v8.parallel_env()
     lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline"),
               "keep-clear scripted team": (KeepClearSuction.for_env(layout), KeepClearSurgeon.for_env(layout))}
     if args.marl_suction:

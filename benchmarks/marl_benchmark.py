@@ -8,7 +8,7 @@ One row per run, one command per row (each writes one JSON record; nothing is ov
     python benchmarks/marl_benchmark.py table            # the table (markdown), its JSON and the plot
 
 Every run uses the same env options, the shipped BenchMARL task files
-(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v7``, the guided reward,
+(``dvrl_marl/integrations/benchmarl_tasks/suction_debris_<level>.yaml``: ``suction_debris_v8``, the guided reward,
 the observation features, the start level, a tool with a finite speed, the jaw a switch that holds a pin until the
 hand-off). Records are named by scene: the version and any option that changes the scene itself (``SCENE_OPTIONS``:
 ``tool_speed``, ``jaw_command``, ``hold_until_handoff``), so that runs on different scenes are never pooled in one

@@ -13,7 +13,7 @@ A run of this project's trainer (its env options: its ``config.toml``'s ``[env]`
 BenchMARL run of ``marl_benchmark.py`` (``env_options.json`` and the final ``policy.pt`` it saves; needs BenchMARL's
 environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on). ``--option KEY=VALUE`` plays the
 policies on a changed scene (an env keyword argument over the run's own, the value read as JSON where it parses,
-else as text), e.g. ``--option task=suction_debris_v7``: what a scene's change does to a learnt team, untrained.
+else as text), e.g. ``--option task=suction_debris_v8``: what a scene's change does to a learnt team, untrained.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def is_benchmarl_run(run: Path) -> bool:
 
 def team_of(run: Path):
     """A run's env options and its team's mean action, ``act({agent: (N, obs)}) -> {agent: (N, 4)}``."""
-    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.envs import suction_debris_v8
 
     if is_benchmarl_run(run):
         import json
@@ -49,7 +49,7 @@ def team_of(run: Path):
         from torchrl.envs.utils import ExplorationType, set_exploration_type
 
         policy = torch.load(run / "policy.pt", weights_only=False)
-        agents = suction_debris_v0.AGENTS
+        agents = suction_debris_v8.AGENTS
 
         def act(observations):
             stacked = torch.as_tensor(np.stack([observations[a] for a in agents], axis=1), dtype=torch.float32)
@@ -67,7 +67,7 @@ def team_of(run: Path):
         # the run's [env] table alone: a run recorded with a trainer key retired since still names its scene
         options = dict(read_toml(run / "config.toml").get("env", {}))
         options.pop("normalize_observations", None)  # the exported policies fold it in: they read the scene's units
-        team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v0.AGENTS}
+        team = {agent: policies.load(run / "policies" / f"marl-{agent}") for agent in suction_debris_v8.AGENTS}
 
         def act(observations):
             return {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in observations}
@@ -75,12 +75,12 @@ def team_of(run: Path):
 
 
 def classify(run: Path, episodes: int, window: int, changes: dict | None = None) -> tuple[float, Counter, dict]:
-    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.training import teams
 
     options, act = team_of(run)
     options = {**options, **(changes or {})}
-    env = suction_debris_v0.batched_env(num_envs=episodes, autoreset_mode="disabled", **options)
+    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", **options)
     observations, _ = env.reset(seed=teams.EVAL_SEED)
     layout = env.observation_layout
     tips = {agent: [] for agent in env.agents}
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                        help="an env keyword argument over the run's own (repeatable), e.g. task=suction_debris_v7")
+                        help="an env keyword argument over the run's own (repeatable), e.g. task=suction_debris_v8")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.window < 2:
         parser.error("--episodes must be >= 1 and --window >= 2")
@@ -145,7 +145,7 @@ def main(argv=None) -> int:
     for option in args.option:
         key, sep, value = option.partition("=")
         if not sep or not key:
-            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. task=suction_debris_v7")
+            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. task=suction_debris_v8")
         try:
             changes[key] = json.loads(value)
         except json.JSONDecodeError:

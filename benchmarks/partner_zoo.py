@@ -4,7 +4,7 @@ For each seat, the learned policy (its default call: the mean action, as a robot
 expert play beside the same partners: the scripted one, the Reach + Pick pipeline, the measured person
 (:data:`dvrl_marl.agents.partners.PERSON`) and each held-out kind (:data:`~dvrl_marl.agents.partners.HELD_OUT`:
 late, slow, shaky, hesitant; drawn with ``ZOO_SEED``, never used in training). Test seeds (``teams.EVAL_SEED`` on),
-``suction_debris_v2`` with a person's 6,000-step horizon.
+``suction_debris_v8`` with a person's 6,000-step horizon.
 
     python benchmarks/partner_zoo.py [--episodes 100] [--suction marl-suction] [--grasper marl-grasper]
                                      [--noise] [--json baselines/results/partner_zoo.json]
@@ -21,7 +21,7 @@ import json
 from pathlib import Path
 
 from dvrl_marl.agents.partners import HELD_OUT, zoo_partner
-from dvrl_marl.envs import suction_debris_v2
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
 PARTNERS = ("scripted", "pipeline", "person", *sorted(HELD_OUT))
@@ -29,12 +29,12 @@ PARTNERS = ("scripted", "pipeline", "person", *sorted(HELD_OUT))
 
 def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool) -> dict:
     other = "grasper" if seat == "suction" else "suction"
-    env = suction_debris_v2.parallel_env()
+    env = suction_debris_v8.parallel_env()
     filler = (zoo_partner(partner, other, env) if partner not in ("scripted", "pipeline")
               else teams.seat(partner, other))
     team = {seat: teams.seat(player, seat, noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
             other: filler}
-    result = teams.evaluate_team_batched(team, episodes, task="suction_debris_v2", max_cycles=6000)
+    result = teams.evaluate_team_batched(team, episodes, task="suction_debris_v8", max_cycles=6000)
     return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
             "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
             "mean_contact_steps": result["mean_contact_steps"], "tip_path_mm": result["mean_tip_path_mm"][seat],

@@ -3,7 +3,7 @@
 The operator (:mod:`dvrl_marl.teleop.person`) reads only what the page shows (its status: tips, visible pins, the
 cues, the top and side views' outline), 200 ms late, decides every 0.25 s or slower once its last move has ended,
 holds the page's keys for a time with 10 % motor noise and pauses now and then. Beside the scripted suction on
-``dvrl_marl/SurgeonSeat-v2`` (a 120 s horizon, the browser seat's):
+``dvrl_marl/SurgeonSeat-v8`` (a 120 s horizon, the browser seat's):
 
     python benchmarks/person_like_seat.py [--episodes 50] [--browser 3] [--out benchmarks/person_like_seat.txt]
 
@@ -75,7 +75,7 @@ def main() -> None:
     parser.add_argument("--browser", type=int, default=0, help="seeds in real time in Chromium (default 0)")
     parser.add_argument("--out", type=Path, help="also write the figures to this file")
     args = parser.parse_args()
-    lines = ["person-like operator, grasper seat of dvrl_marl/SurgeonSeat-v2 beside the scripted suction "
+    lines = ["person-like operator, grasper seat of dvrl_marl/SurgeonSeat-v8 beside the scripted suction "
              "(200 ms reaction, >= 0.25 s decisions, 10 % motor noise)"]
     if args.episodes > 0:
         lines.append(summary("simulated time, the page's messages", simulated(args.episodes)))

@@ -60,13 +60,13 @@ def main() -> None:
     for env_id in sorted(SINGLE_ARM_ENV_IDS):
         print(f"  {env_id:28s} {steps_per_second(env_id, args.steps):10,.0f}")
     print("\none 100-step rollout, single env (paper: 2.09 s in V-REP)")
-    for env_id in ("dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"):
+    for env_id in ("dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"):
         print(f"  {env_id:28s} {1000 * rollout_seconds(env_id, None, repeats=50):8.2f} ms")
     print("\nseconds per 100-step rollout in gymnasium's SyncVectorEnv (its own overhead is ~80 us/step; paper Table II: 2.09 s for 1 env ... 3.27 s for 8 envs, V-REP)")
     print(f"  {'envs':>4s}  {'PSM Reach':>10s}  {'PSM Pick':>10s}")
     for n in (1, 2, 4, 6, 8):
-        reach = rollout_seconds("dvrl_marl/PSMReach-v0", n)
-        pick = rollout_seconds("dvrl_marl/PSMPick-v0", n)
+        reach = rollout_seconds("dvrl_marl/PSMReach-v1", n)
+        pick = rollout_seconds("dvrl_marl/PSMPick-v1", n)
         print(f"  {n:4d}  {reach:10.4f}  {pick:10.4f}")
 
 

@@ -1,4 +1,4 @@
-"""What v3's sliding costs per step: suction_debris_v2 against v3, batched, measured in the same run.
+"""What v3's sliding costs per step: suction_debris_v8 against v3, batched, measured in the same run.
 
 A move that nothing blocks costs what it cost in v2 (one more test); a blocked one runs the candidates of
 :func:`dvrl_marl.core.sliding.resolve_blocked`. Uniform random commands block in most steps (the adversarial case:
@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v2, suction_debris_v3
+from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
 
 
 def world_steps_per_second(module, worlds: int, commands: str, steps: int = 200, repeats: int = 3) -> float:
@@ -45,8 +45,8 @@ def main() -> None:
     print(f"  {'worlds':>7s} {'commands':>9s} {'v2':>12s} {'v3':>12s} {'v3 / v2':>8s}")
     for worlds in args.worlds:
         for commands in ("uniform", "scripted"):
-            v2 = world_steps_per_second(suction_debris_v2, worlds, commands)
-            v3 = world_steps_per_second(suction_debris_v3, worlds, commands)
+            v2 = world_steps_per_second(suction_debris_v8, worlds, commands)
+            v3 = world_steps_per_second(suction_debris_v8, worlds, commands)
             print(f"  {worlds:7,d} {commands:>9s} {v2:12,.0f} {v3:12,.0f} {v3 / v2:8.2f}")
 
 

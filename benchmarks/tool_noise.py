@@ -8,8 +8,8 @@ threshold drops the held pin; with a finite speed the noise averages out over a 
 and ``--hold-until-handoff`` run the scene's other tool options (a jaw set by the command's sign; a held pin kept
 until the hand-off).
 
-    python benchmarks/tool_noise.py [--worlds 64] [--task suction_debris_v3]
-    python benchmarks/tool_noise.py --task suction_debris_v5 --jaw-command switch --hold-until-handoff
+    python benchmarks/tool_noise.py [--worlds 64] [--task suction_debris_v8]
+    python benchmarks/tool_noise.py --task suction_debris_v8 --jaw-command switch --hold-until-handoff
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def success_rate(task: str, tool_speed: float, sigma: float, worlds: int, seed: 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--worlds", type=int, default=64)
-    parser.add_argument("--task", default="suction_debris_v3")
+    parser.add_argument("--task", default="suction_debris_v8")
     parser.add_argument("--sigmas", type=float, nargs="+", default=[0.0, 0.3, 0.6, 1.0])
     parser.add_argument("--speeds", type=float, nargs="+", default=[1.0, 0.1, 0.05])
     parser.add_argument("--jaw-command", choices=("proportional", "switch"), default="proportional")

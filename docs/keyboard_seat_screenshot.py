@@ -14,7 +14,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from dvrl_marl.agents.collaborative import ScriptedSuction
-from dvrl_marl.envs import suction_debris_v2
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.teleop import KeyboardDevice
 
 PRESS, RELEASE = 1, 0
@@ -29,7 +29,7 @@ KEY_EVENTS = ((0, "S", PRESS), (40, "S", RELEASE), (41, "F", PRESS), (60, "F", R
 
 def main(out: Path = Path(__file__).with_name("keyboard_seat.png")) -> Path:
     keys = _ScriptKeys()
-    env = suction_debris_v2.parallel_env(surgeon=keys, render_mode="human")
+    env = suction_debris_v8.parallel_env(surgeon=keys, render_mode="human")
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=0)
     for step in range(420):

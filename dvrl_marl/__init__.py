@@ -15,7 +15,7 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") and "MUJOC
 
 from dvrl_marl.registration import register_envs  # noqa: E402
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 __all__ = ["register_envs", "__version__"]
 
 register_envs()

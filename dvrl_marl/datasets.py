@@ -69,7 +69,6 @@ def record_episodes(policy, episodes: int, *, seed: int = 0, env_kwargs: dict | 
     spread (the jaw as the policy says), so the data shows the policy recovering from small errors; each step's
     ``infos["expert_action"]`` is what the policy itself asked for, the label a clone learns."""
     _minari()
-    from minari.data_collector.episode_buffer import EpisodeBuffer
 
     env = _seat_env(env_kwargs)
     act = _seat_policy(policy, env)

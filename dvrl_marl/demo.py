@@ -25,14 +25,13 @@ from datetime import datetime
 from pathlib import Path
 
 from dvrl_marl import policies
-from dvrl_marl.envs import suction_debris_v8 as scene_env  # the newest version of the scene
+from dvrl_marl.envs import suction_debris_v8 as scene_env
 from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
 __all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
 SURGEONS = ("learned", "scripted", "keyboard")
-#: The scene the demo runs: suction_debris_v8 (v1's falling pins and graded suction, no bleeding; the hand-off judged
-#: at the grip and dropped pins kept on the phantom, so a person at the keyboard meets no trap).
+#: The scene the demo runs: the current version, with its default preset (no bleeding).
 ENV_NAME = "suction_debris_v8"
 #: A person at the keyboard gets 2 minutes (6,000 steps) unless ``max_cycles`` says otherwise: the task's 1,500
 #: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.

@@ -8,14 +8,14 @@
     python examples/rllib_suction_debris.py --guided --level easy --iterations 120 --env-runners 2 \
         --envs-per-runner 8 --test-episodes 100   # the env's learning options: learns the easy level (20 minutes)
 
-``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v7``,
+``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v8``,
 ``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
 tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), and the
 PPO settings BenchMARL's MAPPO learns it with (:func:`benchmark_ppo_settings`); ``--level`` its start level
 (``easy`` ... ``default``, ``dvrl_marl.envs.start_levels``); the trained team is then tested on ``--test-episodes``
 held-out episodes at that level, by the mean action.
 
-The env is registered with RLlib as ``dvrl_marl/suction_debris-v1`` (``dvrl_marl.integrations.rllib``; its
+The env is registered with RLlib as ``dvrl_marl/suction_debris-v8`` (``dvrl_marl.integrations.rllib``; its
 wrapper renders, RLlib's own does not) and steps the PettingZoo parallel env unmodified: on 2 cores about 300
 steps/s with RLlib's defaults, 750-900 with ``--env-runners 2 --envs-per-runner 8``. For speed, the project's own
 trainer (``dvrl-marl train``, MAPPO on the batched env, optionally on Ray) is the way; this recipe is for people whose
@@ -30,11 +30,11 @@ from pathlib import Path
 
 
 #: ``--guided``: the benchmark's env options (its task files, dvrl_marl/integrations/benchmarl_tasks/, but for the
-#: start level): its scene (suction_debris_v7), the guided reward and features of the configuration of record, and the
+#: start level): its scene (suction_debris_v8), the guided reward and features of the configuration of record, and the
 #: slow tool and the jaw as a switch that holds a pin until the hand-off (RLlib's PPO explores the jaw and the valve
 #: with a Gaussian, which an instant tool reads as a threshold and a held pin's jaw as a chance to drop it:
 #: dvrl_marl.core.tools).
-GUIDED = {"task": "suction_debris_v7", "reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom",
+GUIDED = {"task": "suction_debris_v8", "reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom",
           "contact_penalty": 0.1, "tool_speed": 0.1, "jaw_command": "switch", "hold_until_handoff": True,
           "state_observations": True}  # (the state for a centralised critic; RLlib's PPO here reads observations)
 
@@ -143,11 +143,11 @@ def roll_out(algo, *, shared: bool, seed: int = 900_000_000, max_cycles: int = 1
     ``options``: the env's keyword arguments it trained with (the observation features among them)."""
     import numpy as np
 
-    from dvrl_marl.envs import suction_debris_v1
+    from dvrl_marl.envs import suction_debris_v8
 
     team = learned_team(algo, shared=shared)
     options = {k: v for k, v in (options or {"max_cycles": max_cycles}).items() if k != "reward_type"}
-    env = suction_debris_v1.parallel_env(render_mode="rgb_array" if video else None, **options)
+    env = suction_debris_v8.parallel_env(render_mode="rgb_array" if video else None, **options)
     observations, _ = env.reset(seed=seed)
     frames, steps, info = [], 0, {}
     while env.agents:

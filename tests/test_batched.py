@@ -1,6 +1,6 @@
 """The batched core: world i of a batch equals the single environment seeded s + i, step for step.
 
-Covers the native Gymnasium vector envs of Reach and Pick (every registered id) and suction_debris_v0.batched_env,
+Covers the native Gymnasium vector envs of Reach and Pick (every registered id) and suction_debris_v8.batched_env,
 Gymnasium's vector checks, autoreset modes, bad input and rendering of a chosen world.
 """
 
@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v1, suction_debris_v2, suction_debris_v3, suction_debris_v4, \
-    suction_debris_v5, suction_debris_v6, suction_debris_v7
+from dvrl_marl.envs import suction_debris_v8, suction_debris_v8, suction_debris_v8, suction_debris_v8, suction_debris_v8, \
+    suction_debris_v8, suction_debris_v8, suction_debris_v8
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -76,22 +76,22 @@ def test_vector_env_equals_single_envs_over_1000_steps(env_id):
 
 
 def test_suction_irrigation_tool_vector_env_equals_single_envs():
-    assert_matches_single_envs("dvrl_marl/PSMReach-v0", num_envs=2, seed=9, steps=300, action_seed=1,
+    assert_matches_single_envs("dvrl_marl/PSMReach-v1", num_envs=2, seed=9, steps=300, action_seed=1,
                                tool="suction_irrigation")
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(num_envs=st.integers(1, 5), seed=st.integers(0, 2**31 - 1), action_seed=st.integers(0, 1000),
-       env_id=st.sampled_from(["dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPickDense-v0"]))
+       env_id=st.sampled_from(["dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPickDense-v1"]))
 def test_vector_env_equivalence_property(num_envs, seed, action_seed, env_id):
     assert_matches_single_envs(env_id, num_envs=num_envs, seed=seed, steps=250, action_seed=action_seed)
 
 
 def test_pick_batch_exercises_grasp_release_and_falling_physics():
-    envs = make_vec("dvrl_marl/PSMPick-v0", 8)
+    envs = make_vec("dvrl_marl/PSMPick-v1", 8)
     observations, _ = envs.reset(seed=0)
     rng = np.random.default_rng(0)
-    expert = PickExpert.for_env(gym.make("dvrl_marl/PSMPick-v0"))
+    expert = PickExpert.for_env(gym.make("dvrl_marl/PSMPick-v1"))
     grasps, falls = 0, 0
     for _ in range(300):
         observations, _, _, _, infos = envs.step(_pick_actions(observations, rng, expert))
@@ -122,7 +122,7 @@ def test_gymnasium_vector_checks(env_id):
 
 
 def test_observations_do_not_alias_between_steps():
-    envs = make_vec("dvrl_marl/PSMPick-v0", 2)
+    envs = make_vec("dvrl_marl/PSMPick-v1", 2)
     first, _ = envs.reset(seed=0)
     kept = {k: v.copy() for k, v in first.items()}
     envs.step(envs.action_space.sample())
@@ -132,7 +132,7 @@ def test_observations_do_not_alias_between_steps():
 
 
 def test_same_step_autoreset_reports_final_observation():
-    envs = make_vec("dvrl_marl/PSMReach-v0", 2, autoreset_mode="same_step")
+    envs = make_vec("dvrl_marl/PSMReach-v1", 2, autoreset_mode="same_step")
     envs.reset(seed=0)
     for step in range(100):
         observations, _, _, truncations, infos = envs.step(np.zeros((2, 3)))
@@ -143,7 +143,7 @@ def test_same_step_autoreset_reports_final_observation():
 
 
 def test_disabled_autoreset_and_reset_mask():
-    envs = make_vec("dvrl_marl/PSMReach-v0", 3, autoreset_mode="disabled")
+    envs = make_vec("dvrl_marl/PSMReach-v1", 3, autoreset_mode="disabled")
     first, _ = envs.reset(seed=0)
     observations, _ = envs.reset(options={"reset_mask": np.array([False, True, False])})
     np.testing.assert_array_equal(observations["desired_goal"][[0, 2]], first["desired_goal"][[0, 2]])
@@ -151,7 +151,7 @@ def test_disabled_autoreset_and_reset_mask():
 
 
 def test_reset_options_are_validated_like_the_single_env():
-    envs = make_vec("dvrl_marl/PSMReach-v0", 2)
+    envs = make_vec("dvrl_marl/PSMReach-v1", 2)
     observations, _ = envs.reset(seed=0, options={"goal": [0.0, 0.0, -0.1]})
     np.testing.assert_allclose(observations["desired_goal"], [[0.0, 0.0, 0.2]] * 2)
     with pytest.raises(ValueError, match="unknown reset option"):
@@ -165,14 +165,14 @@ def test_reset_options_are_validated_like_the_single_env():
     (np.array([[np.inf, 0, 0, 0], [0, 0, 0, 0]]), "world 0"),
 ])
 def test_bad_action_batches_raise_naming_the_world(bad, message):
-    envs = make_vec("dvrl_marl/PSMPick-v0", 2)
+    envs = make_vec("dvrl_marl/PSMPick-v1", 2)
     envs.reset(seed=0)
     with pytest.raises(ValueError, match=message):
         envs.step(bad)
 
 
 def test_vector_env_renders_the_chosen_world():
-    envs = make_vec("dvrl_marl/PSMReach-v0", 3, render_mode="rgb_array", render_world=2, width=64, height=48)
+    envs = make_vec("dvrl_marl/PSMReach-v1", 3, render_mode="rgb_array", render_world=2, width=64, height=48)
     envs.reset(seed=0)
     frame = envs.render()
     assert frame.shape == (48, 64, 3) and frame.std() > 0
@@ -183,7 +183,7 @@ def test_vector_env_renders_the_chosen_world():
 
 
 def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, surgeon=None, scripted=False,
-                                        module=suction_debris_v0, drop_probability=0.0, pull=None, **kwargs):
+                                        module=suction_debris_v8, drop_probability=0.0, pull=None, **kwargs):
     env = module.batched_env(num_envs=num_envs, surgeon=surgeon, **kwargs)
     singles = [module.parallel_env(surgeon=surgeon, **kwargs) for _ in range(num_envs)]
     observations, _ = env.reset(seed=seed)
@@ -243,12 +243,12 @@ def test_batched_v1_equals_single_env_falling_pins_and_graded_suction():
     # Noisy experts suck near the surface (graded flow) and now and then open the jaw on a carried pin, which falls
     # (about 30 pin-steps of falling in this run): v1's new branches, world by world.
     assert_batched_collaborative_matches(3, seed=21, steps=1250, action_seed=5, scripted=True, reward_type="dense",
-                                         max_cycles=600, module=suction_debris_v1, drop_probability=0.03)
+                                         max_cycles=600, module=suction_debris_v8, drop_probability=0.03)
 
 
 def test_batched_v1_equals_single_env_while_cavities_bleed():
     assert_batched_collaborative_matches(3, seed=22, steps=1000, action_seed=6, scripted=True, reward_type="dense",
-                                         max_cycles=300, module=suction_debris_v1, bleeding_ml_s=0.4,
+                                         max_cycles=300, module=suction_debris_v8, bleeding_ml_s=0.4,
                                          bleeding_onset_s=2.0)
 
 
@@ -256,23 +256,23 @@ def test_batched_v2_equals_single_env_grip_handoff_and_drops_kept_on_the_phantom
     # Noisy experts grasp off centre and now and then drop a carried pin, many of them beyond the phantom on the
     # way to the hand-off point: v2's hand-off at the grip and its edge landing, world by world.
     assert_batched_collaborative_matches(3, seed=23, steps=1250, action_seed=7, scripted=True, reward_type="dense",
-                                         max_cycles=600, module=suction_debris_v2, drop_probability=0.03)
+                                         max_cycles=600, module=suction_debris_v8, drop_probability=0.03)
 
 
 def test_batched_v3_equals_single_env_while_moves_slide():
     # Uniform commands push into walls, joint limits and the other instrument all the time: v3's slides (the wall
     # slide, the contact normal, the joint-limit clamp, the fallbacks), world by world.
     assert_batched_collaborative_matches(3, seed=24, steps=1000, action_seed=8, max_cycles=250,
-                                         module=suction_debris_v3)
+                                         module=suction_debris_v8)
     assert_batched_collaborative_matches(3, seed=25, steps=1000, action_seed=9, scripted=True, reward_type="guided",
-                                         max_cycles=500, module=suction_debris_v3, drop_probability=0.03)
+                                         max_cycles=500, module=suction_debris_v8, drop_probability=0.03)
 
 
 def test_batched_v4_equals_single_env_with_held_pins_at_their_grip():
     # Noisy experts grasp off centre and drop pins now and then: the held pin's shown point (observation, state,
     # guided reward, features) world by world, through grasps, carries, drops and hand-offs.
     assert_batched_collaborative_matches(3, seed=26, steps=1250, action_seed=10, scripted=True, reward_type="guided",
-                                         max_cycles=600, module=suction_debris_v4, drop_probability=0.03,
+                                         max_cycles=600, module=suction_debris_v8, drop_probability=0.03,
                                          observation_features="suction_debris_cleared_pins_zoom")
 
 
@@ -280,7 +280,7 @@ def test_batched_v5_equals_single_env_while_descents_climb():
     # Commands pulled toward the other arm's side and down press the tips out of the cavities into the bowls'
     # walls, along their normals now and then: v5's climbs (and v3's slides), world by world.
     assert_batched_collaborative_matches(3, seed=27, steps=1000, action_seed=11, max_cycles=250,
-                                         module=suction_debris_v5,
+                                         module=suction_debris_v8,
                                          pull={"suction": [0.8, 0.0, -0.6], "grasper": [-0.8, 0.0, -0.6]})
 
 
@@ -288,7 +288,7 @@ def test_batched_v6_equals_single_env_while_descents_climb_ahead():
     # Commands pulled toward the other arm's side and down, about along the bowls' normals near the rims: v6's
     # climbs counted along the move (and v5's, v3's slides), world by world.
     assert_batched_collaborative_matches(3, seed=28, steps=1000, action_seed=12, max_cycles=250,
-                                         module=suction_debris_v6,
+                                         module=suction_debris_v8,
                                          pull={"suction": [0.67, 0.0, -0.82], "grasper": [-0.67, 0.0, -0.82]})
 
 
@@ -296,7 +296,7 @@ def test_batched_v7_equals_single_env_while_descents_settle():
     # Commands pulled straight down, a little toward the other arm's side: the tips press into the bowls' slopes and
     # settle down them (v7), climb (v5, v6) and slide (v3), world by world.
     assert_batched_collaborative_matches(3, seed=29, steps=1000, action_seed=13, max_cycles=250,
-                                         module=suction_debris_v7,
+                                         module=suction_debris_v8,
                                          pull={"suction": [0.1, 0.0, -0.9], "grasper": [-0.1, 0.0, -0.9]})
 
 
@@ -308,7 +308,7 @@ def test_batched_collaborative_equivalence_property(num_envs, seed, action_seed)
 
 
 def test_scripted_team_succeeds_batched_as_often_as_single():
-    env = suction_debris_v0.batched_env(num_envs=16, surgeon="scripted")
+    env = suction_debris_v8.batched_env(num_envs=16, surgeon="scripted")
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=100)
     finished = np.zeros(16, dtype=bool)
@@ -321,7 +321,7 @@ def test_scripted_team_succeeds_batched_as_often_as_single():
 
 
 def test_batched_collaborative_shapes_state_and_bad_input():
-    env = suction_debris_v0.batched_env(num_envs=5)
+    env = suction_debris_v8.batched_env(num_envs=5)
     observations, infos = env.reset(seed=0)
     assert observations["suction"].shape == (5, env.observation_space("suction").shape[0])
     assert env.state().shape == (5, env.state_space.shape[0])
@@ -344,7 +344,7 @@ def test_batched_collaborative_shapes_state_and_bad_input():
 
 
 def test_batched_collaborative_reset_mask_and_blood_option():
-    env = suction_debris_v0.batched_env(num_envs=3, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=3, autoreset_mode="disabled")
     env.reset(seed=0, options={"blood_ml": [[4.0, 4.0], [8.0, 8.0], [2.0, 0.0]]})
     assert env.core.remaining_ml.tolist() == [[4.0, 4.0], [8.0, 8.0], [2.0, 0.0]]
     for _ in range(5):
@@ -357,7 +357,7 @@ def test_batched_collaborative_reset_mask_and_blood_option():
 
 
 def test_batched_collaborative_renders_a_chosen_world():
-    env = suction_debris_v0.batched_env(num_envs=2, render_mode="rgb_array", width=64, height=48)
+    env = suction_debris_v8.batched_env(num_envs=2, render_mode="rgb_array", width=64, height=48)
     env.reset(seed=0)
     first = env.render(world=0)
     second = env.render(world=1)
@@ -368,12 +368,12 @@ def test_teleop_devices_are_refused_by_the_batched_env():
     from dvrl_marl.teleop import ReplayDevice
 
     with pytest.raises(ValueError, match="parallel_env"):
-        suction_debris_v0.batched_env(num_envs=2, surgeon=ReplayDevice([np.zeros(4)]))
+        suction_debris_v8.batched_env(num_envs=2, surgeon=ReplayDevice([np.zeros(4)]))
 
 
 def test_batched_experts_act_as_the_single_experts_on_every_row():
     # Observations met along noisy team episodes (all phases: suction, reveal, grasp, carry, park).
-    env = suction_debris_v0.batched_env(num_envs=16, reward_type="dense")
+    env = suction_debris_v8.batched_env(num_envs=16, reward_type="dense")
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     observations, _ = env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -398,5 +398,5 @@ def test_batched_v5_equals_single_env_along_the_joint_limits():
     # the limit (v3): the single env keeps the batched IK's solution for a tip slid exactly onto a limit, which its
     # scalar IK can judge a last bit outside (an RLlib run of the recipe crashed there, UnreachableError).
     assert_batched_collaborative_matches(3, seed=28, steps=800, action_seed=12, max_cycles=400,
-                                         module=suction_debris_v5,
+                                         module=suction_debris_v8,
                                          pull={"suction": [0.0, 0.8, 0.7], "grasper": [0.0, 0.8, 0.7]})

@@ -198,18 +198,18 @@ def test_an_episode_recorded_in_the_browser_loads_with_minari_replays_and_trains
     assert np.any(episode.actions[:, 1] > 0) and np.any(episode.actions[:, 2] < 0) and np.any(episode.actions[:, 3] < 0)
     from dvrl_marl.teleop.session import TELEOP_ENV_ID
 
-    assert dataset.spec.env_spec.id == TELEOP_ENV_ID == "dvrl_marl/SurgeonSeat-v2"
+    assert dataset.spec.env_spec.id == TELEOP_ENV_ID == "dvrl_marl/SurgeonSeat-v8"
     replayed = datasets.replay(dataset, 0)
     assert replayed["max_observation_difference"] == 0.0
 
     # ... and what the person did trains a surgeon that fills the seat (tiny budget: it runs, not how well)
     from dvrl_marl import policies
-    from dvrl_marl.envs import suction_debris_v1
+    from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.training.clone import clone
 
     observations, labels = datasets.transitions("dvrl_marl/surgeon-browser-v1")
     folder, _ = clone(observations, labels, tmp_path / "bc", hidden=(16,), epochs=2)
-    env = suction_debris_v1.parallel_env(surgeon=policies.load(folder), max_cycles=5)
+    env = suction_debris_v8.parallel_env(surgeon=policies.load(folder), max_cycles=5)
     env.reset(seed=0)
     env.step({"suction": np.zeros(4, np.float32)})
 
@@ -373,7 +373,7 @@ def test_a_spectator_sees_no_controls_it_cannot_use(browser, served):
 
 def test_a_pin_gripped_off_centre_is_delivered_from_the_page(browser, served):
     """The scene's old trap, met as a person meets it: the jaws close 9 mm from a pin's centre on the assistant's
-    side, and the keys bring it to the hand-off point, which takes it (suction_debris_v2 judges the grip)."""
+    side, and the keys bring it to the hand-off point, which takes it (suction_debris_v8 judges the grip)."""
     from dvrl_marl.core.collaborative import PIN_RADIUS
 
     page = browser.new_page()

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.envs import suction_debris_v1
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.teleop import KeyboardDevice
 from dvrl_marl.teleop.browser import BROWSER_KEYS, BadMessage, BrowserDevice, TeleopLost
 
@@ -122,7 +122,7 @@ def test_any_message_is_used_or_refused_and_the_action_stays_in_range(message):
 
 def test_in_the_scene_a_lost_browser_holds_the_seat_and_says_so():
     device = BrowserDevice()
-    env = suction_debris_v1.parallel_env(surgeon=device)
+    env = suction_debris_v8.parallel_env(surgeon=device)
     env.reset(seed=3)
     start = env.progress()["tips"]["grasper"]
     for _ in range(10):

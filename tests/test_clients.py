@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import dvrl_marl  # noqa: F401
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 ROOT = Path(__file__).resolve().parents[1]
-SINGLE_IDS = ["dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"]
+SINGLE_IDS = ["dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"]
 
 
 def _headless(code: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -35,12 +35,12 @@ def test_checkers_pass_with_their_default_arguments_headless(tmp_path, checker):
         "gymnasium": """
             import gymnasium as gym, dvrl_marl
             from gymnasium.utils.env_checker import check_env
-            check_env(gym.make("dvrl_marl/PSMReach-v0").unwrapped)
+            check_env(gym.make("dvrl_marl/PSMReach-v1").unwrapped)
         """,
         "pettingzoo": """
             from pettingzoo.test import render_test
-            from dvrl_marl.envs import suction_debris_v0
-            render_test(suction_debris_v0.env)
+            from dvrl_marl.envs import suction_debris_v8
+            render_test(suction_debris_v8.env)
         """,
     }[checker]
     result = _headless(code, tmp_path)
@@ -49,8 +49,8 @@ def test_checkers_pass_with_their_default_arguments_headless(tmp_path, checker):
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
-@pytest.mark.parametrize("make", [lambda: gym.make("dvrl_marl/PSMReach-v0", render_mode="human"),
-                                  lambda: suction_debris_v0.parallel_env(render_mode="human")])
+@pytest.mark.parametrize("make", [lambda: gym.make("dvrl_marl/PSMReach-v1", render_mode="human"),
+                                  lambda: suction_debris_v8.parallel_env(render_mode="human")])
 def test_human_mode_without_display_raises_in_python(monkeypatch, make):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -69,22 +69,22 @@ def test_unknown_keyword_is_a_type_error_and_bad_value_a_value_error(env_id):
     with pytest.raises(ValueError):
         gym.make(env_id, step_size=-1.0)
     with pytest.raises(TypeError, match="frameskip"):
-        suction_debris_v0.parallel_env(frameskip=4)
+        suction_debris_v8.parallel_env(frameskip=4)
     with pytest.raises(TypeError, match="frameskip"):
-        suction_debris_v0.batched_env(num_envs=2, frameskip=4)
+        suction_debris_v8.batched_env(num_envs=2, frameskip=4)
     with pytest.raises(TypeError, match="frameskip"):
         gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", frameskip=4)
 
 
 def _collaborative():
-    env = suction_debris_v0.parallel_env(render_mode="rgb_array")
+    env = suction_debris_v8.parallel_env(render_mode="rgb_array")
     return env
 
 
 @pytest.mark.parametrize("make", [lambda: gym.make(SINGLE_IDS[0], render_mode="rgb_array"),
                                   lambda: gym.make(SINGLE_IDS[1], render_mode="rgb_array"),
                                   _collaborative,
-                                  lambda: suction_debris_v0.batched_env(num_envs=2, render_mode="rgb_array"),
+                                  lambda: suction_debris_v8.batched_env(num_envs=2, render_mode="rgb_array"),
                                   lambda: gym.make_vec(SINGLE_IDS[1], num_envs=2, render_mode="rgb_array",
                                                        vectorization_mode="vector_entry_point")],
                          ids=["reach", "pick", "collaborative", "batched", "vector"])

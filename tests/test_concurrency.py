@@ -10,12 +10,12 @@ import gymnasium as gym
 import numpy as np
 
 import dvrl_marl  # noqa: F401
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.teleop import ReplayDevice
 
 
 def _pick_trajectory(seed: int, steps: int = 300) -> np.ndarray:
-    env = gym.make("dvrl_marl/PSMPick-v0")
+    env = gym.make("dvrl_marl/PSMPick-v1")
     observation, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     rows = []
@@ -31,7 +31,7 @@ def _collaborative_trajectory(seed: int, steps: int = 300) -> np.ndarray:
     rng = np.random.default_rng(seed)
     actions = rng.uniform(-1, 1, (steps, 4))
     # A device seat runs in its own thread inside the env (teleop_timeout): the replayed surgeon is such a device.
-    env = suction_debris_v0.parallel_env(surgeon=ReplayDevice(actions), reward_type="dense")
+    env = suction_debris_v8.parallel_env(surgeon=ReplayDevice(actions), reward_type="dense")
     observations, _ = env.reset(seed=seed)
     rows = []
     for t in range(steps):
@@ -67,8 +67,8 @@ def test_collaborative_envs_with_device_seats_in_two_threads_match_sequential_ru
 
 
 def test_two_envs_render_in_one_process():
-    reach = gym.make("dvrl_marl/PSMReach-v0", render_mode="rgb_array")
-    collaborative = suction_debris_v0.parallel_env(render_mode="rgb_array", width=320, height=240)
+    reach = gym.make("dvrl_marl/PSMReach-v1", render_mode="rgb_array")
+    collaborative = suction_debris_v8.parallel_env(render_mode="rgb_array", width=320, height=240)
     reach.reset(seed=0)
     collaborative.reset(seed=0)
     first = reach.render(), collaborative.render()

@@ -8,7 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.envs import suction_debris_v1
+from dvrl_marl.envs import suction_debris_v8
 
 minari = pytest.importorskip("minari", reason='Minari is the "data" extra: pip install "dvrl-marl[data]"')
 
@@ -43,17 +43,17 @@ def recorded(tmp_path_factory):
 
 
 def test_the_seat_env_passes_gymnasiums_checker_and_refuses_bad_arguments():
-    env = gym.make("dvrl_marl/SurgeonSeat-v1", partner="scripted")
+    env = gym.make("dvrl_marl/SurgeonSeat-v8", partner="scripted")
     check_env(env.unwrapped, skip_render_check=True)
     observation, info = env.reset(seed=0)
     assert observation.shape == env.observation_space.shape and info["partner_action"].shape == (4,)
     for bad in ({"seat": "assistant"}, {"version": "v9"}, {"partner": 3}):
         with pytest.raises(ValueError, match=next(iter(bad))):
-            gym.make("dvrl_marl/SurgeonSeat-v1", **bad)
+            gym.make("dvrl_marl/SurgeonSeat-v8", **bad)
 
 
 def test_a_recorded_dataset_is_a_minari_dataset_with_everything_needed(recorded):
-    assert recorded.total_episodes == 2 and recorded.spec.env_spec.id == "dvrl_marl/SurgeonSeat-v1"
+    assert recorded.total_episodes == 2 and recorded.spec.env_spec.id == "dvrl_marl/SurgeonSeat-v8"
     assert recorded.spec.env_spec.kwargs["partner"] == "scripted"
     seeds = [meta["seed"] for meta in recorded.storage.get_episode_metadata([0, 1])]
     assert seeds == [11, 12]
@@ -78,7 +78,7 @@ def test_an_episode_replays_exactly(recorded):
 
 def test_a_replay_device_fills_the_surgeon_seat(recorded):
     device = datasets.replay_device(recorded, 1)
-    env = suction_debris_v1.parallel_env(surgeon=device)
+    env = suction_debris_v8.parallel_env(surgeon=device)
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=12)
     while env.agents:
@@ -89,7 +89,7 @@ def test_a_replay_device_fills_the_surgeon_seat(recorded):
 def test_recordings_convert_and_datasets_are_not_overwritten(tmp_path):
     keyboard = KeyboardDevice()
     recorder = Recorder(keyboard, seat="grasper", seed=3)
-    env = suction_debris_v1.parallel_env(surgeon=recorder, max_cycles=60)
+    env = suction_debris_v8.parallel_env(surgeon=recorder, max_cycles=60)
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=3)
     keyboard.key_event(68, 1)  # D held: +x
@@ -117,7 +117,7 @@ def test_behaviour_cloning_learns_and_seats_its_clone(recorded, tmp_path):
     policy = policies.load(folder)
     predicted = np.stack([policy(o) for o in observations[:200]])
     assert predicted.shape == (200, 4) and np.all(np.abs(predicted) <= 1.0)
-    env = suction_debris_v1.parallel_env(surgeon=policy, max_cycles=50)
+    env = suction_debris_v8.parallel_env(surgeon=policy, max_cycles=50)
     env.reset(seed=0)
     env.step({"suction": np.zeros(4)})  # the clone fills the seat like any policy
 
@@ -152,7 +152,7 @@ def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
     assert [r["round"] for r in result["dagger"]] == [1, 2]
     assert result["transitions"] == recorded + sum(r["visited"] for r in result["dagger"])
     relabelled = np.load(tmp_path / "run" / "dagger.npz")
-    expert = ScriptedSurgeon.for_env(suction_debris_v1.parallel_env())
+    expert = ScriptedSurgeon.for_env(suction_debris_v8.parallel_env())
     np.testing.assert_allclose(relabelled["actions"][:50], expert(relabelled["observations"][:50]), atol=1e-6)
     assert policies.load(tmp_path / "run" / "policies" / "bc-surgeon").spec["dagger_rounds"] == 2
 
@@ -195,6 +195,6 @@ def test_the_shipped_clone_fills_the_seat_and_finishes_the_task(capsys):
     result = json.loads(capsys.readouterr().out)
     assert result["seat"] == "grasper" and result["seed"] >= 900_000_000  # held-out seeds
     assert result["success_rate"] >= 0.8, result  # 0.91 over 100 episodes (baselines/README.md)
-    env = suction_debris_v1.parallel_env(surgeon=policies.load("bc-surgeon"), max_cycles=20)
+    env = suction_debris_v8.parallel_env(surgeon=policies.load("bc-surgeon"), max_cycles=20)
     env.reset(seed=1)
     env.step({"suction": np.zeros(4)})

@@ -11,40 +11,40 @@ import numpy as np
 import pytest
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.envs import suction_debris_v1, suction_debris_v2
+from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"teleop_timeout": -1}, "suction_debris_v1: teleop_timeout (seconds, or None): must be > 0, got -1"),
+    ({"teleop_timeout": -1}, "suction_debris_v8: teleop_timeout (seconds, or None): must be > 0, got -1"),
     ({"workspace_range": 1e-12}, "outside the observation space's bound"),
     ({"width": "abc"}, "render width: must be an integer, got 'abc'"),
     ({"height": 0}, "render height: must be >= 1"),
-    ({"pins_fall": 1}, "suction_debris_v1: pins_fall: must be true or false, got 1"),
-    ({"blood_ml": [8.0, "8"]}, "suction_debris_v1: blood_ml[1]: must be a number, got '8'"),
+    ({"pins_fall": 1}, "suction_debris_v8: pins_fall: must be true or false, got 1"),
+    ({"blood_ml": [8.0, "8"]}, "suction_debris_v8: blood_ml[1]: must be a number, got '8'"),
     ({"suction_rate_ml_s": float("inf")}, "suction_rate_ml_s: must be finite"),
 ])
 def test_bad_scene_arguments_are_named_with_the_envs_version(kwargs, message):
     with pytest.raises(ValueError) as error:
-        suction_debris_v1.parallel_env(**kwargs)
+        suction_debris_v8.parallel_env(**kwargs)
     assert message in str(error.value)
 
 
 def test_the_envs_messages_name_their_own_version_and_the_right_mistake():
-    env = suction_debris_v2.parallel_env()
-    with pytest.raises(ValueError, match=r"^suction_debris_v2: step\(\) called before reset\(\)"):
+    env = suction_debris_v8.parallel_env()
+    with pytest.raises(ValueError, match=r"^suction_debris_v8: step\(\) called before reset\(\)"):
         env.step({})
     env.reset(seed=0)
-    with pytest.raises(ValueError, match="^suction_debris_v2: no action for agent"):
+    with pytest.raises(ValueError, match="^suction_debris_v8: no action for agent"):
         env.step({"suction": np.zeros(4)})
-    env = suction_debris_v2.parallel_env(max_cycles=1)
+    env = suction_debris_v8.parallel_env(max_cycles=1)
     env.reset(seed=0)
     env.step({agent: np.zeros(4) for agent in env.agents})
     with pytest.raises(ValueError, match="after the episode ended"):
         env.step({})
-    batched = suction_debris_v2.batched_env(num_envs=2)
-    with pytest.raises(ValueError, match="^suction_debris_v2: "):
+    batched = suction_debris_v8.batched_env(num_envs=2)
+    with pytest.raises(ValueError, match="^suction_debris_v8: "):
         batched.step({"suction": np.full((2, 4), np.nan), "grasper": np.zeros((2, 4))})
 
 
@@ -52,7 +52,7 @@ def test_the_envs_messages_name_their_own_version_and_the_right_mistake():
                                            (-1, "must be >= 0"), ([1, 2, 3], "expected an int or 4 seeds"),
                                            ([1, 2, 3, "4"], "[3]: must be an integer")])
 def test_a_batched_seed_is_an_integer_or_one_per_world(seed, message):
-    env = suction_debris_v1.batched_env(num_envs=4)
+    env = suction_debris_v8.batched_env(num_envs=4)
     with pytest.raises(ValueError) as error:
         env.reset(seed=seed)
     assert message in str(error.value)
@@ -63,7 +63,7 @@ def test_a_batched_seed_is_an_integer_or_one_per_world(seed, message):
                                            ([0.0, 1.0], "booleans of shape (4,) or world indices"),
                                            ([True, False], "reset mask must have shape (4,)")])
 def test_a_reset_mask_never_wraps_or_overflows(mask, message):
-    env = suction_debris_v1.batched_env(num_envs=4)
+    env = suction_debris_v8.batched_env(num_envs=4)
     env.reset(seed=0)
     with pytest.raises(ValueError) as error:
         env.reset(options={"reset_mask": mask})
@@ -112,7 +112,7 @@ def test_evaluate_takes_a_learned_seat_by_its_shipped_name():
 
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "evaluate", "marl-suction", "--episodes", "3"],
                             capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert result.returncode == 0, result.stderr  # (it once died with NameNotFound: suction_debris_v0)
+    assert result.returncode == 0, result.stderr  # (it once died with NameNotFound: suction_debris_v8)
     report = json.loads(result.stdout)
     assert report["seat"] == "suction" and report["task"] == "suction_debris" and report["episodes"] == 3
 
@@ -122,13 +122,13 @@ def test_evaluate_team_runs_the_demos_scene_by_default():
     from dvrl_marl.demo import ENV_NAME
 
     args = build_parser().parse_args(["evaluate-team", "--suction", "scripted", "--grasper", "scripted"])
-    assert args.task == ENV_NAME == "suction_debris_v2"
+    assert args.task == ENV_NAME == "suction_debris_v8"
 
 
 def test_tip_positions_that_are_not_a_table_of_agents_are_named():
-    env = suction_debris_v2.batched_env(num_envs=2)
+    env = suction_debris_v8.batched_env(num_envs=2)
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"^suction_debris_v2: tip_positions must be a dict \{agent: \(num_envs, 3\)"):
+    with pytest.raises(ValueError, match=r"^suction_debris_v8: tip_positions must be a dict \{agent: \(num_envs, 3\)"):
         env.reset(options={"tip_positions": [[0.0, 0.0, 0.05]] * 2})
-    with pytest.raises(ValueError, match=r"^suction_debris_v2: tip positions must be a dict \{agent: "):
+    with pytest.raises(ValueError, match=r"^suction_debris_v8: tip positions must be a dict \{agent: "):
         env.set_tip_positions([[0.0, 0.0, 0.05]] * 2)

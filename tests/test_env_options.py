@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.envs import start_levels, suction_debris_v0
+from dvrl_marl.envs import start_levels, suction_debris_v8
 from dvrl_marl.envs.guidance import Guidance, GuidedReward
 from dvrl_marl.policies import features
 
@@ -20,9 +20,9 @@ OPTIONS = dict(reward_type="guided", observation_features="suction_debris_cleare
 def _run_side_by_side(levels, steps, num_envs=3, seed=10, **kwargs):
     """The batched env against single envs seeded seed + i, same random actions; returns the largest differences
     of observations and rewards, and how many episodes ended."""
-    batched = suction_debris_v0.batched_env(num_envs=num_envs, **kwargs)
+    batched = suction_debris_v8.batched_env(num_envs=num_envs, **kwargs)
     batched.reset(seed=seed, options={"level": levels})
-    singles = [suction_debris_v0.parallel_env(**kwargs) for _ in range(num_envs)]
+    singles = [suction_debris_v8.parallel_env(**kwargs) for _ in range(num_envs)]
     for index, single in enumerate(singles):
         single.reset(seed=seed + index, options={"level": levels[index]})
     rng = np.random.default_rng(0)
@@ -55,8 +55,8 @@ def test_single_and_batched_start_the_same_episodes_at_every_level():
 
 
 def test_level_one_is_the_default_task_bit_for_bit():
-    default = suction_debris_v0.batched_env(num_envs=2, reward_type="dense")
-    levelled = suction_debris_v0.batched_env(num_envs=2, reward_type="dense", start_level="default")
+    default = suction_debris_v8.batched_env(num_envs=2, reward_type="dense")
+    levelled = suction_debris_v8.batched_env(num_envs=2, reward_type="dense", start_level="default")
     a, _ = default.reset(seed=3)
     b, _ = levelled.reset(seed=3, options={"level": 1.0})
     rng = np.random.default_rng(1)
@@ -69,7 +69,7 @@ def test_level_one_is_the_default_task_bit_for_bit():
 
 
 def test_easy_episodes_are_easier_and_shorter():
-    env = suction_debris_v0.batched_env(num_envs=64, start_level="easy", autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=64, start_level="easy", autoreset_mode="disabled")
     env.reset(seed=0)
     core = env.core
     in_play = (~core.delivered).sum(axis=1)
@@ -92,7 +92,7 @@ def test_easy_episodes_are_easier_and_shorter():
 @settings(max_examples=15, deadline=None)
 @given(level=st.floats(0.0, 1.0), seed=st.integers(0, 2**31 - 1))
 def test_starts_at_any_level_keep_the_tips_in_the_workspace_and_above_the_surface(level, seed):
-    env = suction_debris_v0.batched_env(num_envs=8, start_level=level, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=8, start_level=level, autoreset_mode="disabled")
     observations, _ = env.reset(seed=seed)
     core = env.core
     for agent in env.agents:
@@ -103,8 +103,8 @@ def test_starts_at_any_level_keep_the_tips_in_the_workspace_and_above_the_surfac
 
 
 def test_guided_reward_is_the_dense_reward_plus_the_change_of_its_potential():
-    dense = suction_debris_v0.parallel_env(reward_type="dense")
-    guided = suction_debris_v0.parallel_env(reward_type="guided")
+    dense = suction_debris_v8.parallel_env(reward_type="dense")
+    guided = suction_debris_v8.parallel_env(reward_type="guided")
     terms = GuidedReward(guided, guided.possible_agents, Guidance())
     dense.reset(seed=5, options={"level": 0.0})
     guided.reset(seed=5, options={"level": 0.0})
@@ -128,20 +128,20 @@ def test_guided_reward_is_the_dense_reward_plus_the_change_of_its_potential():
 
 
 def test_guided_reward_leaves_a_seat_filled_by_a_partner_alone():
-    env = suction_debris_v0.batched_env(num_envs=2, surgeon="scripted", reward_type="guided",
+    env = suction_debris_v8.batched_env(num_envs=2, surgeon="scripted", reward_type="guided",
                                         guidance={"suction_route": 0.0, "clear_bonus": 0.0})
     env.reset(seed=0)
     assert env.agents == ["suction"]
     _, rewards, *_ = env.step({"suction": np.zeros((2, 4))})
-    dense = suction_debris_v0.batched_env(num_envs=2, surgeon="scripted", reward_type="dense")
+    dense = suction_debris_v8.batched_env(num_envs=2, surgeon="scripted", reward_type="dense")
     dense.reset(seed=0)
     _, expected, *_ = dense.step({"suction": np.zeros((2, 4))})
     assert np.allclose(rewards["suction"], expected["suction"])
 
 
 def test_observation_features_are_appended_and_match_what_a_policy_computes():
-    plain = suction_debris_v0.parallel_env()
-    extended = suction_debris_v0.parallel_env(observation_features="suction_debris_routes")
+    plain = suction_debris_v8.parallel_env()
+    extended = suction_debris_v8.parallel_env(observation_features="suction_debris_routes")
     a, _ = plain.reset(seed=1)
     b, _ = extended.reset(seed=1)
     spec = features.spec("suction_debris_routes", plain.layout(), plain.params.debris_count)
@@ -166,11 +166,11 @@ def test_observation_features_are_appended_and_match_what_a_policy_computes():
 ])
 def test_bad_options_are_refused_by_name(kwargs, reset_options, message):
     with pytest.raises(ValueError, match=message):
-        suction_debris_v0.parallel_env(**kwargs).reset(seed=0, options=reset_options)
+        suction_debris_v8.parallel_env(**kwargs).reset(seed=0, options=reset_options)
 
 
 def test_batched_levels_per_world_and_bad_lengths():
-    env = suction_debris_v0.batched_env(num_envs=3, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=3, autoreset_mode="disabled")
     env.reset(seed=0, options={"level": [0.0, 1.0, "easy"]})
     assert env.core.limit.tolist() == [300, env.params.max_cycles, 300]
     with pytest.raises(ValueError, match="one per world"):
@@ -182,7 +182,7 @@ def test_batched_levels_per_world_and_bad_lengths():
     assert env.core.limit.tolist() == [env.params.max_cycles] * 3
     # back at the default level every world has the task's blood again (an easy draw's does not linger)
     assert np.allclose(env.core.remaining_ml, np.asarray(env.params.blood_ml))
-    auto = suction_debris_v0.batched_env(num_envs=2, start_level="easy", max_cycles=5)
+    auto = suction_debris_v8.batched_env(num_envs=2, start_level="easy", max_cycles=5)
     auto.reset(seed=1)
     auto.set_start_level("default")
     for _ in range(5):  # the easy episodes end (time limit) and restart at the default level
@@ -193,8 +193,8 @@ def test_batched_levels_per_world_and_bad_lengths():
 def test_pettingzoo_api_and_aec_form_with_every_option():
     from pettingzoo.test import parallel_api_test
 
-    parallel_api_test(suction_debris_v0.parallel_env(start_level=0.3, **OPTIONS), num_cycles=400)
-    aec = suction_debris_v0.env(start_level="easy", **OPTIONS)
+    parallel_api_test(suction_debris_v8.parallel_env(start_level=0.3, **OPTIONS), num_cycles=400)
+    aec = suction_debris_v8.env(start_level="easy", **OPTIONS)
     aec.reset(seed=0, options={"level": 0.0})
     for agent in aec.agent_iter(40):
         observation, *_ = aec.last()
@@ -228,7 +228,7 @@ def test_sb3_collaborative_vec_env_takes_the_options():
     observations = venv.reset()
     assert observations.shape[0] == 4 and np.all(np.isfinite(observations))
     # the features reached SuperSuit's padded slots (plus its two-agent indicator)
-    assert observations.shape[1] == suction_debris_v0.parallel_env(**OPTIONS).observation_space("suction").shape[0] + 2
+    assert observations.shape[1] == suction_debris_v8.parallel_env(**OPTIONS).observation_space("suction").shape[0] + 2
     observations, rewards, dones, infos = venv.step(np.zeros((4, 4), dtype=np.float32))
     assert rewards.shape == (4,)
     venv.close()
@@ -245,7 +245,7 @@ def test_surgeon_seat_gymnasium_env_takes_the_options():
 
     import dvrl_marl  # noqa: F401  (registers the environments)
 
-    env = gym.make("dvrl_marl/SurgeonSeat-v2", start_level="easy", **OPTIONS)
+    env = gym.make("dvrl_marl/SurgeonSeat-v8", start_level="easy", **OPTIONS)
     check_env(env.unwrapped, skip_render_check=True)
     observation, _ = env.reset(seed=0, options={"level": 0.0})
     assert observation.shape == env.observation_space.shape and env.observation_space.contains(observation)
@@ -262,11 +262,11 @@ def test_surgeon_seat_gymnasium_env_takes_the_options():
 def test_easy_episodes_can_take_the_tasks_time_limit():
     """easy_episode_steps=None: an easy episode lasts as long as the task's (the scripted team then completes every
     easy episode; with the record's 300 steps it cannot finish those with two full cavities)."""
-    env = suction_debris_v0.batched_env(num_envs=4, start_level="easy", easy_episode_steps=None,
+    env = suction_debris_v8.batched_env(num_envs=4, start_level="easy", easy_episode_steps=None,
                                         autoreset_mode="disabled")
     env.reset(seed=0)
     assert env.core.limit.tolist() == [env.params.max_cycles] * 4
-    single = suction_debris_v0.parallel_env(start_level="easy", easy_episode_steps=120)
+    single = suction_debris_v8.parallel_env(start_level="easy", easy_episode_steps=120)
     single.reset(seed=0)
     for step in range(1, 200):
         _, _, term, trunc, _ = single.step({agent: np.zeros(4, dtype=np.float32) for agent in single.agents})
@@ -274,19 +274,19 @@ def test_easy_episodes_can_take_the_tasks_time_limit():
             break
     assert step == 120 and trunc["suction"]
     # 0 is None where there is no null (a TOML configuration); a negative count or a fraction is refused by name
-    assert suction_debris_v0.parallel_env(easy_episode_steps=0).easy_episode_steps is None
+    assert suction_debris_v8.parallel_env(easy_episode_steps=0).easy_episode_steps is None
     for bad in (-1, 1.5, "300"):
         with pytest.raises(ValueError, match="easy_episode_steps"):
-            suction_debris_v0.parallel_env(easy_episode_steps=bad)
+            suction_debris_v8.parallel_env(easy_episode_steps=bad)
 
 
 def test_state_observations_append_every_arms_observation_single_and_batched():
     """state_observations: the state, then the suction's and the grasper's observations (features included), named
     by state_layout; the batched worlds' states (and final states) are the single envs' bit for bit; off by default."""
-    kwargs = dict(task="suction_debris_v5", state_observations=True, **OPTIONS)
-    plain = suction_debris_v0.parallel_env(task="suction_debris_v5", **OPTIONS)
-    batched = suction_debris_v0.batched_env(num_envs=2, max_cycles=60, **kwargs)
-    singles = [suction_debris_v0.parallel_env(max_cycles=60, **kwargs) for _ in range(2)]
+    kwargs = dict(task="suction_debris_v8", state_observations=True, **OPTIONS)
+    plain = suction_debris_v8.parallel_env(task="suction_debris_v8", **OPTIONS)
+    batched = suction_debris_v8.batched_env(num_envs=2, max_cycles=60, **kwargs)
+    singles = [suction_debris_v8.parallel_env(max_cycles=60, **kwargs) for _ in range(2)]
     batched.reset(seed=4)
     observations = [single.reset(seed=4 + index)[0] for index, single in enumerate(singles)]
     layout = singles[0].state_layout
@@ -310,7 +310,7 @@ def test_state_observations_append_every_arms_observation_single_and_batched():
     assert finals >= 2
     assert plain.state_observations is False and "suction_observation" not in plain.state_layout
     with pytest.raises(ValueError, match="state_observations"):
-        suction_debris_v0.parallel_env(state_observations="yes")
+        suction_debris_v8.parallel_env(state_observations="yes")
 
 
 def test_torchrl_state_carries_both_observations():
@@ -330,9 +330,9 @@ def test_torchrl_state_carries_both_observations():
 def _normalized_pair(**kwargs):
     from dvrl_marl.envs.observation_scaling import ObservationScaling
 
-    kwargs = dict(task="suction_debris_v7", state_observations=True, **OPTIONS, **kwargs)
-    return (suction_debris_v0.parallel_env(**kwargs),
-            suction_debris_v0.parallel_env(normalize_observations=True, **kwargs), ObservationScaling)
+    kwargs = dict(task="suction_debris_v8", state_observations=True, **OPTIONS, **kwargs)
+    return (suction_debris_v8.parallel_env(**kwargs),
+            suction_debris_v8.parallel_env(normalize_observations=True, **kwargs), ObservationScaling)
 
 
 def test_normalize_observations_maps_what_the_agents_read_and_nothing_else():
@@ -342,8 +342,8 @@ def test_normalize_observations_maps_what_the_agents_read_and_nothing_else():
     plain, normalized, _ = _normalized_pair(max_cycles=200)
     scaling = normalized.observation_scaling
     assert plain.observation_scaling is None
-    batched = suction_debris_v0.batched_env(num_envs=1, normalize_observations=True, max_cycles=200, autoreset_mode="disabled",
-                                            task="suction_debris_v7", state_observations=True, **OPTIONS)
+    batched = suction_debris_v8.batched_env(num_envs=1, normalize_observations=True, max_cycles=200, autoreset_mode="disabled",
+                                            task="suction_debris_v8", state_observations=True, **OPTIONS)
     a, _ = plain.reset(seed=5)
     b, _ = normalized.reset(seed=5)
     c, _ = batched.reset(seed=5)
@@ -377,8 +377,8 @@ def test_normalize_observations_gives_the_scripted_team_unit_scale_inputs():
     scale (no spread left 25-100 times below the rest, as the plain pins' y and carry offsets are)."""
     from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
 
-    env = suction_debris_v0.batched_env(num_envs=4, normalize_observations=True, autoreset_mode="disabled",
-                                        task="suction_debris_v7", **OPTIONS)
+    env = suction_debris_v8.batched_env(num_envs=4, normalize_observations=True, autoreset_mode="disabled",
+                                        task="suction_debris_v8", **OPTIONS)
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     plain = env.observation_layout["handoff"].stop
     scaling = env.observation_scaling
@@ -404,8 +404,8 @@ def test_normalize_observations_keeps_the_seat_plain_and_checks_its_value():
     a value that is not a flag, or an observation the statistics were not measured on, is a ValueError naming it."""
     rewards = []
     for normalize in (False, True):
-        env = suction_debris_v0.parallel_env(surgeon="scripted", max_cycles=300, normalize_observations=normalize,
-                                             task="suction_debris_v7", **OPTIONS)
+        env = suction_debris_v8.parallel_env(surgeon="scripted", max_cycles=300, normalize_observations=normalize,
+                                             task="suction_debris_v8", **OPTIONS)
         env.reset(seed=2)
         total = 0.0
         while env.agents:
@@ -414,9 +414,9 @@ def test_normalize_observations_keeps_the_seat_plain_and_checks_its_value():
         rewards.append(total)
     assert rewards[0] == rewards[1]
     with pytest.raises(ValueError, match="normalize_observations"):
-        suction_debris_v0.parallel_env(normalize_observations="yes")
+        suction_debris_v8.parallel_env(normalize_observations="yes")
     with pytest.raises(ValueError, match="normalize_observations.*debris"):
-        suction_debris_v0.parallel_env(normalize_observations=True, debris_count=2)
+        suction_debris_v8.parallel_env(normalize_observations=True, debris_count=2)
     with pytest.raises(ValueError, match="normalize_observations.*observation_features"):
         from dvrl_marl.envs.observation_scaling import ObservationScaling
 
@@ -439,15 +439,15 @@ def test_shipped_observation_scales_are_what_measure_gives():
 def test_normalize_observations_passes_the_pettingzoo_and_torchrl_checks():
     from pettingzoo.test import parallel_api_test
 
-    parallel_api_test(suction_debris_v0.parallel_env(normalize_observations=True, max_cycles=60,
-                                                     task="suction_debris_v7", **OPTIONS), num_cycles=80)
+    parallel_api_test(suction_debris_v8.parallel_env(normalize_observations=True, max_cycles=60,
+                                                     task="suction_debris_v8", **OPTIONS), num_cycles=80)
     pytest.importorskip("torchrl")
     from torchrl.envs.utils import check_env_specs
 
     from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
     env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, state_observations=True, normalize_observations=True,
-                                  task="suction_debris_v7", **OPTIONS)
+                                  task="suction_debris_v8", **OPTIONS)
     check_env_specs(env)
     td = env.reset()
     scaling = env.batched.observation_scaling

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl import frames, kinematics
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 
 def _dvrk_chain_origin(q):
@@ -58,7 +58,7 @@ def test_v1_puts_the_scene_where_the_robot_has_it():
 
 
 def test_collaborative_arms_convert_through_their_base_poses():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     env.reset(seed=1)
     arm = env.arms["grasper"]
     world_tip = np.array(arm.tip_world())
@@ -109,4 +109,4 @@ def test_bad_frames_input_is_refused():
     with pytest.raises(ValueError, match="rotation"):
         frames.BasePose((0, 0, 0), np.diag([1.0, 1.0, -1.0]))
     with pytest.raises(ValueError, match="tip_frame"):
-        gym.make("dvrl_marl/PSMReach-v0", tip_frame="wrist")
+        gym.make("dvrl_marl/PSMReach-v1", tip_frame="wrist")

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.agents.collaborative import ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 
 def _audit_module():
@@ -31,7 +31,7 @@ def test_the_scripted_surgeon_grasps_every_pin_by_its_centre():
 def test_a_grasper_that_opens_mid_carry_is_counted_dropping():
     """The scripted surgeon with its jaw forced open for one step in every 20 while it carries: drops are counted,
     and the pins it lets go of are not delivered on those steps."""
-    surgeon = ScriptedSurgeon.for_env(suction_debris_v0.parallel_env())
+    surgeon = ScriptedSurgeon.for_env(suction_debris_v8.parallel_env())
     steps = {"n": 0}
 
     def clumsy(observations):

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v5
+from dvrl_marl.envs import suction_debris_v8
 from test_batched import assert_batched_collaborative_matches
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,9 +29,9 @@ def _tool_noise():
 
 
 def test_the_defaults_are_the_papers_jaw():
-    params = suction_debris_v5.parallel_env().params
+    params = suction_debris_v8.parallel_env().params
     assert params.jaw_command == "proportional" and params.hold_until_handoff is False
-    env = suction_debris_v5.parallel_env()
+    env = suction_debris_v8.parallel_env()
     env.reset(seed=0)
     env.step({"suction": np.zeros(4), "grasper": np.array([0.0, 0.0, 0.0, -0.2])})
     assert env.arms["grasper"].jaw == pytest.approx(0.4)  # j = (phi + 1) / 2
@@ -40,7 +40,7 @@ def test_the_defaults_are_the_papers_jaw():
 @settings(max_examples=20, deadline=None)
 @given(speed=st.floats(0.01, 1.0), seed=st.integers(0, 2**16))
 def test_a_switch_jaw_moves_towards_the_commands_sign(speed, seed):
-    env = suction_debris_v5.batched_env(num_envs=4, tool_speed=speed, jaw_command="switch", autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=4, tool_speed=speed, jaw_command="switch", autoreset_mode="disabled")
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     jaw = env.core.arms["grasper"]
@@ -58,7 +58,7 @@ def test_a_held_pin_is_never_dropped_and_its_jaw_stays_shut():
     """Noisy scripted experts whose jaw command is replaced by a coin flip: every pin the grasper takes stays in its
     jaws, the jaw unmoved, until it is handed off; the pins are still grasped and delivered."""
     worlds = 8
-    env = suction_debris_v5.batched_env(num_envs=worlds, **GRASP)
+    env = suction_debris_v8.batched_env(num_envs=worlds, **GRASP)
     observations, _ = env.reset(seed=3)
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     rng = np.random.default_rng(0)
@@ -83,7 +83,7 @@ def test_a_held_pin_is_never_dropped_and_its_jaw_stays_shut():
 
 
 def test_the_jaw_follows_the_command_again_after_the_handoff():
-    env = suction_debris_v5.parallel_env(tool_speed=1.0, **GRASP)
+    env = suction_debris_v8.parallel_env(tool_speed=1.0, **GRASP)
     observations, _ = env.reset(seed=0)
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     for _ in range(1500):
@@ -104,7 +104,7 @@ def test_the_jaw_follows_the_command_again_after_the_handoff():
 def test_the_scripted_team_with_a_noisy_tool_succeeds_with_the_grasp_options():
     """Scale-1 tanh-Gaussian noise on both tools, the paper's instant tool: the pin is dropped on the first unlucky
     sample without the hold (tests/test_tool_speed.py), kept with it."""
-    rate = _tool_noise().success_rate("suction_debris_v5", 1.0, 1.0, worlds=16, **GRASP)
+    rate = _tool_noise().success_rate("suction_debris_v8", 1.0, 1.0, worlds=16, **GRASP)
     assert rate >= 0.9, rate
 
 
@@ -114,16 +114,16 @@ def test_the_scripted_team_with_a_noisy_tool_succeeds_with_the_grasp_options():
 ])
 def test_bad_grasp_options_are_refused_by_name(key, value):
     with pytest.raises(ValueError, match=key):
-        suction_debris_v5.parallel_env(**{key: value})
+        suction_debris_v8.parallel_env(**{key: value})
     with pytest.raises(ValueError, match=key):
-        suction_debris_v5.batched_env(num_envs=2, **{key: value})
+        suction_debris_v8.batched_env(num_envs=2, **{key: value})
 
 
 def test_single_and_batched_agree_with_the_grasp_options():
     """Noisy scripted experts that drop now and then (the hold keeps the pin), a slow tool, the guided reward and
     features: the batched worlds are the single envs bit for bit (tests/test_batched.py's comparison)."""
     assert_batched_collaborative_matches(3, seed=29, steps=1000, action_seed=13, scripted=True, reward_type="guided",
-                                         max_cycles=400, module=suction_debris_v5, drop_probability=0.05,
+                                         max_cycles=400, module=suction_debris_v8, drop_probability=0.05,
                                          observation_features="suction_debris_cleared_pins_zoom", tool_speed=0.2,
                                          **GRASP)
 
@@ -131,8 +131,8 @@ def test_single_and_batched_agree_with_the_grasp_options():
 def test_every_form_takes_the_grasp_options():
     from pettingzoo.test import parallel_api_test
 
-    parallel_api_test(suction_debris_v5.parallel_env(**GRASP), num_cycles=300)
-    aec = suction_debris_v5.env(**GRASP)
+    parallel_api_test(suction_debris_v8.parallel_env(**GRASP), num_cycles=300)
+    aec = suction_debris_v8.env(**GRASP)
     aec.reset(seed=0)
     for agent in aec.agent_iter(2):
         aec.step(np.array([0.0, 0.0, 0.0, -0.2 if agent == "grasper" else 0.0], dtype=np.float32))
@@ -140,5 +140,5 @@ def test_every_form_takes_the_grasp_options():
     if importlib.util.find_spec("torchrl") is not None:
         from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
-        env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, task="suction_debris_v5", **GRASP)
+        env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, task="suction_debris_v8", **GRASP)
         assert env.batched.params.jaw_command == "switch" and env.batched.params.hold_until_handoff

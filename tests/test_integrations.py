@@ -23,9 +23,9 @@ def test_torchrl_env_passes_check_env_specs_and_resets_worlds_by_mask():
     assert td["agents", "observation"].dtype == torch.float32
 
     # World i equals the batched env seeded the same way (the adapter adds no behaviour of its own).
-    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.envs import suction_debris_v8
 
-    reference = suction_debris_v0.batched_env(num_envs=4, max_cycles=20)
+    reference = suction_debris_v8.batched_env(num_envs=4, max_cycles=20)
     observations, _ = reference.reset(seed=3)
     np.testing.assert_allclose(td["agents", "observation"][:, 0, 0].numpy(), observations["suction"], atol=1e-6)
 
@@ -63,7 +63,7 @@ def test_sb3_her_trains_on_the_native_vector_env():
 
     from dvrl_marl.integrations.sb3 import make_sb3_vec_env
 
-    venv = make_sb3_vec_env("dvrl_marl/PSMReach-v0", num_envs=4, seed=0)
+    venv = make_sb3_vec_env("dvrl_marl/PSMReach-v1", num_envs=4, seed=0)
     model = SAC("MultiInputPolicy", venv, replay_buffer_class=HerReplayBuffer, learning_starts=500, batch_size=32,
                 seed=0, policy_kwargs={"net_arch": [32]})
     model.learn(700)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.teleop import KeyboardDevice, RealTimePacer, Recorder, load_demonstration
 
 PRESS, RELEASE, REPEAT = 1, 0, 2
@@ -81,7 +81,7 @@ def test_a_recorded_keyboard_keeps_its_keys_and_its_person():
 
 def test_the_held_keyboard_drives_the_seat_without_a_window():
     keyboard = KeyboardDevice()
-    env = suction_debris_v0.parallel_env(surgeon=keyboard)
+    env = suction_debris_v8.parallel_env(surgeon=keyboard)
     env.reset(seed=3)
     start = np.array(env.arms["grasper"].tip)
     keyboard.key_event(KEY_W, PRESS)
@@ -133,8 +133,8 @@ class _KeyPresser:
 def test_the_keys_alone_can_finish_the_episode(seed):
     from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
 
-    layout = suction_debris_v0.parallel_env()
-    env = suction_debris_v0.parallel_env(surgeon=_KeyPresser(KeyboardDevice(), ScriptedSurgeon.for_env(layout)),
+    layout = suction_debris_v8.parallel_env()
+    env = suction_debris_v8.parallel_env(surgeon=_KeyPresser(KeyboardDevice(), ScriptedSurgeon.for_env(layout)),
                                          max_cycles=3000)
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=seed)
@@ -273,7 +273,7 @@ def test_a_person_drives_the_surgeon_in_real_time(desktop, tmp_path):
     assert np.all(actions[moving, 0] == 1.0) and np.all(actions[moving, 1:3] == 0.0)  # +x only
     assert np.all(np.diff(moving) == 1)  # one continuous hold, no pulses
     assert actions[0, :3].tolist() == [0.0, 0.0, 0.0]  # ENTER started it; D came after
-    tip = suction_debris_v0.parallel_env().observation_layout["own_tip"]
+    tip = suction_debris_v8.parallel_env().observation_layout["own_tip"]
     assert observations[-1, tip][0] > observations[0, tip][0] + 0.1  # the LND went +x...
     np.testing.assert_allclose(observations[-1, tip][1:], observations[0, tip][1:], atol=1e-9)  # ...and only +x
 
@@ -322,7 +322,7 @@ def test_escape_before_enter_ends_without_an_episode(desktop, tmp_path):
 
 def test_single_arm_envs_draw_in_a_window(x_display, monkeypatch):
     monkeypatch.setenv("DISPLAY", x_display)
-    for env_id in ("dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"):
+    for env_id in ("dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"):
         env = gym.make(env_id, render_mode="human")
         env.reset(seed=0)
         for _ in range(3):
@@ -335,7 +335,7 @@ def test_single_arm_envs_draw_in_a_window(x_display, monkeypatch):
 
 def test_the_window_overlay_tells_a_person_what_to_do(x_display, monkeypatch):
     monkeypatch.setenv("DISPLAY", x_display)
-    env = suction_debris_v0.parallel_env(surgeon=KeyboardDevice(), render_mode="human", max_cycles=5)
+    env = suction_debris_v8.parallel_env(surgeon=KeyboardDevice(), render_mode="human", max_cycles=5)
     assert env.surgeon_label == "keyboard" and env.human_seat
     texts = {position: left + "|" + right for position, left, right in env.overlay()}
     assert "Blood left" in texts["top left"] and "8.0 ml + 8.0 ml" in texts["top left"]
@@ -363,11 +363,11 @@ def _overlay_text(env):
 
 def test_the_desktop_seat_shows_the_cues_and_delivers_a_pin_gripped_off_centre(desktop, monkeypatch):
     from dvrl_marl.core.collaborative import PIN_RADIUS
-    from dvrl_marl.envs import suction_debris_v2
+    from dvrl_marl.envs import suction_debris_v8
 
     monkeypatch.setenv("DISPLAY", desktop)
     keys = _WindowKeys()
-    env = suction_debris_v2.parallel_env(surgeon=keys, render_mode="human", blood_ml=[0.0, 0.0], max_cycles=3000)
+    env = suction_debris_v8.parallel_env(surgeon=keys, render_mode="human", blood_ml=[0.0, 0.0], max_cycles=3000)
     env.reset(seed=0)
     height = env.phantom.top_z + PIN_RADIUS
     tips = {"suction": np.array(env.arms["suction"].tip_world()), "grasper": np.array([0.049, 0.02, height])}

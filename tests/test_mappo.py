@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
@@ -76,7 +76,7 @@ def test_trainer_runs_logs_checkpoints_and_exports(tmp_path, algorithm):
     for agent in ("suction", "grasper"):
         policy = policies.load(run / "policies" / f"marl-{agent}")
         assert policy.spec["agent"] == agent and policy.spec["training"]["algorithm"] == algorithm
-        observation = np.zeros(suction_debris_v0.parallel_env().observation_space(agent).shape)
+        observation = np.zeros(suction_debris_v8.parallel_env().observation_space(agent).shape)
         action = policy(observation)
         assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
 
@@ -159,7 +159,7 @@ def test_training_on_normalized_observations_exports_policies_that_read_the_scen
 
     monkeypatch.setattr(mappo, "export_actor", export)
     mappo.train(config, 0, tmp_path / "run", total_steps=1024, progress=False, log=lambda *_: None)
-    env = suction_debris_v0.batched_env(num_envs=1, max_cycles=40, normalize_observations=True)
+    env = suction_debris_v8.batched_env(num_envs=1, max_cycles=40, normalize_observations=True)
     assert isinstance(env.observation_scaling, ObservationScaling)
     for agent in ("suction", "grasper"):
         for mine, expected in zip(handed[agent], env.observation_scaling.observation_affine(agent)):
@@ -235,8 +235,8 @@ def test_cli_train_mappo(tmp_path):
     ("[ppo]\nlearning_rate = '3e-4'\n", "[ppo] learning_rate: must be a number, got '3e-4'"),
     ("[model]\ngamma = 0.9\n", "[model] gamma: unknown key (it belongs in [ppo])"),
     ("[run]\ngamma = 0.9\n[ppo]\ngamma = 0.8\n", "[ppo] gamma: set twice (also in [run])"),
-    ("[env]\npins_fal = true\n", "[env] suction_debris_v0() got an unexpected keyword argument 'pins_fal'"),
-    ("[env]\nbleeding_ml_s = -0.3\n", "[env] suction_debris_v0: bleeding_ml_s: must be >= 0"),
+    ("[env]\npins_fal = true\n", "[env] suction_debris_v8() got an unexpected keyword argument 'pins_fal'"),
+    ("[env]\nbleeding_ml_s = -0.3\n", "[env] suction_debris_v8: bleeding_ml_s: must be >= 0"),
     ("[model]\nhidden = [64, 0]\n", "[model] hidden[1]: must be >= 1"),
     ("[model]\ninitial_tool_logit = { assistant = 1.0 }\n", "[model] initial_tool_logit.assistant"),
 ])
@@ -257,7 +257,7 @@ def test_curriculum_schedules_the_envs_start_level():
 
 def test_grasp_path_shaping_is_continuous_through_the_grasp():
     """Env potential + trainer potential changes by less than the sensor range x weight when the jaw closes on a pin."""
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
     env.reset(seed=3)
     core = env.core
     pin = core.debris_position[0, 0] + np.array([0.0, 0.0, 0.002])
@@ -276,8 +276,8 @@ def test_grasp_path_shaping_is_continuous_through_the_grasp():
 def test_suction_route_shaping_is_continuous_when_a_cavity_clears(over_rims, park):
     """Env potential + trainer potential: clearing a cavity earns the removal and ``clear_bonus``, not the env's
     drop of 10 x the distance to the other cavity."""
-    blood_threshold = suction_debris_v0.SuctionDebrisParams.from_task().blood_threshold_ml
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+    blood_threshold = suction_debris_v8.SuctionDebrisParams.from_task().blood_threshold_ml
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
                                         blood_ml=[blood_threshold + 0.02, 8.0])
     env.reset(seed=1)
     cavities = env.core.cavities
@@ -307,7 +307,7 @@ def test_route_to_park_leads_out_of_the_way_and_favours_the_far_cavity_first():
     the shortest route visits the cavity farther from the suction's side first, as the expert does."""
     from dvrl_marl.agents.collaborative import ScriptedSuction
 
-    env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, autoreset_mode="disabled")
     env.reset(seed=0)
     route = guidance.SuctionRouteShaping(env, 10.0, ["suction", "grasper"], park=True)
     expert = ScriptedSuction.for_env(env)
@@ -337,7 +337,7 @@ def test_route_to_park_leads_out_of_the_way_and_favours_the_far_cavity_first():
 
 # --- start-state options of the batched env ------------------------------------------------------------------
 def test_tip_positions_and_debris_count_options():
-    env = suction_debris_v0.batched_env(num_envs=3, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=3, autoreset_mode="disabled")
     env.reset(seed=0)
     tips = np.array([[0.02, 0.0, 0.05], [0.03, 0.005, 0.06], [0.04, -0.005, 0.055]])
     mask = np.array([True, False, True])
@@ -361,14 +361,14 @@ def test_tip_positions_and_debris_count_options():
     ({"debris_count": [1.5, 1]}, "debris_count must be integers"),
 ])
 def test_start_state_options_reject_bad_values(options, message):
-    env = suction_debris_v0.batched_env(num_envs=2, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=2, autoreset_mode="disabled")
     env.reset(seed=0)
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
         env.reset(options=options)
 
 
 def test_colliding_tip_positions_are_refused():
-    env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, autoreset_mode="disabled")
     env.reset(seed=0)
     suction_tip = env.core.arms["suction"].tip_world()
     with pytest.raises(ValueError, match="intersect"):
@@ -376,7 +376,7 @@ def test_colliding_tip_positions_are_refused():
 
 
 def test_set_tip_positions_keeps_the_drawn_episode():
-    env = suction_debris_v0.batched_env(num_envs=2, autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env = suction_debris_v8.batched_env(num_envs=2, autoreset_mode="disabled", blood_ml=[0.0, 0.0])
     env.reset(seed=4)
     pins = env.core.debris_position.copy()
     blood = env.core.remaining_ml.copy()
@@ -390,7 +390,7 @@ def test_set_tip_positions_keeps_the_drawn_episode():
 
 
 def test_hold_bonus_charges_a_drop():
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
     env.reset(seed=3)
     env.set_tip_positions({"grasper": env.core.debris_position[:1, 0] + np.array([0.0, 0.0, 0.0015])})
     grasp = guidance.GraspPathShaping(env, 0.0, ["suction", "grasper"], hold_bonus=1.0)
@@ -456,7 +456,7 @@ def test_the_benchmarks_easy_task_file_reads_back_from_a_run_folder_and_none_is_
 
 
 def test_refused_placement_moves_no_tip():
-    env = suction_debris_v0.batched_env(num_envs=1, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, autoreset_mode="disabled")
     env.reset(seed=0)
     before = {agent: env.core.arms[agent].tip_world().copy() for agent in ("suction", "grasper")}
     with pytest.raises(ValueError, match="outside the workspace box"):
@@ -466,7 +466,7 @@ def test_refused_placement_moves_no_tip():
 
 
 def test_over_rims_distances_go_around_the_phantom():
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
     env.reset(seed=0)
     rims = guidance.OverRims(env)
     cavities = env.core.cavities
@@ -511,7 +511,7 @@ def test_over_rims_distances_go_around_the_phantom():
 
 @pytest.mark.parametrize("over_rims", [False, True])
 def test_grasp_path_shaping_over_rims_is_continuous_through_the_grasp(over_rims):
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
     env.reset(seed=3)
     pin = env.core.debris_position[0, 0] + np.array([0.0, 0.0, 0.002])
     env.reset(seed=3, options={"tip_positions": {"grasper": pin[None]}})
@@ -527,7 +527,7 @@ def test_grasp_path_shaping_over_rims_is_continuous_through_the_grasp(over_rims)
 def test_grasp_shaping_waits_at_the_surgeon_home_when_there_is_nothing_to_collect():
     from dvrl_marl.agents.collaborative import ScriptedSurgeon
 
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
     env.reset(seed=0)  # full cavities: no pin in view
     grasp = guidance.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, home=True)
     home = np.asarray(ScriptedSurgeon.for_env(env).home) * env.workspace_range + np.asarray(env.params.workspace_centre)
@@ -550,7 +550,7 @@ def test_grasp_shaping_waits_at_the_surgeon_home_when_there_is_nothing_to_collec
 def test_grasp_shaping_collects_only_pins_in_cleared_cavities():
     """cleared_only: a pin showing where blood is still above the threshold is not a target (the env's pull toward
     it is cancelled: env + trainer potential is the way home); once its cavity is clear it is."""
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled")
     env.reset(seed=0)
     grasp = guidance.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, home=True, cleared_only=True)
     plain = guidance.GraspPathShaping(env, 10.0, ["suction", "grasper"], over_rims=True, home=True)
@@ -654,7 +654,7 @@ def test_every_shipped_multi_agent_configuration_loads(path):
 def _pin_along_x(seeds=range(40)):
     """A seed whose first pin lies within 25 degrees of the x axis (a grasp at its +x end holds it 11+ mm short)."""
     for seed in seeds:
-        env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+        env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
                                             blood_ml=[0.0, 0.0])
         env.reset(seed=seed)
         if abs(np.cos(env.core.debris_yaw[0, 0])) > np.cos(np.radians(25)):
@@ -672,7 +672,7 @@ def test_centred_grasps_charge_a_grasp_that_can_never_be_delivered():
     seed = _pin_along_x()
     gains, delivered = {}, {}
     for grip in ("centre", "end"):
-        env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+        env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
                                             blood_ml=[0.0, 0.0])
         env.reset(seed=seed)
         core = env.core
@@ -707,7 +707,7 @@ def test_centred_grasps_charge_a_grasp_that_can_never_be_delivered():
 def test_centred_grasps_approach_a_pin_from_above():
     """``centred``: at the same distance from a pin's centre, a tip above it is nearer in potential than one beside
     it at its height (a tip coming along the floor would close on the pin's end)."""
-    env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
+    env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled", blood_ml=[0.0, 0.0])
     env.reset(seed=3)
     pin = env.core.debris_position[0, 0].copy()
     yaw = env.core.debris_yaw[0, 0]
@@ -733,7 +733,7 @@ def test_off_centre_grasps_charge_a_grasp_in_proportion_to_its_distance_from_the
     seed = _pin_along_x()
     gains = {}
     for along in (0.0, 0.003, 0.006):
-        env = suction_debris_v0.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+        env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
                                             blood_ml=[0.0, 0.0])
         env.reset(seed=seed)
         core = env.core
@@ -757,14 +757,14 @@ def test_off_centre_grasps_charge_a_grasp_in_proportion_to_its_distance_from_the
         guidance.GraspPathShaping(env, 10.0, ["suction", "grasper"], off_centre=-1.0)
 
 
-def test_the_trainer_runs_on_suction_debris_v2(tmp_path):
+def test_the_trainer_runs_on_suction_debris_v8(tmp_path):
     # The scene a person uses (hand-off at the grip, dropped pins kept in view) is a task option of the trainer's env.
     path = tmp_path / "tiny_v2.toml"
     path.write_text(TINY.format(algorithm="mappo", surgeon="none", seat="grasper").replace(
-        '[env]\n', '[env]\ntask = "suction_debris_v2"\n'))
+        '[env]\n', '[env]\ntask = "suction_debris_v8"\n'))
     config = mappo.load_config(path)
-    assert config.env["task"] == "suction_debris_v2"
+    assert config.env["task"] == "suction_debris_v8"
     run = tmp_path / "run"
     final = mappo.train(config, 0, run, progress=False, log=lambda *_: None)
     assert final["steps"] == 2048
-    assert suction_debris_v0.batched_env(num_envs=1, **config.env).template.params.deliver_at_grip
+    assert suction_debris_v8.batched_env(num_envs=1, **config.env).template.params.deliver_at_grip

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dvrl_marl import policies
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.policies import features
 
 torch = pytest.importorskip("torch")
@@ -72,7 +72,7 @@ def test_targets_point_at_the_nearest_pin_to_collect(tip, other, handoff, slots)
 
 
 def test_targets_on_real_observations_follow_the_env():
-    env = suction_debris_v0.batched_env(num_envs=6, surgeon="scripted", surgeon_seat="suction")
+    env = suction_debris_v8.batched_env(num_envs=6, surgeon="scripted", surgeon_seat="suction")
     env.reset(seed=3)
     for _ in range(500):  # the scripted suction reveals pins
         env.step({"grasper": np.zeros((6, 4))})
@@ -85,7 +85,7 @@ def test_targets_on_real_observations_follow_the_env():
     np.testing.assert_allclose(out[:, 8:11], state[:, layout["handoff"]] - tips, atol=1e-12)
 
 
-GEOMETRY = features.routes_geometry(suction_debris_v0.batched_env(num_envs=1).layout())
+GEOMETRY = features.routes_geometry(suction_debris_v8.batched_env(num_envs=1).layout())
 
 
 def _routes_reference(obs, targets14):
@@ -188,7 +188,7 @@ def test_climb_reads_the_wall_the_env_enforces():
     """The climb feature against the env's own wall rule: from a cleared cavity's floor, with blood left in the other,
     steps straight toward the next cavity never get the tip out while the climb reads more than 0; after rising
     until it reads 0, the same steps do."""
-    env = suction_debris_v0.batched_env(num_envs=1, surgeon=None, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=1, surgeon=None, autoreset_mode="disabled")
     env.reset(seed=0, options={"blood_ml": [[8.0, 0.0]]})
     layout = env.layout()
     rho, centre = env.workspace_range, np.asarray(env.params.workspace_centre)
@@ -282,7 +282,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     model = dict(model)
     feature_set = model.pop("observation_features", "")  # the env's option since issue 37
     config = mappo.MappoConfig(**{"hidden": [16, 16], **model})
-    env = suction_debris_v0.batched_env(num_envs=40, surgeon=None)
+    env = suction_debris_v8.batched_env(num_envs=40, surgeon=None)
     spec = features.spec(feature_set, env.layout(), env.params.debris_count) if feature_set else None
     width = OBS_DIM + (features.feature_count(feature_set) if feature_set else 0)
     actor, _, actor_net, norms = models.build_models(config, AGENTS, width, 31, 4,
@@ -457,7 +457,7 @@ def test_bounds_loss_penalises_only_means_beyond_the_action_box():
 def test_bounds_loss_pulls_saturated_means_back_in_training(tmp_path):
     """A tiny run whose actors start saturated (output bias 3): with the bounds loss the exported policy's means
     come back toward the box, without it they stay out."""
-    env = suction_debris_v0.batched_env(num_envs=64, surgeon=None)
+    env = suction_debris_v8.batched_env(num_envs=64, surgeon=None)
     observations, _ = env.reset(seed=1)
 
     def final_means(coef):

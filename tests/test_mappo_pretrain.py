@@ -14,7 +14,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
 from dvrl_marl.agents.collaborative import ScriptedSurgeon  # noqa: E402
-from dvrl_marl.envs import suction_debris_v0  # noqa: E402
+from dvrl_marl.envs import suction_debris_v8  # noqa: E402
 from dvrl_marl.training import mappo, models, pretrain  # noqa: E402
 
 CONFIG = """
@@ -61,7 +61,7 @@ def test_recorded_labels_are_the_experts_actions(tmp_path):
     recorded = pretrain.record_expert(config, seed=0)
     assert list(recorded) == ["grasper"]  # only the learning seat; the scripted suction is the partner
     observations, labels = recorded["grasper"]
-    env = suction_debris_v0.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="suction",
+    env = suction_debris_v8.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="suction",
                                         autoreset_mode="disabled", **config.env)
     expert = ScriptedSurgeon.for_env(env)
     assert observations.shape == (4 * 60, env.observation_space("grasper").shape[0]) and labels.shape == (240, 4)
@@ -86,7 +86,7 @@ def test_a_dagger_round_records_where_the_learner_drove_labelled_by_the_expert(t
     assert calls and set(calls) == {0}
     tips = observations[:, 0:3].reshape(30, 4, 3)
     np.testing.assert_allclose(tips, np.broadcast_to(tips[0], tips.shape), atol=1e-6)  # where it drove: nowhere
-    env = suction_debris_v0.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="suction",
+    env = suction_debris_v8.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="suction",
                                         autoreset_mode="disabled", **config.env)
     expert = ScriptedSurgeon.for_env(env)
     assert np.mean(np.all(np.abs(labels - expert(observations.astype(np.float64))) < 1e-4, axis=1)) > 0.99

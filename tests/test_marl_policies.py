@@ -74,7 +74,7 @@ def test_the_demo_seats_the_learned_suction_beside_the_scripted_surgeon(tmp_path
 
     metrics = demo.run_demo(team="marl", surgeon="scripted", out=tmp_path / "demo", video=False, progress=False)
     assert metrics["team"] == "marl" and metrics["surgeon"] == "scripted"
-    assert metrics["success"], metrics  # the whole episode (suction_debris_v1): cleared and delivered
+    assert metrics["success"], metrics  # the whole episode (suction_debris_v8): cleared and delivered
     assert metrics["debris_delivered"] == metrics["debris_total"] and metrics["steps"] < metrics["max_cycles"]
 
 

@@ -34,9 +34,9 @@ def test_ppo_trains_both_arms_and_the_suction_arm_with_the_scripted_surgeon(tmp_
 
 def test_evaluate_team_reports_the_scripted_team():
     from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-    from dvrl_marl.envs import suction_debris_v0
+    from dvrl_marl.envs import suction_debris_v8
 
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     result = evaluate_team(lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}, 2)
     assert result["success_rate"] == 1.0 and result["mean_blood_removed_ml"] > 14.0

@@ -46,7 +46,7 @@ def test_no_private_names_are_imported_across_modules():
     assert not offenders, offenders
 
 
-# (dvrl_marl.envs keeps one: suction_debris_v0.batched_env imports the batched module that builds on it.)
+# (dvrl_marl.envs keeps one: suction_debris_v8.batched_env imports the batched module that builds on it.)
 @pytest.mark.parametrize("package", ["dvrl_marl.training", "dvrl_marl.integrations", "dvrl_marl.core",
                                      "dvrl_marl.agents"])
 def test_no_import_circles_within(package):

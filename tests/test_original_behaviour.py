@@ -62,7 +62,7 @@ def test_original_goals_come_from_the_original_box(task):
 
 
 def test_original_goals_in_the_v0_frame_are_the_same_places():
-    v0 = gym.make("dvrl_marl/PSMReach-v0", goal_distribution="original").unwrapped
+    v0 = gym.make("dvrl_marl/PSMReach-v1", goal_distribution="original").unwrapped
     v1 = gym.make("dvrl_marl/PSMReach-v1", goal_distribution="original").unwrapped
     np.testing.assert_allclose(v0.goal_low + (0, 0, 0.0102), v1.goal_low, atol=1e-12)
     np.testing.assert_allclose(v0.goal_high + (0, 0, 0.0102), v1.goal_high, atol=1e-12)

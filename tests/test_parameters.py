@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.validation import check_integer, check_number, check_vector
 
 POSITIVE = ("workspace_range", "step_size", "distance_threshold", "control_dt")
@@ -19,12 +19,12 @@ def _single(env_id):
 
 
 FACTORIES = {
-    "PSMReach-v0": (_single("dvrl_marl/PSMReach-v0"), POSITIVE + ("tip_clearance",)),
-    "PSMPick-v0": (_single("dvrl_marl/PSMPick-v0"), POSITIVE + ("tip_clearance", "grasp_threshold")),
-    "suction_debris_v0": (suction_debris_v0.parallel_env,
+    "PSMReach-v1": (_single("dvrl_marl/PSMReach-v1"), POSITIVE + ("tip_clearance",)),
+    "PSMPick-v1": (_single("dvrl_marl/PSMPick-v1"), POSITIVE + ("tip_clearance", "grasp_threshold")),
+    "suction_debris_v8": (suction_debris_v8.parallel_env,
                           POSITIVE + ("suction_rate_ml_s", "blood_threshold_ml", "contact_penalty", "tip_clearance",
                                       "grasp_threshold")),
-    "suction_debris_v0 (batched)": (lambda **kwargs: suction_debris_v0.batched_env(num_envs=2, **kwargs),
+    "suction_debris_v8 (batched)": (lambda **kwargs: suction_debris_v8.batched_env(num_envs=2, **kwargs),
                                     POSITIVE + ("suction_rate_ml_s",)),
 }
 NOT_FINITE = (math.inf, -math.inf, math.nan)
@@ -50,7 +50,7 @@ def test_workspace_centres_must_be_three_finite_numbers(name):
 @settings(max_examples=40, deadline=None)
 @given(key=st.sampled_from(POSITIVE), value=st.floats(max_value=0.0, allow_nan=False))
 def test_positive_parameters_refuse_zero_and_below(key, value):
-    for name in ("PSMReach-v0", "suction_debris_v0"):
+    for name in ("PSMReach-v1", "suction_debris_v8"):
         with pytest.raises(ValueError, match=key):
             FACTORIES[name][0](**{key: value})
 
@@ -58,16 +58,16 @@ def test_positive_parameters_refuse_zero_and_below(key, value):
 @pytest.mark.parametrize("bad", [0, -1, 2.5, 10_000, "3", math.nan])
 def test_debris_count_and_episode_length_are_checked(bad):
     with pytest.raises(ValueError, match="debris_count"):
-        suction_debris_v0.parallel_env(debris_count=bad)
+        suction_debris_v8.parallel_env(debris_count=bad)
     if bad != 10_000:
         with pytest.raises(ValueError, match="max_cycles"):
-            suction_debris_v0.parallel_env(max_cycles=bad)
+            suction_debris_v8.parallel_env(max_cycles=bad)
 
 
 def test_blood_volumes_are_checked_one_by_one():
     for bad, match in (([8.0, math.nan], r"blood_ml\[1\]"), ([-1.0, 8.0], r"blood_ml\[0\]"), ([8.0], "blood_ml")):
         with pytest.raises(ValueError, match=match):
-            suction_debris_v0.parallel_env(blood_ml=bad)
+            suction_debris_v8.parallel_env(blood_ml=bad)
 
 
 @settings(max_examples=60, deadline=None)

@@ -11,7 +11,7 @@ import pytest  # noqa: E402
 
 pytest.importorskip("torchrl")
 
-from dvrl_marl.envs import suction_debris_v0  # noqa: E402
+from dvrl_marl.envs import suction_debris_v8  # noqa: E402
 from dvrl_marl.policies import NoisyPolicy  # noqa: E402
 from dvrl_marl.training import mappo, mappo_config, teams  # noqa: E402
 
@@ -39,7 +39,7 @@ def test_partners_reset_their_members_and_refuse_an_empty_population():
             Counting.resets += 1
 
     population = teams.Partners([Counting(), _constant(0.0), Counting()], ["x", "y", "z"])
-    env = suction_debris_v0.batched_env(num_envs=3, surgeon=population, surgeon_seat="grasper")
+    env = suction_debris_v8.batched_env(num_envs=3, surgeon=population, surgeon_seat="grasper")
     env.reset(seed=1)
     assert Counting.resets == 2
     with pytest.raises(ValueError, match="no partner"):
@@ -50,7 +50,7 @@ def test_a_partner_moves_only_its_own_worlds():
     """World 0's grasper is held still, world 1's drives down: only world 1's grasper tip moves."""
     population = teams.Partners([_constant(0.0), lambda o: np.tile([0.0, 0.0, -1.0, -1.0], (len(o), 1))],
                                 ["still", "down"])
-    env = suction_debris_v0.batched_env(num_envs=4, surgeon=population, surgeon_seat="grasper",
+    env = suction_debris_v8.batched_env(num_envs=4, surgeon=population, surgeon_seat="grasper",
                                         autoreset_mode="disabled")
     observations, _ = env.reset(seed=3)
     tip = env.state_layout["grasper_tip"]
@@ -63,13 +63,13 @@ def test_a_partner_moves_only_its_own_worlds():
 
 
 def test_learned_partners_act_with_seeded_noise_and_scripted_ones_without():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     assert teams.partner("none", "suction") is None
     first = teams.partner(["scripted", "marl-suction"], "suction", env, noise_from=11)
     again = teams.partner(["scripted", "marl-suction"], "suction", env, noise_from=11)
     other = teams.partner(["scripted", "marl-suction"], "suction", env, noise_from=12)
     assert isinstance(first.members[1], NoisyPolicy) and not isinstance(first.members[0], NoisyPolicy)
-    batched = suction_debris_v0.batched_env(num_envs=6, surgeon="scripted", surgeon_seat="grasper")
+    batched = suction_debris_v8.batched_env(num_envs=6, surgeon="scripted", surgeon_seat="grasper")
     observations, _ = batched.reset(seed=5)
     a, b, c = (p(observations["suction"]) for p in (first, again, other))
     np.testing.assert_array_equal(a, b)

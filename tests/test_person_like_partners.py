@@ -7,15 +7,15 @@ import pytest
 from dvrl_marl.agents.collaborative import ScriptedSurgeon
 from dvrl_marl.agents.partners import (HELD_OUT, PERSON, TRAINING_RANGES, PersonLikePartner, Profile, draw_profiles,
                                        zoo_partner)
-from dvrl_marl.envs import suction_debris_v2
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
-ENV = suction_debris_v2.parallel_env()
+ENV = suction_debris_v8.parallel_env()
 
 
 def _observations(steps=12, worlds=3, seed=0):
     """Observations of a scene the scripted team plays, so every step differs."""
-    env = suction_debris_v2.batched_env(num_envs=worlds, surgeon="scripted")
+    env = suction_debris_v8.batched_env(num_envs=worlds, surgeon="scripted")
     suction = teams.seat("scripted", "suction")
     observations, _ = env.reset(seed=seed)
     seen = []
@@ -79,7 +79,7 @@ def test_the_scripted_seat_works_beside_every_held_out_kind(kind):
     # (the scripted seat beside a partner is what a learned seat is measured against: it must be able to win)
     for agent, other in (("grasper", "suction"), ("suction", "grasper")):
         team = {agent: zoo_partner(kind, agent, ENV), other: teams.seat("scripted", other)}
-        result = teams.evaluate_team_batched(team, 8, task="suction_debris_v2", max_cycles=6000)
+        result = teams.evaluate_team_batched(team, 8, task="suction_debris_v8", max_cycles=6000)
         assert result["success_rate"] >= 0.75, (kind, agent, result["success_rate"])
     with pytest.raises(ValueError, match="unknown partner kind"):
         zoo_partner("sleepy", "grasper", ENV)
@@ -87,12 +87,12 @@ def test_the_scripted_seat_works_beside_every_held_out_kind(kind):
 
 def test_team_evaluation_reports_each_seats_path_and_smoothness():
     team = {"suction": teams.seat("scripted", "suction"), "grasper": teams.seat("scripted", "grasper")}
-    result = teams.evaluate_team_batched(team, 4, task="suction_debris_v2")
+    result = teams.evaluate_team_batched(team, 4, task="suction_debris_v8")
     for agent in ("suction", "grasper"):
         assert 50.0 < result["mean_tip_path_mm"][agent] < 2000.0  # a few centimetres per pin or cavity
         assert 0.0 < result["mean_action_change"][agent] < 2.0
     slowed = {**team, "grasper": PersonLikePartner("grasper", ENV, Profile(speed=0.5, approach=0.1))}
-    smoother = teams.evaluate_team_batched(slowed, 4, task="suction_debris_v2", max_cycles=6000)
+    smoother = teams.evaluate_team_batched(slowed, 4, task="suction_debris_v8", max_cycles=6000)
     assert smoother["mean_action_change"]["grasper"] < result["mean_action_change"]["grasper"]
 
 
@@ -112,9 +112,9 @@ def test_the_deployable_suction_works_by_its_mean_action_beside_people_it_never_
     from dvrl_marl import policies
 
     suction = policies.load("marl-suction")
-    assert suction.spec["agent"] == "suction" and suction.spec["env_id"] == "suction_debris_v2"
+    assert suction.spec["agent"] == "suction" and suction.spec["env_id"] == "suction_debris_v8"
     for partner in ("scripted", "marl-grasper", "late", "slow"):
         grasper = zoo_partner(partner, "grasper", ENV) if partner in HELD_OUT else teams.seat(partner, "grasper")
-        result = teams.evaluate_team_batched({"suction": suction, "grasper": grasper}, 12, task="suction_debris_v2",
+        result = teams.evaluate_team_batched({"suction": suction, "grasper": grasper}, 12, task="suction_debris_v8",
                                              max_cycles=6000)
         assert result["success_rate"] == 1.0 and result["mean_contact_steps"] <= 2.0, (partner, result)

@@ -10,13 +10,13 @@ import pytest
 from dvrl_marl import policies
 from dvrl_marl.agents import ReachExpert
 from dvrl_marl.cli import main as cli_main
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.pipeline import ArmPipeline, RecentredFrame, StageSpec, available_pipelines, load_pipeline
 from dvrl_marl.pipeline.core import ArmPlan
 
 
 def run_team(pipeline, seed, **env_kwargs):
-    env = suction_debris_v0.parallel_env(**env_kwargs)
+    env = suction_debris_v8.parallel_env(**env_kwargs)
     suction = ArmPipeline.from_file(pipeline, "suction", env)
     grasper = ArmPipeline.from_file(pipeline, "grasper", env)
     observations, _ = env.reset(seed=seed)
@@ -53,7 +53,7 @@ def test_invalid_pipeline_files_raise(tmp_path):
 
 
 def test_reach_stage_hands_over_once_the_tip_is_within_delta():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     observations, _ = env.reset(seed=0)
     plan = ArmPlan("none", (), idle=(StageSpec("reach", target="home"), StageSpec("reach", target="park")))
     pipeline = ArmPipeline(plan, "grasper", env)
@@ -67,7 +67,7 @@ def test_reach_stage_hands_over_once_the_tip_is_within_delta():
 
 
 def test_stage_timeout_hands_over():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     observations, _ = env.reset(seed=0)
     plan = ArmPlan("none", (), idle=(StageSpec("reach", target="park", timeout=3), StageSpec("reach", target="home")))
     pipeline = ArmPipeline(plan, "grasper", env)
@@ -77,7 +77,7 @@ def test_stage_timeout_hands_over():
 
 
 def test_suction_pipeline_skips_clear_cavities_and_finishes_by_parking():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     observations, _ = env.reset(seed=0, options={"blood_ml": [8.0, 0.0]})
     pipeline = ArmPipeline.from_file("scripted_team", "suction", env)
     pipeline(observations["suction"])
@@ -93,7 +93,7 @@ def test_recentred_frame_gives_the_same_behaviour_relative_to_the_goal():
     shift = np.array([0.012, -0.008, 0.004])
     runs = []
     for offset in (np.zeros(3), shift):
-        env = gym.make("dvrl_marl/PSMReach-v0", workspace_centre=np.array([0.0, 0.0, -0.11]) + offset)
+        env = gym.make("dvrl_marl/PSMReach-v1", workspace_centre=np.array([0.0, 0.0, -0.11]) + offset)
         start, goal = np.array([0.02, -0.01, -0.09]) + offset, np.array([-0.015, 0.02, -0.1]) + offset
         obs, _ = env.reset(seed=0, options={"start": start, "goal": goal})
         actions, tips = [], []
@@ -116,9 +116,9 @@ def test_scripted_pipeline_team_completes_the_task():
 
 
 def test_a_pipeline_fills_the_surgeon_seat():
-    probe = suction_debris_v0.parallel_env()
+    probe = suction_debris_v8.parallel_env()
     surgeon = ArmPipeline.from_file("scripted_team", "grasper", probe)
-    env = suction_debris_v0.parallel_env(surgeon=surgeon)
+    env = suction_debris_v8.parallel_env(surgeon=surgeon)
     suction = ArmPipeline.from_file("scripted_team", "suction", env)
     observations, _ = env.reset(seed=1)
     while env.agents:
@@ -147,7 +147,7 @@ def test_demo_command_writes_a_playable_video_and_metrics(tmp_path, capsys):
 
 
 def test_reach_stages_lift_over_the_phantom_and_position_precisely():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     observations, _ = env.reset(seed=0)
     name = "reach-lnd" if "reach-lnd" in policies.available() else "scripted"
     plan = ArmPlan("none", (), idle=(StageSpec("reach", policy=name, target="home"),

@@ -33,12 +33,12 @@ def local_ray():
 def test_the_adapter_renders_where_rllibs_own_wrapper_cannot():
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-    from dvrl_marl.envs import suction_debris_v1
+    from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.integrations.rllib import RenderableParallelPettingZooEnv
 
     with pytest.raises(TypeError):  # why the adapter exists: RLlib passes a mode PettingZoo's render() does not take
-        ParallelPettingZooEnv(suction_debris_v1.parallel_env(render_mode="rgb_array")).render()
-    env = RenderableParallelPettingZooEnv(suction_debris_v1.parallel_env(render_mode="rgb_array", max_cycles=5))
+        ParallelPettingZooEnv(suction_debris_v8.parallel_env(render_mode="rgb_array")).render()
+    env = RenderableParallelPettingZooEnv(suction_debris_v8.parallel_env(render_mode="rgb_array", max_cycles=5))
     observations, _ = env.reset(seed=0)
     assert set(observations) == {"suction", "grasper"}
     frame = env.render()

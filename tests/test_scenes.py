@@ -129,9 +129,9 @@ def test_the_package_finds_its_scenes_tasks_and_policies_from_any_directory(tmp_
     code = (
         "import gymnasium as gym, dvrl_marl\n"
         "from dvrl_marl import assets, policies\n"
-        "from dvrl_marl.envs import suction_debris_v0\n"
-        "env = gym.make('dvrl_marl/PSMPick-v0'); env.reset(seed=0)\n"
-        "suction_debris_v0.parallel_env().reset(seed=0)\n"
+        "from dvrl_marl.envs import suction_debris_v8\n"
+        "env = gym.make('dvrl_marl/PSMPick-v1'); env.reset(seed=0)\n"
+        "suction_debris_v8.parallel_env().reset(seed=0)\n"
         "print(assets.scenes_dir(), assets.tasks_dir(), policies.available())\n"
     )
     result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)

@@ -14,8 +14,8 @@ def test_the_batched_seats_follow_the_seat_env_world_by_world(seat):
     kwargs = {"partner": "scripted", "seat": seat, "max_cycles": 60}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        envs = gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=3, vectorization_mode="vector_entry_point", **kwargs)
-        singles = [gym.make("dvrl_marl/SurgeonSeat-v2", **kwargs) for _ in range(3)]
+        envs = gym.make_vec("dvrl_marl/SurgeonSeat-v8", num_envs=3, vectorization_mode="vector_entry_point", **kwargs)
+        singles = [gym.make("dvrl_marl/SurgeonSeat-v8", **kwargs) for _ in range(3)]
     observations, infos = envs.reset(seed=5)
     np.testing.assert_array_equal(observations, np.stack([s.reset(seed=5 + i)[0] for i, s in enumerate(singles)]))
     assert infos["is_success"].shape == (3,) and infos["_is_success"].all()
@@ -41,13 +41,13 @@ def test_the_batched_seats_follow_the_seat_env_world_by_world(seat):
 
 
 def test_the_pipeline_partner_gets_a_sync_vector_and_bad_arguments_are_named():
-    envs = gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=2, vectorization_mode="vector_entry_point")
+    envs = gym.make_vec("dvrl_marl/SurgeonSeat-v8", num_envs=2, vectorization_mode="vector_entry_point")
     assert isinstance(envs, gym.vector.SyncVectorEnv)
     observations, _ = envs.reset(seed=0)
     assert observations.shape[0] == 2
     envs.close()
     with pytest.raises(ValueError, match="num_envs"):
-        gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=0, vectorization_mode="vector_entry_point")
+        gym.make_vec("dvrl_marl/SurgeonSeat-v8", num_envs=0, vectorization_mode="vector_entry_point")
     with pytest.raises(ValueError, match="autoreset_mode"):
-        gym.make_vec("dvrl_marl/SurgeonSeat-v2", num_envs=2, vectorization_mode="vector_entry_point",
+        gym.make_vec("dvrl_marl/SurgeonSeat-v8", num_envs=2, vectorization_mode="vector_entry_point",
                      partner="scripted", autoreset_mode="sometimes")

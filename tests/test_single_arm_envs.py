@@ -106,7 +106,7 @@ def test_compute_reward_is_vectorised_and_matches_step(env_id):
         assert set(np.unique(batch)) <= {-1.0, 0.0} and batch[-1] == 0.0
 
 
-@pytest.mark.parametrize("env_id", ["dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"])
+@pytest.mark.parametrize("env_id", ["dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"])
 def test_bad_actions_raise_clear_errors(env_id):
     env = make(env_id)
     env.reset(seed=0)
@@ -129,14 +129,14 @@ def test_bad_actions_raise_clear_errors(env_id):
 
 def test_invalid_constructor_arguments_and_reset_options_raise():
     with pytest.raises(ValueError, match="reward_type"):
-        make("dvrl_marl/PSMReach-v0", reward_type="shaped")
+        make("dvrl_marl/PSMReach-v1", reward_type="shaped")
     with pytest.raises(ValueError, match="tool"):
-        make("dvrl_marl/PSMReach-v0", tool="scissors")
+        make("dvrl_marl/PSMReach-v1", tool="scissors")
     with pytest.raises(ValueError, match="workspace_range"):
-        make("dvrl_marl/PSMReach-v0", workspace_range=-1.0)
+        make("dvrl_marl/PSMReach-v1", workspace_range=-1.0)
     with pytest.raises(ValueError, match="render_mode"):
-        make("dvrl_marl/PSMReach-v0", render_mode="ascii")
-    env = make("dvrl_marl/PSMPick-v0")
+        make("dvrl_marl/PSMReach-v1", render_mode="ascii")
+    env = make("dvrl_marl/PSMPick-v1")
     with pytest.raises(ValueError, match="unknown reset option"):
         env.reset(options={"target": [0, 0, -0.1]})
     with pytest.raises(ValueError, match="'goal'"):
@@ -150,7 +150,7 @@ def test_invalid_constructor_arguments_and_reset_options_raise():
 
 
 def test_reset_options_set_goal_start_and_object_in_metres():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     u = env.unwrapped
     goal = np.array([0.01, -0.01, -0.09])
     start = np.array([0.005, 0.0, -0.1])
@@ -166,7 +166,7 @@ def test_reset_options_set_goal_start_and_object_in_metres():
 
 @pytest.mark.parametrize("tool", ["lnd", "suction_irrigation"])
 def test_reach_goals_and_starts_are_reachable_and_inside_the_workspace(tool):
-    env = make("dvrl_marl/PSMReach-v0", tool=tool)
+    env = make("dvrl_marl/PSMReach-v1", tool=tool)
     u = env.unwrapped
     goals, starts = [], []
     for seed in range(300):
@@ -183,7 +183,7 @@ def test_reach_goals_and_starts_are_reachable_and_inside_the_workspace(tool):
 
 
 def test_pick_goals_are_never_below_the_resting_object():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     u = env.unwrapped
     for seed in range(200):
         env.reset(seed=seed)
@@ -192,7 +192,7 @@ def test_pick_goals_are_never_below_the_resting_object():
 
 @settings(max_examples=30, deadline=None)
 @given(
-    env_id=st.sampled_from(["dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"]),
+    env_id=st.sampled_from(["dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"]),
     tool=st.sampled_from(["lnd", "suction_irrigation"]),
     seed=st.integers(0, 2**16),
     actions=st.lists(st.lists(st.floats(-3.0, 3.0, allow_nan=False), min_size=4, max_size=4), min_size=1, max_size=150),
@@ -215,7 +215,7 @@ def test_tip_stays_in_workspace_joint_limits_and_above_table(env_id, tool, seed,
 
 def test_joint_limit_projection_keeps_the_tip_reachable():
     # A workspace centred far to the side: its outer part needs a wrist yaw beyond the limit.
-    env = make("dvrl_marl/PSMReach-v0", workspace_centre=(0.09, 0.0, -0.08), workspace_range=0.05)
+    env = make("dvrl_marl/PSMReach-v1", workspace_centre=(0.09, 0.0, -0.08), workspace_range=0.05)
     u = env.unwrapped
     env.reset(seed=0, options={"start": (0.09, 0.0, -0.08)})
     for _ in range(80):
@@ -238,15 +238,15 @@ def _run_expert(env_id, expert_cls, seeds, **kwargs):
 
 @pytest.mark.parametrize("tool", ["lnd", "suction_irrigation"])
 def test_reach_expert_solves_at_least_99_percent(tool):
-    assert _run_expert("dvrl_marl/PSMReach-v0", ReachExpert, range(200), tool=tool) >= 0.99
+    assert _run_expert("dvrl_marl/PSMReach-v1", ReachExpert, range(200), tool=tool) >= 0.99
 
 
 def test_pick_expert_solves_at_least_95_percent():
-    assert _run_expert("dvrl_marl/PSMPick-v0", PickExpert, range(200)) >= 0.95
+    assert _run_expert("dvrl_marl/PSMPick-v1", PickExpert, range(200)) >= 0.95
 
 
 def test_pick_expert_lifts_the_object_to_the_goal_by_the_grasp_rule():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     u = env.unwrapped
     expert = PickExpert.for_env(env)
     obs, _ = env.reset(seed=5, options={"goal": [0.01, 0.015, -0.08]})
@@ -264,7 +264,7 @@ def test_pick_expert_lifts_the_object_to_the_goal_by_the_grasp_rule():
 
 
 def test_an_open_jaw_never_carries_the_object():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     u = env.unwrapped
     env.reset(seed=0)
     rest = u.object_position()
@@ -283,7 +283,7 @@ def test_an_open_jaw_never_carries_the_object():
 
 
 def test_closing_away_from_the_object_does_not_grasp():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     u = env.unwrapped
     env.reset(seed=0)
     for _ in range(5):
@@ -292,7 +292,7 @@ def test_closing_away_from_the_object_does_not_grasp():
 
 
 def test_releasing_drops_the_object_to_the_table():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     u = env.unwrapped
     expert = PickExpert.for_env(env)
     obs, _ = env.reset(seed=3, options={"goal": [0.0, 0.0, -0.08]})
@@ -312,26 +312,26 @@ def test_releasing_drops_the_object_to_the_table():
 
 
 def test_pick_tool_is_fixed_to_the_needle_driver():
-    env = make("dvrl_marl/PSMPick-v0")
+    env = make("dvrl_marl/PSMPick-v1")
     assert env.unwrapped.tool is kinematics.LND
     assert env.unwrapped.grasp_threshold == 0.25
-    assert make("dvrl_marl/PSMPick-v0", grasp_threshold=0.3).unwrapped.grasp_threshold == 0.3
+    assert make("dvrl_marl/PSMPick-v1", grasp_threshold=0.3).unwrapped.grasp_threshold == 0.3
 
 
 def test_paper_defaults():
-    reach = make("dvrl_marl/PSMReach-v0").unwrapped
-    pick = make("dvrl_marl/PSMPick-v0").unwrapped
+    reach = make("dvrl_marl/PSMReach-v1").unwrapped
+    pick = make("dvrl_marl/PSMPick-v1").unwrapped
     assert reach.workspace_range == 0.05 and pick.workspace_range == 0.025
     assert reach.step_size == pick.step_size == 0.001
     assert reach.distance_threshold == pick.distance_threshold == 0.003
     assert reach.dt == pick.dt == 0.02
     np.testing.assert_allclose(reach.workspace_centre, [0, 0, -0.11])
     np.testing.assert_allclose(pick.workspace_centre, [0, 0, -0.10])
-    assert make("dvrl_marl/PSMReach-v0").spec.max_episode_steps == 100
+    assert make("dvrl_marl/PSMReach-v1").spec.max_episode_steps == 100
 
 
 @pytest.mark.parametrize("mode", ["rgb_array", "depth_array"])
-@pytest.mark.parametrize("env_id", ["dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"])
+@pytest.mark.parametrize("env_id", ["dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"])
 def test_rendering_from_the_endoscope(env_id, mode):
     env = make(env_id, render_mode=mode, width=96, height=64)
     env.reset(seed=0)
@@ -346,13 +346,13 @@ def test_rendering_from_the_endoscope(env_id, mode):
 def test_vector_envs_and_sb3_her_smoke():
     from stable_baselines3 import SAC, HerReplayBuffer
 
-    vec = gym.make_vec("dvrl_marl/PSMReach-v0", num_envs=3, vectorization_mode="sync")
+    vec = gym.make_vec("dvrl_marl/PSMReach-v1", num_envs=3, vectorization_mode="sync")
     obs, _ = vec.reset(seed=0)
     assert obs["observation"].shape == (3, 3)
     obs, rewards, *_ = vec.step(vec.action_space.sample())
     assert rewards.shape == (3,)
     vec.close()
-    for env_id in ("dvrl_marl/PSMReach-v0", "dvrl_marl/PSMPick-v0"):
+    for env_id in ("dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPick-v1"):
         model = SAC(
             "MultiInputPolicy", make(env_id), replay_buffer_class=HerReplayBuffer,
             replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},

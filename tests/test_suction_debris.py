@@ -12,7 +12,7 @@ from pettingzoo.test.state_test import test_state_space as pz_state_space_test
 
 import dvrl_marl  # noqa: F401  (PettingZoo registration)
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.teleop import KeyboardDevice, Recorder, ReplayDevice, load_demonstration
 
 
@@ -29,22 +29,22 @@ def scripted_episode(env, seed):
 
 
 def test_pettingzoo_parallel_api():
-    parallel_api_test(suction_debris_v0.parallel_env(), num_cycles=300)
+    parallel_api_test(suction_debris_v8.parallel_env(), num_cycles=300)
 
 
 def test_pettingzoo_aec_api_and_state():
-    api_test(suction_debris_v0.env(), num_cycles=300)
-    env = suction_debris_v0.env()
+    api_test(suction_debris_v8.env(), num_cycles=300)
+    env = suction_debris_v8.env()
     pz_state_space_test(env)
     pz_state_test(env, num_cycles=50)
 
 
 def test_max_cycles_truncates():
-    max_cycles_test(suction_debris_v0)
+    max_cycles_test(suction_debris_v8)
 
 
 def test_rgb_rendering_from_the_endoscope():
-    env = suction_debris_v0.env(render_mode="rgb_array", width=96, height=72)
+    env = suction_debris_v8.env(render_mode="rgb_array", width=96, height=72)
     for frame in collect_render_results(env):
         assert frame.shape == (72, 96, 3) and frame.dtype == np.uint8 and frame.std() > 1
     env.close()
@@ -54,22 +54,22 @@ def test_pettingzoo_render_test_with_a_display(x_display, monkeypatch):
     from pettingzoo.test import render_test
 
     monkeypatch.setenv("DISPLAY", x_display)
-    render_test(suction_debris_v0.env)
+    render_test(suction_debris_v8.env)
 
 
 @pytest.mark.skipif(not hasattr(pettingzoo, "make"), reason="this PettingZoo release has no registry (make)")
 def test_registered_with_pettingzoo():
-    env = pettingzoo.make("parallel", "dvrl_marl/suction_debris-v0")
+    env = pettingzoo.make("parallel", "dvrl_marl/suction_debris-v8")
     assert env.possible_agents == ["suction", "grasper"]
-    aec = pettingzoo.make("aec", "dvrl_marl/suction_debris-v0", surgeon="scripted")
+    aec = pettingzoo.make("aec", "dvrl_marl/suction_debris-v8", surgeon="scripted")
     assert aec.possible_agents == ["suction"]
 
 
 def test_metadata_and_spaces_are_stable():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     for key in ("name", "render_modes", "render_fps", "is_parallelizable"):
         assert key in env.metadata
-    assert env.metadata["name"] == "suction_debris_v0"
+    assert env.metadata["name"] == "suction_debris_v8"
     for agent in env.possible_agents:
         assert env.observation_space(agent) is env.observation_space(agent)
         assert env.action_space(agent) is env.action_space(agent)
@@ -84,7 +84,7 @@ def test_same_seed_and_actions_give_identical_runs_for_500_steps():
     actions = rng.uniform(-1.2, 1.2, size=(500, 2, 4))
     runs = []
     for _ in range(2):
-        env = suction_debris_v0.parallel_env(reward_type="dense")
+        env = suction_debris_v8.parallel_env(reward_type="dense")
         observations, infos = env.reset(seed=42)
         record = [(observations, infos)]
         for step_actions in actions:
@@ -98,13 +98,13 @@ def test_same_seed_and_actions_give_identical_runs_for_500_steps():
     for a, b in zip(*runs):
         assert repr(a) == repr(b)
     # A different seed gives a different scene.
-    other = suction_debris_v0.parallel_env()
+    other = suction_debris_v8.parallel_env()
     first = other.reset(seed=42)[0]["grasper"]
     assert not np.array_equal(first, other.reset(seed=43)[0]["grasper"])
 
 
 def test_scripted_team_completes_at_least_95_percent_within_max_cycles():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     outcomes = [scripted_episode(env, seed) for seed in range(20)]
     successes = sum(info["is_success"] for _, info in outcomes)
     assert successes >= 19, outcomes
@@ -112,7 +112,7 @@ def test_scripted_team_completes_at_least_95_percent_within_max_cycles():
 
 
 def test_blood_is_conserved_and_never_negative():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     observations, infos = env.reset(seed=1)
     initial = env.blood.initial_ml
@@ -134,7 +134,7 @@ def test_blood_is_conserved_and_never_negative():
 
 
 def test_suction_needs_the_valve_and_the_tip_under_the_surface():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     env.reset(seed=0)
     cavity = env.phantom.cavities[0]
     arm = env.arms["suction"]
@@ -155,7 +155,7 @@ def test_suction_needs_the_valve_and_the_tip_under_the_surface():
 
 
 def test_hidden_debris_is_absent_from_observations_but_present_in_state():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     observations, _ = env.reset(seed=3)
     layout = env.observation_layout
     debris_obs = observations["grasper"][layout["debris"]].reshape(-1, 6)
@@ -171,7 +171,7 @@ def test_hidden_debris_is_absent_from_observations_but_present_in_state():
 
 
 def test_debris_is_revealed_when_the_surface_falls_below_its_top():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=0)
     seen = set()
@@ -188,10 +188,10 @@ def test_debris_is_revealed_when_the_surface_falls_below_its_top():
 
 
 def test_binding_the_surgeon_seat_changes_possible_agents():
-    assert suction_debris_v0.parallel_env().possible_agents == ["suction", "grasper"]
-    assert suction_debris_v0.parallel_env(surgeon="scripted").possible_agents == ["suction"]
-    assert suction_debris_v0.parallel_env(surgeon="scripted", surgeon_seat="suction").possible_agents == ["grasper"]
-    env = suction_debris_v0.parallel_env(surgeon="scripted")
+    assert suction_debris_v8.parallel_env().possible_agents == ["suction", "grasper"]
+    assert suction_debris_v8.parallel_env(surgeon="scripted").possible_agents == ["suction"]
+    assert suction_debris_v8.parallel_env(surgeon="scripted", surgeon_seat="suction").possible_agents == ["grasper"]
+    env = suction_debris_v8.parallel_env(surgeon="scripted")
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=2)
     while env.agents:
@@ -199,9 +199,9 @@ def test_binding_the_surgeon_seat_changes_possible_agents():
         assert set(rewards) == {"suction"}
     assert infos["suction"]["is_success"]
     with pytest.raises(ValueError, match="surgeon_seat"):
-        suction_debris_v0.parallel_env(surgeon="scripted", surgeon_seat="camera")
+        suction_debris_v8.parallel_env(surgeon="scripted", surgeon_seat="camera")
     with pytest.raises(ValueError, match="surgeon"):
-        suction_debris_v0.parallel_env(surgeon="expert")
+        suction_debris_v8.parallel_env(surgeon="expert")
 
 
 def test_a_learned_callable_surgeon_drives_its_seat():
@@ -211,7 +211,7 @@ def test_a_learned_callable_surgeon_drives_its_seat():
         calls.append(observation.copy())
         return np.array([0.0, 0.0, 1.0, 1.0])
 
-    env = suction_debris_v0.parallel_env(surgeon=policy)
+    env = suction_debris_v8.parallel_env(surgeon=policy)
     env.reset(seed=0)
     z0 = env.arms["grasper"].tip[2]
     env.step({"suction": np.zeros(4)})
@@ -243,7 +243,7 @@ class _BrokenDevice:
 
 @pytest.mark.parametrize("failure", ["raise", "nan", "hang"])
 def test_a_failing_device_holds_the_seat_and_the_episode_goes_on(failure):
-    env = suction_debris_v0.parallel_env(surgeon=_BrokenDevice(failure), teleop_timeout=0.05)
+    env = suction_debris_v8.parallel_env(surgeon=_BrokenDevice(failure), teleop_timeout=0.05)
     env.reset(seed=0)
     grasper = env.arms["grasper"]
     tip, jaw = list(grasper.tip), grasper.jaw
@@ -257,7 +257,7 @@ def test_a_failing_device_holds_the_seat_and_the_episode_goes_on(failure):
 def test_keyboard_device_moves_the_seat_and_replay_and_recorder_round_trip(tmp_path):
     keyboard = KeyboardDevice(repeat=3)
     recorder = Recorder(keyboard, seat="grasper", note="test")
-    env = suction_debris_v0.parallel_env(surgeon=recorder)
+    env = suction_debris_v8.parallel_env(surgeon=recorder)
     env.reset(seed=0)
     start = np.array(env.arms["grasper"].tip)
     keyboard.key_callback(68)  # D: +x for 3 steps
@@ -271,7 +271,7 @@ def test_keyboard_device_moves_the_seat_and_replay_and_recorder_round_trip(tmp_p
     assert observations.shape == (5, env.observation_space("grasper").shape[0]) and actions.shape == (5, 4)
     assert metadata["seat"] == "grasper" and metadata["note"] == "test"
     # Replaying the recording reproduces the motion.
-    replay_env = suction_debris_v0.parallel_env(surgeon=ReplayDevice(path))
+    replay_env = suction_debris_v8.parallel_env(surgeon=ReplayDevice(path))
     replay_env.reset(seed=0)
     for _ in range(7):  # two steps past the end: the replay holds still
         _, _, _, _, infos = replay_env.step({"suction": np.zeros(4)})
@@ -291,14 +291,14 @@ def test_keyboard_device_moves_the_seat_and_replay_and_recorder_round_trip(tmp_p
     ],
 )
 def test_bad_actions_raise_naming_the_agent(actions, message):
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     env.reset(seed=0)
     with pytest.raises(ValueError, match=message):
         env.step(actions)
 
 
 def test_out_of_range_actions_are_clipped_and_invalid_arguments_raise():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     env.reset(seed=0)
     before = np.array(env.arms["suction"].tip)
     env.step({"suction": np.array([50.0, 0.0, 0.0, 0.0]), "grasper": np.zeros(4)})
@@ -307,9 +307,9 @@ def test_out_of_range_actions_are_clipped_and_invalid_arguments_raise():
                             ({"blood_ml": [50.0, 1.0]}, "capacity"), ({"render_mode": "ascii"}, "render_mode"),
                             ({"suction_rate_ml_s": -1.0}, "suction_rate_ml_s")]:
         with pytest.raises(ValueError, match=message):
-            suction_debris_v0.parallel_env(**kwargs)
+            suction_debris_v8.parallel_env(**kwargs)
     with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):  # a bad name, not a bad value
-        suction_debris_v0.parallel_env(colour="red")
+        suction_debris_v8.parallel_env(colour="red")
     with pytest.warns(UserWarning, match="reset option"):
         env.reset(options={"blood": 3})
     with pytest.raises(ValueError, match="capacity"):
@@ -319,7 +319,7 @@ def test_out_of_range_actions_are_clipped_and_invalid_arguments_raise():
 
 
 def test_tips_never_enter_the_phantom_and_instruments_never_pass_through_each_other():
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     rng = np.random.default_rng(7)
     env.reset(seed=7)
     contacts = 0
@@ -343,18 +343,18 @@ def test_tips_never_enter_the_phantom_and_instruments_never_pass_through_each_ot
 
 
 def test_more_debris_than_the_scene_file_holds():
-    env = suction_debris_v0.parallel_env(debris_count=5)
+    env = suction_debris_v8.parallel_env(debris_count=5)
     observations, _ = env.reset(seed=0)
     assert observations["grasper"].shape == env.observation_space("grasper").shape
     assert len(env.debris) == 5
     outcome = scripted_episode(env, 0)[1]
     assert outcome["debris_delivered"] == 5 and outcome["is_success"]
-    fewer = suction_debris_v0.parallel_env(debris_count=1)
+    fewer = suction_debris_v8.parallel_env(debris_count=1)
     assert scripted_episode(fewer, 0)[1]["is_success"]
 
 
 def test_dense_rewards_reward_progress():
-    env = suction_debris_v0.parallel_env(reward_type="dense")
+    env = suction_debris_v8.parallel_env(reward_type="dense")
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     observations, _ = env.reset(seed=4)
     total = {"suction": 0.0, "grasper": 0.0}
@@ -378,7 +378,7 @@ _action = st.lists(st.floats(-2.0, 2.0, allow_nan=False), min_size=4, max_size=4
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**16), actions=st.lists(st.tuples(_action, _action), min_size=1, max_size=120))
 def test_arbitrary_actions_keep_tips_in_the_box_above_surfaces_and_joints_in_limits(seed, actions):
-    env = suction_debris_v0.parallel_env()
+    env = suction_debris_v8.parallel_env()
     env.reset(seed=seed)
     low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
     for suction_action, grasper_action in actions:

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from dvrl_marl.envs import suction_debris_v0
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
 
@@ -23,7 +23,7 @@ def test_scripted_team_wins_on_held_out_seeds():
 def test_batched_evaluation_matches_single_env_episodes():
     """World j of the evaluation is the single env seeded EVAL_SEED + j, played by the same seats."""
     result = teams.evaluate_team_batched(teams.seats("scripted", "scripted"), episodes=3, max_cycles=300)
-    env = suction_debris_v0.parallel_env(max_cycles=300)
+    env = suction_debris_v8.parallel_env(max_cycles=300)
     team = teams.seats("scripted", "scripted")
     for j in range(3):
         observations, _ = env.reset(seed=teams.EVAL_SEED + j)

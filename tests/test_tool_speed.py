@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v3
+from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,7 +28,7 @@ def _tool_noise():
 @settings(max_examples=25, deadline=None)
 @given(speed=st.floats(0.01, 1.0), seed=st.integers(0, 2**16))
 def test_the_tool_moves_at_most_its_speed_towards_the_command(speed, seed):
-    env = suction_debris_v3.batched_env(num_envs=4, tool_speed=speed, autoreset_mode="disabled")
+    env = suction_debris_v8.batched_env(num_envs=4, tool_speed=speed, autoreset_mode="disabled")
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     core = env.core
@@ -53,7 +53,7 @@ def test_the_tool_moves_at_most_its_speed_towards_the_command(speed, seed):
 
 def test_a_steady_command_opens_the_valve_and_closes_the_jaw_after_a_stroke():
     speed = 0.05
-    env = suction_debris_v3.parallel_env(tool_speed=speed)
+    env = suction_debris_v8.parallel_env(tool_speed=speed)
     env.reset(seed=0)
     command = {"suction": np.array([0.0, 0.0, 0.0, 1.0]), "grasper": np.array([0.0, 0.0, 0.0, -1.0])}
     opened_after = closed_after = None
@@ -66,7 +66,7 @@ def test_a_steady_command_opens_the_valve_and_closes_the_jaw_after_a_stroke():
     # a half stroke to open (it draws beyond it), 0.75 of one to close past the grasp threshold (to rounding)
     assert abs(opened_after - 0.5 / speed) <= 1
     assert abs(closed_after - (1.0 - env.params.grasp_threshold) / speed) <= 1
-    instant = suction_debris_v3.parallel_env()
+    instant = suction_debris_v8.parallel_env()
     instant.reset(seed=0)
     instant.step(command)
     assert instant.valve_open and instant.arms["grasper"].jaw == 0.0  # the paper's: at once
@@ -75,11 +75,11 @@ def test_a_steady_command_opens_the_valve_and_closes_the_jaw_after_a_stroke():
 def test_single_and_batched_agree_with_a_slow_tool():
     """Random commands (the tool's half-strokes included), easy and default starts, guided reward and features:
     the batched worlds are the single envs bit for bit."""
-    kwargs = dict(task="suction_debris_v3", tool_speed=0.07, reward_type="guided",
+    kwargs = dict(task="suction_debris_v8", tool_speed=0.07, reward_type="guided",
                   observation_features="suction_debris_cleared_pins_zoom")
-    batched = suction_debris_v0.batched_env(num_envs=3, **kwargs)
+    batched = suction_debris_v8.batched_env(num_envs=3, **kwargs)
     batched.reset(seed=5, options={"level": [0.0, 0.5, 1.0]})
-    singles = [suction_debris_v0.parallel_env(**kwargs) for _ in range(3)]
+    singles = [suction_debris_v8.parallel_env(**kwargs) for _ in range(3)]
     for index, single in enumerate(singles):
         single.reset(seed=5 + index, options={"level": [0.0, 0.5, 1.0][index]})
     rng = np.random.default_rng(1)
@@ -98,7 +98,7 @@ def test_single_and_batched_agree_with_a_slow_tool():
 def test_the_api_checkers_pass_with_a_slow_tool():
     from pettingzoo.test import parallel_api_test
 
-    parallel_api_test(suction_debris_v3.parallel_env(tool_speed=0.1), num_cycles=300)
+    parallel_api_test(suction_debris_v8.parallel_env(tool_speed=0.1), num_cycles=300)
 
 
 @pytest.mark.parametrize("value, message", [
@@ -106,9 +106,9 @@ def test_the_api_checkers_pass_with_a_slow_tool():
 ])
 def test_bad_tool_speeds_are_refused_by_name(value, message):
     with pytest.raises(ValueError, match=message):
-        suction_debris_v3.parallel_env(tool_speed=value)
+        suction_debris_v8.parallel_env(tool_speed=value)
     with pytest.raises(ValueError, match=message):
-        suction_debris_v3.batched_env(num_envs=2, tool_speed=value)
+        suction_debris_v8.batched_env(num_envs=2, tool_speed=value)
 
 
 def test_a_slow_tool_averages_out_the_noise_of_a_gaussian_tool_dimension():
@@ -116,8 +116,8 @@ def test_a_slow_tool_averages_out_the_noise_of_a_gaussian_tool_dimension():
     with the paper's instant jaw one sample past the threshold drops the pin; at 0.05 of a stroke per step the
     noise averages out (benchmarks/tool_noise.py prints the whole sweep)."""
     tool_noise = _tool_noise()
-    instant = tool_noise.success_rate("suction_debris_v3", 1.0, 1.0, worlds=16)
-    slow = tool_noise.success_rate("suction_debris_v3", 0.05, 1.0, worlds=16)
+    instant = tool_noise.success_rate("suction_debris_v8", 1.0, 1.0, worlds=16)
+    slow = tool_noise.success_rate("suction_debris_v8", 0.05, 1.0, worlds=16)
     assert slow >= 0.9 and instant <= 0.25, (instant, slow)
 
 
@@ -128,12 +128,12 @@ def test_every_form_takes_the_option():
 
     import dvrl_marl  # noqa: F401  (registers the environments)
 
-    aec = suction_debris_v3.env(tool_speed=0.1)
+    aec = suction_debris_v8.env(tool_speed=0.1)
     aec.reset(seed=0)
     for agent in aec.agent_iter(2):  # one step of each agent: the cycle's step
         aec.step(np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32))
     assert aec.unwrapped.arms["grasper"].jaw == pytest.approx(0.9)
-    seat = gym.make("dvrl_marl/SurgeonSeat-v2", tool_speed=0.1)
+    seat = gym.make("dvrl_marl/SurgeonSeat-v8", tool_speed=0.1)
     seat.reset(seed=0)
     scene = seat.unwrapped.scene
     if seat.unwrapped.seat == "grasper":
@@ -149,7 +149,7 @@ def test_every_form_takes_the_option():
 
         from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
-        env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, task="suction_debris_v3", tool_speed=0.1)
+        env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, task="suction_debris_v8", tool_speed=0.1)
         td = env.reset()
         td["agents", "action"] = torch.tensor([[[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]]] * 2)
         env.step(td)
@@ -157,7 +157,7 @@ def test_every_form_takes_the_option():
     if importlib.util.find_spec("supersuit") is not None:
         from dvrl_marl.integrations.sb3 import make_collaborative_vec_env
 
-        venv = make_collaborative_vec_env(n_envs=1, seed=0, task="suction_debris_v3", tool_speed=0.1)
+        venv = make_collaborative_vec_env(n_envs=1, seed=0, task="suction_debris_v8", tool_speed=0.1)
         venv.reset()
         observations, *_ = venv.step(np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]], dtype=np.float32))
         venv.close()

@@ -40,7 +40,7 @@ def test_bc_gradient_pulls_the_actor_towards_the_demonstrations():
 
     from dvrl_marl.training import DDPGBC
 
-    env = gym.make("dvrl_marl/PSMReach-v0")
+    env = gym.make("dvrl_marl/PSMReach-v1")
     model = DDPGBC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, learning_starts=100, batch_size=16,
                    buffer_size=5000,
                    bc_weight=1.0, demo_batch_size=8, action_l2=0.0, policy_kwargs={"net_arch": [16]}, seed=0,
@@ -61,7 +61,7 @@ def test_random_action_probability_replaces_exploration_steps_with_uniform_actio
     from dvrl_marl.training import DDPGBC
 
     def sampled_actions(probability):
-        env = gym.make("dvrl_marl/PSMReach-v0")
+        env = gym.make("dvrl_marl/PSMReach-v1")
         model = DDPGBC("MultiInputPolicy", env, learning_starts=0, buffer_size=100, bc_weight=0.0,
                        policy_kwargs={"net_arch": [8]}, seed=3, random_action_probability=probability)
         model._last_obs = {k: v[None] for k, v in env.reset(seed=0)[0].items()}
@@ -75,7 +75,7 @@ def test_random_action_probability_replaces_exploration_steps_with_uniform_actio
     assert 0.2 < replaced.mean() < 0.4  # about 30 % uniform random actions
     assert np.all(np.abs(mixed) <= 1.0) and mixed[replaced].std(axis=0).min() > 0.4  # uniform on [-1, 1] has 0.58
     with pytest.raises(ValueError, match="random_action_probability"):
-        DDPGBC("MultiInputPolicy", gym.make("dvrl_marl/PSMReach-v0"), random_action_probability=1.5)
+        DDPGBC("MultiInputPolicy", gym.make("dvrl_marl/PSMReach-v1"), random_action_probability=1.5)
 
 
 def _tiny(config):
@@ -133,7 +133,7 @@ def test_resume_continues_from_the_checkpoint(tmp_path):
 
 
 def test_demonstrations_file_round_trip(tmp_path):
-    data = generate_demonstrations("dvrl_marl/PSMPick-v0", episodes=3, seed=0)
+    data = generate_demonstrations("dvrl_marl/PSMPick-v1", episodes=3, seed=0)
     path = save_demonstrations(data, tmp_path / "demos.npz")
     loaded = load_demonstrations(path)
     assert loaded["metadata"]["episodes"] == 3 and set(np.unique(loaded["episode"])) == {0, 1, 2}
@@ -148,11 +148,11 @@ def test_demonstrations_file_round_trip(tmp_path):
 def test_exported_numpy_policy_matches_the_torch_policy(algorithm, tmp_path):
     from stable_baselines3 import DDPG, SAC, HerReplayBuffer
 
-    env = gym.make("dvrl_marl/PSMPick-v0")
+    env = gym.make("dvrl_marl/PSMPick-v1")
     cls = {"ddpg": DDPG, "sac": SAC}[algorithm]
     model = cls("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs={"net_arch": [32, 24]},
                 buffer_size=1000, seed=1)
-    export_policy(model, tmp_path / "exported", name="test", env_id="dvrl_marl/PSMPick-v0")
+    export_policy(model, tmp_path / "exported", name="test", env_id="dvrl_marl/PSMPick-v1")
     policy = policies.load(tmp_path / "exported")
     rng = np.random.default_rng(0)
     batch = {k: rng.uniform(-1, 1, (64,) + s.shape) for k, s in env.observation_space.spaces.items()}

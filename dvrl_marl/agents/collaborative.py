@@ -1,4 +1,4 @@
-"""Scripted experts for the collaborative scene (suction_debris_v8, v1): the suction arm and the surgeon (LND).
+"""Scripted experts for the collaborative scene (suction_debris_v8): the suction arm and the surgeon (LND).
 
 They read only their agent's observation plus the scene's fixed layout (:meth:`SuctionDebrisEnv.layout`), so they
 can sit in the surgeon seat or act as an agent's policy. Their plan keeps the instruments apart: the suction clears

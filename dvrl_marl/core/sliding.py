@@ -1,49 +1,44 @@
-"""How a blocked move resolves in ``suction_debris_v8`` (``blocked_moves = "slide"``): it slides, it does not stop.
+"""How a blocked move resolves (``blocked_moves`` of the task file; ``"settle"`` in ``suction_debris_v8``): it
+slides, it does not stop.
 
-Up to v2 a move that a cavity's wall, the joint limits or the other instrument blocks is stopped: the tip keeps its
-horizontal position at a wall, stays where it was when the instruments would intersect, and goes as far as it can
-along the move at a joint limit. A policy whose mean action pushes into such a blocker then sees the same observation
-again and sends the same action again, for the rest of the episode (measured, issue 37: 87 of 89 failed test
-episodes of a MAPPO team acting by its mean action ended with the suction motionless for 100+ steps, against the
-wall, the other instrument or its joint limits; its exploration noise had shaken it loose in training, which is why
-it succeeded 0.92 of its training episodes and 0.11 of the test ones). No robot adds exploration noise to its
-commands, so the scene resolves contacts as a frictionless constraint does (a forbidden-region virtual fixture):
+A move that a cavity's wall, the joint limits or the other instrument blocks could simply stop (``"stop"``, the
+simple rule, kept as a keyword): the tip keeps its horizontal position at a wall, stays where it was when the
+instruments would intersect, and goes as far as it can along the move at a joint limit. A policy whose mean action
+pushes into such a blocker then sees the same observation again and sends the same action again, for the rest of the
+episode (measured: 87 of 89 failed test episodes of a MAPPO team acting by its mean action ended with the suction
+motionless for 100+ steps against a blocker; its exploration noise had shaken it loose in training). No robot adds
+exploration noise to its commands, so the scene resolves contacts as a frictionless constraint does (a
+forbidden-region virtual fixture). The rules, each adding to the ones before it:
 
-- **A cavity's wall** is a sphere (the bowl, :class:`~dvrl_marl.core.collaborative.Cavities`): the move's
+- ``slide``. **A cavity's wall** is a sphere (the bowl, :class:`~dvrl_marl.core.collaborative.Cavities`): the move's
   component into it is taken away and the rest slides along it (``d - min(d.n, 0) n``, ``n`` the wall's normal at
   the tip, toward the sphere's centre). Its upward part lifts a tip pushed outward over the rim, as a tool tip
   pressed sideways against a bowl rides up its side. The phantom's vertical sides stay walls (a horizontal push
-  into a vertical wall has no component along it).
-- **The other instrument or the joint limits** (:func:`resolve_blocked`), when the move is refused, or cut short
-  with no progress: first the move less its component into the other instrument (the normal where the two come
-  closest), then that step lifted off the contact by a tenth of its length (a step along a round shaft enters it a
-  little), then the move's components given up one at a time, the smallest first, then all but one, the largest
-  first (:func:`fallback_moves`). A candidate beyond the joint limits goes where the outer joints (yaw, pitch,
-  insertion) clamped to their limits put the wrist (the arm slides along its limit). The first candidate that keeps
-  the tip in the box, above the surface, within the joint limits and clear of the other instrument is made. Only if
-  none does does the tip stay.
-
-``suction_debris_v8`` (``blocked_moves = "climb"``) adds one rule to these (``climb``): **a descending move that
-the surface and the wall slide leave (almost) nothing of gives up its descent**, and its level part is made as any
-move (slid along the wall). A tip pressed out of a cavity and down against the bowl, along the wall's normal, made
-no headway under the frictionless rule (measured, issue 37: the commonest end of the episodes the learnt teams failed
-by their mean action on v4, for both arms, heading for the other cavity); with it the tip rides up the wall the way
-it was heading and over the rim. A move that makes headway is unchanged.
-
-``suction_debris_v8`` (``blocked_moves = "climb_ahead"``, ``ahead``) counts a descent's headway, for a move with a
-level part, as what its made part advances the way that level part heads, and gives the descent up only where the
-level part gets further that way. Pressed almost along the wall's normal, v5's tip climbed one step and then slipped
-back down the bowl on the rest of the move (made, though away from where it heads), a cycle in place (measured, issue
-37: the commonest end of the episodes learnt BenchMARL teams failed by their mean action on v5); with it the tip keeps
-climbing the way it heads.
-
-``suction_debris_v8`` (``blocked_moves = "settle"``, ``settle``, the suction's moves only) adds one rule to v6's:
-**a descending move that still makes less than a tenth of its length slides down the bowl** (over a cavity: its
-component into the bowl taken away, :func:`wall_slide`, on the gentle slopes as on the steep walls). On a slope a tip
-may climb by a step, the rules above keep a move's horizontal part and lift the tip onto the surface, so a command
-straight down was made as nothing: a suction pressed down a few millimetres above the last of a cavity's blood, above
-the pool, stayed there (measured, issue 37: the commonest end of the episodes a learnt BenchMARL team failed by its
-mean action on v6). A grasper pressing down onto a pin must stay over it, so its moves are v6's.
+  into a vertical wall has no component along it). **The other instrument or the joint limits**
+  (:func:`resolve_blocked`), when the move is refused, or cut short with no progress: first the move less its
+  component into the other instrument (the normal where the two come closest), then that step lifted off the contact
+  by a tenth of its length (a step along a round shaft enters it a little), then the move's components given up one
+  at a time, the smallest first, then all but one, the largest first (:func:`fallback_moves`). A candidate beyond the
+  joint limits goes where the outer joints (yaw, pitch, insertion) clamped to their limits put the wrist (the arm
+  slides along its limit). The first candidate that keeps the tip in the box, above the surface, within the joint
+  limits and clear of the other instrument is made. Only if none does does the tip stay.
+- ``climb``: **a descending move that the surface and the wall slide leave (almost) nothing of gives up its
+  descent**, and its level part is made as any move (slid along the wall). A tip pressed out of a cavity and down
+  against the bowl, along the wall's normal, made no headway under the frictionless rule (measured: the commonest end
+  of the episodes learnt teams failed by their mean action, both arms heading for the other cavity); with it the tip
+  rides up the wall the way it was heading and over the rim. A move that makes headway is unchanged.
+- ``climb_ahead`` (``ahead``): a descent's headway, for a move with a level part, is what its made part advances the
+  way that level part heads, and the descent is given up only where the level part gets further that way. Pressed
+  almost along the wall's normal, a tip otherwise climbed one step and then slipped back down the bowl on the rest of
+  the move (made, though away from where it heads), a cycle in place (measured: the commonest end of the episodes
+  learnt BenchMARL teams failed by their mean action under ``climb``); with it the tip keeps climbing the way it heads.
+- ``settle`` (the suction's moves only): **a descending move that still makes less than a tenth of its length slides
+  down the bowl** (over a cavity: its component into the bowl taken away, :func:`wall_slide`, on the gentle slopes as
+  on the steep walls). On a slope a tip may climb by a step, the rules above keep a move's horizontal part and lift
+  the tip onto the surface, so a command straight down was made as nothing: a suction pressed down a few millimetres
+  above the last of a cavity's blood, above the pool, stayed there (measured: the commonest end of the episodes a
+  learnt BenchMARL team failed by its mean action under ``climb_ahead``). A grasper pressing down onto a pin must
+  stay over it, so its moves follow ``climb_ahead``.
 
 Every rule here is a function of the tip's position and the command: deterministic, the same for one world and for
 N (the single env calls these functions on one row).

@@ -8,7 +8,7 @@ noise on the tool then averages out over the steps of a stroke instead of openin
 fails without noise, delivered nothing with it; ``benchmarks/tool_noise.py``), and the mean action and the
 sampled one drive the tool to the same place.
 
-Two more options (issue 37; off by default, the paper's behaviour) make the grasp a decision a Gaussian policy can
+Two more options (off by default, the paper's behaviour) make the grasp a decision a Gaussian policy can
 take, as the valve already is: ``jaw_command = "switch"`` sets the jaw's target by the command's sign (closed when it is
 not positive, open when it is: the valve's rule) instead of the paper's proportional ``j = (phi + 1) / 2``, and
 ``hold_until_handoff`` (applied by the scenes, which know what is held) keeps a held pin's jaw shut, whatever the

@@ -3,7 +3,7 @@
 Potential-based (F = Phi(s') - Phi(s), Ng et al. 1999, the form of the env's own dense shaping): the
 optimal policy is unchanged and success keeps the paper's sparse rule. These terms are what made both arms of the
 collaborative task learnable from scratch (``baselines/README.md``, "Both arms learnt from scratch"); they lived in
-the MAPPO trainer until issue 37 moved them here, so that any library (BenchMARL, RLlib, SB3, your own) gets them
+the MAPPO trainer until 0.1.0 moved them into the env, so that any library (BenchMARL, RLlib, SB3, your own) gets them
 as an env option:
 
 - :class:`GraspPathShaping` (the grasper): the way tip -> pin -> hand-off over the pins to collect, continuous
@@ -13,7 +13,7 @@ as an env option:
 - :class:`OverRims`: both measured around the phantom (a tip cannot pass through it).
 
 :class:`Guidance` holds the settings; its defaults are the configuration of record
-(``baselines/configs/suction_debris_mappo.toml`` before issue 37: both arms 1.00 on the test seeds, three seeds).
+(``baselines/configs/suction_debris_mappo.toml`` before both arms 1.00 on the test seeds, three seeds).
 :class:`GuidedReward` adds the terms of the agents that act in the env (a seat filled by a partner gets none).
 """
 

@@ -27,10 +27,9 @@ Sparse (``PSMPick-v1``): ``-1`` while ``rho * ||o~ - g~|| > delta`` (3 mm), else
 
 ## Starting State
 p_0 = p_c = (0, 0, -0.10) m, jaw open, the object on the table directly below the gripper, g uniform in the
-box the jaws cover (p_c +/- rho, rho = 2.5 cm, 10.2 mm lower in v1) at heights the object can reach (not below its
-resting height). In v1 p is the dVRK's measured_cp (as in the original code), so the jaws start 13.2 mm above the
-table and descend 10.2 mm to the object's centre; in v0 p is the jaw control point, 23.4 mm above the table
-(20.4 mm of descent). ``reset(options=...)``
+box the jaws cover (p_c +/- rho, rho = 2.5 cm, 10.2 mm below p's box) at heights the object can reach (not below
+its resting height). p is the dVRK's measured_cp (as in the original code), so the jaws start 13.2 mm above the
+table and descend 10.2 mm to the object's centre. ``reset(options=...)``
 accepts ``start``, ``goal`` and ``object`` positions in metres (base frame); an object above the table falls.
 
 ## Episode End
@@ -47,11 +46,10 @@ defaults in
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
 
 ## Version History
-- v1: p is the dVRK's measured_cp frame (see PSM Reach v1); the grasp rule still senses at the jaws. A released
-  object lands without sinking into the table (``scenes/pick_lnd_v1.xml``: at most 0.44 mm, where v0's sank up to
-  6.3 mm). Policy: ``pick-lnd``.
-- v0: initial release (MuJoCo re-creation of dVRL's PSM Pick); p is the jaw control point. Kept registered
-  unchanged.
+- v1: the current version: p is the dVRK's measured_cp frame (see PSM Reach); the grasp rule senses at the jaws. A
+  released object lands without sinking into the table (``scenes/pick_lnd_v1.xml``: at most 0.44 mm). Policy:
+  ``pick-lnd``. (v0, never released, observed the jaw control point and let the object sink up to 6.3 mm; commit
+  36a42a0 reproduces its records.)
 """
 
 from __future__ import annotations

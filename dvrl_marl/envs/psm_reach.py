@@ -5,8 +5,8 @@ A single Patient Side Manipulator holds an EndoWrist pointing down. The agent mo
 p in the PSM base (remote centre of motion) frame, towards a goal g. In ``PSMReach-v1`` p is the frame the dVRK
 itself reports and commands (``measured_cp`` / ``servo_cp``: the wrist-yaw frame origin, 10.2 mm behind the jaw
 control point), as in the original dVRL code whose p_c the task uses, so targets go to the robot unconverted
-(:mod:`dvrl_marl.frames`); in ``PSMReach-v1`` p is the tool point itself (jaw control point / tube tip). As in the paper the arm is kinematic: every
-step sets new joint values by inverse kinematics, the way the dVRK takes new set points at 50 Hz. The policy
+(:mod:`dvrl_marl.frames`); ``tip_frame="tool_point"`` makes p the tool point itself (jaw control point / tube tip).
+As in the paper the arm is kinematic: every step sets new joint values by inverse kinematics, the way the dVRK takes new set points at 50 Hz. The policy
 uses only the tip position, so it runs on any EndoWrist: ``tool="lnd"`` (Large Needle Driver) or
 ``tool="suction_irrigation"``.
 
@@ -30,16 +30,15 @@ Sparse (``PSMReach-v1``): ``-1`` while ``rho * ||p~ - g~|| > delta`` (delta = 3 
 
 ## Starting State
 p_0 and g uniform in the reachable workspace: the box p_c +/- rho (p_c = (0, 0, -0.11) m, rho = 5 cm) above the
-table (the tool point stays 3 mm above it: in v1 the start box's floor is 13.2 mm above the table top, and p = p_c
-puts the tool point 3.2 mm above it, as in the original code; in v0 p_c puts it 13.4 mm above) and within the
-joint limits. ``reset(options={"start": ..., "goal": ...})``
+table (the tool point stays 3 mm above it: the start box's floor is 13.2 mm above the table top, and p = p_c
+puts the tool point 3.2 mm above it, as in the original code) and within the joint limits. ``reset(options={"start": ..., "goal": ...})``
 sets either in metres (base frame).
 
 ## Episode End
 No termination (the paper); ``max_episode_steps=100`` truncates. ``info["is_success"]`` reports the goal.
 
 ## Arguments
-``tool``, ``reward_type`` ("sparse" | "dense"), ``tip_frame`` ("measured_cp" in v1, "tool_point" in v0),
+``tool``, ``reward_type`` ("sparse" | "dense"), ``tip_frame`` ("measured_cp", registered; or "tool_point"),
 ``render_mode`` ("rgb_array" | "depth_array" | "human"), and the
 paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`` (eta), ``distance_threshold``
 (delta), ``control_dt``, ``tip_clearance``; defaults in ``tasks/psm_reach.toml``.
@@ -49,10 +48,9 @@ paper's parameters ``workspace_centre``, ``workspace_range`` (rho), ``step_size`
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
 
 ## Version History
-- v1: p is the dVRK's measured_cp frame (wrist-yaw origin), not the jaw control point: the scene sits 10.2 mm
-  lower relative to p_c, as on the robot and in the original code. Policies: ``reach-lnd``,
-  ``reach-suction-irrigation``.
-- v0: initial release (MuJoCo re-creation of dVRL's PSM Reach); p is the tool point. Kept registered unchanged.
+- v1: the current version: p is the dVRK's measured_cp frame (wrist-yaw origin), as on the robot and in the
+  original code. Policies: ``reach-lnd``, ``reach-suction-irrigation``. (v0, never released, observed the tool point;
+  commit 36a42a0 reproduces its records.)
 """
 
 from __future__ import annotations

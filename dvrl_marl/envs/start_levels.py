@@ -19,7 +19,7 @@ draws each episode at level ``x``:
 Level 1 draws nothing: the default task is bit-for-bit what the env gives without the option. These are the
 start states of the curriculum that made the task learnable (``baselines/README.md``: half of the resets easy,
 the near-pin starts receding over the first 30 % of the run, then the easy share falling to nothing), which
-lived in the MAPPO trainer until issue 37 moved it here: a library's own curriculum drives it by setting the level
+lived in the MAPPO trainer until 0.1.0 moved it into the env: a library's own curriculum drives it by setting the level
 at each reset; the trainer's ``[curriculum]`` schedule is one such curriculum.
 
 The level's draws come from a stream of their own, seeded with the env's ``reset(seed=...)`` (world ``i`` of the
@@ -47,7 +47,7 @@ _LEVEL_STREAM = 0x5EED_1E7E
 @dataclass(frozen=True)
 class EasyEpisodes:
     """What an easy episode is; the values are those of the configuration of record
-    (``baselines/configs/suction_debris_mappo.toml``'s ``[curriculum]`` before issue 37)."""
+    (``baselines/configs/suction_debris_mappo.toml``'s ``[curriculum]`` before 0.1.0)."""
 
     #: each cavity of an easy episode starts empty this often (a pin shows only once the level is a few mm deep)
     empty_cavity_probability: float = 0.5

@@ -93,22 +93,17 @@ class SuctionDebrisParams:
     debris_count: int
     contact_penalty: float
     max_cycles: int
-    # Added with suction_debris_v8 (the defaults are v0's behaviour; tasks/suction_debris_v8.toml sets v1's):
-    pins_fall: bool = False  # a released pin falls under gravity (v0: it appears on the surface below at once)
-    suction_reach: float = 0.0  # flow falls linearly to none this far above the surface (m; 0: v0's on/off)
+    # The scene's rules; the task file sets the current ones, the defaults here are the simple rules each one
+    # replaces (docs/deviations.md: the keyword that gives each back).
+    pins_fall: bool = False  # a released pin falls under gravity (simple: it appears on the surface below at once)
+    suction_reach: float = 0.0  # flow falls linearly to none this far above the surface (m; 0: on/off at the surface)
     bleeding_ml_s: float = 0.0  # largest bleeding rate per cavity (0: no bleeding)
     bleeding_onset_s: float = 0.0  # each cavity starts bleeding at a seeded time in [0, this] (s)
-    # Added with suction_debris_v8 (defaults: v0's and v1's behaviour; tasks/suction_debris_v8.toml sets v2's):
-    deliver_at_grip: bool = False  # hand-off judged where the jaws hold the pin (v0/v1: at the pin's centre)
-    pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (v0/v1: table)
-    # Added with suction_debris_v8 (default: v0-v2's behaviour; tasks/suction_debris_v8.toml sets v3's):
-    blocked_moves: str = "stop"  # "slide": a blocked move slides along the wall / falls back to its free components
-    # ("climb", v5: as "slide", and a descent that makes no headway is given up; "climb_ahead", v6: headway counted
-    # along the move; "settle", v7: as "climb_ahead", and the suction's descent still without headway slides down the
-    # bowl)
-    # Added with suction_debris_v8 (default: v0-v3's behaviour; tasks/suction_debris_v8.toml sets v4's):
+    deliver_at_grip: bool = False  # hand-off judged where the jaws hold the pin (simple: at the pin's centre)
+    pins_stay_on_phantom: bool = False  # a pin released beyond the phantom lands on its nearest edge (simple: table)
+    blocked_moves: str = "stop"  # "slide", "climb", "climb_ahead", "settle": how a blocked move slides (core.sliding)
     held_pin_at_grip: bool = False  # a held pin is observed (and carried, in the dense reward) at the point judged
-    # An option of every version (issue 37; default: the paper's instant tool, every version's behaviour):
+    # Options that help learning (default: the paper's instant tool and jaw):
     tool_speed: float = 1.0  # fraction of the jaw's / valve's stroke per control step (dvrl_marl.core.tools)
     jaw_command: str = "proportional"  # "switch": the jaw's target by the command's sign, as the valve's
     hold_until_handoff: bool = False  # a held pin's jaw stays shut, whatever the command, until the hand-off
@@ -286,7 +281,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 raise ValueError(f"{self.name} needs upright, unrotated PSM bases in its scene")
         self.phantom = self._phantom_from_model()
         self.blood = BloodState(self.phantom, p.blood_ml, p.suction_rate_ml_s)
-        self._cavities = Cavities(self.phantom)  # the batched geometry v3's sliding reads (core.sliding)
+        self._cavities = Cavities(self.phantom)  # the batched geometry the sliding rules read (core.sliding)
         self._move_rules = {agent: sliding.MoveRules.of(self.params.blocked_moves, agent) for agent in AGENTS}
         self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.phantom.cavities))]
         self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
@@ -380,7 +375,7 @@ class SuctionDebrisEnv(ParallelEnv):
         self._episodes = 0  # episodes begun (reset() calls)
         self._held = None  # the held pin's index (cues and renders may come before the first reset)
         self._hold_offset = self._grip_offset = (0.0, 0.0, 0.0)
-        # Options that help learning (issue 37): start levels, the guided reward.
+        # Options that help learning: start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
         if easy_episode_steps is not None:
             from dvrl_marl.schemas import NonNegativeInt, validated
@@ -516,7 +511,7 @@ class SuctionDebrisEnv(ParallelEnv):
         for index in range(len(self._blood_geoms)):
             self._update_blood_visual(index)
         self._place_debris(rng)
-        #: (onset s, rate ml/s) of each cavity's bleeding this episode (v1's bleeding field; empty without it).
+        #: (onset s, rate ml/s) of each cavity's bleeding this episode (the bleeding field; empty without it).
         self.bleeding = self._draw_bleeding(rng)
         self._held = None
         self._hold_offset = (0.0, 0.0, 0.0)
@@ -917,8 +912,8 @@ class SuctionDebrisEnv(ParallelEnv):
         return clearance < _CONTACT_MARGIN
 
     def _slide(self, agent, delta: np.ndarray) -> bool:
-        """v3's move (:mod:`dvrl_marl.core.sliding`): a wall slid along, a blocked move resolved by
-        :func:`~dvrl_marl.core.sliding.resolve_blocked` (v5: a descent that makes no headway given up); the batched
+        """The sliding move (:mod:`dvrl_marl.core.sliding`): a wall slid along, a blocked move resolved by
+        :func:`~dvrl_marl.core.sliding.resolve_blocked` ("climb": a descent that makes no headway given up); the batched
         core's functions, on one row."""
         arm, p, descents = self.arms[agent], self.params, self._move_rules[agent].descents
         old = np.asarray(arm.tip_world(), dtype=np.float64)[None]
@@ -982,7 +977,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _draw_bleeding(self, rng) -> list[tuple[float, float]]:
         """(onset in s, rate in ml/s) per cavity for this episode: onset uniform in [0, bleeding_onset_s], rate
-        uniform in [0.5, 1] x bleeding_ml_s. Nothing is drawn without bleeding (v0's random stream is unchanged)."""
+        uniform in [0.5, 1] x bleeding_ml_s. Nothing is drawn without bleeding (the random stream is as without the field)."""
         p = self.params
         if p.bleeding_ml_s <= 0.0:
             return []
@@ -990,7 +985,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 for _ in self.phantom.cavities]
 
     def _bleed(self) -> None:
-        if not self.bleeding:  # v0, and v1 without a bleeding field: nothing to do on the step path
+        if not self.bleeding:  # no bleeding field: nothing to do on the step path
             return
         now, dt = self._step_count * self.params.control_dt, self.params.control_dt
         for index, (onset, rate) in enumerate(self.bleeding):
@@ -999,7 +994,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _fall(self) -> None:
         """Released pins fall under gravity onto the surface below them (never into it)."""
-        if not self.params.pins_fall:  # v0: released pins never fall
+        if not self.params.pins_fall:  # the simple rule: released pins never fall
             return
         dt = self.params.control_dt
         for index, pin in enumerate(self.debris):

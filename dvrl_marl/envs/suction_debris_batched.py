@@ -105,7 +105,7 @@ class SuctionDebrisBatchedEnv:
         self.state_space = self.template.state_space
         self.workspace_range = self.template.workspace_range
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
-        # Options that help learning (issue 37; validated by the template): features, start levels, guided reward.
+        # Options that help learning (validated by the template): features, start levels, guided reward.
         self.feature_spec = self.template.feature_spec
         self.observation_scaling = self.template.observation_scaling
         self.levels = np.full(self.num_envs, self.template.start_level)  # each world's start level

@@ -4,7 +4,7 @@
 from ray.rllib.algorithms.ppo import PPOConfig
 from dvrl_marl.integrations.rllib import register_suction_debris, policy_per_agent
 
-name = register_suction_debris()                    # "dvrl_marl/suction_debris-v1" in RLlib's registry
+name = register_suction_debris()                    # "dvrl_marl/suction_debris-v8" in RLlib's registry
 config = PPOConfig().environment(name).multi_agent(**policy_per_agent())
 ```
 
@@ -41,15 +41,16 @@ class RenderableParallelPettingZooEnv(ParallelPettingZooEnv):
         return self.par_env.render()
 
 
-def register_suction_debris(name: str = "dvrl_marl/suction_debris-v1", version: str = "v1") -> str:
-    """Register the collaborative env (``suction_debris_v8`` or ``_v1``) under ``name`` with RLlib; the env config
-    (``PPOConfig().environment(name, env_config={...})``) goes to ``parallel_env(**env_config)``."""
+def register_suction_debris(name: str = "dvrl_marl/suction_debris-v8") -> str:
+    """Register the collaborative env (``suction_debris_v8``) under ``name`` with RLlib; the env config
+    (``PPOConfig().environment(name, env_config={...})``, ``{"preset": "benchmark"}`` for the benchmark's setting)
+    goes to ``parallel_env(**env_config)``."""
     from ray.tune.registry import register_env
 
-    from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
+    from dvrl_marl.envs import suction_debris_v8
 
-    module = {"v0": suction_debris_v8, "v1": suction_debris_v8}[version]
-    register_env(name, lambda env_config: RenderableParallelPettingZooEnv(module.parallel_env(**dict(env_config))))
+    register_env(name, lambda env_config: RenderableParallelPettingZooEnv(
+        suction_debris_v8.parallel_env(**dict(env_config))))
     return name
 
 

@@ -14,7 +14,7 @@ TorchRL's modules take); the core computes in float64. Worlds are reset by Torch
 core's autoreset is off), each from its own seed stream. ``is_success`` ``(N, 1)`` says which worlds completed
 the task this step. Needs ``pip install torchrl``.
 
-The env's options that help learning (issue 37) pass through like any other keyword: ``reward_type="guided"``,
+The env's options that help learning pass through like any other keyword: ``reward_type="guided"``,
 ``observation_features=...``, ``start_level=...``. A curriculum sets the level of the next episodes with
 :meth:`SuctionDebrisTorchRLEnv.set_start_level`, or per reset with a ``"level"`` entry ``(N,)`` beside
 ``"_reset"``. ``group_map`` is ``{"agents": agent_names}`` (BenchMARL's grouping;

@@ -26,7 +26,6 @@ so a reach stage whose path would skim the phantom goes through waypoints: up to
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -162,16 +161,14 @@ def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
 
 class _StagePolicy:
     """A single-arm policy with the frame it was trained in (range rho, step eta, the box its states covered, and
-    which point of the tool its p is: ``tool_point_drop`` above the scene's tool point, 10.2 mm for v1 policies)."""
+    which point of the tool its p is: ``tool_point_drop`` above the scene's tool point, 10.2 mm for the measured_cp frame)."""
 
     def __init__(self, kind: str, name: str):
         task = load_task("psm_reach" if kind == "reach" else "psm_pick")
         policy = None if name == "scripted" else policies.load(name)
         default_id = "dvrl_marl/PSMReach-v1" if kind == "reach" else "dvrl_marl/PSMPick-v1"
         env_id = policy.spec.get("env_id", default_id) if policy is not None else default_id
-        with warnings.catch_warnings():  # a v0 policy needs its v0 env, whatever Gymnasium thinks of v0
-            warnings.simplefilter("ignore", DeprecationWarning)
-            env = gym.make(env_id).unwrapped
+        env = gym.make(env_id).unwrapped
         # The table cuts the training box (Reach: z~ in [-0.21, 1]); legs are centred on what the policy has seen.
         self.trained_box_centre = (env.normalise(env.tip_low) + env.normalise(env.tip_high)) / 2
         self.tool_point_drop = env.arm.tool_point_drop

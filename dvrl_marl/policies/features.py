@@ -78,7 +78,7 @@ def feature_count(name: str) -> int:
 
 
 def suction_debris_targets(observation, *, cavities: int, debris: int):
-    """``(..., obs_dim)`` -> ``(..., 14)``, for either agent of ``suction_debris_v8``/``v1``:
+    """``(..., obs_dim)`` -> ``(..., 14)``, for either agent of ``suction_debris_v8``:
 
     - ``to_pin`` (3): from the agent's tip to the nearest pin that is visible, not held and not delivered (zeros
       when there is none), and ``has_pin`` (1): whether there is one;

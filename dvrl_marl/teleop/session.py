@@ -40,7 +40,7 @@ LEARNED_PARTNERS = {"grasper": "marl-suction", "suction": "marl-grasper"}
 #: A person gets 2 minutes (6,000 steps at 50 Hz); the task's 1,500 steps (30 s) suit a script, not a newcomer.
 TELEOP_MAX_CYCLES = 6000
 DEFAULT_DATASET_ID = "dvrl_marl/surgeon-teleop-v1"
-#: The seat a person works: suction_debris_v8, whose hand-off is judged at the grip and whose dropped pins stay in view.
+#: The seat a person works: the current scene, whose hand-off is judged at the grip and whose dropped pins stay in view.
 TELEOP_ENV_ID = "dvrl_marl/SurgeonSeat-v8"
 _TOOLS = {"grasper": "Large Needle Driver (grasper)", "suction": "Suction & Irrigation"}
 _IDLE_PUBLISH_S = 0.1  # frames while nobody moves anything (waiting to start, episode over): 10 per second

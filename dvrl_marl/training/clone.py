@@ -191,13 +191,13 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
     return folder, losses
 
 
-def dagger_round(policy, partner: str, episodes: int, seed: int, task: str = "suction_debris_v8"):
+def dagger_round(policy, partner: str, episodes: int, seed: int):
     """Let ``policy`` work the grasper seat beside ``partner`` on ``episodes`` worlds (seeded ``seed``, ``seed + 1``...)
     and return every observation it visited with the scripted surgeon's action for it."""
     from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.training import teams
 
-    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", task=task)
+    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled")
     expert, suction = teams.seat("scripted", "grasper"), teams.seat(partner, "suction")
     observations, _ = env.reset(seed=seed)
     done = np.zeros(episodes, dtype=bool)
@@ -259,7 +259,7 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
                             actions=np.concatenate(labels[1:]))
     evaluate = {"partner": "pipeline", "episodes": 100, **config.evaluate}
     team = {"suction": teams.seat(evaluate["partner"], "suction"), "grasper": policies.load(folder)}
-    result = teams.evaluate_team_batched(team, int(evaluate["episodes"]), task="suction_debris_v8")
+    result = teams.evaluate_team_batched(team, int(evaluate["episodes"]))
     summary = {"dataset": config.dataset, "transitions": int(len(actions)), "final_loss": losses[-1],
                "partner": evaluate["partner"], "policy": str(folder), "dagger": rounds,
                "wall_seconds": round(time.perf_counter() - began, 1),

@@ -15,7 +15,7 @@
   folded into the exported actor's first layer).
 - **Loss**: TorchRL's ``ClipPPOLoss`` and ``GAE`` over the ``("agents", ...)`` keys, rewards scaled by a running
   standard deviation of the discounted return (per agent), a few epochs on large minibatches (Yu et al. 2022).
-- **What makes the task learnable** is the env's, not the trainer's (issue 37): ``[env] reward_type = "guided"``
+- **What makes the task learnable** is the env's, not the trainer's: ``[env] reward_type = "guided"``
   (:mod:`dvrl_marl.envs.guidance`, potential-based: success is still the sparse rule), ``[env]
   observation_features`` (relative targets the actors read; the exported numpy policies compute them from the
   plain observation), ``[env] contact_penalty``, and ``[curriculum] levels``: a schedule of the env's start level

@@ -130,7 +130,7 @@ _FIELDS = {f.name for f in fields(MappoConfig)}
 
 #: The last commit whose trainer read the keys below: every run recorded with them is reproducible from it.
 LAST_COMMIT_BEFORE_ENV_OPTIONS = "ea6d143"
-#: Keys retired when what makes the task learnable moved into the env (issue 37), and where each went.
+#: Keys retired when what makes the task learnable moved into the env, and where each went.
 _TO_GUIDANCE = 'now the env\'s guided reward: [env] reward_type = "guided" and [env.guidance]'
 RETIRED = {
     **dict.fromkeys(("easy_start", "anneal_begin", "anneal_end", "near_debris", "receding_starts", "easy_episode_steps",
@@ -176,7 +176,7 @@ def load_config(path) -> MappoConfig:
         # the oldest commit among those of the retired keys present reads them all
         commit = (LAST_COMMIT_BEFORE_ENV_OPTIONS if any(name not in RETIRED_AT for _, name in retired)
                   else RETIRED_AT[key])
-        raise ValueError(f"{path}: [{section}] {key}: retired by issue 37 ({RETIRED.get(key, RETIRED['shaping'])}); "
+        raise ValueError(f"{path}: [{section}] {key}: retired when the env took it over ({RETIRED.get(key, RETIRED['shaping'])}); "
                          f"a run recorded with it is reproducible from commit {commit} (baselines/README.md)")
     for section, content in table.items():
         if section not in TABLE_KEYS or not isinstance(content, dict):

@@ -1,8 +1,7 @@
-"""suction_debris_v5: a descending move the wall leaves no headway gives up its descent (it climbs); v4 stays as it
+"""v5_rules: a descending move the wall leaves no headway gives up its descent (it climbs); v4 stays as it
 was."""
 
 import numpy as np
-import pettingzoo
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
@@ -10,7 +9,7 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
-from dvrl_marl.envs import suction_debris_v4, suction_debris_v5
+from rule_sets import v4_rules, v5_rules
 
 # The suction on the wall of the left cavity near its rim, heading for the other cavity: out and down, into the
 # bowl (the measured end of issue 37's failed mean-action episodes on v4).
@@ -19,14 +18,11 @@ OUT_AND_DOWN = np.array([1.0, -0.23, -0.64, -1.0])
 
 
 def test_pettingzoo_api_and_registration():
-    parallel_api_test(suction_debris_v5.parallel_env(max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v5.env(max_cycles=100), num_cycles=200)
-    env = suction_debris_v5.parallel_env()
-    assert env.metadata["name"] == "suction_debris_v5"
+    parallel_api_test(v5_rules.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(v5_rules.env(max_cycles=100), num_cycles=200)
+    env = v5_rules.parallel_env()
     assert env.params.blocked_moves == "climb" and env.params.held_pin_at_grip  # v4's change kept
-    assert suction_debris_v4.parallel_env().params.blocked_moves == "slide"  # v4 stays as it was
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v5").params.blocked_moves == "climb"
+    assert v4_rules.parallel_env().params.blocked_moves == "slide"  # v4 stays as it was
 
 
 def on_the_surface(env, where):
@@ -61,9 +57,9 @@ def suction_path(env, command, steps):
 
 
 def test_a_tip_pressed_out_and_down_against_a_wall_rides_over_the_rim_in_v5_and_stays_in_v4():
-    stuck = suction_path(suction_on_the_wall(suction_debris_v4), OUT_AND_DOWN, 60)
+    stuck = suction_path(suction_on_the_wall(v4_rules), OUT_AND_DOWN, 60)
     assert np.linalg.norm(stuck[-1] - stuck[0]) < 0.0005  # v4: under half a millimetre in 60 steps
-    env = suction_on_the_wall(suction_debris_v5)
+    env = suction_on_the_wall(v5_rules)
     path = suction_path(env, OUT_AND_DOWN, 60)
     top = env.phantom.top_z + env.params.tip_clearance
     assert path[:, 2].max() >= top - 1e-9  # up the wall onto the phantom's top
@@ -75,7 +71,7 @@ def test_a_tip_pressed_out_and_down_against_a_wall_rides_over_the_rim_in_v5_and_
 @given(where=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.0, 0.2)),
        command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
 def test_climbing_changes_only_descents_that_make_no_headway_and_keeps_tips_above_the_surface(where, command):
-    env = suction_debris_v5.parallel_env()
+    env = v5_rules.parallel_env()
     cavities, p = Cavities(env.phantom), env.params
     x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
     old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance

@@ -1,8 +1,7 @@
-"""suction_debris_v6: a descent's headway is what it advances the way it heads, so a tip pressed out of a cavity almost
+"""v6_rules: a descent's headway is what it advances the way it heads, so a tip pressed out of a cavity almost
 along the wall's normal keeps climbing (v5's tip cycled in place); v5 stays as it was."""
 
 import numpy as np
-import pettingzoo
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
@@ -10,8 +9,8 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
-from dvrl_marl.envs import suction_debris_v5, suction_debris_v6
-from test_suction_debris_v5 import suction_on_the_wall, suction_path
+from rule_sets import v5_rules, v6_rules
+from test_rules_climb import suction_on_the_wall, suction_path
 
 # The suction on the wall of the left cavity near its rim (tests/test_suction_debris_v5.py's place), heading for the
 # other cavity and down, almost along the wall's normal: the command a learnt BenchMARL suction sent there, by its
@@ -20,24 +19,21 @@ ALONG_THE_NORMAL = np.array([0.67, -0.03, -0.82, -1.0])
 
 
 def test_pettingzoo_api_and_registration():
-    parallel_api_test(suction_debris_v6.parallel_env(max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v6.env(max_cycles=100), num_cycles=200)
-    env = suction_debris_v6.parallel_env()
-    assert env.metadata["name"] == "suction_debris_v6"
+    parallel_api_test(v6_rules.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(v6_rules.env(max_cycles=100), num_cycles=200)
+    env = v6_rules.parallel_env()
     assert env.params.blocked_moves == "climb_ahead" and env.params.held_pin_at_grip  # v4's change kept
-    assert suction_debris_v5.parallel_env().params.blocked_moves == "climb"  # v5 stays as it was
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v6").params.blocked_moves == "climb_ahead"
+    assert v5_rules.parallel_env().params.blocked_moves == "climb"  # v5 stays as it was
 
 
 def test_a_tip_pressed_along_the_walls_normal_climbs_out_in_v6_and_cycles_in_place_in_v5():
-    stuck = suction_on_the_wall(suction_debris_v5)
+    stuck = suction_on_the_wall(v5_rules)
     cycling = suction_path(stuck, ALONG_THE_NORMAL, 60)
     top = stuck.phantom.top_z + stuck.params.tip_clearance
     assert np.abs(cycling[:, 0] - cycling[0, 0]).max() < 0.002  # v5: within 2 mm of where it began, the way it heads
     assert cycling[:, 2].max() < top - 0.001  # never onto the top
     assert np.abs(np.diff(cycling[:, 2])).max() > 0.0005  # ... though it moves: up a step, then back down
-    env = suction_on_the_wall(suction_debris_v6)
+    env = suction_on_the_wall(v6_rules)
     path = suction_path(env, ALONG_THE_NORMAL, 60)
     top = env.phantom.top_z + env.params.tip_clearance
     assert path[:, 2].max() >= top - 1e-9  # up the wall onto the phantom's top
@@ -49,7 +45,7 @@ def test_a_tip_pressed_along_the_walls_normal_climbs_out_in_v6_and_cycles_in_pla
 @given(where=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.0, 0.2)),
        command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
 def test_ahead_changes_only_descents_that_advance_too_little_and_keeps_tips_above_the_surface(where, command):
-    env = suction_debris_v6.parallel_env()
+    env = v6_rules.parallel_env()
     cavities, p = Cavities(env.phantom), env.params
     x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
     old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance
@@ -77,7 +73,7 @@ def test_ahead_changes_only_descents_that_advance_too_little_and_keeps_tips_abov
 def test_a_descent_pressed_into_the_boxs_face_is_made_as_in_v5():
     """Out through the workspace's face and down (a carry pressed toward the assistant): the face stops the level part,
     so the descent is made, as in v5 (giving it up would leave the tip where it was)."""
-    env = suction_debris_v6.parallel_env()
+    env = v6_rules.parallel_env()
     cavities, p = Cavities(env.phantom), env.params
     low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
     old = np.array([[high[0], env.workspace_centre[1], env.workspace_centre[2]]])

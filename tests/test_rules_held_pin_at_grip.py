@@ -1,8 +1,7 @@
-"""suction_debris_v4: a held pin is shown (observations, state, the dense reward's carry) where the hand-off judges
+"""v4_rules: a held pin is shown (observations, state, the dense reward's carry) where the hand-off judges
 it, the jaws' grip; v3 stays as it was."""
 
 import numpy as np
-import pettingzoo
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -11,28 +10,23 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.core.collaborative import PIN_HALF_LENGTH, PIN_RADIUS, PIN_SENSOR_RANGE
-from dvrl_marl.envs import suction_debris_v3, suction_debris_v4
-from dvrl_marl.registration import COLLABORATIVE_TASKS
+from rule_sets import v3_rules, v4_rules
 
 CLOSE_JAW = np.array([0.0, 0.0, 0.0, -1.0])
 STILL = np.array([0.0, 0.0, 0.0, -1.0])  # (the suction's valve closed: no blood to draw)
 
 
 def test_pettingzoo_api_and_registration():
-    parallel_api_test(suction_debris_v4.parallel_env(max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v4.env(max_cycles=100), num_cycles=200)
-    env = suction_debris_v4.parallel_env()
-    assert env.metadata["name"] == "suction_debris_v4"
+    parallel_api_test(v4_rules.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(v4_rules.env(max_cycles=100), num_cycles=200)
+    env = v4_rules.parallel_env()
     assert env.params.held_pin_at_grip and env.params.blocked_moves == "slide" and env.params.deliver_at_grip
-    assert not suction_debris_v3.parallel_env().params.held_pin_at_grip  # v3 stays as it was
-    assert "suction_debris_v4" in COLLABORATIVE_TASKS
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v4").params.held_pin_at_grip
+    assert not v3_rules.parallel_env().params.held_pin_at_grip  # v3 stays as it was
 
 
 def test_a_bad_held_pin_at_grip_value_is_refused_by_name():
     with pytest.raises(ValueError, match="held_pin_at_grip"):
-        suction_debris_v4.parallel_env(held_pin_at_grip="yes")
+        v4_rules.parallel_env(held_pin_at_grip="yes")
 
 
 def _grasped_off_centre(module, along: float, **kwargs):
@@ -55,14 +49,14 @@ def _grasped_off_centre(module, along: float, **kwargs):
 def test_a_pin_held_off_centre_is_shown_at_its_grip_in_v4_and_at_its_centre_in_v3():
     along = -0.010  # 10 mm toward -x of the centre, within the 12.5 mm axis
     grip = np.array([along, 0.0, 0.0])  # from the centre: the point of the axis under the tip
-    for module, shown_offset in ((suction_debris_v4, grip), (suction_debris_v3, np.zeros(3))):
+    for module, shown_offset in ((v4_rules, grip), (v3_rules, np.zeros(3))):
         env, observations, centre, tip = _grasped_off_centre(module, along, reward_type="dense")
         layout, state_layout = env.observation_layout, env.state_layout
         expected = env.normalise(centre + shown_offset)
         for agent in env.agents:
             np.testing.assert_allclose(observations[agent][layout["debris"]][:3], expected, atol=1e-9)
         np.testing.assert_allclose(env.state()[state_layout["debris"]][:3], expected, atol=1e-9)
-        if module is suction_debris_v4:
+        if module is v4_rules:
             assert np.linalg.norm(centre + shown_offset - tip) <= PIN_SENSOR_RANGE
         # the dense reward's carry is measured from the same point: one step toward the assistant pays 10 x the
         # metres that point came closer to the hand-off point
@@ -77,7 +71,7 @@ def test_a_pin_held_off_centre_is_shown_at_its_grip_in_v4_and_at_its_centre_in_v
 @given(along=st.floats(-PIN_HALF_LENGTH, PIN_HALF_LENGTH), moves=st.lists(
     st.tuples(*[st.floats(-1.0, 1.0)] * 3), min_size=1, max_size=8))
 def test_a_held_pin_is_shown_within_the_jaws_sensor_range_of_the_tip_wherever_it_was_taken(along, moves):
-    env, observations, _, _ = _grasped_off_centre(suction_debris_v4, along)
+    env, observations, _, _ = _grasped_off_centre(v4_rules, along)
     for move in moves:
         observations, *_ = env.step({"suction": STILL, "grasper": np.array([*move, -1.0])})
         if not env.debris[0].held:
@@ -86,7 +80,7 @@ def test_a_held_pin_is_shown_within_the_jaws_sensor_range_of_the_tip_wherever_it
         assert np.linalg.norm(shown - np.array(env.arms["grasper"].tip_world())) <= PIN_SENSOR_RANGE + 1e-9
 
 
-@pytest.mark.parametrize("module,delivered", [(suction_debris_v4, True), (suction_debris_v3, False)])
+@pytest.mark.parametrize("module,delivered", [(v4_rules, True), (v3_rules, False)])
 def test_the_scripted_surgeon_delivers_a_pin_held_by_its_end_in_v4_only(module, delivered):
     # The script carries the pin it sees to the hand-off point. v3 shows it the centre of a pin held 10 mm off it:
     # it brings the centre there and holds it, the judged grip 10 mm away, for the rest of the episode (what a
@@ -104,7 +98,7 @@ def test_the_scripted_surgeon_delivers_a_pin_held_by_its_end_in_v4_only(module, 
 
 
 def test_the_scripted_team_completes_v4():
-    env = suction_debris_v4.batched_env(num_envs=8, autoreset_mode="disabled")
+    env = v4_rules.batched_env(num_envs=8, autoreset_mode="disabled")
     observations, _ = env.reset(seed=40)
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     success = np.zeros(8, dtype=bool)

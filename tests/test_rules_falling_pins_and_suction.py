@@ -1,25 +1,20 @@
-"""suction_debris_v1: released pins fall, suction needs the surface, cavities may bleed."""
+"""v1_rules: released pins fall, suction needs the surface, cavities may bleed."""
 
 import math
 
 import numpy as np
-import pettingzoo
 import pytest
 from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.core.collaborative import GRAVITY, PIN_RADIUS
-from dvrl_marl.envs import suction_debris_v0, suction_debris_v1
-from dvrl_marl.envs.blood import BloodState
+from rule_sets import v0_rules, v1_rules
 
 
 def test_pettingzoo_api_with_bleeding():
-    parallel_api_test(suction_debris_v1.parallel_env(bleeding_ml_s=0.3, max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v1.env(bleeding_ml_s=0.3, max_cycles=100), num_cycles=200)
-    assert suction_debris_v1.parallel_env().metadata["name"] == "suction_debris_v1"
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v1").params.pins_fall
+    parallel_api_test(v1_rules.parallel_env(bleeding_ml_s=0.3, max_cycles=200), num_cycles=300)
+    api_test(v1_rules.env(bleeding_ml_s=0.3, max_cycles=100), num_cycles=200)
 
 
 def _carry_a_pin(module, seed=0):
@@ -47,7 +42,7 @@ def _drop(env, pin):
 
 
 def test_a_released_pin_falls_under_gravity_onto_the_surface():
-    env, pin, floor = _carry_a_pin(suction_debris_v1)
+    env, pin, floor = _carry_a_pin(v1_rules)
     start = pin.position[2]
     heights = _drop(env, pin)
     assert not pin.held
@@ -60,12 +55,12 @@ def test_a_released_pin_falls_under_gravity_onto_the_surface():
 
 
 def test_v0_pins_still_appear_on_the_surface_at_once():
-    env, pin, floor = _carry_a_pin(suction_debris_v0)
+    env, pin, floor = _carry_a_pin(v0_rules)
     assert _drop(env, pin)[0] == floor
 
 
 def _cavity_blood(**kwargs):
-    env = suction_debris_v1.parallel_env(**kwargs)
+    env = v1_rules.parallel_env(**kwargs)
     env.reset(seed=0)
     return env.blood, env.phantom.cavities[0]
 
@@ -84,7 +79,7 @@ def test_suction_flow_falls_off_above_the_surface():
 
 
 def test_bleeding_refills_the_cavities_from_a_seeded_onset():
-    env = suction_debris_v1.parallel_env(bleeding_ml_s=0.5, bleeding_onset_s=4.0, max_cycles=400)
+    env = v1_rules.parallel_env(bleeding_ml_s=0.5, bleeding_onset_s=4.0, max_cycles=400)
     env.reset(seed=3)
     onsets = [onset for onset, _ in env.bleeding]
     assert all(0.0 <= t <= 4.0 for t in onsets) and len(set(onsets)) == 2
@@ -110,10 +105,10 @@ def test_bleeding_refills_the_cavities_from_a_seeded_onset():
 
 
 def test_no_bleeding_draws_nothing_so_v0_streams_are_unchanged():
-    blood_free = suction_debris_v1.parallel_env()
+    blood_free = v1_rules.parallel_env()
     blood_free.reset(seed=9)
     assert blood_free.bleeding == []
-    v0 = suction_debris_v0.parallel_env()
+    v0 = v0_rules.parallel_env()
     observations_v0, _ = v0.reset(seed=9)
     observations_v1, _ = blood_free.reset(seed=9)
     for agent in v0.agents:  # the same start: the same draws
@@ -123,7 +118,7 @@ def test_no_bleeding_draws_nothing_so_v0_streams_are_unchanged():
     observations_v1, _ = blood_free.reset()
     for agent in v0.agents:
         np.testing.assert_array_equal(observations_v0[agent], observations_v1[agent])
-    bleeding, _ = suction_debris_v1.parallel_env(bleeding_ml_s=0.2).reset(seed=9)
+    bleeding, _ = v1_rules.parallel_env(bleeding_ml_s=0.2).reset(seed=9)
     for agent in v0.agents:  # bleeding draws come after everything else: the start is the same
         np.testing.assert_array_equal(bleeding[agent], first[agent])
 
@@ -131,7 +126,7 @@ def test_no_bleeding_draws_nothing_so_v0_streams_are_unchanged():
 def _scripted_team_success(episodes, **kwargs):
     successes = 0
     for seed in range(episodes):
-        env = suction_debris_v1.parallel_env(surgeon="scripted", **kwargs)
+        env = v1_rules.parallel_env(surgeon="scripted", **kwargs)
         suction = ScriptedSuction.for_env(env)
         observations, _ = env.reset(seed=1000 + seed)
         while env.agents:
@@ -149,7 +144,7 @@ def test_the_scripted_team_solves_v1_but_not_the_bleeding_field():
                                  {"bleeding_onset_s": math.nan}, {"pins_fall": "yes"}])
 def test_bad_v1_parameters_are_refused(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
-        suction_debris_v1.parallel_env(**bad)
+        v1_rules.parallel_env(**bad)
 
 
 def test_the_keep_clear_team_solves_the_bleeding_field():
@@ -157,13 +152,13 @@ def test_the_keep_clear_team_solves_the_bleeding_field():
     # timed to a clear field. (benchmarks/collaborative_v1.py: 75 % at 0.1 ml/s over 100 episodes, 21 % at 0.3.)
     from dvrl_marl.training import teams
 
-    env = suction_debris_v1.parallel_env()
+    env = v1_rules.parallel_env()
     team = {"suction": KeepClearSuction.for_env(env), "grasper": KeepClearSurgeon.for_env(env)}
-    clear = teams.evaluate_team_batched(team, 6, task="suction_debris_v1")
+    clear = teams.evaluate_team_batched(team, 6, **v1_rules.rules)
     assert clear["success_rate"] == 1.0 and clear["mean_contact_steps"] == 0.0
-    bleeding = teams.evaluate_team_batched(team, 10, task="suction_debris_v1", bleeding_ml_s=0.1)
+    bleeding = teams.evaluate_team_batched(team, 10, **v1_rules.rules, bleeding_ml_s=0.1)
     assert bleeding["success_rate"] >= 0.5 and bleeding["mean_contact_steps"] == 0.0
     # The single-row and batched forms act alike.
-    observations, _ = suction_debris_v1.parallel_env(bleeding_ml_s=0.1).reset(seed=5)
+    observations, _ = v1_rules.parallel_env(bleeding_ml_s=0.1).reset(seed=5)
     for agent, expert in team.items():
         np.testing.assert_array_equal(expert(observations[agent][None])[0], expert(observations[agent]))

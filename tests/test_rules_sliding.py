@@ -1,7 +1,6 @@
-"""suction_debris_v3: a blocked move slides (dvrl_marl.core.sliding) instead of stopping; v2 stays as it was."""
+"""v3_rules: a blocked move slides (dvrl_marl.core.sliding) instead of stopping; v2 stays as it was."""
 
 import numpy as np
-import pettingzoo
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -10,26 +9,23 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl import kinematics
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import (suction_debris_v2, suction_debris_v3, suction_debris_v4, suction_debris_v5,
-                            suction_debris_v6, suction_debris_v7)
+from dvrl_marl.envs import suction_debris_v8
+from rule_sets import v2_rules, v3_rules, v4_rules, v5_rules, v6_rules
 
 PUSH_SUCTION_PAST_GRASPER = np.array([1.0, 0.0, -0.1, 1.0])
 
 
 def test_pettingzoo_api_and_registration():
-    parallel_api_test(suction_debris_v3.parallel_env(max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v3.env(max_cycles=100), num_cycles=200)
-    env = suction_debris_v3.parallel_env()
-    assert env.metadata["name"] == "suction_debris_v3"
+    parallel_api_test(v3_rules.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(v3_rules.env(max_cycles=100), num_cycles=200)
+    env = v3_rules.parallel_env()
     assert env.params.blocked_moves == "slide" and env.params.deliver_at_grip and env.params.pins_stay_on_phantom
-    assert suction_debris_v2.parallel_env().params.blocked_moves == "stop"  # v2 stays as it was
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v3").params.blocked_moves == "slide"
+    assert v2_rules.parallel_env().params.blocked_moves == "stop"  # v2 stays as it was
 
 
 def test_an_unknown_blocked_moves_rule_is_refused_by_name():
     with pytest.raises(ValueError, match="blocked_moves"):
-        suction_debris_v3.parallel_env(blocked_moves="bounce")
+        v3_rules.parallel_env(blocked_moves="bounce")
 
 
 def _scene(module, suction, grasper):
@@ -57,14 +53,14 @@ def _push(env, agent, action, steps):
     return np.array(path), least
 
 
-@pytest.mark.parametrize("module", [suction_debris_v2, suction_debris_v3])
+@pytest.mark.parametrize("module", [v2_rules, v3_rules])
 def test_a_tip_pushed_sideways_against_a_cavity_wall_rides_up_it_and_over_the_rim_in_v3_only(module):
     # The suction on the floor of the left cavity (centre x~ = -0.375) pushes straight toward -x, no vertical
     # command: in v2 the wall keeps it where it is; in v3 it slides up the bowl and leaves the cavity.
     env = _scene(module, suction=[-0.375, -0.0625, -0.52], grasper=[0.6, 0.0, 0.2])
     path, _ = _push(env, "suction", np.array([-1.0, 0.0, 0.0, -1.0]), 80)
     left_edge = env.workspace_centre[0] + env.workspace_range * (-0.375 - 0.275)
-    if module is suction_debris_v3:
+    if module is v3_rules:
         assert path[-1, 2] > env.phantom.top_z  # over the rim
         assert path[-1, 0] < left_edge  # and out of the cavity, beyond its mouth
         assert np.all(np.diff(path[:, 2]) >= -1e-12)  # riding up, never down
@@ -73,7 +69,7 @@ def test_a_tip_pushed_sideways_against_a_cavity_wall_rides_up_it_and_over_the_ri
         assert np.abs(path[-1] - path[20]).max() < 1e-12  # and motionless against its wall
 
 
-@pytest.mark.parametrize("module", [suction_debris_v2, suction_debris_v3])
+@pytest.mark.parametrize("module", [v2_rules, v3_rules])
 def test_a_move_into_the_other_instrument_slides_past_it_in_v3_only(module):
     # The grasper's tip hangs 16 mm above the phantom's top between the cavities; the suction, on the top, pushes
     # toward +x into its shaft (the measured deadlock of issue 37's mean-action teams).
@@ -81,7 +77,7 @@ def test_a_move_into_the_other_instrument_slides_past_it_in_v3_only(module):
     path, least = _push(env, "suction", PUSH_SUCTION_PAST_GRASPER, 60)
     assert least >= 0.0  # the instruments never pass through each other, either version
     travelled = 1000 * (path[-1, 0] - path[0, 0])
-    if module is suction_debris_v3:
+    if module is v3_rules:
         assert travelled > 40.0  # mm of the 60 commanded: around the shaft
     else:
         assert travelled < 10.0 and np.abs(path[-1] - path[-20]).max() < 1e-12  # stopped against it
@@ -92,7 +88,7 @@ def test_a_move_into_a_joint_limit_slides_along_it_in_v3():
     # v2 stops dead there; v3 slides along the limit (the pitch held at it) until the workspace box's face stops it
     # too, the joints always within their limits.
     travelled = {}
-    for module in (suction_debris_v2, suction_debris_v3):
+    for module in (v2_rules, v3_rules):
         env = _scene(module, suction=[-0.6, -0.12, 0.55], grasper=[0.6, 0.0, 0.2])
         tool = env.arms["suction"].tool
         path, _ = _push(env, "suction", np.array([-0.7, 0.1, 0.9, -1.0]), 10)
@@ -102,13 +98,13 @@ def test_a_move_into_a_joint_limit_slides_along_it_in_v3():
         q = np.asarray(env.arms["suction"].q)
         assert np.all(q >= np.asarray(tool.lower) - 1e-12) and np.all(q <= np.asarray(tool.upper) + 1e-12)
         travelled[module] = 1000 * np.linalg.norm(path[-1] - path[0])
-    assert travelled[suction_debris_v2] < 1e-9  # pinned
-    assert travelled[suction_debris_v3] > 20.0  # mm along the limit
+    assert travelled[v2_rules] < 1e-9  # pinned
+    assert travelled[v3_rules] > 20.0  # mm along the limit
 
 
-@pytest.mark.parametrize("before,after", [(suction_debris_v2, suction_debris_v3), (suction_debris_v4, suction_debris_v5),
-                                          (suction_debris_v5, suction_debris_v6),
-                                          (suction_debris_v6, suction_debris_v7)])
+@pytest.mark.parametrize("before,after", [(v2_rules, v3_rules), (v4_rules, v5_rules),
+                                          (v5_rules, v6_rules),
+                                          (v6_rules, suction_debris_v8)])
 def test_the_scripted_team_plays_the_earlier_version_step_for_step(before, after):
     # An expert never pushes into a blocker (v3) nor presses a descent into a wall (v5): its episodes are the earlier
     # version's exactly (the change is only where moves block).
@@ -130,7 +126,7 @@ def test_the_scripted_team_plays_the_earlier_version_step_for_step(before, after
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), action_seed=st.integers(0, 2**31 - 1),
        bias=st.sampled_from(["into_phantom", "into_each_other", "up_and_out", "uniform"]),
-       module=st.sampled_from([suction_debris_v3, suction_debris_v5, suction_debris_v6, suction_debris_v7]))
+       module=st.sampled_from([v3_rules, v5_rules, v6_rules, suction_debris_v8]))
 def test_sliding_keeps_every_tip_in_the_box_above_the_surface_within_its_joints_and_apart(seed, action_seed, bias,
                                                                                           module):
     # Commands biased into the blockers (the phantom, the other instrument, the joint limits near the RCMs): however

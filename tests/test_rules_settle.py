@@ -1,10 +1,9 @@
-"""suction_debris_v7: the suction pressed down into a cavity's bowl slides down it, so a suction pressed straight down
+"""suction_debris_v8: the suction pressed down into a cavity's bowl slides down it, so a suction pressed straight down
 on the slope above the last of the blood reaches the pool (v6's stayed where it was); the grasper pressing down onto a
 pin stays over it; v6 stays as it was."""
 
 import numpy as np
 import pytest
-import pettingzoo
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
@@ -12,8 +11,9 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
-from dvrl_marl.envs import suction_debris_v6, suction_debris_v7
-from test_suction_debris_v5 import suction_on_the_wall, suction_path
+from dvrl_marl.envs import suction_debris_v8
+from rule_sets import v6_rules
+from test_rules_climb import suction_on_the_wall, suction_path
 
 # Where a learnt BenchMARL suction (seed 0, by its mean action) rested on v6 for the rest of its failed test episodes:
 # on the left cavity's slope, toward the ridge, a few millimetres above the last half millilitre, pressing straight down
@@ -23,14 +23,11 @@ STRAIGHT_DOWN = np.array([0.0, 0.0, -0.7, 0.41])
 
 
 def test_pettingzoo_api_and_registration():
-    parallel_api_test(suction_debris_v7.parallel_env(max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v7.env(max_cycles=100), num_cycles=200)
-    env = suction_debris_v7.parallel_env()
-    assert env.metadata["name"] == "suction_debris_v7"
+    parallel_api_test(suction_debris_v8.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(suction_debris_v8.env(max_cycles=100), num_cycles=200)
+    env = suction_debris_v8.parallel_env()
     assert env.params.blocked_moves == "settle" and env.params.held_pin_at_grip  # v4's change kept
-    assert suction_debris_v6.parallel_env().params.blocked_moves == "climb_ahead"  # v6 stays as it was
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v7").params.blocked_moves == "settle"
+    assert v6_rules.parallel_env().params.blocked_moves == "climb_ahead"  # v6 stays as it was
 
 
 def _suction_above_the_last_blood(module, grasper_on_the_slope=False):
@@ -39,10 +36,10 @@ def _suction_above_the_last_blood(module, grasper_on_the_slope=False):
 
 
 def test_a_suction_pressed_down_the_slope_reaches_the_last_blood_in_v7_and_rests_above_it_in_v6():
-    stuck = _suction_above_the_last_blood(suction_debris_v6)
+    stuck = _suction_above_the_last_blood(v6_rules)
     path = suction_path(stuck, STRAIGHT_DOWN, 100)
     assert np.linalg.norm(path[-1] - path[0]) < 1e-9 and stuck.blood.remaining_ml[0] == 0.56  # v6: not a drop
-    env = _suction_above_the_last_blood(suction_debris_v7)
+    env = _suction_above_the_last_blood(suction_debris_v8)
     path = suction_path(env, STRAIGHT_DOWN, 100)
     centre = env.phantom.cavities[0].centre_x
     assert abs(path[-1, 0] - centre) < abs(path[0, 0] - centre) - 0.005  # down the slope toward the floor's centre
@@ -52,7 +49,7 @@ def test_a_suction_pressed_down_the_slope_reaches_the_last_blood_in_v7_and_rests
 
 def test_the_grasper_pressed_down_on_the_slope_stays_where_it_is_as_in_v6():
     # A grasper coming down onto a pin on the slope must stay over it: the slide is the suction's alone.
-    for module in (suction_debris_v6, suction_debris_v7):
+    for module in (v6_rules, suction_debris_v8):
         env = _suction_above_the_last_blood(module, grasper_on_the_slope=True)
         start = np.array(env.arms["grasper"].tip_world())
         for _ in range(50):
@@ -65,7 +62,7 @@ def test_the_grasper_pressed_down_on_the_slope_stays_where_it_is_as_in_v6():
        command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
 def test_settle_changes_only_descents_left_without_headway_over_a_cavity_and_keeps_tips_above_the_surface(where,
                                                                                                          command):
-    env = suction_debris_v7.parallel_env()
+    env = suction_debris_v8.parallel_env()
     cavities, p = Cavities(env.phantom), env.params
     x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
     old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance

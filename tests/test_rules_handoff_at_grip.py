@@ -1,30 +1,26 @@
-"""suction_debris_v2: the hand-off judged at the grip, dropped pins kept on the phantom; the seat's cues."""
+"""v2_rules: the hand-off judged at the grip, dropped pins kept on the phantom; the seat's cues."""
 
 import math
 
 import numpy as np
-import pettingzoo
 import pytest
 from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import ScriptedSuction
 from dvrl_marl.core.collaborative import PHANTOM_EDGE_MARGIN, PIN_RADIUS, PIN_SENSOR_RANGE
-from dvrl_marl.envs import suction_debris_v1, suction_debris_v2
+from rule_sets import v1_rules, v2_rules
 from dvrl_marl.teleop.person import run_episode
 
 HOLD = np.zeros(4)
 
 
 def test_pettingzoo_api_and_registration():
-    parallel_api_test(suction_debris_v2.parallel_env(max_cycles=200), num_cycles=300)
-    api_test(suction_debris_v2.env(max_cycles=100), num_cycles=200)
-    env = suction_debris_v2.parallel_env()
-    assert env.metadata["name"] == "suction_debris_v2"
+    parallel_api_test(v2_rules.parallel_env(max_cycles=200), num_cycles=300)
+    api_test(v2_rules.env(max_cycles=100), num_cycles=200)
+    env = v2_rules.parallel_env()
     assert env.params.deliver_at_grip and env.params.pins_stay_on_phantom and env.params.pins_fall
-    assert not suction_debris_v1.parallel_env().params.deliver_at_grip  # v1 stays as it was
-    if hasattr(pettingzoo, "make"):
-        assert pettingzoo.make("parallel", "dvrl_marl/suction_debris-v2").params.deliver_at_grip
+    assert not v1_rules.parallel_env().params.deliver_at_grip  # v1 stays as it was
 
 
 def _with_one_pin(module, pin_xy, yaw, tip_xy):
@@ -54,7 +50,7 @@ def _carry_to(env, goal, steps=400):
     return int(env.debris[0].delivered)
 
 
-@pytest.mark.parametrize("module, delivered", [(suction_debris_v1, 0), (suction_debris_v2, 1)])
+@pytest.mark.parametrize("module, delivered", [(v1_rules, 0), (v2_rules, 1)])
 def test_a_pin_gripped_nine_mm_off_centre_reaches_the_assistant_in_v2_only(module, delivered):
     # The pin lies along x; the jaws take it 9 mm from its centre on the assistant's side, so its centre trails the
     # tip by 9 mm and can come no nearer than 7 mm to the hand-off point (x = 78 mm; the tip stops at 80 mm).
@@ -68,7 +64,7 @@ def test_a_pin_gripped_nine_mm_off_centre_reaches_the_assistant_in_v2_only(modul
         assert env.arms["grasper"].tip_world()[0] == pytest.approx(0.08)
 
 
-@pytest.mark.parametrize("module", [suction_debris_v1, suction_debris_v2])
+@pytest.mark.parametrize("module", [v1_rules, v2_rules])
 def test_a_pin_dropped_beyond_the_phantom(module):
     env = _with_one_pin(module, (0.05, 0.0), 0.0, (0.05, 0.0))
     _carry_to(env, (0.075, 0.06, 0.06), steps=150)  # beyond the phantom's +x and +y edges, away from the hand-off
@@ -77,7 +73,7 @@ def test_a_pin_dropped_beyond_the_phantom(module):
     for _ in range(30):
         env.step({"suction": HOLD, "grasper": np.array([0.0, 0.0, 0.0, 1.0])})  # open the jaw: it falls
     phantom = env.phantom
-    if module is suction_debris_v1:  # behind the phantom on the table, out of the endoscope's view
+    if module is v1_rules:  # behind the phantom on the table, out of the endoscope's view
         assert pin.position[2] == pytest.approx(phantom.table_z + PIN_RADIUS)
     else:  # on the phantom's top, 5 mm inside its nearest edge, where it can be taken again
         assert pin.position[0] == pytest.approx(phantom.centre_x + phantom.half_x - PHANTOM_EDGE_MARGIN)
@@ -101,7 +97,7 @@ def _pixel_of(env, point):
 
 
 def test_the_cues_say_height_reach_holding_and_hand_off_distance():
-    env = _with_one_pin(suction_debris_v2, (0.04, 0.02), 0.0, (0.04, 0.02))
+    env = _with_one_pin(v2_rules, (0.04, 0.02), 0.0, (0.04, 0.02))
     cues = env.cues("grasper")
     tip = env.arms["grasper"].tip_world()
     assert cues["tip_height_mm"] == pytest.approx(1000.0 * (tip[2] - env.phantom.surface_height(tip[0], tip[1])))
@@ -112,14 +108,14 @@ def test_the_cues_say_height_reach_holding_and_hand_off_distance():
     assert cues["holding"] and not cues["in_reach"]
     assert cues["handoff_mm"] == pytest.approx(1000.0 * math.dist(env.arms["grasper"].tip_world(), env.handoff),
                                                abs=1000.0 * PIN_SENSOR_RANGE)
-    far = _with_one_pin(suction_debris_v2, (0.04, 0.02), 0.0, (0.0, 0.0))
+    far = _with_one_pin(v2_rules, (0.04, 0.02), 0.0, (0.0, 0.0))
     assert not far.cues("grasper")["in_reach"] and far.cues("grasper")["pin_mm"] > 30.0
     with pytest.raises(ValueError, match="unknown agent"):
         env.cues("assistant")
 
 
 def test_the_cues_say_when_the_other_instrument_refuses_a_move():
-    env = suction_debris_v2.parallel_env()
+    env = v2_rules.parallel_env()
     observations, _ = env.reset(seed=0)
     blocked = False
     for _ in range(200):  # drive the suction straight at the grasper's tip
@@ -135,7 +131,7 @@ def test_the_cues_say_when_the_other_instrument_refuses_a_move():
 
 
 def test_the_suction_cue_says_how_high_above_the_blood_and_whether_it_draws():
-    env = suction_debris_v2.parallel_env()
+    env = v2_rules.parallel_env()
     observations, _ = env.reset(seed=0)
     suction = ScriptedSuction.for_env(env)
     drew = False
@@ -149,13 +145,13 @@ def test_the_suction_cue_says_how_high_above_the_blood_and_whether_it_draws():
 
 
 def test_blood_below_the_threshold_reads_clear():
-    env = suction_debris_v2.parallel_env(blood_ml=[0.45, 3.0])
+    env = v2_rules.parallel_env(blood_ml=[0.45, 3.0])
     env.reset(seed=0)
     assert env.blood_text() == ["clear", "3.0 ml"]
 
 
 def test_the_scripted_team_still_succeeds():
-    env = suction_debris_v2.parallel_env(surgeon="scripted")
+    env = v2_rules.parallel_env(surgeon="scripted")
     suction = ScriptedSuction.for_env(env)
     for seed in range(3):
         observations, _ = env.reset(seed=seed)
