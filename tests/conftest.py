@@ -50,3 +50,9 @@ def pytest_unconfigure(config):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(_exit_status)
+
+
+#: The first single-arm frame as keywords of the current ids (p the tool point, Pick's first scene): tests of
+#: invariants written in that frame hold it there (docs/deviations.md: ``tip_frame="tool_point"``).
+TOOL_POINT = {"dvrl_marl/PSMReach-v1": {"tip_frame": "tool_point"},
+              "dvrl_marl/PSMPick-v1": {"tip_frame": "tool_point", "scenes": {"lnd": "pick_lnd"}}}

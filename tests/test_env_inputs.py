@@ -112,17 +112,19 @@ def test_evaluate_takes_a_learned_seat_by_its_shipped_name():
 
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "evaluate", "marl-suction", "--episodes", "3"],
                             capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert result.returncode == 0, result.stderr  # (it once died with NameNotFound: suction_debris_v8)
+    assert result.returncode == 0, result.stderr  # (it once died with NameNotFound for the scene's name)
     report = json.loads(result.stdout)
-    assert report["seat"] == "suction" and report["task"] == "suction_debris" and report["episodes"] == 3
+    assert report["seat"] == "suction" and report["env_id"] == "suction_debris_v8" and report["episodes"] == 3
 
 
-def test_evaluate_team_runs_the_demos_scene_by_default():
+def test_evaluate_team_runs_the_demos_scene_by_default_and_names_a_bad_preset():
     from dvrl_marl.cli import build_parser
     from dvrl_marl.demo import ENV_NAME
 
     args = build_parser().parse_args(["evaluate-team", "--suction", "scripted", "--grasper", "scripted"])
-    assert args.task == ENV_NAME == "suction_debris_v8"
+    assert args.preset == "default" and ENV_NAME == "suction_debris_v8"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["evaluate-team", "--preset", "fast"])
 
 
 def test_tip_positions_that_are_not_a_table_of_agents_are_named():

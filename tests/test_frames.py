@@ -6,6 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import TOOL_POINT
+
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl import frames, kinematics
 from dvrl_marl.envs import suction_debris_v8
@@ -16,10 +18,10 @@ def _dvrk_chain_origin(q):
     return kinematics.forward_kinematics(kinematics.LND, q, frames=True)[..., 5, :3, 3]
 
 
-@pytest.mark.parametrize("version", ["v0", "v1"])
+@pytest.mark.parametrize("version", ["tool_point", "v1"])
 @pytest.mark.parametrize("task", ["Reach", "Pick"])
 def test_env_positions_map_to_the_dvrk_chain(version, task):
-    env = gym.make(f"dvrl_marl/PSM{task}-{version}")
+    env = gym.make(f"dvrl_marl/PSM{task}-v1", **({} if version == "v1" else TOOL_POINT[f"dvrl_marl/PSM{task}-v1"]))
     arm = env.unwrapped.arm
     tip_frame = "measured_cp" if version == "v1" else "tool_point"
     assert env.unwrapped.tip_frame == tip_frame
@@ -44,12 +46,12 @@ def test_env_positions_map_to_the_dvrk_chain(version, task):
 
 
 def test_v1_puts_the_scene_where_the_robot_has_it():
-    reach0, reach1 = (gym.make(f"dvrl_marl/PSMReach-{v}").unwrapped for v in ("v0", "v1"))
+    reach0, reach1 = (gym.make("dvrl_marl/PSMReach-v1", **kw).unwrapped for kw in (TOOL_POINT["dvrl_marl/PSMReach-v1"], {}))
     for env in (reach0, reach1):
         env.reset(seed=0, options={"start": env.workspace_centre})
     above = [env.arm.tool_point_world()[2] - env.arm.base_position[2] - env.table_height for env in (reach0, reach1)]
     assert above == pytest.approx([0.0134, 0.0032], abs=1e-9)  # the 13.4 mm and "about 3 mm"
-    pick0, pick1 = (gym.make(f"dvrl_marl/PSMPick-{v}").unwrapped for v in ("v0", "v1"))
+    pick0, pick1 = (gym.make("dvrl_marl/PSMPick-v1", **kw).unwrapped for kw in (TOOL_POINT["dvrl_marl/PSMPick-v1"], {}))
     descents = []
     for env in (pick0, pick1):
         env.reset(seed=0)

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.assets import tasks_dir
-from dvrl_marl.envs.suction_debris_v8 import SuctionDebrisParams
+from dvrl_marl.envs.suction_debris import SuctionDebrisParams
 from dvrl_marl.schemas import CollaborativeTask, SingleArmTask
 from dvrl_marl.task import load_task
 

@@ -4,14 +4,16 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import dvrl_marl  # noqa: F401  (registration)
+import dvrl_marl  # noqa: F401
+from dvrl_marl.envs import suction_debris_v8  # noqa: F401  (registration)
 
 
-@pytest.mark.parametrize("version", ["v0", "v1"])
+@pytest.mark.parametrize("version", ["tool_point", "measured_cp"])
 def test_dense_scale_multiplies_the_dense_reward_everywhere(version):
-    plain = gym.make(f"dvrl_marl/PSMReachDense-{version}")
-    scaled = gym.make(f"dvrl_marl/PSMReachDense-{version}", dense_scale=100.0)
-    vector = gym.make_vec(f"dvrl_marl/PSMReachDense-{version}", num_envs=2, vectorization_mode="vector_entry_point",
+    frame = {"tip_frame": version}
+    plain = gym.make("dvrl_marl/PSMReachDense-v1", **frame)
+    scaled = gym.make("dvrl_marl/PSMReachDense-v1", dense_scale=100.0, **frame)
+    vector = gym.make_vec("dvrl_marl/PSMReachDense-v1", num_envs=2, vectorization_mode="vector_entry_point", **frame,
                           dense_scale=100.0)
     plain.reset(seed=4)
     scaled.reset(seed=4)
@@ -61,8 +63,8 @@ def test_original_goals_come_from_the_original_box(task):
         assert 0.02 < below < 0.2
 
 
-def test_original_goals_in_the_v0_frame_are_the_same_places():
-    v0 = gym.make("dvrl_marl/PSMReach-v1", goal_distribution="original").unwrapped
+def test_original_goals_in_the_tool_point_frame_are_the_same_places():
+    v0 = gym.make("dvrl_marl/PSMReach-v1", tip_frame="tool_point", goal_distribution="original").unwrapped
     v1 = gym.make("dvrl_marl/PSMReach-v1", goal_distribution="original").unwrapped
     np.testing.assert_allclose(v0.goal_low + (0, 0, 0.0102), v1.goal_low, atol=1e-12)
     np.testing.assert_allclose(v0.goal_high + (0, 0, 0.0102), v1.goal_high, atol=1e-12)
@@ -94,6 +96,10 @@ def test_bad_original_options_are_refused(bad):
         gym.make("dvrl_marl/PSMReach-v1", **bad)
 
 
+COLLABORATIVE_KEYS = {"pins_fall", "suction_reach", "bleeding_ml_s", "deliver_at_grip", "held_pin_at_grip",
+                      "pins_stay_on_phantom", "blocked_moves"}
+
+
 def test_the_deviations_page_runs_and_every_argument_it_names_works():
     import re
     from pathlib import Path
@@ -106,6 +112,9 @@ def test_the_deviations_page_runs_and_every_argument_it_names_works():
     for argument in sorted(arguments):
         key, value = argument.split("=", 1)
         if value == "...":
+            continue
+        if key in COLLABORATIVE_KEYS:  # the collaborative scene's simple rules
+            suction_debris_v8.parallel_env(**{key: eval(value)}).reset(seed=0)
             continue
         env_id = "dvrl_marl/PSMPick-v1" if key in ("initial_jaw", "grasp_threshold") else "dvrl_marl/PSMReach-v1"
         gym.make(env_id, **{key: eval(value)}).reset(seed=0)

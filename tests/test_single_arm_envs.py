@@ -7,6 +7,8 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import TOOL_POINT
+
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl import kinematics
 from dvrl_marl.agents import PickExpert, ReachExpert
@@ -199,7 +201,7 @@ def test_pick_goals_are_never_below_the_resting_object():
 )
 def test_tip_stays_in_workspace_joint_limits_and_above_table(env_id, tool, seed, actions):
     kwargs = {"tool": tool} if "Reach" in env_id else {}
-    env = make(env_id, **kwargs)
+    env = make(env_id, **TOOL_POINT[env_id], **kwargs)
     u = env.unwrapped
     env.reset(seed=seed)
     n = env.action_space.shape[0]
@@ -215,7 +217,7 @@ def test_tip_stays_in_workspace_joint_limits_and_above_table(env_id, tool, seed,
 
 def test_joint_limit_projection_keeps_the_tip_reachable():
     # A workspace centred far to the side: its outer part needs a wrist yaw beyond the limit.
-    env = make("dvrl_marl/PSMReach-v1", workspace_centre=(0.09, 0.0, -0.08), workspace_range=0.05)
+    env = make("dvrl_marl/PSMReach-v1", **TOOL_POINT["dvrl_marl/PSMReach-v1"], workspace_centre=(0.09, 0.0, -0.08), workspace_range=0.05)
     u = env.unwrapped
     env.reset(seed=0, options={"start": (0.09, 0.0, -0.08)})
     for _ in range(80):
@@ -225,7 +227,7 @@ def test_joint_limit_projection_keeps_the_tip_reachable():
 
 
 def _run_expert(env_id, expert_cls, seeds, **kwargs):
-    env = make(env_id, **kwargs)
+    env = make(env_id, **TOOL_POINT[env_id], **kwargs)
     expert = expert_cls.for_env(env)
     successes = 0
     for seed in seeds:
@@ -246,7 +248,7 @@ def test_pick_expert_solves_at_least_95_percent():
 
 
 def test_pick_expert_lifts_the_object_to_the_goal_by_the_grasp_rule():
-    env = make("dvrl_marl/PSMPick-v1")
+    env = make("dvrl_marl/PSMPick-v1", **TOOL_POINT["dvrl_marl/PSMPick-v1"])
     u = env.unwrapped
     expert = PickExpert.for_env(env)
     obs, _ = env.reset(seed=5, options={"goal": [0.01, 0.015, -0.08]})
@@ -264,7 +266,7 @@ def test_pick_expert_lifts_the_object_to_the_goal_by_the_grasp_rule():
 
 
 def test_an_open_jaw_never_carries_the_object():
-    env = make("dvrl_marl/PSMPick-v1")
+    env = make("dvrl_marl/PSMPick-v1", **TOOL_POINT["dvrl_marl/PSMPick-v1"])
     u = env.unwrapped
     env.reset(seed=0)
     rest = u.object_position()
@@ -292,7 +294,7 @@ def test_closing_away_from_the_object_does_not_grasp():
 
 
 def test_releasing_drops_the_object_to_the_table():
-    env = make("dvrl_marl/PSMPick-v1")
+    env = make("dvrl_marl/PSMPick-v1", **TOOL_POINT["dvrl_marl/PSMPick-v1"])
     u = env.unwrapped
     expert = PickExpert.for_env(env)
     obs, _ = env.reset(seed=3, options={"goal": [0.0, 0.0, -0.08]})

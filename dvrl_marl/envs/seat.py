@@ -51,6 +51,9 @@ class SeatEnv(gym.Env):
     def __init__(self, seat: str = "grasper", partner="pipeline", render_mode=None, **scene_kwargs):
         if seat not in suction_debris_v8.AGENTS:
             raise ValueError(f"SeatEnv: seat must be one of {suction_debris_v8.AGENTS}, got {seat!r}")
+        if "version" in scene_kwargs:
+            raise TypeError(f"SeatEnv() got an unexpected keyword argument 'version' ({scene_kwargs['version']!r}): "
+                            f"the seat's scene is the current one, {suction_debris_v8.TASK}")
         self.scene = suction_debris_v8.parallel_env(render_mode=render_mode, **scene_kwargs)
         self.seat = seat
         self.partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)

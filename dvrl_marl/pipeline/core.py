@@ -167,8 +167,10 @@ class _StagePolicy:
         task = load_task("psm_reach" if kind == "reach" else "psm_pick")
         policy = None if name == "scripted" else policies.load(name)
         default_id = "dvrl_marl/PSMReach-v1" if kind == "reach" else "dvrl_marl/PSMPick-v1"
-        env_id = policy.spec.get("env_id", default_id) if policy is not None else default_id
-        env = gym.make(env_id).unwrapped
+        if policy is None:  # the scripted experts plan at the tool point itself (no drop to the jaws)
+            env = gym.make(default_id, tip_frame="tool_point").unwrapped
+        else:
+            env = gym.make(policy.spec.get("env_id", default_id)).unwrapped
         # The table cuts the training box (Reach: z~ in [-0.21, 1]); legs are centred on what the policy has seen.
         self.trained_box_centre = (env.normalise(env.tip_low) + env.normalise(env.tip_high)) / 2
         self.tool_point_drop = env.arm.tool_point_drop
