@@ -93,8 +93,14 @@ def _scene_option(key: str, value) -> str:
 
 
 def _scene_of(options: dict) -> str:
-    """The scene a run used: its version, and any scene option, e.g. ``suction_debris_v3_tool_speed0.05``."""
-    return options["task"] + "".join(_scene_option(key, options[key]) for key in SCENE_OPTIONS if key in options)
+    """The scene a run used: its version, and any scene option (a preset's included), e.g.
+    ``suction_debris_v8_tool_speed0.05``."""
+    from dvrl_marl.envs.presets import with_preset
+    from dvrl_marl.envs.suction_debris import TASK
+
+    options = with_preset(options)
+    return options.get("task", TASK) + "".join(_scene_option(key, options[key]) for key in SCENE_OPTIONS
+                                               if key in options)
 
 
 def _settings_label(settings: dict | None) -> str:

@@ -8,7 +8,7 @@
     python examples/rllib_suction_debris.py --guided --level easy --iterations 120 --env-runners 2 \
         --envs-per-runner 8 --test-episodes 100   # the env's learning options: learns the easy level (20 minutes)
 
-``--guided`` turns on the env's options that made the task learnable, the benchmark's (its scene ``suction_debris_v8``,
+``--guided`` turns on the env's options that made the task learnable, the benchmark's (``preset="benchmark"``:
 ``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
 tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), and the
 PPO settings BenchMARL's MAPPO learns it with (:func:`benchmark_ppo_settings`); ``--level`` its start level
@@ -30,13 +30,11 @@ from pathlib import Path
 
 
 #: ``--guided``: the benchmark's env options (its task files, dvrl_marl/integrations/benchmarl_tasks/, but for the
-#: start level): its scene (suction_debris_v8), the guided reward and features of the configuration of record, and the
-#: slow tool and the jaw as a switch that holds a pin until the hand-off (RLlib's PPO explores the jaw and the valve
-#: with a Gaussian, which an instant tool reads as a threshold and a held pin's jaw as a chance to drop it:
+#: start level): ``preset="benchmark"``, the guided reward and features of the configuration of record, and the slow
+#: tool and the jaw as a switch that holds a pin until the hand-off (RLlib's PPO explores the jaw and the valve with a
+#: Gaussian, which an instant tool reads as a threshold and a held pin's jaw as a chance to drop it:
 #: dvrl_marl.core.tools).
-GUIDED = {"task": "suction_debris_v8", "reward_type": "guided", "observation_features": "suction_debris_cleared_pins_zoom",
-          "contact_penalty": 0.1, "tool_speed": 0.1, "jaw_command": "switch", "hold_until_handoff": True,
-          "state_observations": True}  # (the state for a centralised critic; RLlib's PPO here reads observations)
+GUIDED = {"preset": "benchmark"}
 
 
 def env_options(*, guided: bool = False, level: str = "default", max_cycles: int = 1500) -> dict:

@@ -72,7 +72,7 @@ def _task_table(name: str) -> dict:
 
 
 @pytest.mark.parametrize("task, loader, schema", [
-    ("suction_debris", SuctionDebrisParams.from_task, CollaborativeTask), ("psm_reach", load_task, SingleArmTask),
+    ("suction_debris_v8", SuctionDebrisParams.from_task, CollaborativeTask), ("psm_reach", load_task, SingleArmTask),
     ("psm_pick", load_task, SingleArmTask)])
 @FUZZ
 @given(data=st.data())
@@ -103,7 +103,7 @@ def test_a_broken_task_file_names_file_table_and_field(tmp_path, task, loader, s
 
 
 def test_a_misspelt_key_in_a_task_file_no_longer_gives_another_physics(tmp_path):
-    table = {**_task_table("suction_debris"), "pins_fal": True}  # (v1's pins_fall, misspelt)
+    table = {**_task_table("suction_debris_v8"), "pins_fal": True}  # (pins_fall, misspelt)
     path = _write_toml(tmp_path / "typo.toml", {"task": table})
     with pytest.raises(ValueError, match=r"\[task\] pins_fal: unknown key"):
         SuctionDebrisParams.from_task(path)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rule_sets import v0_rules  # the hand-off judged at the pin's centre
 
 from dvrl_marl.envs import suction_debris_v8
 
@@ -20,6 +21,7 @@ pytest.importorskip("torchrl")
 
 from dvrl_marl import policies  # noqa: E402
 from dvrl_marl.envs import guidance  # noqa: E402
+from dvrl_marl.envs.presets import with_preset  # noqa: E402
 from dvrl_marl.training import mappo, mappo_config, models  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -216,8 +218,8 @@ def test_cli_train_mappo(tmp_path):
     ("[pretrain]\ncritic_warmup_steps = -5\n", "[pretrain] critic_warmup_steps: must be >= 0"),
     ("[curriculum]\nlevels = [[0.0, 1.5]]\n", "[curriculum] levels[0][1]: must be <= 1"),
     ("[curriculum]\nlevels = [[0.5, 0.0], [0.2, 1.0]]\n", "[curriculum] levels: the progress points must increase"),
-    ("[shaping]\noff_centre_grasps = 1.0\n", "[shaping] shaping: retired by issue 37 (now the env's guided reward"),
-    ("[curriculum]\nreceding_starts = 0.3\n", "[curriculum] receding_starts: retired by issue 37 (now the env's start levels"),
+    ("[shaping]\noff_centre_grasps = 1.0\n", "[shaping] shaping: retired when the env took it over (now the env's guided reward"),
+    ("[curriculum]\nreceding_starts = 0.3\n", "[curriculum] receding_starts: retired when the env took it over (now the env's start levels"),
     ("[model]\nobservation_features = \"suction_debris_routes\"\n", "commit ea6d143"),
     ("[model]\nheld_tool_logit = { grasper = -8.0 }\n", "commit c59ae5f"),
     ("[model]\nheld_tool_logit = { grasper = -8.0 }\n[curriculum]\nreceding_starts = 0.3\n", "commit ea6d143"),
@@ -408,7 +410,8 @@ def test_demo_runs_the_marl_team(tmp_path, monkeypatch):
 
     run = tmp_path / "run"
     mappo.train(mappo.load_config(_config(tmp_path)), 0, run, total_steps=1024, progress=False, log=lambda *_: None)
-    shutil.copytree(run / "policies" / "marl-suction", run / "policies" / demo.MARL_SEATS["suction"])
+    if demo.MARL_SEATS["suction"] != "marl-suction":
+        shutil.copytree(run / "policies" / "marl-suction", run / "policies" / demo.MARL_SEATS["suction"])
     monkeypatch.setattr(policies, "shipped_dir", lambda: run / "policies")
     assert set(demo.MARL_SEATS.values()) <= set(policies.available())
     metrics = demo.run_demo(team="marl", out=tmp_path / "demo", max_cycles=30, video=False, progress=False)
@@ -449,7 +452,7 @@ def test_the_benchmarks_easy_task_file_reads_back_from_a_run_folder_and_none_is_
     config.env = yaml.safe_load((Path(integrations).parent / "benchmarl_tasks" / "suction_debris_easy.yaml").read_text())
     path = tmp_path / "written.toml"
     path.write_text(mappo.config_toml(config))
-    assert mappo.load_config(path).env == config.env
+    assert mappo.load_config(path).env == with_preset(config.env)
     config.env = {**config.env, "easy_episode_steps": None}
     with pytest.raises(ValueError, match="easy_episode_steps"):
         mappo.config_toml(config)
@@ -593,7 +596,7 @@ def test_trainer_runs_with_the_switch_head_the_envs_hold_and_zoomed_features(tmp
     assert mappo.load_config(run / "config.toml").env["hold_until_handoff"] is True
     retired = tmp_path / "held_prior.toml"
     retired.write_text(text.replace('tool_head = "switch"\n', 'tool_head = "switch"\nheld_tool_logit = { grasper = -10.0 }\n'))
-    with pytest.raises(ValueError, match=r"\[model\] held_tool_logit: retired by issue 37 \(now the env's option: "
+    with pytest.raises(ValueError, match=r"\[model\] held_tool_logit: retired when the env took it over \(now the env's option: "
                                          r"\[env\] hold_until_handoff = true.*reproducible from commit c59ae5f"):
         mappo.load_config(retired)
 
@@ -628,7 +631,7 @@ def test_mappo_critic_on_the_agent_specific_state_trains_and_resumes(tmp_path):
 
 @pytest.mark.parametrize("path", sorted((ROOT / "baselines" / "results" / "marl").glob("*.toml")), ids=lambda p: p.stem)
 def test_every_recorded_configuration_before_the_env_options_names_its_commit(path):
-    """Records that used the trainer's own shaping and curriculum (retired by issue 37) are refused, naming the
+    """Records that used the trainer's own shaping and curriculum (retired when the env took it over) are refused, naming the
     commit that reproduces them; the others still load."""
     import tomllib
 
@@ -672,7 +675,7 @@ def test_centred_grasps_charge_a_grasp_that_can_never_be_delivered():
     seed = _pin_along_x()
     gains, delivered = {}, {}
     for grip in ("centre", "end"):
-        env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+        env = v0_rules.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
                                             blood_ml=[0.0, 0.0])
         env.reset(seed=seed)
         core = env.core
@@ -733,7 +736,7 @@ def test_off_centre_grasps_charge_a_grasp_in_proportion_to_its_distance_from_the
     seed = _pin_along_x()
     gains = {}
     for along in (0.0, 0.003, 0.006):
-        env = suction_debris_v8.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
+        env = v0_rules.batched_env(num_envs=1, reward_type="dense", autoreset_mode="disabled",
                                             blood_ml=[0.0, 0.0])
         env.reset(seed=seed)
         core = env.core

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from rule_sets import v0_rules  # a wall that stops a move (the features read it)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -188,7 +189,7 @@ def test_climb_reads_the_wall_the_env_enforces():
     """The climb feature against the env's own wall rule: from a cleared cavity's floor, with blood left in the other,
     steps straight toward the next cavity never get the tip out while the climb reads more than 0; after rising
     until it reads 0, the same steps do."""
-    env = suction_debris_v8.batched_env(num_envs=1, surgeon=None, autoreset_mode="disabled")
+    env = v0_rules.batched_env(num_envs=1, surgeon=None, autoreset_mode="disabled")
     env.reset(seed=0, options={"blood_ml": [[8.0, 0.0]]})
     layout = env.layout()
     rho, centre = env.workspace_range, np.asarray(env.params.workspace_centre)
@@ -323,7 +324,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     ("[env]\nreward_type = 'guided'\n[env.guidance]\ncentred_grasps = 1\n", "centred_grasps"),
     ("[ppo]\nbounds_loss_coef = -1.0\n", "[ppo] bounds_loss_coef: must be >= 0"),
     ("[model]\ntool_head = 'switch'\ninitial_tool_logit = { scalpel = 1.0 }\n", "[model] initial_tool_logit.scalpel"),
-    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit: retired by issue 37"),
+    ("[model]\ntool_head = 'switch'\nheld_tool_logit = { grasper = -8.0 }\n", "held_tool_logit: retired when the env took it over"),
     ("[model]\ncritic_input = 'everything'\n", "[model] critic_input: must be one of"),
 ])
 def test_bad_head_settings_are_named(tmp_path, text, message):

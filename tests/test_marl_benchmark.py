@@ -56,11 +56,11 @@ def test_table_aggregates_iqm_intervals_and_frames_to_target(tmp_path):
         _record(tmp_path, "dvrl-marl", "default", seed, success, success >= 0.9)
     for seed in range(3):
         _record(tmp_path, "benchmarl", "easy", seed, 0.0, False)
-        _record(tmp_path, "benchmarl", "easy", seed, 1.0, True, task="suction_debris_v8")  # another scene's cell
+        _record(tmp_path, "benchmarl", "easy", seed, 1.0, True, task="suction_debris_v2")  # another scene's cell
     assert marl_benchmark.main(["table", "--results", str(tmp_path)]) == 0
     table = json.loads((tmp_path / "table.json").read_text())
     rows = {(r["library"], r["level"]): r for r in table["rows"] if r["task"] == _shipped_task()}
-    assert [r["iqm_success"] for r in table["rows"] if r["task"] == "suction_debris_v8"] == [1.0]
+    assert [r["iqm_success"] for r in table["rows"] if r["task"] == "suction_debris_v2"] == [1.0]
     ours = rows["dvrl-marl", "default"]
     assert ours["machine"] == "2 cores, Python 3.11.7"
     assert ours["seeds"] == 5 and ours["reached_target"] == "4/5" and ours["frames_to_target"] == 2000
@@ -85,27 +85,29 @@ def test_runs_on_different_scenes_are_never_pooled(tmp_path):
     """The same version with and without a scene option (tool_speed) is two scenes: two cells, two record names."""
     pytest.importorskip("rliable")
     for seed in range(3):
-        _record(tmp_path, "benchmarl", "default", seed, 0.0, False, options={"task": "suction_debris_v8"})
+        _record(tmp_path, "benchmarl", "default", seed, 0.0, False, options={"task": "suction_debris_v3"})
         _record(tmp_path, "benchmarl", "default", seed, 0.5, False,
-                options={"task": "suction_debris_v8", "tool_speed": 0.1})
+                options={"task": "suction_debris_v3", "tool_speed": 0.1})
     assert sorted(p.name for p in tmp_path.glob("*seed0.json")) == [
         "benchmarl_mappo_suction_debris_v3_default_seed0.json",
         "benchmarl_mappo_suction_debris_v3_tool_speed0.1_default_seed0.json"]
     assert marl_benchmark.main(["table", "--results", str(tmp_path)]) == 0
     table = json.loads((tmp_path / "table.json").read_text())
     assert {row["task"]: row["iqm_success"] for row in table["rows"]} == {
-        "suction_debris_v8": 0.0, "suction_debris_v3_tool_speed0.1": 0.5}
+        "suction_debris_v3": 0.0, "suction_debris_v3_tool_speed0.1": 0.5}
 
 
 def test_the_grasp_options_name_their_own_scene():
     """A switch jaw and the hold are scene options: in the scene's name (a flag only when on), never pooled."""
-    base = {"task": "suction_debris_v8", "tool_speed": 0.1}
+    base = {"task": "suction_debris_v5", "tool_speed": 0.1}
     assert marl_benchmark._scene_of(base) == "suction_debris_v5_tool_speed0.1"
     assert marl_benchmark._scene_of({**base, "jaw_command": "switch", "hold_until_handoff": True}) == (
         "suction_debris_v5_tool_speed0.1_jaw_command-switch_hold_until_handoff")
     assert marl_benchmark._scene_of({**base, "jaw_command": "proportional", "hold_until_handoff": False}) == (
         "suction_debris_v5_tool_speed0.1_jaw_command-proportional")
-    shipped = _shipped_options()
+    from dvrl_marl.envs.presets import with_preset
+
+    shipped = with_preset(_shipped_options())
     assert shipped["jaw_command"] == "switch" and shipped["hold_until_handoff"] is True
 
 
@@ -173,8 +175,8 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     success, classes, examples = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10)
     assert 0.0 <= success <= 1.0 and sum(classes.values()) == round(3 * (1.0 - success))
     assert set(examples) == set(classes)
-    # ... and played on a changed scene (--option): the same policies, another version
-    again, changed, _ = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10, {"task": "suction_debris_v8"})
+    # ... and played on a changed scene (--option): the same policies, another rule
+    again, changed, _ = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10, {"blocked_moves": "climb"})
     assert 0.0 <= again <= 1.0 and sum(changed.values()) == round(3 * (1.0 - again))
     with pytest.raises(SystemExit):
         failures.main([str(tmp_path / "runs" / records[0].stem), "--episodes", "2", "--option", "tool_speed=fast"])
@@ -184,7 +186,7 @@ def test_a_cells_interval_does_not_depend_on_the_other_cells():
     pytest.importorskip("rliable")
     records = [{"library": "dvrl-marl", "algorithm": "mappo", "level": "default", "frames": 2000, "wall_seconds": 20.0,
                 "final": {"success_rate": s}, "frames_to_target": None, "wall_to_target": None,
-                "env_options": {"task": "suction_debris_v8"}, "machine": {"cpus": 2, "python": "3.11.7"}}
+                "env_options": {"task": "suction_debris_v3"}, "machine": {"cpus": 2, "python": "3.11.7"}}
                for s in (0.05, 0.52, 0.21, 0.93, 0.34, 0.77, 0.12, 0.66, 0.48, 0.29)]  # distinct: a resample shows
     other = [{**record, "library": "benchmarl", "final": {"success_rate": 1.0 - record["final"]["success_rate"]}}
              for record in records]

@@ -172,7 +172,9 @@ env, the TorchRL and BenchMARL tasks).
 from __future__ import annotations
 
 from dvrl_marl.envs.presets import PRESETS
-from dvrl_marl.envs.suction_debris import AGENTS, TASK, SuctionDebrisEnv, env, parallel_env, raw_env
+from dvrl_marl.envs.suction_debris import (AGENTS, TASK, SceneLayout, SuctionDebrisEnv, SuctionDebrisParams, env,
+                                           parallel_env, raw_env)
 from dvrl_marl.envs.suction_debris_batched import batched_env
 
-__all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK", "PRESETS", "SuctionDebrisEnv"]
+__all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK", "PRESETS", "SuctionDebrisEnv",
+           "SuctionDebrisParams", "SceneLayout"]
