@@ -11,7 +11,7 @@ late, slow, shaky, hesitant; drawn with ``ZOO_SEED``, never used in training). T
 
 Prints, per seat and partner: success, median steps to success, instrument-contact steps, the seat's tip path (mm)
 and its mean absolute action change between steps (smoothness), learned beside scripted. The gap is the figure
-(issue 36: the learned seat within 2 points of the scripted seat's success beside each partner).
+(the learned seat within 2 points of the scripted seat's success beside each partner).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool) -
               else teams.seat(partner, other))
     team = {seat: teams.seat(player, seat, noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
             other: filler}
-    result = teams.evaluate_team_batched(team, episodes, task="suction_debris_v8", max_cycles=6000)
+    result = teams.evaluate_team_batched(team, episodes, max_cycles=6000)
     return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
             "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
             "mean_contact_steps": result["mean_contact_steps"], "tip_path_mm": result["mean_tip_path_mm"][seat],

@@ -67,7 +67,7 @@ def test_multi_agent_recipe_takes_the_envs_learning_options(local_ray):
     summary = recipe.main([*TINY, "--max-cycles", "60", "--guided", "--level", "easy", "--test-episodes", "2"])
     assert summary["test"]["episodes"] == 2 and summary["test"]["level"] == "easy" and summary["test"]["guided"]
     assert 0.0 <= summary["test"]["success_rate"] <= 1.0
-    assert recipe.env_options(guided=True, level="easy")["observation_features"] == "suction_debris_cleared_pins_zoom"
+    assert recipe.env_options(guided=True, level="easy")["preset"] == "benchmark"
     # the benchmark's options: its task file of each level
     import yaml
 

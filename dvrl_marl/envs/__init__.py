@@ -28,7 +28,7 @@ def replaced_message(name: str) -> str:
 
 
 class _ReplacedVersions(importlib.abc.MetaPathFinder):
-    """``import dvrl_marl.envs.suction_debris_v3`` (any form) fails with :func:`replaced_message`."""
+    """Importing an earlier version of the scene (in any form) fails with :func:`replaced_message`."""
 
     def find_spec(self, fullname, path=None, target=None):
         package, _, name = fullname.rpartition(".")
