@@ -1,8 +1,8 @@
-"""Success of the collaborative teams (issue target: the learned pipeline team completes >= 90 % of 50 seeds).
+"""Success of the collaborative teams (target: the learned pipeline team completes >= 90 % of 50 seeds).
 
 Reports success, mean steps, blood removed and instrument contacts for the scripted team, the scripted-stage
-pipeline team, the learned Reach + Pick pipeline teams (v1 and v0 policies, shipped), and a PPO team if a trained
-model is given.
+pipeline team, the learned Reach + Pick pipeline team (the shipped policies), and a PPO team if a trained model is
+given.
 
     python benchmarks/collaborative_teams.py [--episodes 50] [--ppo runs/baselines/suction_debris_ppo-seed0]
 """
@@ -31,9 +31,7 @@ def main() -> None:
     teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
     names = ["scripted_team"]
     if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
-        names.append("learned_team")  # the v1 policies
-    if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
-        names.append("learned_team_v0")  # the first release's v0 policies
+        names.append("learned_team")
     results = {}
     for label, act in teams.items():
         results[label] = evaluate_team(act, args.episodes)

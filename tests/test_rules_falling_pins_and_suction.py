@@ -149,7 +149,7 @@ def test_bad_v1_parameters_are_refused(bad):
 
 def test_the_keep_clear_team_solves_the_bleeding_field():
     # The Meta-World-style proof that the bleeding variant is solvable: both arms at work at once, the last hand-off
-    # timed to a clear field. (benchmarks/collaborative_v1.py: 75 % at 0.1 ml/s over 100 episodes, 21 % at 0.3.)
+    # timed to a clear field. (benchmarks/bleeding_field.py: 75 % at 0.1 ml/s over 100 episodes, 21 % at 0.3.)
     from dvrl_marl.training import teams
 
     env = v1_rules.parallel_env()

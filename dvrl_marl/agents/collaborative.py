@@ -5,10 +5,10 @@ can sit in the surgeon seat or act as an agent's policy. Their plan keeps the in
 the cavity farther from its own RCM first and parks on its own side afterwards; the surgeon only works in cavities
 the suction has cleared.
 
-For v1's bleeding field, where clearing first and picking afterwards fails (a cleared cavity refills before the last
+For the bleeding field, where clearing first and picking afterwards fails (a cleared cavity refills before the last
 hand-off), :class:`KeepClearSuction` and :class:`KeepClearSurgeon` work at the same time: the suction keeps going
 back to whichever cavity fills and keeps out of the grasper's way, the grasper picks where the suction is not and
-holds the last pin over the hand-off point until the field is clear (``benchmarks/collaborative_v1.py``).
+holds the last pin over the hand-off point until the field is clear (``benchmarks/bleeding_field.py``).
 """
 
 from __future__ import annotations

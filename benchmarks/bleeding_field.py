@@ -1,6 +1,6 @@
-"""The collaborative teams on suction_debris v0, v1 and v1 with a bleeding field (issue: re-evaluate on it).
+"""The collaborative teams on suction_debris_v8 without and with a bleeding field.
 
-    python benchmarks/collaborative_v1.py [--episodes 100] [--bleeding 0.1 0.3]
+    python benchmarks/bleeding_field.py [--episodes 100] [--bleeding 0.1 0.3]
         [--marl-suction runs/<run>/policies_best/marl-suction] [--marl-team runs/<run>/policies_best]
 
 Teams: the scripted team, the learned pipeline team (learned_team.toml), the keep-clear scripted team (the
@@ -30,9 +30,9 @@ def main() -> None:
     parser.add_argument("--marl-team", help="a folder with marl-suction/ and marl-grasper/ (trained together)")
     parser.add_argument("--out", help="write the figures to this JSON file")
     args = parser.parse_args()
-    variants = {"v0": {}, "v1": {"task": "suction_debris_v8"}}
+    variants = {"no bleeding": {}}
     for rate in args.bleeding:
-        variants[f"v1, bleeding {rate} ml/s"] = {"task": "suction_debris_v8", "bleeding_ml_s": rate}
+        variants[f"bleeding {rate} ml/s"] = {"bleeding_ml_s": rate}
     layout = suction_debris_v8.parallel_env()
     lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline"),
               "keep-clear scripted team": (KeepClearSuction.for_env(layout), KeepClearSurgeon.for_env(layout))}
