@@ -128,6 +128,14 @@ def _evaluate(args) -> int:
     if env_id in _SEAT_ENV_IDS or policy.spec.get("agent"):  # a seat of the collaborative scene: its team
         from dvrl_marl.training import teams
 
+        given = [flag for flag, value in (("--env", args.env), ("--tool", args.tool), ("--video", args.video))
+                 if value is not None and not (flag == "--env" and value in _SEAT_ENV_IDS)]
+        if given:
+            raise ValueError(f"evaluate: {', '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to "
+                             f"{args.policy}, a seat of the "
+                             "collaborative scene (it is evaluated beside the pipeline partner on suction_debris_v8); "
+                             "dvrl-marl evaluate-team pairs it with other partners")
+
         agent = policy.spec.get("agent", "grasper")
         partner = "suction" if agent == "grasper" else "grasper"
         seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
@@ -234,6 +242,47 @@ def _teleop(args) -> int:
 # The command line's numbers, declared once (dvrl_marl.schemas.cli_number): a count is >= 1 (0 once meant "the
 # config's value", -1 "one"), a seed >= 0, a port a TCP port. argparse names the flag in the error.
 COUNT = cli_number(int, low=1, name="count (>= 1)")
+
+
+def output_file(text: str) -> str:
+    """A file this command will write, checked before it runs (so that no episode, and nothing a person did, is
+    lost to a path that cannot be written): not a folder, in a folder that exists or can be made, writable."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file path")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        existed = path.exists()
+        with open(path, "ab"):
+            pass
+        if not existed:
+            path.unlink()
+    except OSError as error:
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be written ({error.strerror or error})") from None
+    return text
+
+
+def output_folder(text: str) -> str:
+    """A run folder this command will write into: not a file, and makeable."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a file; give a folder for the run")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be made ({error.strerror or error})") from None
+    return text
+
+
+def host_address(text: str) -> str:
+    """An interface to serve on: an IP address or a name this machine resolves."""
+    import socket
+
+    try:
+        socket.getaddrinfo(text, None)
+    except (socket.gaierror, UnicodeError) as error:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an address this machine can serve on ({error})") from None
+    return text
 SEED = cli_number(int, low=0, name="seed (>= 0)")
 PORT = cli_number(int, low=0, high=65535, name="port (0-65535)")
 
@@ -244,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="run the collaborative suction + debris episode end to end (MP4 + metrics)")
     demo.add_argument("--surgeon", choices=["learned", "scripted", "keyboard"], default="learned",
                       help="who works the LND (default: the learned Reach + Pick pipeline)")
-    demo.add_argument("--out", help="run folder (default runs/demo-<timestamp>)")
+    demo.add_argument("--out", type=output_folder, help="run folder (default runs/demo-<timestamp>)")
     demo.add_argument("--seed", type=SEED, default=0)
     demo.add_argument("--max-cycles", type=COUNT, help="truncate the episode after this many steps (default: the "
                       "task's 1500; 6000, two minutes, for --surgeon keyboard)")
@@ -252,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--team", choices=["pipeline", "marl"], default="pipeline",
                       help="pipeline: composed single-arm policies (default); marl: the suction learned by MAPPO "
                       "(with --surgeon learned, the learned grasper too)")
-    demo.add_argument("--record", metavar="FILE", help="save what the surgeon seat did as a demonstration (.npz) "
+    demo.add_argument("--record", metavar="FILE", type=output_file, help="save what the surgeon seat did as a demonstration (.npz) "
                       "that ReplayDevice plays back and behaviour cloning learns from")
     demo.add_argument("--no-video", action="store_true", help="skip rendering")
     demo.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -264,7 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the learned seat: marl-suction or marl-grasper), pipeline (the Reach + Pick "
                         "pipeline), or a shipped policy name or folder")
     teleop.add_argument("--port", type=PORT, default=8000, help="port (default 8000; 0: any free port)")
-    teleop.add_argument("--host", default="127.0.0.1", help="interface to serve on (default 127.0.0.1: this "
+    teleop.add_argument("--host", type=host_address, default="127.0.0.1", help="interface to serve on (default 127.0.0.1: this "
                         "machine only; another needs --allow-remote)")
     teleop.add_argument("--allow-remote", action="store_true", help="allow --host to be reachable from other "
                         "machines (the access token in the URL is still checked on every connection)")
@@ -278,7 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
     render = sub.add_parser("render", help="render a scene from its endoscope camera and print a summary")
     render.add_argument("--scene", default="collaborative", help="a scene with an endoscope camera: collaborative "
                         "(default), pick_lnd, pick_lnd_v1, reach_lnd, reach_suction_irrigation")
-    render.add_argument("--out", default="collaborative.png", help="PNG file to write")
+    render.add_argument("--out", type=output_file, default="collaborative.png", help="PNG file to write")
     render.add_argument("--width", type=COUNT, default=640)
     render.add_argument("--height", type=COUNT, default=480)
     render.set_defaults(func=_render)
@@ -288,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "suction_debris_mappo; see baselines/configs)")
     train.add_argument("--seed", type=SEED, default=0)
     train.add_argument("--steps", type=COUNT, help="override total_timesteps")
-    train.add_argument("--out", help="run folder (default runs/<config>-seed<seed>)")
+    train.add_argument("--out", type=output_folder, help="run folder (default runs/<config>-seed<seed>)")
     train.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs to <out>/sb3_log")
     train.add_argument("--export", help="folder to export the final policy to (numpy format)")
@@ -305,7 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--tool", choices=["lnd", "suction_irrigation"], help="Reach: roll out on this tool")
     evaluate.add_argument("--episodes", type=COUNT, default=50)
     evaluate.add_argument("--seed", type=SEED, default=1_000_000)
-    evaluate.add_argument("--video", help="write the first episodes to this MP4")
+    evaluate.add_argument("--video", type=output_file, help="write the first episodes to this MP4 (single-arm policies)")
     evaluate.set_defaults(func=_evaluate)
 
     team = sub.add_parser("evaluate-team", help="success of a collaborative team (or a cross-play matrix) on "
@@ -315,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--grasper", nargs="+", default=["marl-grasper"], help="grasper seat(s), the same choices")
     team.add_argument("--episodes", type=COUNT, default=100)
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
-    team.add_argument("--json", help="also write the rows to this JSON file")
+    team.add_argument("--json", type=output_file, help="also write the rows to this JSON file")
     team.add_argument("--preset", choices=sorted(PRESETS), default="default",
                       help="the scene's preset (suction_debris_v8); its learning options (reward, observation "
                            "features) are left out, since the seats compute their own features")
@@ -328,7 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("runs", nargs="+", help="run folders (each with progress.csv), or such CSV files")
     plot.add_argument("--team", action="store_true",
                       help="multi-agent runs: success and blood removed against steps (baselines/results/marl)")
-    plot.add_argument("--out", default="baselines/results/learning_curves", help="output path without suffix")
+    plot.add_argument("--out", type=lambda text: output_file(text + ".png")[:-4], default="baselines/results/learning_curves",
+                      help="output path without suffix")
     plot.set_defaults(func=_plot)
     return parser
 

@@ -69,8 +69,10 @@ def available_tasks() -> list[str]:
     return sorted(p.stem for p in tasks_dir().glob("*.toml"))
 
 
-def load_task_table(name: str | Path) -> tuple[str, dict]:
-    """The ``[task]`` table of a task file, by name (``"psm_reach"``) or path: (task name, table)."""
+def load_task_table(name: str | Path, _chain: tuple[str, ...] = ()) -> tuple[str, dict]:
+    """The ``[task]`` table of a task file, by name (``"psm_reach"``) or path: (task name, table). A file may
+    ``extends = "<task>"`` another, key by key overriding it; a chain that comes back to a file is an error naming the
+    chain."""
     path = Path(name)
     if path.suffix != ".toml":
         path = tasks_dir() / f"{name}.toml"
@@ -82,9 +84,13 @@ def load_task_table(name: str | Path) -> tuple[str, dict]:
     if "extends" in table:
         # A new version of a task: the task it extends, key by key overridden by this file's.
         base = str(table.pop("extends"))
-        if base == path.stem:
-            raise ValueError(f"{path}: a task cannot extend itself")
-        table = {**load_task_table(base)[1], **table}
+        chain = (*_chain, str(path.resolve()))
+        base_path = Path(base) if Path(base).suffix == ".toml" else tasks_dir() / f"{base}.toml"
+        if base == path.stem or str(base_path.resolve()) in chain:
+            names = " -> ".join(Path(link).stem for link in chain)
+            raise ValueError(f"{path}: extends = {base!r} comes back to a file of its own chain ({names} -> {base}); "
+                             "a task cannot extend itself")
+        table = {**load_task_table(base, chain)[1], **table}
     return path.stem, table
 
 

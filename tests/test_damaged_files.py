@@ -116,3 +116,17 @@ def test_damaged_run_configuration(tmp_path):
     path.write_text("[run\nenv_id = 'x'\n")
     with pytest.raises(ValueError, match="run.toml: not valid TOML"):
         load_config(path)
+
+
+@pytest.mark.parametrize("files", [{"a": "a"}, {"a": "b", "b": "a"}, {"a": "b", "b": "c", "c": "b"}])
+def test_a_task_file_that_extends_itself_through_others_is_named(tmp_path, monkeypatch, files):
+    """A chain of ``extends`` that comes back to one of its files is an error naming the chain (it was a
+    RecursionError)."""
+    from dvrl_marl import task
+
+    for name, base in files.items():
+        (tmp_path / f"{name}.toml").write_text(f'[task]\nextends = "{base}"\n')
+    monkeypatch.setattr(task, "tasks_dir", lambda: tmp_path)
+    with pytest.raises(ValueError, match=r"a\.toml|b\.toml|c\.toml") as error:
+        task.load_task_table("a")
+    assert "cannot extend itself" in str(error.value) and "->" in str(error.value) or files == {"a": "a"}

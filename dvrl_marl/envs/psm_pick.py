@@ -76,7 +76,9 @@ class PSMPickEnv(PSMGoalEnv):
     reset_option_keys = ("goal", "start", "object")
 
     def __init__(self, *, grasp_threshold: float | None = None, **kwargs):
-        kwargs.pop("tool", None)  # Pick needs the jaw: always the LND
+        tool = kwargs.pop("tool", "lnd")
+        if tool != "lnd":  # Pick needs the jaw
+            raise ValueError(f"PSMPickEnv: tool must be 'lnd' (Pick needs the jaw of the Large Needle Driver), got {tool!r}")
         super().__init__(tool="lnd", grasp_threshold=grasp_threshold, **kwargs)
         self.grasp_threshold = float(self.spec_task.grasp_threshold)
         self.initial_jaw = float(self.spec_task.initial_jaw if self.spec_task.initial_jaw is not None else 1.0)

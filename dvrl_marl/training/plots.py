@@ -12,12 +12,24 @@ import numpy as np
 __all__ = ["read_progress", "aggregate", "plot_learning_curves", "plot_team_curves", "summary_table"]
 
 
-def read_progress(run_dir) -> dict[str, np.ndarray]:
-    """A run folder's ``progress.csv``, or such a file itself (``results/marl/<label>-progress.csv``)."""
+def read_progress(run_dir, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """A run folder's ``progress.csv``, or such a file itself (``results/marl/<label>-progress.csv``); a file without
+    one of the ``required`` columns, or with a value that is not a number, is an error naming the file."""
     path = Path(run_dir)
-    with (path if path.suffix == ".csv" else path / "progress.csv").open() as handle:
-        rows = list(csv.DictReader(handle))
-    return {key: np.array([float(r[key]) if r[key] != "" else np.nan for r in rows]) for key in rows[0]} if rows else {}
+    path = path if path.suffix == ".csv" else path / "progress.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"{run_dir}: no progress.csv there (give a run folder or its progress.csv)")
+    with path.open() as handle:
+        reader = csv.DictReader(handle)
+        rows = list(reader)
+        missing = [column for column in required if column not in (reader.fieldnames or [])]
+    if missing:
+        raise ValueError(f"{path}: no column {', '.join(missing)} (its columns: {', '.join(reader.fieldnames or [])}); "
+                         "give a run folder's progress.csv")
+    try:
+        return {key: np.array([float(r[key]) if r[key] != "" else np.nan for r in rows]) for key in rows[0]} if rows else {}
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: a value is not a number ({error})") from None
 
 
 def _label(run_dir: Path) -> str:
@@ -30,7 +42,7 @@ def aggregate(run_dirs) -> dict[str, dict[str, np.ndarray]]:
     """Per configuration: timesteps, mean and std of success over seeds (on the common evaluation steps)."""
     groups: dict[str, list] = defaultdict(list)
     for run in map(Path, run_dirs):
-        progress = read_progress(run)
+        progress = read_progress(run, required=("timesteps", "success_rate"))
         if progress:
             groups[_label(run)].append(progress)
     result = {}
@@ -124,7 +136,7 @@ def plot_team_curves(run_dirs, out) -> tuple[Path, Path]:
     out.parent.mkdir(parents=True, exist_ok=True)
     groups: dict[str, list] = defaultdict(list)
     for run in map(Path, run_dirs):
-        progress = read_progress(run)
+        progress = read_progress(run, required=("steps", "success_rate", "blood_removed_ml"))
         if progress:
             groups[_label(run)].append(progress)
     # Many configurations: distinct colours (tab20) and line styles, the legend below both panels, not over them.
@@ -153,6 +165,6 @@ def plot_team_curves(run_dirs, out) -> tuple[Path, Path]:
     axes[0].set_ylim(-0.02, 1.02)
     handles, labels = axes[0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
-    figure.suptitle("suction_debris_v8: multi-agent PPO (validation episodes)")
+    figure.suptitle("The collaborative scene: multi-agent PPO (validation episodes)")
     return _save(figure, out, ["configuration", "metric", "steps", "mean", "std", "seeds"], rows, dpi=110,
                  layout_rect=(0, (legend_inches - 0.3) / (4.0 + legend_inches), 1, 1))

@@ -1,0 +1,57 @@
+"""Bad command-line input is named before anything runs: flags that do not apply, outputs that cannot be written,
+addresses that do not resolve, files without the columns a command reads (nothing a run or a person did is lost to a
+bad output path, since no episode starts)."""
+
+import pytest
+
+from dvrl_marl.cli import main
+
+
+def _refused(argv, capsys) -> str:
+    """The command's exit status is 2 and its message is returned (argparse's or the command's own)."""
+    try:
+        status = main(argv)
+    except SystemExit as exit_:
+        status = exit_.code
+    assert status == 2, argv
+    return capsys.readouterr().err
+
+
+def test_a_tool_pick_cannot_use_is_named(capsys):
+    assert "tool must be 'lnd'" in _refused(["evaluate", "pick-lnd", "--tool", "suction_irrigation",
+                                             "--episodes", "1"], capsys)
+
+
+@pytest.mark.parametrize("flags,named", [(["--tool", "lnd"], "--tool"), (["--env", "dvrl_marl/PSMReach-v1"], "--env"),
+                                         (["--tool", "lnd", "--video", "x.mp4"], "--tool, --video")])
+def test_flags_that_do_not_apply_to_a_seat_are_named(capsys, tmp_path, flags, named):
+    flags = [str(tmp_path / f) if f.endswith(".mp4") else f for f in flags]
+    message = _refused(["evaluate", "marl-grasper", "--episodes", "1", *flags], capsys)
+    assert named in message and "not apply to marl-grasper" in message
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["evaluate", "reach-lnd", "--video", "/proc/x.mp4"], "--video: '/proc/x.mp4' cannot be written"),
+    (["evaluate-team", "--json", "{tmp}"], "--json: '{tmp}' is a folder"),
+    (["render", "--out", "{tmp}"], "--out: '{tmp}' is a folder"),
+    (["demo", "--record", "/proc/x.npz"], "--record: '/proc/x.npz' cannot be written"),
+    (["demo", "--record", "{tmp}"], "--record: '{tmp}' is a folder"),
+    (["demo", "--out", "{file}"], "--out: '{file}' is a file"),
+    (["train", "suction_debris_mappo", "--out", "{file}"], "--out: '{file}' is a file"),
+    (["teleop", "--host", "256.1.1.1"], "--host: '256.1.1.1' is not an address"),
+    (["plot", "{tmp}", "--out", "/proc/curves"], "--out: '/proc/curves.png' cannot be written"),
+])
+def test_outputs_and_addresses_are_checked_before_anything_runs(capsys, tmp_path, argv, named):
+    (tmp_path / "taken").write_text("a file")
+    fill = {"tmp": str(tmp_path), "file": str(tmp_path / "taken")}
+    message = _refused([a.format(**fill) for a in argv], capsys)
+    assert named.format(**fill) in message
+
+
+def test_a_progress_file_without_its_columns_is_named(capsys, tmp_path):
+    csv = tmp_path / "other.csv"
+    csv.write_text("a,b\n1,2\n")
+    assert "no column timesteps, success_rate" in _refused(["plot", str(csv), "--out", str(tmp_path / "c")], capsys)
+    assert "no column steps, success_rate, blood_removed_ml" in _refused(
+        ["plot", str(csv), "--team", "--out", str(tmp_path / "c")], capsys)
+    assert "no progress.csv there" in _refused(["plot", str(tmp_path), "--out", str(tmp_path / "c")], capsys)
