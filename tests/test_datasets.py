@@ -109,6 +109,7 @@ def test_recordings_convert_and_datasets_are_not_overwritten(tmp_path):
 
 
 def test_behaviour_cloning_learns_and_seats_its_clone(recorded, tmp_path):
+    pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.training.clone import clone
 
     observations, actions = datasets.transitions(recorded)
@@ -123,6 +124,7 @@ def test_behaviour_cloning_learns_and_seats_its_clone(recorded, tmp_path):
 
 
 def test_train_command_records_clones_and_evaluates(tmp_path, capsys):
+    pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.cli import main
 
     config = tmp_path / "tiny_bc.toml"
@@ -137,6 +139,7 @@ def test_train_command_records_clones_and_evaluates(tmp_path, capsys):
 
 
 def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
+    pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.agents.collaborative import ScriptedSurgeon
     from dvrl_marl.cli import main
     from dvrl_marl.training.clone import dagger_round, load_config
@@ -170,6 +173,7 @@ def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
 
 
 def test_clone_options_sharp_cleared_inputs_weights_and_annealing(recorded, tmp_path):
+    pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.training.clone import cleared_features, clone
 
     observations, actions = datasets.transitions(recorded)

@@ -30,6 +30,7 @@ def test_gymnasium_env_checker(env_id):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_stable_baselines3_env_checker(env_id):
+    pytest.importorskip("stable_baselines3")
     from stable_baselines3.common.env_checker import check_env
 
     env = make(env_id)
@@ -346,6 +347,7 @@ def test_rendering_from_the_endoscope(env_id, mode):
 
 
 def test_vector_envs_and_sb3_her_smoke():
+    pytest.importorskip("stable_baselines3")
     from stable_baselines3 import SAC, HerReplayBuffer
 
     vec = gym.make_vec("dvrl_marl/PSMReach-v1", num_envs=3, vectorization_mode="sync")
