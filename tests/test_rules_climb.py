@@ -67,17 +67,25 @@ def test_a_tip_pressed_out_and_down_against_a_wall_rides_over_the_rim_in_v5_and_
     assert 1000 * np.linalg.norm(path[-1] - path[0]) > 40.0
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(where=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.0, 0.2)),
-       command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
-def test_climbing_changes_only_descents_that_make_no_headway_and_keeps_tips_above_the_surface(where, command):
-    env = v5_rules.parallel_env()
+def move_over_the_surface(env, where, command):
+    """A tip ``where`` (normalised x, y and a lift above the surface) and a command: the cavities, the parameters,
+    the tip (1, 3), the move (1, 3) and the workspace box, as :func:`dvrl_marl.core.sliding.surface_target` takes
+    them."""
     cavities, p = Cavities(env.phantom), env.params
     x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
     old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance
                      + lift * env.workspace_range]])
     delta = p.step_size * np.array([command])
     low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    return cavities, p, old, delta, low, high
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(where=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.0, 0.2)),
+       command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
+def test_climbing_changes_only_descents_that_make_no_headway_and_keeps_tips_above_the_surface(where, command):
+    env = v5_rules.parallel_env()
+    cavities, p, old, delta, low, high = move_over_the_surface(env, where, command)
     plain = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta)
     climbed = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True)
     made = np.linalg.norm(plain - old)

@@ -10,7 +10,7 @@ import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
 from rule_sets import v5_rules, v6_rules
-from test_rules_climb import suction_on_the_wall, suction_path
+from test_rules_climb import move_over_the_surface, suction_on_the_wall, suction_path
 
 # The suction on the wall of the left cavity near its rim (tests/test_suction_debris_v5.py's place), heading for the
 # other cavity and down, almost along the wall's normal: the command a learnt BenchMARL suction sent there, by its
@@ -46,12 +46,7 @@ def test_a_tip_pressed_along_the_walls_normal_climbs_out_in_v6_and_cycles_in_pla
        command=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)))
 def test_ahead_changes_only_descents_that_advance_too_little_and_keeps_tips_above_the_surface(where, command):
     env = v6_rules.parallel_env()
-    cavities, p = Cavities(env.phantom), env.params
-    x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
-    old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance
-                     + lift * env.workspace_range]])
-    delta = p.step_size * np.array([command])
-    low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    cavities, p, old, delta, low, high = move_over_the_surface(env, where, command)
     plain = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta)
     ahead = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True, ahead=True)
     length = np.linalg.norm(delta)

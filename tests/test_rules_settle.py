@@ -10,10 +10,9 @@ from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
-from dvrl_marl.core.collaborative import Cavities
 from dvrl_marl.envs import suction_debris_v8
 from rule_sets import v6_rules
-from test_rules_climb import suction_on_the_wall, suction_path
+from test_rules_climb import move_over_the_surface, suction_on_the_wall, suction_path
 
 # Where a learnt BenchMARL suction (seed 0, by its mean action) rested on v6 for the rest of its failed test episodes:
 # on the left cavity's slope, toward the ridge, a few millimetres above the last half millilitre, pressing straight down
@@ -63,12 +62,7 @@ def test_the_grasper_pressed_down_on_the_slope_stays_where_it_is_as_in_v6():
 def test_settle_changes_only_descents_left_without_headway_over_a_cavity_and_keeps_tips_above_the_surface(where,
                                                                                                          command):
     env = suction_debris_v8.parallel_env()
-    cavities, p = Cavities(env.phantom), env.params
-    x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)
-    old = np.array([[x, y, float(cavities.surface_height(np.array([x]), np.array([y]))[0]) + p.tip_clearance
-                     + lift * env.workspace_range]])
-    delta = p.step_size * np.array([command])
-    low, high = env.workspace_centre - env.workspace_range, env.workspace_centre + env.workspace_range
+    cavities, p, old, delta, low, high = move_over_the_surface(env, where, command)
     v6 = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True, ahead=True)
     v7 = sliding.surface_target(cavities, p.tip_clearance, p.step_size, low, high, old, delta, climb=True, ahead=True,
                                 settle=True)
