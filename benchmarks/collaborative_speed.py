@@ -1,4 +1,4 @@
-"""Speed of the collaborative environment (issue target: >= 5,000 parallel steps/s on one core).
+"""Speed of the collaborative environment (target: >= 5,000 parallel steps/s on one core).
 
 A parallel step is one call of ``step`` in which every agent acts once. Random actions, resets included.
 

@@ -139,10 +139,11 @@ def _evaluate(args) -> int:
         agent = policy.spec.get("agent", "grasper")
         partner = "suction" if agent == "grasper" else "grasper"
         seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
+        preset = policy.spec.get("preset", "default")  # the scene the seat learnt on (its manifest says)
         result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner)}, args.episodes,
-                                             seed=seed)
+                                             seed=seed, **scene_options(preset))
         result = {k: v for k, v in result.items() if k not in ("success", "steps")}
-        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "seat": agent,
+        print(json.dumps({"policy": str(args.policy), "env_id": env_id, "preset": preset, "seat": agent,
                           "partner": "pipeline (learned_team)", **result}, indent=2))
         return 0
     env_kwargs = {"tool": args.tool} if args.tool else {}
