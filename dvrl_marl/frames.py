@@ -3,8 +3,9 @@
 A dVRK PSM reports ``measured_cp`` and takes ``servo_cp`` goals (CRTK) as the pose of its wrist-yaw frame in its
 base (remote centre of motion) frame. An environment's p is a position in its own frame: the PSM base frame for
 Reach and Pick (identity base pose), the world for the collaborative scene (each arm's base at its RCM, see
-:func:`base_pose_of`). In the v1 single-arm environments p *is* the measured_cp position; in v0 (and the
-collaborative scene) p is the tool point, 10.2 mm further along the tool (:mod:`dvrl_marl.kinematics`).
+:func:`base_pose_of`). In the registered single-arm environments p *is* the measured_cp position; with
+``tip_frame="tool_point"`` (and in the collaborative scene) p is the tool point, 10.2 mm further along the tool
+(:mod:`dvrl_marl.kinematics`).
 
 ```python
 from dvrl_marl import frames
@@ -61,8 +62,8 @@ def _check(position) -> np.ndarray:
 
 def env_to_dvrk(position, base_pose: BasePose = BasePose(), *, tool="lnd", env_tip_frame: str = "measured_cp"):
     """Environment position(s) p ``(..., 3)`` (metres) to the dVRK's measured_cp / servo_cp position in the arm's
-    base frame. ``env_tip_frame``: which point p is ("measured_cp" for the v1 single-arm envs, "tool_point" for v0
-    and the collaborative scene); the tool points down the base's -z, as in every environment."""
+    base frame. ``env_tip_frame``: which point p is ("measured_cp" for the registered single-arm envs, "tool_point" with
+    ``tip_frame="tool_point"`` and for the collaborative scene); the tool points down the base's -z, as in every environment."""
     if env_tip_frame not in kinematics.TIP_FRAMES:
         raise ValueError(f"env_tip_frame must be one of {kinematics.TIP_FRAMES}, got {env_tip_frame!r}")
     in_base = (_check(position) - np.asarray(base_pose.position)) @ base_pose.rotation

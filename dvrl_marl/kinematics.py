@@ -72,8 +72,8 @@ SUCTION_IRRIGATION_TUBE_LENGTH = 0.006 + 0.0102
 #: lies 10.2 mm behind the tube tip (CRESSim-Neo's yaw-to-tip length, the same 10.2 mm as the LND's).
 SUCTION_IRRIGATION_YAW2TIP = 0.0102
 
-#: The points a single-arm environment can move (its p): ``"tool_point"`` (v0: jaw control point / tube tip) or
-#: ``"measured_cp"`` (v1: the dVRK's reported and commanded frame).
+#: The points a single-arm environment can move (its p): ``"tool_point"`` (the jaw control point / tube tip) or
+#: ``"measured_cp"`` (the dVRK's reported and commanded frame; the registered envs').
 TIP_FRAMES = ("tool_point", "measured_cp")
 
 _HALF_PI = math.pi / 2

@@ -40,8 +40,8 @@ class PickExpert:
         gain: rho / eta of the environment.
         grasp_tolerance: normalised distance from the jaws to the object under which the jaw closes (1 mm at
             rho = 2.5 cm).
-        tool_point_drop: normalised distance from the observed p down to the jaws (0 in v0, where p is the jaw
-            control point; 10.2 mm / rho in v1, where p is the dVRK's measured_cp).
+        tool_point_drop: normalised distance from the observed p down to the jaws (0 in the tool-point frame, where p is the jaw
+            control point; 10.2 mm / rho in the registered envs, where p is the dVRK's measured_cp).
     """
 
     def __init__(self, gain: float = 25.0, grasp_tolerance: float = 0.04, tool_point_drop: float = 0.0):

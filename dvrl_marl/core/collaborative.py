@@ -168,7 +168,7 @@ class CollaborativeCore:
         self.num_worlds = n = int(num_worlds)
         p = self.params = template.params
         self.sparse = template.reward_type == "sparse"
-        self.move_rules = {agent: sliding.MoveRules.of(p.blocked_moves, agent) for agent in AGENTS}  # v3-v7
+        self.move_rules = {agent: sliding.MoveRules.of(p.blocked_moves, agent) for agent in AGENTS}
         self.cavities = Cavities(template.phantom)
         self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
@@ -196,7 +196,7 @@ class CollaborativeCore:
         self.bleed_rate = np.zeros((n, c))  # ml/s
         self.holding = np.full(n, -1, dtype=np.int64)  # index of the held pin, -1 for none
         self.hold_offset = np.zeros((n, 3))
-        self.grip_offset = np.zeros((n, 3))  # where the jaws hold the held pin, from the tip (v2's hand-off)
+        self.grip_offset = np.zeros((n, 3))  # where the jaws hold the held pin, from the tip (the hand-off at the grip)
         self.elapsed = np.zeros(n, dtype=np.int64)
         self.limit = np.full(n, p.max_cycles, dtype=np.int64)  # each episode's time limit (start levels shorten it)
         self.contact = np.zeros(n, dtype=bool)
@@ -388,7 +388,7 @@ class CollaborativeCore:
         return refused | (clearance < CONTACT_MARGIN)
 
     def _fall_back(self, agent, rows, old, delta, refused, clearance) -> None:
-        """v3: the blocked moves of ``rows`` slide (:func:`sliding.resolve_blocked`); ``refused`` and ``clearance``
+        """The blocked moves of ``rows`` slide (:func:`sliding.resolve_blocked`); ``refused`` and ``clearance``
         are updated in place for those made."""
         p = self.params
         arm, other = self.arms[agent], self.arms[AGENTS[1 - AGENTS.index(agent)]]
@@ -422,7 +422,7 @@ class CollaborativeCore:
         remaining = self.remaining_ml[self._rows, safe]
         height = tip[:, 2] - self.surface_z[self._rows, safe]
         reach = self.params.suction_reach
-        if reach <= 0.0:  # v0: full flow under the surface, none at or above it
+        if reach <= 0.0:  # the simple rule: full flow under the surface, none at or above it
             flow = np.where(height < 0.0, 1.0, 0.0)
         else:  # the single env's arithmetic: 1 at or below the surface, falling linearly to 0 at reach above it
             flow = np.where(height <= 0.0, 1.0, np.where(height < reach, 1.0 - height / reach, 0.0))
@@ -453,13 +453,13 @@ class CollaborativeCore:
         if release.any():  # released away from the assistant: it drops onto the surface below it
             worlds = np.flatnonzero(release)
             pins = self.holding[worlds]
-            if self.params.pins_stay_on_phantom:  # v2: beyond the phantom, it lands on the nearest edge (in view)
+            if self.params.pins_stay_on_phantom:  # beyond the phantom, it lands on the nearest edge (in view)
                 position = self.debris_position[worlds, pins]
                 x, y = self.cavities.nearest_on_top(position[:, 0], position[:, 1], PHANTOM_EDGE_MARGIN)
                 self.debris_position[worlds, pins, 0], self.debris_position[worlds, pins, 1] = x, y
             if self.params.pins_fall:  # it falls (see _fall)
                 self.fall_speed[worlds, pins] = 0.0
-            else:  # v0: it appears on the surface below it at once
+            else:  # the simple rule: it appears on the surface below it at once
                 position = self.debris_position[worlds, pins]
                 self.debris_position[worlds, pins, 2] = self._surface(position[:, 0], position[:, 1]) + PIN_RADIUS
             self.held[worlds, pins] = False
@@ -491,7 +491,7 @@ class CollaborativeCore:
             pins = self.holding[worlds]
             position = tip[worlds] + self.hold_offset[worlds]
             self.debris_position[worlds, pins] = position
-            if self.params.deliver_at_grip:  # v2: judged where the jaws hold the pin
+            if self.params.deliver_at_grip:  # judged where the jaws hold the pin
                 position = tip[worlds] + self.grip_offset[worlds]
             arrived = _distance(position, self.handoff) <= self.params.distance_threshold
             worlds, pins = worlds[arrived], pins[arrived]
@@ -521,7 +521,7 @@ class CollaborativeCore:
 
     def _fall(self) -> None:
         """Released pins fall under gravity onto the surface below them (the single env's arithmetic)."""
-        if not self.params.pins_fall:  # v0: released pins never fall
+        if not self.params.pins_fall:  # the simple rule: released pins never fall
             return
         falling = ~np.isnan(self.fall_speed)
         if not falling.any():
@@ -607,8 +607,8 @@ class CollaborativeCore:
 
     def shown_positions(self) -> np.ndarray:
         """(N, D, 3) world: where observations, the state and the dense reward's carry place the pins: their centres,
-        a held pin in v4 (``held_pin_at_grip``) where the jaws hold it, the point the hand-off judges."""
-        if not (self.params.held_pin_at_grip and self.params.deliver_at_grip):  # (without v2's rule: the centre)
+        a held pin with ``held_pin_at_grip`` where the jaws hold it, the point the hand-off judges."""
+        if not (self.params.held_pin_at_grip and self.params.deliver_at_grip):  # (without the grip rule: the centre)
             return self.debris_position
         holding = self.holding >= 0
         if not holding.any():

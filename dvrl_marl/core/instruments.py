@@ -1,6 +1,6 @@
 """The two instruments as segments, for contact: an RCM-to-wrist shaft and a wrist-to-tip segment per arm.
 
-Shared by the collaborative scene's batched core (contact and the refusal of intersecting moves) and v3's sliding
+Shared by the collaborative scene's batched core (contact and the refusal of intersecting moves) and the sliding rules
 (:mod:`dvrl_marl.core.sliding`: the contact's normal), batched over leading axes.
 """
 

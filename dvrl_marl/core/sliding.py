@@ -64,7 +64,7 @@ NO_HEADWAY = 0.1
 OUTER_JOINTS = 3
 
 
-#: The task files' ``blocked_moves`` values, each adding its rule to those before it (v0-v2, v3, v5, v6, v7).
+#: The task files' ``blocked_moves`` values, each adding its rule to those before it.
 BLOCKED_MOVES = ("stop", "slide", "climb", "climb_ahead", "settle")
 
 
@@ -73,10 +73,10 @@ class MoveRules:
     """Which of this module's rules one arm's moves follow (:meth:`of` a ``blocked_moves`` value): the one place
     that says so, for the batched core and the single env alike."""
 
-    slide: bool = False  # v3: blocked moves slide (:func:`resolve_blocked`, :func:`wall_slide`)
-    climb: bool = False  # v5: a descent without headway gives up its descent
-    ahead: bool = False  # v6: headway counted the way the move heads
-    settle: bool = False  # v7: the suction's descent still without headway slides down the bowl
+    slide: bool = False  # blocked moves slide (:func:`resolve_blocked`, :func:`wall_slide`)
+    climb: bool = False  # a descent without headway gives up its descent
+    ahead: bool = False  # headway counted the way the move heads
+    settle: bool = False  # the suction's descent still without headway slides down the bowl
 
     @classmethod
     def of(cls, blocked_moves: str, agent: str) -> MoveRules:
@@ -113,13 +113,13 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
                    ahead: bool = False, settle: bool = False) -> np.ndarray:
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
     the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
-    slid along it (:func:`wall_slide`; v3), then, if the move still enters the wall, only its vertical part (all that
-    v0-v2 make of it: ``slide_on_walls=False``). ``climb`` (v5): a descending move of which these rules make less
+    slid along it (:func:`wall_slide`), then, if the move still enters the wall, only its vertical part (all that
+    ``stop`` makes of it: ``slide_on_walls=False``). ``climb``: a descending move of which these rules make less
     than :data:`NO_HEADWAY` of its length gives up its descent (its level part, made by the same rules, instead).
-    ``ahead`` (v6): for a move with a level part (at least :data:`NO_HEADWAY` of it), the headway is what the made
+    ``ahead``: for a move with a level part (at least :data:`NO_HEADWAY` of it), the headway is what the made
     part advances the way the move heads, level (a slide back down the wall, away from where it heads, is none), and
     the level part replaces the move only where it advances further that way (a descent pressed into the box's face
-    is made as in v5). ``settle`` (v7): a descending move that still makes less than :data:`NO_HEADWAY` of its
+    is made as under ``climb``). ``settle``: a descending move that still makes less than :data:`NO_HEADWAY` of its
     length, over a cavity, slides down the bowl where that makes more (its component into the wall taken away,
     :func:`wall_slide`, on the gentle slopes too)."""
     target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
@@ -148,7 +148,7 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
             resting &= cavities.cavity_at(old[:, 0], old[:, 1]) >= 0
             settled = _surface_target(cavities, tip_clearance, step, low, high, old, wall_slide(cavities, old, delta),
                                       slide_on_walls)
-            resting &= np.sqrt(((settled - old) ** 2).sum(axis=1)) > made  # never less than v6 makes
+            resting &= np.sqrt(((settled - old) ** 2).sum(axis=1)) > made  # never less than ``ahead`` makes
             target = np.where(resting[:, None], settled, target)
     return target
 
@@ -211,7 +211,7 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
     the move; the other instrument's shaft follows from its tip, as the joints do), ``delta`` (M, 3) the commanded
     move. Returns ``(made (M,), tip (M, 3) world, q (M, n), clearance (M,))`` for the first candidate of each row
     that can be made (rows not made: unchanged, clearance NaN). ``climb``, ``ahead``, ``settle``:
-    :func:`surface_target`'s (v5, v6, v7)."""
+    :func:`surface_target`'s (``climb``, ``ahead``, ``settle``)."""
     tool, base, start = arm["tool"], np.asarray(arm["base"]), arm["tip"]
 
     def segment(tool, base, tip):

@@ -141,7 +141,7 @@ class GraspPathShaping:
     with the tip within 2 mm of the workspace's face; a collapsed grasper held such pins for 900 steps and delivered
     0.13 per episode. A centre grasp (the scripted surgeon's) costs nothing; releasing a bad one pays its charge back.
 
-    From v4 on (``held_pin_at_grip``) the state shows a held pin where the hand-off judges it, the grip, within the
+    With ``held_pin_at_grip`` (the scene's rule) the state shows a held pin where the hand-off judges it, the grip, within the
     jaw's sensor range of the tip: ``centred`` and ``off_centre`` then measure that point (a grasp anywhere along the
     pin can be delivered, and costs at most the few millimetres between the grip and the tip).
     """

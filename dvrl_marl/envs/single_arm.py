@@ -86,7 +86,7 @@ class PSMGoalEnv(gym.Env):
 
         self.model = load_model(spec.scenes[tool])
         self.data = mujoco.MjData(self.model)
-        #: Which point of the tool p is: "tool_point" (v0) or the dVRK's "measured_cp" (v1); see dvrl_marl.kinematics.
+        #: Which point of the tool p is: "tool_point" or the dVRK's "measured_cp" (registered); see dvrl_marl.kinematics.
         self.tip_frame = tip_frame
         self.arm = Arm(self.model, self.data, "psm/", self.tool, tip_frame=tip_frame)
         if not np.allclose(self.arm.base_rotation[:, 2], (0.0, 0.0, 1.0)):

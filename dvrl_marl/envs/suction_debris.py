@@ -1047,12 +1047,12 @@ class SuctionDebrisEnv(ParallelEnv):
         if self._held is not None and not closed:
             pin = self.debris[self._held]
             pin.held = False
-            if self.params.pins_stay_on_phantom:  # v2: beyond the phantom, it lands on the nearest edge (in view)
+            if self.params.pins_stay_on_phantom:  # beyond the phantom, it lands on the nearest edge (in view)
                 pin.position[0], pin.position[1] = self.phantom.nearest_on_top(pin.position[0], pin.position[1],
                                                                                _PHANTOM_EDGE_MARGIN)
             if self.params.pins_fall:  # released away from the assistant: it falls (see _fall)
                 pin.fall_speed = 0.0
-            else:  # v0: it appears on the surface below it at once
+            else:  # the simple rule: it appears on the surface below it at once
                 pin.position[2] = self.phantom.surface_height(pin.position[0], pin.position[1]) + _PIN_RADIUS
             self._sync_debris(self._held)
             self._held = None
@@ -1081,7 +1081,7 @@ class SuctionDebrisEnv(ParallelEnv):
         return lifted, delivered
 
     def _judged_point(self, tip, pin):
-        """Where the hand-off is judged: the pin's centre (v0, v1) or where the jaws hold it (v2's deliver_at_grip:
+        """Where the hand-off is judged: the pin's centre or where the jaws hold it (``deliver_at_grip``:
         a pin held off its centre can still reach the assistant, whose point lies 2 mm inside the workspace)."""
         if self.params.deliver_at_grip:
             return [tip[i] + self._grip_offset[i] for i in range(3)]
@@ -1089,7 +1089,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _shown_position(self, pin):
         """Where observations, the state and the dense reward's carry place ``pin``: its centre, or while it is held
-        in v4 (``held_pin_at_grip``) the point the hand-off judges (:meth:`_judged_point`)."""
+        with ``held_pin_at_grip`` the point the hand-off judges (:meth:`_judged_point`)."""
         if pin.held and self.params.held_pin_at_grip:
             return self._judged_point(self.arms["grasper"].tip_world(), pin)
         return pin.position

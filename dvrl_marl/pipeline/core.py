@@ -485,7 +485,7 @@ class ArmPipeline:
             else:
                 self.tool = 1.0 if stage.jaw == "open" and not stage.carry else -1.0
             return np.append(np.clip(delta * scale, -1, 1), self.tool).astype(np.float32)
-        # pick (a v1 policy's p is the dVRK's measured_cp, above the scene's tool point; reach legs need no such
+        # pick (a policy's p is the dVRK's measured_cp, above the scene's tool point; reach legs need no such
         # shift: their frames are re-centred on each leg, so a translation cancels)
         tip = self.frame.normalise(state["tip"] + (0.0, 0.0, policy.tool_point_drop))
         obj = self.frame.normalise(state["debris_position"][self.item])
