@@ -7,6 +7,7 @@ import contextlib
 import os
 import signal
 import sys
+import tempfile
 from pathlib import Path
 
 from dvrl_marl.envs.presets import PRESETS, scene_options
@@ -265,11 +266,14 @@ def output_file(text: str) -> str:
 
 def output_folder(text: str) -> str:
     """A run folder this command will write into: not a file, and makeable."""
-    path = Path(text)
+    path = Path(text).absolute()
     if path.exists() and not path.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a file; give a folder for the run")
+    existing = next(folder for folder in (path, *path.parents) if folder.exists())  # made by the run, not here
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        if not existing.is_dir():
+            raise NotADirectoryError(f"{existing} is not a folder")
+        os.rmdir(tempfile.mkdtemp(dir=existing))  # a folder can be made there
     except OSError as error:
         raise argparse.ArgumentTypeError(f"{text!r} cannot be made ({error.strerror or error})") from None
     return text

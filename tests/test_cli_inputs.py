@@ -38,6 +38,7 @@ def test_flags_that_do_not_apply_to_a_seat_are_named(capsys, tmp_path, flags, na
     (["demo", "--record", "{tmp}"], "--record: '{tmp}' is a folder"),
     (["demo", "--out", "{file}"], "--out: '{file}' is a file"),
     (["train", "suction_debris_mappo", "--out", "{file}"], "--out: '{file}' is a file"),
+    (["demo", "--out", "/proc/run"], "--out: '/proc/run' cannot be made"),
     (["teleop", "--host", "256.1.1.1"], "--host: '256.1.1.1' is not an address"),
     (["plot", "{tmp}", "--out", "/proc/curves"], "--out: '/proc/curves.png' cannot be written"),
 ])
