@@ -77,7 +77,7 @@ class SeatEnv(gym.Env):
         if isinstance(partner, str):
             from dvrl_marl import policies
 
-            return policies.load(partner)
+            return policies.load_seat(partner, self.partner_seat, "SeatEnv: partner")
         raise ValueError(f"SeatEnv: partner must be one of {PARTNERS}, a policy name or folder, or a callable; "
                          f"got {partner!r}")
 
@@ -86,7 +86,7 @@ class SeatEnv(gym.Env):
         observations, infos = self.scene.reset(seed=seed, options=options)
         if hasattr(self.partner, "reset"):
             self.partner.reset()
-        self._partner_observation = observations[self.partner_seat]
+        self._partner_observation = self.scene.seat_observation(self.partner_seat)
         return observations[self.seat], self._info(infos[self.seat], np.zeros(4, dtype=np.float32))
 
     def step(self, action):
@@ -95,7 +95,7 @@ class SeatEnv(gym.Env):
         partner_action = np.asarray(self.partner(self._partner_observation), dtype=np.float32)
         observations, rewards, terminations, truncations, infos = self.scene.step(
             {self.seat: action, self.partner_seat: partner_action})
-        self._partner_observation = observations[self.partner_seat]
+        self._partner_observation = self.scene.seat_observation(self.partner_seat)
         if not self.scene.agents:
             self._partner_observation = None
         return (observations[self.seat], float(rewards[self.seat]), bool(terminations[self.seat]),

@@ -46,9 +46,10 @@ class SeatVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"SeatVectorEnv: autoreset_mode must be 'next_step' or 'same_step', got "
                              f"{autoreset_mode!r}")
         partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)
-        self.batched = suction_debris_v8.batched_env(num_envs=num_envs, surgeon=_batched_partner(partner),
-                                                    surgeon_seat=partner_seat, autoreset_mode="disabled",
-                                                    **scene_kwargs)
+        self.batched = suction_debris_v8.batched_env(num_envs=num_envs,
+                                                     surgeon=_batched_partner(partner, partner_seat),
+                                                     surgeon_seat=partner_seat, autoreset_mode="disabled",
+                                                     **scene_kwargs)
         self.seat, self.partner_seat = seat, partner_seat
         self.num_envs = self.batched.num_envs
         self.autoreset_mode = autoreset_mode
@@ -103,15 +104,16 @@ class SeatVectorEnv(gym.vector.VectorEnv):
             batched.close()
 
 
-def _batched_partner(partner):
-    """A partner that acts on a batch: "scripted" (the batched env binds it), a learned policy, or a callable."""
+def _batched_partner(partner, partner_seat: str):
+    """A partner that acts on a batch: "scripted" (the batched env binds it), a learned policy of ``partner_seat``, or
+    a callable."""
     if partner == "pipeline":
         raise ValueError("the pipeline partner plans one world at a time; make_seat_vector gives it a "
                          "SyncVectorEnv")
     if isinstance(partner, str) and partner != "scripted":
         from dvrl_marl import policies
 
-        return policies.load(partner)
+        return policies.load_seat(partner, partner_seat, "SeatVectorEnv: partner")
     return partner
 
 

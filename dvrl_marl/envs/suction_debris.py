@@ -471,33 +471,41 @@ class SuctionDebrisEnv(ParallelEnv):
         except KeyError:
             raise ValueError(f"{self.name}: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
 
+    def _blood_state(self, blood_ml) -> BloodState:
+        return BloodState(self.phantom, [float(v) for v in np.atleast_1d(blood_ml)], self.params.suction_rate_ml_s)
+
     def reset(self, seed=None, options=None):
+        # Everything is checked before anything changes: a refused reset leaves the env as it was.
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            from dvrl_marl.schemas import Seed, validated
+
+            seed = validated(Seed, seed, f"{self.name}: reset(seed=...)")
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"{self.name}: options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
         blood_ml = options.pop("blood_ml", None)
         level = options.pop("level", None)
+        start_level = (self.start_level if level is None else
+                       start_levels.checked_level(level, f"{self.name}: reset option level"))
+        if start_level < start_levels.DEFAULT and blood_ml is not None:
+            raise ValueError(f"{self.name}: a level below 1 draws the blood itself; pass blood_ml or level, not both")
+        given_blood = None if blood_ml is None else self._blood_state(blood_ml)  # (checked by BloodState)
         if options:  # PettingZoo's own API test passes arbitrary options, so unknown ones warn rather than raise
             warnings.warn(f"{self.name}: ignoring unknown reset option(s) {sorted(options)}; known: "
                           "['blood_ml', 'level']", stacklevel=2)
         if seed is not None:
+            self._rng = np.random.default_rng(seed)
             self._level_rng = start_levels.level_generator(seed)
-        if level is not None:  # this episode's and the later ones' (until set again)
-            self.start_level = start_levels.checked_level(level, f"{self.name}: reset option level")
+        self.start_level = start_level  # this episode's and the later ones' (until set again)
         drawn = None
         if self.start_level < start_levels.DEFAULT:
-            if blood_ml is not None:
-                raise ValueError(f"{self.name}: a level below 1 draws the blood itself; pass blood_ml or level, "
-                                 "not both")
             drawn = start_levels.draw(self._level_rng, self.start_level, self.params.blood_ml, self.params.debris_count)
-            blood_ml = drawn.blood_ml
+            given_blood = self._blood_state(drawn.blood_ml)
             self._level_blood = True
-        elif self._level_blood and blood_ml is None:  # back to the task's blood after easy starts
-            blood_ml, self._level_blood = self.params.blood_ml, False
-        if blood_ml is not None:
-            self.blood = BloodState(self.phantom, [float(v) for v in np.atleast_1d(blood_ml)], self.params.suction_rate_ml_s)
+        elif self._level_blood and given_blood is None:  # back to the task's blood after easy starts
+            given_blood, self._level_blood = self._blood_state(self.params.blood_ml), False
+        if given_blood is not None:
+            self.blood = given_blood
         mujoco.mj_resetData(self.model, self.data)
         rng = self._rng
         for agent in AGENTS:
@@ -856,7 +864,7 @@ class SuctionDebrisEnv(ParallelEnv):
     def _seat_command(self):
         """The bound seat's command; a failing device holds the seat still (tool value None = unchanged)."""
         seat = self.surgeon_seat
-        observation = self._observe(seat)
+        observation = self.seat_observation(seat)
         hold = [0.0, 0.0, 0.0, None]
         if not self._surgeon_is_device:
             return self._validate(seat, self._surgeon(observation)), False
@@ -1171,6 +1179,13 @@ class SuctionDebrisEnv(ParallelEnv):
         """What ``agent`` is given: its observation, normalised with the option."""
         observation = self._observe(agent)
         return observation if self.observation_scaling is None else self.observation_scaling.observation(agent, observation)
+
+    def seat_observation(self, agent) -> np.ndarray:
+        """What a seat's filler (a script, an exported policy, a device) reads of ``agent``'s view: the plain
+        observation in the scene's units, whatever ``observation_features`` and ``normalize_observations`` give the
+        learning agents (an exported policy computes its own features and scaling). The batched env's seat reads the
+        same."""
+        return self._observe(agent)[: self.observation_layout["handoff"].stop]
 
     def _observe(self, agent) -> np.ndarray:
         own = self.arms[agent]

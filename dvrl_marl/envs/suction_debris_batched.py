@@ -79,6 +79,9 @@ class SuctionDebrisBatchedEnv:
                  render_world: int = 0, **kwargs):
         self.name = env_name(Path(str(kwargs.get("task", TASK))).stem)
         self.metadata = {**self.metadata, "name": self.name}
+        from dvrl_marl.schemas import PositiveInt, validated
+
+        num_envs = validated(PositiveInt, num_envs, f"{self.name}: num_envs")
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"{self.name}: autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
         if render_mode not in (None, "rgb_array"):
@@ -157,18 +160,23 @@ class SuctionDebrisBatchedEnv:
         if options:
             raise ValueError(f"{self.name}: unknown reset option(s) {sorted(options)}; "
                              "known: ['blood_ml', 'debris_count', 'level', 'reset_mask', 'tip_positions']")
+        if mask is not None and not getattr(self, "_started", False):
+            raise ValueError(f"{self.name}: the first reset starts every world; reset_mask is for the resets after it")
         worlds = self.core.worlds_of(mask)
         if blood_ml is not None and np.ndim(blood_ml) == 2 and np.shape(blood_ml)[0] == self.num_envs:
             blood_ml = np.asarray(blood_ml)[worlds]
+        levels = self.levels.copy()  # checked before anything changes: a refused reset leaves the worlds as they were
         if level is not None:  # these worlds' level, for this and their later episodes (until set again)
-            self.levels[worlds] = self._checked_levels(level)[worlds]
+            levels[worlds] = self._checked_levels(level)[worlds]
+        if np.any(levels[worlds] < start_levels.DEFAULT) and (
+                blood_ml is not None or debris_count is not None or tips is not None):
+            raise ValueError(f"{self.name}: a level below 1 draws blood, debris and starts itself; pass "
+                             "blood_ml / debris_count / tip_positions or level, not both")
         if seed is not None:
             self.core.random.seed(seed)  # (validates the seed before anything is drawn)
             self._seed_levels(seed)
+        self.levels = levels
         if np.any(self.levels[worlds] < start_levels.DEFAULT):
-            if blood_ml is not None or debris_count is not None or tips is not None:
-                raise ValueError(f"{self.name}: a level below 1 draws blood, debris and starts itself; pass "
-                                 "blood_ml / debris_count / tip_positions or level, not both")
             self._start_at_levels(worlds)
         else:
             self._reset_at_default(worlds, blood_ml)
@@ -183,6 +191,7 @@ class SuctionDebrisBatchedEnv:
         if self._surgeon is not None and hasattr(self._surgeon, "reset"):
             self._surgeon.reset()
         self._restart_potential()
+        self._started = True
         info = self.core.info()
         return self.observations(), {agent: dict(info) for agent in self.agents}
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NumpyPolicy", "NoisyPolicy", "available", "load", "shipped_dir", "POLICY_FORMAT"]
+__all__ = ["load_seat", "NumpyPolicy", "NoisyPolicy", "available", "load", "shipped_dir", "POLICY_FORMAT"]
 
 POLICY_FORMAT = "dvrl-marl-policy-v1"
 _ACTIVATIONS = {
@@ -168,6 +168,19 @@ def load(name_or_path) -> NumpyPolicy:
             raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
     spec, weights = _read_policy_folder(path)
     return NumpyPolicy(weights, spec)
+
+
+def load_seat(name_or_path, agent: str, who: str = "partner") -> NumpyPolicy:
+    """:func:`load` for a seat of the collaborative scene: the policy must have been trained for ``agent``'s seat (a
+    policy of the other seat, or a single-arm one, is an error naming what it is)."""
+    policy = load(name_or_path)
+    trained_for = policy.spec.get("agent")
+    if trained_for is None:
+        raise ValueError(f"{who} {name_or_path!r} is a single-arm policy ({policy.spec.get('env_id')}), not a seat "
+                         f"of the collaborative scene; the {agent!r} seat needs a policy trained for it")
+    if trained_for != agent:
+        raise ValueError(f"{who} {name_or_path!r} was trained for the {trained_for!r} seat, not the {agent!r} seat")
+    return policy
 
 
 def _read_policy_folder(path: Path):
