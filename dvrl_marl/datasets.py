@@ -221,7 +221,11 @@ def transitions(dataset, successful_only: bool = False) -> tuple[np.ndarray, np.
 
 def _episode(dataset, index: int):
     dataset = _dataset(dataset)
-    episodes = list(dataset.iterate_episodes([index]))
+    total = int(dataset.total_episodes)
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < total:
+        raise ValueError(f"episode must be an episode's index in [0, {total}) of {dataset.spec.dataset_id!r}, "
+                         f"got {index!r}")
+    episodes = list(dataset.iterate_episodes([int(index)]))
     if not episodes:
         raise ValueError(f"the dataset has no episode {index}")
     return dataset, episodes[0]

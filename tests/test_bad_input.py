@@ -86,3 +86,57 @@ def test_the_surgeon_sees_the_same_observation_in_the_single_and_the_batched_env
     batch.reset(seed=0)
     batch.step({"suction": np.zeros((2, 4))})
     assert widths[0] == widths[-1] == single.observation_layout["handoff"].stop
+
+
+@pytest.mark.parametrize("kwargs", [{"bleeding_ml_s": 1.0, "blood_ml": [0.01, 0.01]},
+                                    {"start_level": "easy", "bleeding_ml_s": 0.2}])
+def test_blood_fractions_stay_inside_the_observation_space_while_bleeding(kwargs):
+    """A bleed into a cavity that started nearly empty once gave fractions of 1,103 against the bound of 10."""
+    single = suction_debris_v8.parallel_env(max_cycles=400, **kwargs)
+    observations, _ = single.reset(seed=0)
+    batch = suction_debris_v8.batched_env(num_envs=2, max_cycles=400, **kwargs)
+    batched, _ = batch.reset(seed=0)
+    for _ in range(400):
+        for agent in single.agents:
+            assert single.observation_space(agent).contains(observations[agent]), observations[agent].max()
+        assert single.state_space.contains(single.state())
+        for agent in batch.agents:
+            assert np.abs(batched[agent]).max() <= 10.0
+        if not single.agents:
+            break
+        observations, *_ = single.step({agent: np.zeros(4) for agent in single.agents})
+        batched, *_ = batch.step({agent: np.zeros((2, 4)) for agent in batch.agents})
+
+
+def test_arguments_of_the_wrong_kind_are_named():
+    from dvrl_marl.agents.partners import PersonLikePartner, Profile, zoo_partner
+
+    env = suction_debris_v8.parallel_env()
+    with pytest.raises(ValueError, match="task must be a task file's name or path, got None"):
+        suction_debris_v8.parallel_env(task=None)
+    with pytest.raises(TypeError, match="'surgeon'"):
+        gym.make("dvrl_marl/SurgeonSeat-v8", partner="scripted", surgeon="scripted")
+    with pytest.raises(ValueError, match="reaction_steps must be a whole number"):
+        Profile(reaction_steps=1.5)
+    for agent in ("Suction", "both"):
+        with pytest.raises(ValueError, match="agent must be 'suction' or 'grasper'"):
+            PersonLikePartner(agent, env, Profile())
+    with pytest.raises(ValueError, match="agent must be 'suction' or 'grasper', got 'nope'"):
+        zoo_partner("late", "nope", env)
+
+
+def test_integration_arguments_are_named():
+    pytest.importorskip("supersuit")
+    from dvrl_marl.integrations.sb3 import make_collaborative_vec_env
+
+    with pytest.raises(ValueError, match="n_envs"):
+        make_collaborative_vec_env(n_envs=0)
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("torchrl")
+    from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="needs CUDA"):
+            SuctionDebrisTorchRLEnv(num_envs=2, device="cuda")
+    with pytest.raises(ValueError, match="is not a torch device"):
+        SuctionDebrisTorchRLEnv(num_envs=2, device="gpu7")

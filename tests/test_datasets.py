@@ -202,3 +202,11 @@ def test_the_shipped_clone_fills_the_seat_and_finishes_the_task(capsys):
     env = suction_debris_v8.parallel_env(surgeon=policies.load("bc-surgeon"), max_cycles=20)
     env.reset(seed=1)
     env.step({"suction": np.zeros(4)})
+
+
+@pytest.mark.parametrize("episode", [2, 5, -1, 1.5, "0"])
+def test_an_episode_past_the_end_is_named(recorded, episode):
+    with pytest.raises(ValueError, match=r"episode must be an episode's index in \[0, 2\)"):
+        datasets.replay(recorded, episode)
+    with pytest.raises(ValueError, match="episode must be"):
+        datasets.replay_device(recorded, episode)

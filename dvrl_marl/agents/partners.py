@@ -39,6 +39,10 @@ class Profile:
     pause_steps: int = 0
 
     def __post_init__(self):
+        for name in ("reaction_steps", "pause_steps"):  # counts of steps: whole numbers (1.5 is no step count)
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise ValueError(f"Profile: {name} must be a whole number of steps, got {value!r}")
         if not (self.reaction_steps >= 0 and 0.0 < self.speed <= 1.0 and 0.0 < self.approach <= 1.0
                 and self.motor_noise >= 0.0 and 0.0 <= self.pause_probability < 1.0 and self.pause_steps >= 0):
             raise ValueError(f"Profile: a value is out of range: {self}")
@@ -84,6 +88,10 @@ class PersonLikePartner:
     def __init__(self, agent: str, env, profile: Profile, seed: int = 0):
         from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
 
+        if agent not in ("suction", "grasper"):
+            raise ValueError(f"PersonLikePartner: agent must be 'suction' or 'grasper', got {agent!r}")
+        if not isinstance(profile, Profile):
+            raise ValueError(f"PersonLikePartner: profile must be a Profile, got {type(profile).__name__}")
         self.agent, self.profile, self.seed = agent, profile, int(seed)
         self.expert = (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
         self.expert.gain = self.expert.gain * profile.approach  # a smooth approach: a smaller proportional gain
@@ -134,6 +142,8 @@ def zoo_partner(kind: str, agent: str, env, members: int = 4):
     its ranges with :data:`ZOO_SEED`, a share of the worlds each (:class:`dvrl_marl.training.teams.Partners`)."""
     from dvrl_marl.training.teams import Partners
 
+    if agent not in ("suction", "grasper"):
+        raise ValueError(f"zoo_partner: agent must be 'suction' or 'grasper', got {agent!r}")
     ranges = PERSON if kind == "person" else HELD_OUT.get(kind)
     if ranges is None:
         raise ValueError(f"unknown partner kind {kind!r}; held out: {sorted(HELD_OUT)}, or 'person'")
@@ -149,6 +159,8 @@ def training_partners(agent: str, env, members: int = 8):
     :data:`TRAINING_SEED`, a share of the worlds each."""
     from dvrl_marl.training.teams import Partners
 
+    if agent not in ("suction", "grasper"):
+        raise ValueError(f"training_partners: agent must be 'suction' or 'grasper', got {agent!r}")
     stream = TRAINING_SEED + (agent == "grasper")
     profiles = draw_profiles(TRAINING_RANGES, members, stream)
     partners = [PersonLikePartner(agent, env, profile, seed=stream + 100 * (index + 1))

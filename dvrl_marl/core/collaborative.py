@@ -28,6 +28,9 @@ AGENTS = ("suction", "grasper")
 TOOLS = {"suction": kinematics.SUCTION_IRRIGATION, "grasper": kinematics.LND}
 #: Instruments closer than this beyond touching also count as in contact (they touch after a refused move).
 CONTACT_MARGIN = 5e-4
+#: Every value of an observation and of the state lies within +/- this (positions are normalised by rho; a blood
+#: fraction is capped at it).
+OBSERVATION_BOUND = 10.0
 #: Released pins fall at g (m/s^2) when the task's ``pins_fall`` is set (suction_debris_v8).
 GRAVITY = 9.81
 #: Pin geometry (spring pins: 3 mm x 28 mm) and the spacing of the slots they lie in on a cavity floor.
@@ -585,9 +588,12 @@ class CollaborativeCore:
 
     # --- observations -------------------------------------------------------------------------------------
     def _blood_fraction(self) -> np.ndarray:
+        """Each cavity's blood as a fraction of what it started with (of its capacity if it started empty), at most
+        :data:`OBSERVATION_BOUND` (a bleed into a cavity that started nearly empty would leave the space)."""
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.initial_ml > 0.0, self.remaining_ml / self.initial_ml,
-                            self.remaining_ml / self.cavities.capacity_ml)
+            fraction = np.where(self.initial_ml > 0.0, self.remaining_ml / self.initial_ml,
+                                self.remaining_ml / self.cavities.capacity_ml)
+        return np.minimum(fraction, OBSERVATION_BOUND)
 
     def observation(self, agent: str) -> np.ndarray:
         """(N, obs_dim): the agent's observation in every world (layout: the env's ``observation_layout``)."""

@@ -51,6 +51,10 @@ class SeatEnv(gym.Env):
     def __init__(self, seat: str = "grasper", partner="pipeline", render_mode=None, **scene_kwargs):
         if seat not in suction_debris_v8.AGENTS:
             raise ValueError(f"SeatEnv: seat must be one of {suction_debris_v8.AGENTS}, got {seat!r}")
+        for key in ("surgeon", "surgeon_seat"):  # the partner fills the other seat; the seat is this env's
+            if key in scene_kwargs:
+                raise TypeError(f"SeatEnv() got an unexpected keyword argument {key!r}: the other arm is the "
+                                "partner's (partner=...), this one the agent's")
         if "version" in scene_kwargs:
             raise TypeError(f"SeatEnv() got an unexpected keyword argument 'version' ({scene_kwargs['version']!r}): "
                             f"the seat's scene is the current one, {suction_debris_v8.TASK}")

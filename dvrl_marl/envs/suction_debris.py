@@ -24,6 +24,7 @@ from dvrl_marl.core.collaborative import (
     AGENTS,
     TOOLS,
     CONTACT_MARGIN as _CONTACT_MARGIN,
+    OBSERVATION_BOUND,
     GRAVITY,
     PIN_HALF_LENGTH as _PIN_HALF_LENGTH,
     PIN_RADIUS as _PIN_RADIUS,
@@ -57,7 +58,7 @@ __all__ = ["parallel_env", "env", "raw_env", "TASK", "SuctionDebrisEnv", "Suctio
 TASK = "suction_debris_v8"
 _TOOLS = TOOLS
 _PREFIX = {"suction": "suction/", "grasper": "grasper/"}
-_OBS_POSITION_BOUND = 10.0
+_OBS_POSITION_BOUND = OBSERVATION_BOUND  # (a blood fraction is capped at it too)
 #: "guided": the dense reward plus the guided terms (:mod:`dvrl_marl.envs.guidance`).
 REWARD_TYPES = ("sparse", "dense", "guided")
 
@@ -252,6 +253,8 @@ class SuctionDebrisEnv(ParallelEnv):
         normalize_observations: bool = False,
         **params,
     ):
+        if not isinstance(task, (str, Path)):
+            raise ValueError(f"{TASK}: task must be a task file's name or path, got {task!r}")
         #: The environment's name (its version), as its messages say it.
         self.name = env_name(Path(task).stem)
         self.metadata = {**self.metadata, "name": self.name,
@@ -633,7 +636,7 @@ class SuctionDebrisEnv(ParallelEnv):
     def _plain_state(self) -> np.ndarray:
         values = [*self._norm(*self.arms["suction"].tip_world()), 2.0 * self.valve_opening - 1.0,
                   *self._norm(*self.arms["grasper"].tip_world()), 2.0 * self.arms["grasper"].jaw - 1.0]
-        values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
+        values += [min(self.blood.fraction(i), _OBS_POSITION_BOUND) for i in range(len(self.phantom.cavities))]
         for pin in self.debris:
             values += [*self._norm(*self._shown_position(pin)), float(pin.visible), float(pin.held),
                        float(pin.delivered)]
@@ -1192,7 +1195,7 @@ class SuctionDebrisEnv(ParallelEnv):
         other = self.arms["grasper" if agent == "suction" else "suction"]
         tool = 2.0 * (self.valve_opening if agent == "suction" else own.jaw) - 1.0
         values = [*self._norm(*own.tip_world()), tool, *self._norm(*other.tip_world())]
-        values += [self.blood.fraction(i) for i in range(len(self.phantom.cavities))]
+        values += [min(self.blood.fraction(i), _OBS_POSITION_BOUND) for i in range(len(self.phantom.cavities))]
         for pin in self.debris:
             if pin.visible and not pin.delivered:
                 values += self._norm(*self._shown_position(pin))

@@ -46,6 +46,13 @@ class SuctionDebrisTorchRLEnv(EnvBase):
             raise ValueError("SuctionDebrisTorchRLEnv resets worlds through TorchRL's '_reset' mask; "
                              "autoreset_mode cannot be set")
         kwargs["autoreset_mode"] = "disabled"
+        try:
+            device = torch.device(device)
+        except (RuntimeError, TypeError) as error:
+            raise ValueError(f"SuctionDebrisTorchRLEnv: device {device!r} is not a torch device ({error})") from None
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"SuctionDebrisTorchRLEnv: device {str(device)!r} needs CUDA, which this torch "
+                             f"({torch.__version__}) cannot use here; use device='cpu'")
         self.batched = SuctionDebrisBatchedEnv(num_envs, **kwargs)
         super().__init__(device=device, batch_size=torch.Size([self.batched.num_envs]))
         self.agent_names = list(self.batched.possible_agents)
