@@ -13,7 +13,7 @@ A run of this project's trainer (its env options: its ``config.toml``'s ``[env]`
 BenchMARL run of ``marl_benchmark.py`` (``env_options.json`` and the final ``policy.pt`` it saves; needs BenchMARL's
 environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on). ``--option KEY=VALUE`` plays the
 policies on a changed scene (an env keyword argument over the run's own, the value read as JSON where it parses,
-else as text), e.g. ``--option task=suction_debris_v8``: what a scene's change does to a learnt team, untrained.
+else as text), e.g. ``--option blocked_moves=climb``: what a rule's change does to a learnt team, untrained.
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                        help="an env keyword argument over the run's own (repeatable), e.g. task=suction_debris_v8")
+                        help="an env keyword argument over the run's own (repeatable), e.g. blocked_moves=climb")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.window < 2:
         parser.error("--episodes must be >= 1 and --window >= 2")
@@ -145,7 +145,7 @@ def main(argv=None) -> int:
     for option in args.option:
         key, sep, value = option.partition("=")
         if not sep or not key:
-            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. task=suction_debris_v8")
+            parser.error(f"--option {option!r}: expected KEY=VALUE, e.g. blocked_moves=climb")
         try:
             changes[key] = json.loads(value)
         except json.JSONDecodeError:

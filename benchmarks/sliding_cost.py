@@ -1,6 +1,7 @@
-"""What v3's sliding costs per step: suction_debris_v8 against v3, batched, measured in the same run.
+"""What the sliding rules cost per step: suction_debris_v8 with ``blocked_moves="stop"`` against its own rules
+(``"settle"``), batched, measured in the same run.
 
-A move that nothing blocks costs what it cost in v2 (one more test); a blocked one runs the candidates of
+A move that nothing blocks costs what it costs when moves stop (one more test); a blocked one runs the candidates of
 :func:`dvrl_marl.core.sliding.resolve_blocked`. Uniform random commands block in most steps (the adversarial case:
 they push into the phantom, the joint limits and each other); the scripted experts' commands never do.
 
@@ -15,11 +16,11 @@ import time
 import numpy as np
 
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
+from dvrl_marl.envs import suction_debris_v8
 
 
-def world_steps_per_second(module, worlds: int, commands: str, steps: int = 200, repeats: int = 3) -> float:
-    env = module.batched_env(num_envs=worlds)
+def world_steps_per_second(blocked_moves: str, worlds: int, commands: str, steps: int = 200, repeats: int = 3) -> float:
+    env = suction_debris_v8.batched_env(num_envs=worlds, blocked_moves=blocked_moves)
     observations, _ = env.reset(seed=0)
     rng = np.random.default_rng(0)
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
@@ -42,12 +43,12 @@ def main() -> None:
     parser.add_argument("--worlds", type=int, nargs="+", default=[256, 4096])
     args = parser.parse_args()
     print("batched world-steps/s (best of 3; the scripted rows include the experts' own arithmetic)")
-    print(f"  {'worlds':>7s} {'commands':>9s} {'v2':>12s} {'v3':>12s} {'v3 / v2':>8s}")
+    print(f"  {'worlds':>7s} {'commands':>9s} {'stop':>12s} {'settle':>12s} {'ratio':>8s}")
     for worlds in args.worlds:
         for commands in ("uniform", "scripted"):
-            v2 = world_steps_per_second(suction_debris_v8, worlds, commands)
-            v3 = world_steps_per_second(suction_debris_v8, worlds, commands)
-            print(f"  {worlds:7,d} {commands:>9s} {v2:12,.0f} {v3:12,.0f} {v3 / v2:8.2f}")
+            stop = world_steps_per_second("stop", worlds, commands)
+            settle = world_steps_per_second("settle", worlds, commands)
+            print(f"  {worlds:7,d} {commands:>9s} {stop:12,.0f} {settle:12,.0f} {settle / stop:8.2f}")
 
 
 if __name__ == "__main__":

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.envs import suction_debris_v8, suction_debris_v8, suction_debris_v8, suction_debris_v8, suction_debris_v8, \
-    suction_debris_v8, suction_debris_v8, suction_debris_v8
+from dvrl_marl.envs import suction_debris_v8
+from rule_sets import v0_rules, v1_rules, v2_rules, v3_rules, v4_rules, v5_rules, v6_rules
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -183,7 +183,7 @@ def test_vector_env_renders_the_chosen_world():
 
 
 def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, surgeon=None, scripted=False,
-                                        module=suction_debris_v8, drop_probability=0.0, pull=None, **kwargs):
+                                        module=v0_rules, drop_probability=0.0, pull=None, **kwargs):
     env = module.batched_env(num_envs=num_envs, surgeon=surgeon, **kwargs)
     singles = [module.parallel_env(surgeon=surgeon, **kwargs) for _ in range(num_envs)]
     observations, _ = env.reset(seed=seed)
@@ -243,12 +243,12 @@ def test_batched_v1_equals_single_env_falling_pins_and_graded_suction():
     # Noisy experts suck near the surface (graded flow) and now and then open the jaw on a carried pin, which falls
     # (about 30 pin-steps of falling in this run): v1's new branches, world by world.
     assert_batched_collaborative_matches(3, seed=21, steps=1250, action_seed=5, scripted=True, reward_type="dense",
-                                         max_cycles=600, module=suction_debris_v8, drop_probability=0.03)
+                                         max_cycles=600, module=v1_rules, drop_probability=0.03)
 
 
 def test_batched_v1_equals_single_env_while_cavities_bleed():
     assert_batched_collaborative_matches(3, seed=22, steps=1000, action_seed=6, scripted=True, reward_type="dense",
-                                         max_cycles=300, module=suction_debris_v8, bleeding_ml_s=0.4,
+                                         max_cycles=300, module=v1_rules, bleeding_ml_s=0.4,
                                          bleeding_onset_s=2.0)
 
 
@@ -256,23 +256,23 @@ def test_batched_v2_equals_single_env_grip_handoff_and_drops_kept_on_the_phantom
     # Noisy experts grasp off centre and now and then drop a carried pin, many of them beyond the phantom on the
     # way to the hand-off point: v2's hand-off at the grip and its edge landing, world by world.
     assert_batched_collaborative_matches(3, seed=23, steps=1250, action_seed=7, scripted=True, reward_type="dense",
-                                         max_cycles=600, module=suction_debris_v8, drop_probability=0.03)
+                                         max_cycles=600, module=v2_rules, drop_probability=0.03)
 
 
 def test_batched_v3_equals_single_env_while_moves_slide():
     # Uniform commands push into walls, joint limits and the other instrument all the time: v3's slides (the wall
     # slide, the contact normal, the joint-limit clamp, the fallbacks), world by world.
     assert_batched_collaborative_matches(3, seed=24, steps=1000, action_seed=8, max_cycles=250,
-                                         module=suction_debris_v8)
+                                         module=v3_rules)
     assert_batched_collaborative_matches(3, seed=25, steps=1000, action_seed=9, scripted=True, reward_type="guided",
-                                         max_cycles=500, module=suction_debris_v8, drop_probability=0.03)
+                                         max_cycles=500, module=v3_rules, drop_probability=0.03)
 
 
 def test_batched_v4_equals_single_env_with_held_pins_at_their_grip():
     # Noisy experts grasp off centre and drop pins now and then: the held pin's shown point (observation, state,
     # guided reward, features) world by world, through grasps, carries, drops and hand-offs.
     assert_batched_collaborative_matches(3, seed=26, steps=1250, action_seed=10, scripted=True, reward_type="guided",
-                                         max_cycles=600, module=suction_debris_v8, drop_probability=0.03,
+                                         max_cycles=600, module=v4_rules, drop_probability=0.03,
                                          observation_features="suction_debris_cleared_pins_zoom")
 
 
@@ -280,7 +280,7 @@ def test_batched_v5_equals_single_env_while_descents_climb():
     # Commands pulled toward the other arm's side and down press the tips out of the cavities into the bowls'
     # walls, along their normals now and then: v5's climbs (and v3's slides), world by world.
     assert_batched_collaborative_matches(3, seed=27, steps=1000, action_seed=11, max_cycles=250,
-                                         module=suction_debris_v8,
+                                         module=v5_rules,
                                          pull={"suction": [0.8, 0.0, -0.6], "grasper": [-0.8, 0.0, -0.6]})
 
 
@@ -288,7 +288,7 @@ def test_batched_v6_equals_single_env_while_descents_climb_ahead():
     # Commands pulled toward the other arm's side and down, about along the bowls' normals near the rims: v6's
     # climbs counted along the move (and v5's, v3's slides), world by world.
     assert_batched_collaborative_matches(3, seed=28, steps=1000, action_seed=12, max_cycles=250,
-                                         module=suction_debris_v8,
+                                         module=v6_rules,
                                          pull={"suction": [0.67, 0.0, -0.82], "grasper": [-0.67, 0.0, -0.82]})
 
 
@@ -398,5 +398,5 @@ def test_batched_v5_equals_single_env_along_the_joint_limits():
     # the limit (v3): the single env keeps the batched IK's solution for a tip slid exactly onto a limit, which its
     # scalar IK can judge a last bit outside (an RLlib run of the recipe crashed there, UnreachableError).
     assert_batched_collaborative_matches(3, seed=28, steps=800, action_seed=12, max_cycles=400,
-                                         module=suction_debris_v8,
+                                         module=v5_rules,
                                          pull={"suction": [0.0, 0.8, 0.7], "grasper": [0.0, 0.8, 0.7]})

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
+from dvrl_marl.envs import suction_debris_v8
 
 ROOT = Path(__file__).resolve().parents[1]
 

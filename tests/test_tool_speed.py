@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.envs import suction_debris_v8, suction_debris_v8
+from dvrl_marl.envs import suction_debris_v8
 
 ROOT = Path(__file__).resolve().parents[1]
 
