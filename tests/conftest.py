@@ -56,3 +56,14 @@ def pytest_unconfigure(config):
 #: invariants written in that frame hold it there (docs/deviations.md: ``tip_frame="tool_point"``).
 TOOL_POINT = {"dvrl_marl/PSMReach-v1": {"tip_frame": "tool_point"},
               "dvrl_marl/PSMPick-v1": {"tip_frame": "tool_point", "scenes": {"lnd": "pick_lnd"}}}
+
+
+#: Tests of a person's seats in real time (a window under Xvfb, a page in Chromium): they keep a real clock, so the
+#: README's test command runs them after the rest, alone (``-m realtime``), never beside other tests' load.
+REAL_TIME_FILES = {"test_browser_page.py", "test_browser_seat.py", "test_keyboard_seat.py"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in REAL_TIME_FILES:
+            item.add_marker(pytest.mark.realtime)

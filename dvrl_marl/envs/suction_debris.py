@@ -721,9 +721,12 @@ class SuctionDebrisEnv(ParallelEnv):
         }
 
     def pins(self) -> list[dict]:
-        """The pins a person can see (uncovered, not yet delivered): position (mm, world) and whether held."""
-        return [{"mm": [1000.0 * v for v in pin.position], "held": pin.held} for pin in self.debris
-                if pin.visible and not pin.delivered]
+        """The pins a person can see (uncovered, not yet delivered): position (mm, world), whether held, and for a
+        held pin ``grip_mm``, the point the hand-off judges (where the jaws hold it)."""
+        tip = self.arms["grasper"].tip_world()
+        return [{"mm": [1000.0 * v for v in pin.position], "held": pin.held,
+                 **({"grip_mm": [1000.0 * v for v in self._judged_point(tip, pin)]} if pin.held else {})}
+                for pin in self.debris if pin.visible and not pin.delivered]
 
     def marks(self) -> list:
         """The drop lines drawn into the scene (:mod:`dvrl_marl.envs.marks`): one per arm, tip to surface."""

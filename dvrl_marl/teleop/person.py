@@ -97,7 +97,10 @@ class PersonLikeOperator:
             if jaw_open:
                 return None, "close"
             handoff = np.asarray(outline["handoff"], dtype=float)
-            return self._via_safe_height(tip, handoff, safe_z), None
+            grips = [np.asarray(pin["grip_mm"], dtype=float) for pin in status["pins"] if pin.get("grip_mm")]
+            # the hand-off judges where the jaws hold the pin: the tip goes where that puts the grip on the marker
+            goal = tip + (handoff - grips[0]) if grips else handoff
+            return self._via_safe_height(tip, goal, safe_z), None
         if not jaw_open:
             return None, "open"
         pin = self._choose_pin(status, tip)
