@@ -140,3 +140,50 @@ def test_integration_arguments_are_named():
             SuctionDebrisTorchRLEnv(num_envs=2, device="cuda")
     with pytest.raises(ValueError, match="is not a torch device"):
         SuctionDebrisTorchRLEnv(num_envs=2, device="gpu7")
+
+
+def _person_like(env):
+    from dvrl_marl.agents.partners import PersonLikePartner, Profile
+
+    profile = Profile(reaction_steps=6, speed=0.7, approach=0.5, motor_noise=0.08, pause_probability=0.02,
+                      pause_steps=5)
+    return PersonLikePartner("grasper", env, profile, seed=17)
+
+
+def test_a_person_like_partner_keeps_its_state_world_by_world_across_autoresets():
+    """After an automatic reset a world's person-like partner starts afresh (it once acted on the last episode's
+    delayed views), and world i of a batch is the single env seeded s + i, episode after episode."""
+    batch = suction_debris_v8.batched_env(num_envs=2, max_cycles=40)
+    batch = suction_debris_v8.batched_env(num_envs=2, max_cycles=40, surgeon=_person_like(batch))
+    singles = []
+    for _ in range(2):
+        probe = suction_debris_v8.parallel_env(max_cycles=40)
+        singles.append(suction_debris_v8.parallel_env(max_cycles=40, surgeon=_person_like(probe)))
+    observations, _ = batch.reset(seed=5)
+    expected = [single.reset(seed=5 + i)[0]["suction"] for i, single in enumerate(singles)]
+    rng = np.random.default_rng(1)
+    for step in range(100):
+        np.testing.assert_allclose(observations["suction"], np.stack(expected), rtol=0, atol=1e-7, err_msg=str(step))
+        actions = rng.uniform(-1, 1, (2, 4))
+        observations, *_ = batch.step({"suction": actions})
+        for world, single in enumerate(singles):
+            if not single.agents:
+                single.reset()
+            expected[world] = single.step({"suction": actions[world]})[0]["suction"]
+            if not single.agents:
+                expected[world] = single.reset()[0]["suction"]  # the batch resets in the same step
+
+
+def test_a_masked_reset_leaves_the_other_worlds_partners_alone():
+    def run(masked: bool) -> np.ndarray:
+        probe = suction_debris_v8.batched_env(num_envs=2, autoreset_mode="disabled")
+        env = suction_debris_v8.batched_env(num_envs=2, autoreset_mode="disabled", surgeon=_person_like(probe))
+        env.reset(seed=3)
+        rng = np.random.default_rng(0)
+        for step in range(60):
+            if masked and step == 20:
+                env.reset(options={"reset_mask": [True, False]})
+            observations, *_ = env.step({"suction": rng.uniform(-1, 1, (2, 4))})
+        return observations["suction"][1]
+
+    np.testing.assert_array_equal(run(masked=True), run(masked=False))

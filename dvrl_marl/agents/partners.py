@@ -95,14 +95,29 @@ class PersonLikePartner:
         self.agent, self.profile, self.seed = agent, profile, int(seed)
         self.expert = (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
         self.expert.gain = self.expert.gain * profile.approach  # a smooth approach: a smaller proportional gain
+        self._seen = None
         self.reset()
 
-    def reset(self) -> None:
-        self._rng = np.random.default_rng(self.seed)
-        self._seen = None  # (reaction_steps + 1, N, d) ring of observations
-        self._step = 0
-        self._paused = None  # steps of pause left, per world
-        self._tool = None  # the last tool value, per world (held through a pause)
+    def reset(self, worlds=None) -> None:
+        """Forget what it saw and start its noise again: in every world (``worlds`` None), or in those worlds of a
+        batch only (their episodes restarted; the other worlds go on as they were). Each world has its own state and
+        its own noise stream seeded ``seed``, so world i of a batch acts as this partner does in one env."""
+        if worlds is None or self._seen is None:
+            self._seen = None  # (reaction_steps + 1, N, d) ring of observations, made at the next call
+            self._rngs, self._steps, self._paused, self._tool, self._fresh = [], None, None, None, None
+            return
+        worlds = np.arange(len(self._steps))[worlds] if np.asarray(worlds).dtype == bool else np.asarray(worlds)
+        for world in np.atleast_1d(worlds):
+            self._rngs[world] = np.random.default_rng(self.seed)
+        self._steps[worlds], self._paused[worlds], self._fresh[worlds] = 0, 0, True
+        self._tool[worlds] = np.nan
+
+    def _start(self, batch: np.ndarray) -> None:
+        n, depth = len(batch), self.profile.reaction_steps + 1
+        self._seen = np.repeat(batch[None], depth, axis=0)
+        self._rngs = [np.random.default_rng(self.seed) for _ in range(n)]
+        self._steps, self._paused = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+        self._tool, self._fresh = np.full(n, np.nan), np.zeros(n, dtype=bool)
 
     def __call__(self, observation) -> np.ndarray:
         observations = np.asarray(observation, dtype=np.float64)
@@ -111,23 +126,26 @@ class PersonLikePartner:
         n = len(batch)
         depth = self.profile.reaction_steps + 1
         if self._seen is None or self._seen.shape[1] != n:
-            self._seen = np.repeat(batch[None], depth, axis=0)  # until it has seen more, the first view
-            self._paused = np.zeros(n, dtype=np.int64)
-            self._tool = None
-        self._seen[self._step % depth] = batch
-        seen = self._seen[(self._step + 1) % depth]  # what it saw reaction_steps ago
-        self._step += 1
+            self._start(batch)  # until it has seen more, the first view
+        if self._fresh.any():  # worlds restarted: their first view fills what they have seen
+            self._seen[:, self._fresh] = batch[self._fresh]
+            self._fresh[:] = False
+        rows = np.arange(n)
+        self._seen[self._steps % depth, rows] = batch
+        seen = self._seen[(self._steps + 1) % depth, rows]  # what it saw reaction_steps ago, world by world
+        self._steps += 1
         actions = np.asarray(self.expert(seen), dtype=np.float64).reshape(n, 4).copy()
         actions[:, :3] *= self.profile.speed
         if self.profile.motor_noise > 0.0:
-            actions[:, :3] += self._rng.normal(0.0, self.profile.motor_noise, (n, 3))
+            actions[:, :3] += np.stack([rng.normal(0.0, self.profile.motor_noise, 3) for rng in self._rngs])
         if self.profile.pause_probability > 0.0:
-            starting = (self._paused == 0) & (self._rng.random(n) < self.profile.pause_probability)
+            draws = np.array([rng.random() for rng in self._rngs])
+            starting = (self._paused == 0) & (draws < self.profile.pause_probability)
             self._paused[starting] = self.profile.pause_steps
             pausing = self._paused > 0
             actions[pausing, :3] = 0.0
-            if self._tool is not None:
-                actions[pausing, 3] = self._tool[pausing]
+            held = pausing & ~np.isnan(self._tool)
+            actions[held, 3] = self._tool[held]
             self._paused[pausing] -= 1
         np.clip(actions, -1.0, 1.0, out=actions)
         self._tool = actions[:, 3].copy()

@@ -188,8 +188,7 @@ class SuctionDebrisBatchedEnv:
                 raise ValueError(f"{self.name}: tip_positions must be a dict {{agent: (num_envs, 3) metres}}")
             self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip_positions[{agent!r}]")
                                           for agent, value in tips.items()})
-        if self._surgeon is not None and hasattr(self._surgeon, "reset"):
-            self._surgeon.reset()
+        self._reset_surgeon(None if mask is None else worlds)
         self._restart_potential()
         self._started = True
         info = self.core.info()
@@ -201,7 +200,19 @@ class SuctionDebrisBatchedEnv:
             self._start_at_levels(worlds)
         else:
             self._reset_at_default(worlds)
+        self._reset_surgeon(worlds)
         self._restart_potential()
+
+    def _reset_surgeon(self, worlds) -> None:
+        """The seat's filler starts its episode again: in every world (``worlds`` None), or in those worlds only
+        where it can (a ``reset(worlds)``, as the person-like partners have: state kept world by world)."""
+        reset = getattr(self._surgeon, "reset", None)
+        if reset is None:
+            return
+        if worlds is None:
+            reset()
+        elif _takes_worlds(reset):
+            reset(worlds)
 
     def _reset_at_default(self, worlds: np.ndarray, blood_ml=None) -> None:
         """The default task in ``worlds``: the blood of ``blood_ml``, else each world's own (the task's where an
@@ -350,6 +361,15 @@ class SuctionDebrisBatchedEnv:
 
     def close(self) -> None:
         self.template.close()
+
+
+def _takes_worlds(reset) -> bool:
+    import inspect
+
+    try:
+        return "worlds" in inspect.signature(reset).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 def batched_env(num_envs: int = 1, **kwargs) -> SuctionDebrisBatchedEnv:

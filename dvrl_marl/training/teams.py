@@ -97,13 +97,35 @@ class Partners:
                 actions[index::count] = member(observations[index::count])
         return actions
 
-    def reset(self) -> None:
-        for member in self.members:
-            if hasattr(member, "reset"):
-                member.reset()
+    def reset(self, worlds=None) -> None:
+        """Every member starts again (``worlds`` None), or only in those worlds (a member that keeps state world by
+        world is told which of its own worlds; one that cannot is left as it is)."""
+        count = len(self.members)
+        if worlds is not None:
+            worlds = np.asarray(worlds)
+            worlds = np.flatnonzero(worlds) if worlds.dtype == bool else worlds
+        for index, member in enumerate(self.members):
+            reset = getattr(member, "reset", None)
+            if reset is None:
+                continue
+            if worlds is None:
+                reset()
+            elif "worlds" in _parameters(reset):
+                mine = worlds[worlds % count == index] // count  # this member's own rows (world i is member i % n's)
+                if len(mine):
+                    reset(mine)
 
     def __repr__(self) -> str:
         return f"Partners({self.names})"
+
+
+def _parameters(function) -> tuple:
+    import inspect
+
+    try:
+        return tuple(inspect.signature(function).parameters)
+    except (TypeError, ValueError):
+        return ()
 
 
 def partner(spec, agent: str, env=None, noise_from: int | None = None):
