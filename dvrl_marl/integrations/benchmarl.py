@@ -42,6 +42,7 @@ except ImportError as error:  # pragma: no cover - exercised where BenchMARL is 
     raise ImportError('dvrl_marl.integrations.benchmarl needs BenchMARL: pip install "dvrl-marl[benchmarl]"') from error
 from torchrl.data import Composite
 
+from dvrl_marl.envs.presets import with_preset
 from dvrl_marl.envs.start_levels import checked_schedule, scheduled_level
 from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
@@ -250,6 +251,7 @@ def suction_debris_task(level_or_file: str = "default", **overrides) -> SuctionD
         raise ValueError(f"{path}: a task file holds keyword arguments (a mapping), got {type(config).__name__}")
     config.update(overrides)
     try:
+        config = with_preset(config, str(path))  # the preset's options spelt out: the task says what it runs
         SuctionDebrisTorchRLEnv(num_envs=1, **config).batched.close()
     except (TypeError, ValueError) as error:
         raise ValueError(f"{path}: {error}") from None
