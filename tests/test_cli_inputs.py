@@ -50,6 +50,7 @@ def test_outputs_and_addresses_are_checked_before_anything_runs(capsys, tmp_path
 
 
 def test_a_progress_file_without_its_columns_is_named(capsys, tmp_path):
+    pytest.importorskip("matplotlib")  # (plot's extra)
     csv = tmp_path / "other.csv"
     csv.write_text("a,b\n1,2\n")
     assert "no column timesteps, success_rate" in _refused(["plot", str(csv), "--out", str(tmp_path / "c")], capsys)
