@@ -124,3 +124,16 @@ def test_the_readme_is_a_users_page():
     lines = (ROOT / "README.md").read_text().splitlines()
     assert len(lines) <= 200
     assert not any(re.search(r"issue \d+", line) for line in lines)
+
+
+def test_the_readmes_examples_run():
+    """Every Python block of README.md runs (BenchMARL's where BenchMARL is installed)."""
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), flags=re.S)
+    assert len(blocks) >= 4
+    for index, block in enumerate(blocks):
+        if "benchmarl" in block:
+            try:
+                import benchmarl  # noqa: F401
+            except ImportError:
+                continue
+        exec(compile(block, f"README.md block {index}", "exec"), {})
