@@ -55,9 +55,6 @@ class SeatEnv(gym.Env):
             if key in scene_kwargs:
                 raise TypeError(f"SeatEnv() got an unexpected keyword argument {key!r}: the other arm is the "
                                 "partner's (partner=...), this one the agent's")
-        if "version" in scene_kwargs:
-            raise TypeError(f"SeatEnv() got an unexpected keyword argument 'version' ({scene_kwargs['version']!r}): "
-                            f"the seat's scene is the current one, {suction_debris_v8.TASK}")
         self.scene = suction_debris_v8.parallel_env(render_mode=render_mode, **scene_kwargs)
         self.seat = seat
         self.partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)
@@ -85,12 +82,19 @@ class SeatEnv(gym.Env):
         raise ValueError(f"SeatEnv: partner must be one of {PARTNERS}, a policy name or folder, or a callable; "
                          f"got {partner!r}")
 
+    def _partner_view(self, observations: dict) -> np.ndarray:
+        """The partner reads the plain observation in the scene's units (features and normalisation are the
+        learner's): the returned one's plain part, or, when the scene normalised it, the scene's own plain view."""
+        if self.scene.observation_scaling is not None:
+            return self.scene.seat_observation(self.partner_seat)
+        return observations[self.partner_seat][: self.scene.observation_layout["handoff"].stop]
+
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         observations, infos = self.scene.reset(seed=seed, options=options)
         if hasattr(self.partner, "reset"):
             self.partner.reset()
-        self._partner_observation = self.scene.seat_observation(self.partner_seat)
+        self._partner_observation = self._partner_view(observations)
         return observations[self.seat], self._info(infos[self.seat], np.zeros(4, dtype=np.float32))
 
     def step(self, action):
@@ -99,7 +103,7 @@ class SeatEnv(gym.Env):
         partner_action = np.asarray(self.partner(self._partner_observation), dtype=np.float32)
         observations, rewards, terminations, truncations, infos = self.scene.step(
             {self.seat: action, self.partner_seat: partner_action})
-        self._partner_observation = self.scene.seat_observation(self.partner_seat)
+        self._partner_observation = self._partner_view(observations)
         if not self.scene.agents:
             self._partner_observation = None
         return (observations[self.seat], float(rewards[self.seat]), bool(terminations[self.seat]),

@@ -1191,9 +1191,9 @@ class SuctionDebrisEnv(ParallelEnv):
         observation in the scene's units, whatever ``observation_features`` and ``normalize_observations`` give the
         learning agents (an exported policy computes its own features and scaling). The batched env's seat reads the
         same."""
-        return self._observe(agent)[: self.observation_layout["handoff"].stop]
+        return self._observe(agent, with_features=False)
 
-    def _observe(self, agent) -> np.ndarray:
+    def _observe(self, agent, with_features: bool = True) -> np.ndarray:
         own = self.arms[agent]
         other = self.arms["grasper" if agent == "suction" else "suction"]
         tool = 2.0 * (self.valve_opening if agent == "suction" else own.jaw) - 1.0
@@ -1206,7 +1206,7 @@ class SuctionDebrisEnv(ParallelEnv):
                 values += (0.0, 0.0, 0.0)
             values += (float(pin.visible), float(pin.held), float(pin.delivered))
         values += self._norm(*self.handoff)
-        if self.feature_spec is not None:
+        if with_features and self.feature_spec is not None:
             return features.apply(self.feature_spec, np.array(values))  # the observation, the features appended
         return np.array(values)
 

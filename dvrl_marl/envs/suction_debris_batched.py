@@ -63,7 +63,7 @@ from dvrl_marl.envs.presets import accepts_preset
 from dvrl_marl.envs.suction_debris import TASK, SuctionDebrisEnv, env_name
 from dvrl_marl.policies import features
 
-__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "batched_env"]
+__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "batched_env", "takes_worlds"]
 
 AUTORESET_MODES = ("same_step", "disabled")
 
@@ -108,6 +108,7 @@ class SuctionDebrisBatchedEnv:
         self.state_space = self.template.state_space
         self.workspace_range = self.template.workspace_range
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
+        self._surgeon_resets_worlds = takes_worlds(getattr(self._surgeon, "reset", None))
         # Options that help learning (validated by the template): features, start levels, guided reward.
         self.feature_spec = self.template.feature_spec
         self.observation_scaling = self.template.observation_scaling
@@ -211,7 +212,7 @@ class SuctionDebrisBatchedEnv:
             return
         if worlds is None:
             reset()
-        elif _takes_worlds(reset):
+        elif self._surgeon_resets_worlds:
             reset(worlds)
 
     def _reset_at_default(self, worlds: np.ndarray, blood_ml=None) -> None:
@@ -363,11 +364,12 @@ class SuctionDebrisBatchedEnv:
         self.template.close()
 
 
-def _takes_worlds(reset) -> bool:
+def takes_worlds(reset) -> bool:
+    """Whether a filler's ``reset`` can restart some worlds of a batch only (``reset(worlds)``)."""
     import inspect
 
     try:
-        return "worlds" in inspect.signature(reset).parameters
+        return reset is not None and "worlds" in inspect.signature(reset).parameters
     except (TypeError, ValueError):
         return False
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs.suction_debris_batched import takes_worlds
 
 __all__ = ["evaluate_team_batched", "seat", "seats", "partner", "Partners", "cross_play", "EVAL_SEED",
            "VALIDATION_SEED"]
@@ -87,6 +88,8 @@ class Partners:
         if not members:
             raise ValueError("Partners: no partner given")
         self.members, self.names = list(members), [str(name) for name in names]
+        self._resets = [(getattr(member, "reset", None), takes_worlds(getattr(member, "reset", None)))
+                        for member in self.members]
 
     def __call__(self, observations: np.ndarray) -> np.ndarray:
         observations = np.asarray(observations)
@@ -104,28 +107,18 @@ class Partners:
         if worlds is not None:
             worlds = np.asarray(worlds)
             worlds = np.flatnonzero(worlds) if worlds.dtype == bool else worlds
-        for index, member in enumerate(self.members):
-            reset = getattr(member, "reset", None)
+        for index, (reset, resets_worlds) in enumerate(self._resets):
             if reset is None:
                 continue
             if worlds is None:
                 reset()
-            elif "worlds" in _parameters(reset):
+            elif resets_worlds:
                 mine = worlds[worlds % count == index] // count  # this member's own rows (world i is member i % n's)
                 if len(mine):
                     reset(mine)
 
     def __repr__(self) -> str:
         return f"Partners({self.names})"
-
-
-def _parameters(function) -> tuple:
-    import inspect
-
-    try:
-        return tuple(inspect.signature(function).parameters)
-    except (TypeError, ValueError):
-        return ()
 
 
 def partner(spec, agent: str, env=None, noise_from: int | None = None):
