@@ -113,7 +113,7 @@ def run_demo(surgeon: str = "learned", out: Path | None = None, seed: int = 0, m
         suction = ArmPipeline(plans["suction"], "suction", env)
     if render_mode == "rgb_array":
         # Shadow maps triple the cost of a software-rendered frame; the demo must finish within a minute.
-        env.model.light_castshadow[:] = 0
+        env.unwrapped.mirrored().model.light_castshadow[:] = 0
 
     frames = []
     if render_mode == "human" and progress:

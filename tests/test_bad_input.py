@@ -43,7 +43,7 @@ def test_a_refused_reset_changes_nothing():
     with pytest.raises(ValueError, match="a level below 1"):
         env.reset(seed=0, options={"level": 0, "blood_ml": [1, 1]})
     env.reset(seed=0)
-    assert env.start_level == 1.0 and env._limit == env.params.max_cycles
+    assert env.start_level == 1.0 and env.core.limit[0] == env.params.max_cycles
     batch = suction_debris_v8.batched_env(num_envs=2)
     with pytest.raises(ValueError, match="a level below 1"):
         batch.reset(seed=0, options={"level": 0, "blood_ml": [1, 1]})

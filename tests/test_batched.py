@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from rule_sets import v0_rules
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.envs import suction_debris_v8
-from rule_sets import v0_rules, v1_rules, v2_rules, v3_rules, v4_rules, v5_rules, v6_rules
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
 ENV_IDS = sorted(SINGLE_ARM_ENV_IDS)
@@ -224,85 +224,11 @@ def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, sur
     env.close()
 
 
-def test_batched_collaborative_equals_single_env_random_actions_1000_steps():
-    assert_batched_collaborative_matches(3, seed=4, steps=1000, action_seed=0, max_cycles=150)
-
-
-def test_batched_collaborative_equals_single_env_noisy_experts_dense():
-    # Noisy experts suck, reveal, grasp, release and deliver: every branch of the step runs.
-    assert_batched_collaborative_matches(3, seed=8, steps=1000, action_seed=1, scripted=True, reward_type="dense",
-                                         max_cycles=300)
-
-
-def test_batched_collaborative_equals_single_env_with_scripted_surgeon():
-    assert_batched_collaborative_matches(2, seed=1, steps=1000, action_seed=2, surgeon="scripted", scripted=True,
-                                         max_cycles=450, debris_count=4)
-
-
-def test_batched_v1_equals_single_env_falling_pins_and_graded_suction():
-    # Noisy experts suck near the surface (graded flow) and now and then open the jaw on a carried pin, which falls
-    # (about 30 pin-steps of falling in this run): v1's new branches, world by world.
-    assert_batched_collaborative_matches(3, seed=21, steps=1250, action_seed=5, scripted=True, reward_type="dense",
-                                         max_cycles=600, module=v1_rules, drop_probability=0.03)
-
-
-def test_batched_v1_equals_single_env_while_cavities_bleed():
-    assert_batched_collaborative_matches(3, seed=22, steps=1000, action_seed=6, scripted=True, reward_type="dense",
-                                         max_cycles=300, module=v1_rules, bleeding_ml_s=0.4,
-                                         bleeding_onset_s=2.0)
-
-
-def test_batched_v2_equals_single_env_grip_handoff_and_drops_kept_on_the_phantom():
-    # Noisy experts grasp off centre and now and then drop a carried pin, many of them beyond the phantom on the
-    # way to the hand-off point: v2's hand-off at the grip and its edge landing, world by world.
-    assert_batched_collaborative_matches(3, seed=23, steps=1250, action_seed=7, scripted=True, reward_type="dense",
-                                         max_cycles=600, module=v2_rules, drop_probability=0.03)
-
-
-def test_batched_v3_equals_single_env_while_moves_slide():
-    # Uniform commands push into walls, joint limits and the other instrument all the time: v3's slides (the wall
-    # slide, the contact normal, the joint-limit clamp, the fallbacks), world by world.
-    assert_batched_collaborative_matches(3, seed=24, steps=1000, action_seed=8, max_cycles=250,
-                                         module=v3_rules)
-    assert_batched_collaborative_matches(3, seed=25, steps=1000, action_seed=9, scripted=True, reward_type="guided",
-                                         max_cycles=500, module=v3_rules, drop_probability=0.03)
-
-
-def test_batched_v4_equals_single_env_with_held_pins_at_their_grip():
-    # Noisy experts grasp off centre and drop pins now and then: the held pin's shown point (observation, state,
-    # guided reward, features) world by world, through grasps, carries, drops and hand-offs.
-    assert_batched_collaborative_matches(3, seed=26, steps=1250, action_seed=10, scripted=True, reward_type="guided",
-                                         max_cycles=600, module=v4_rules, drop_probability=0.03,
-                                         observation_features="suction_debris_cleared_pins_zoom")
-
-
-def test_batched_v5_equals_single_env_while_descents_climb():
-    # Commands pulled toward the other arm's side and down press the tips out of the cavities into the bowls'
-    # walls, along their normals now and then: v5's climbs (and v3's slides), world by world.
-    assert_batched_collaborative_matches(3, seed=27, steps=1000, action_seed=11, max_cycles=250,
-                                         module=v5_rules,
-                                         pull={"suction": [0.8, 0.0, -0.6], "grasper": [-0.8, 0.0, -0.6]})
-
-
-def test_batched_v6_equals_single_env_while_descents_climb_ahead():
-    # Commands pulled toward the other arm's side and down, about along the bowls' normals near the rims: v6's
-    # climbs counted along the move (and v5's, v3's slides), world by world.
-    assert_batched_collaborative_matches(3, seed=28, steps=1000, action_seed=12, max_cycles=250,
-                                         module=v6_rules,
-                                         pull={"suction": [0.67, 0.0, -0.82], "grasper": [-0.67, 0.0, -0.82]})
-
-
-def test_batched_v7_equals_single_env_while_descents_settle():
-    # Commands pulled straight down, a little toward the other arm's side: the tips press into the bowls' slopes and
-    # settle down them (v7), climb (v5, v6) and slide (v3), world by world.
-    assert_batched_collaborative_matches(3, seed=29, steps=1000, action_seed=13, max_cycles=250,
-                                         module=suction_debris_v8,
-                                         pull={"suction": [0.1, 0.0, -0.9], "grasper": [-0.1, 0.0, -0.9]})
-
-
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(num_envs=st.integers(1, 4), seed=st.integers(0, 2**31 - 1), action_seed=st.integers(0, 1000))
-def test_batched_collaborative_equivalence_property(num_envs, seed, action_seed):
+def test_world_i_of_a_batch_is_the_single_env_seeded_s_plus_i(num_envs, seed, action_seed):
+    # One step implementation serves both forms (the golden trajectories hold it still); what is left to hold here is
+    # the seeding: world i draws the single env's episodes, automatic resets included.
     assert_batched_collaborative_matches(num_envs, seed=seed, steps=200, action_seed=action_seed, scripted=True,
                                          max_cycles=90)
 
@@ -391,12 +317,3 @@ def test_batched_experts_act_as_the_single_experts_on_every_row():
         lifted = max(lifted, int(env.core.lifted.sum()))
         delivered = max(delivered, int(env.core.delivered.sum()))
     assert compared > 3000 and lifted > 0 and delivered > 0
-
-
-def test_batched_v5_equals_single_env_along_the_joint_limits():
-    # Commands pulled up and sideways drive the tips onto their outer pitch limits, where a blocked move slides along
-    # the limit (v3): the single env keeps the batched IK's solution for a tip slid exactly onto a limit, which its
-    # scalar IK can judge a last bit outside (an RLlib run of the recipe crashed there, UnreachableError).
-    assert_batched_collaborative_matches(3, seed=28, steps=800, action_seed=12, max_cycles=400,
-                                         module=v5_rules,
-                                         pull={"suction": [0.0, 0.8, 0.7], "grasper": [0.0, 0.8, 0.7]})

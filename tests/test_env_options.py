@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from dvrl_marl.envs import start_levels, suction_debris_v8
 from dvrl_marl.envs.guidance import Guidance, GuidedReward
-from dvrl_marl.policies import features
+from dvrl_marl.envs import features
 
 OPTIONS = dict(reward_type="guided", observation_features="suction_debris_cleared_pins_zoom")
 
@@ -320,7 +320,7 @@ def test_torchrl_state_carries_both_observations():
     env = SuctionDebrisTorchRLEnv(num_envs=2, seed=0, state_observations=True, **OPTIONS)
     td = env.reset()
     width = td["agents", "observation"].shape[-1]
-    assert td["state"].shape[-1] == env.batched.template.state_space.shape[0]
+    assert td["state"].shape[-1] == env.batched.state_space.shape[0]
     np.testing.assert_allclose(td["state"][:, -2 * width:].reshape(2, 2, width).numpy(),
                                td["agents", "observation"].numpy(), rtol=0, atol=1e-6)
 

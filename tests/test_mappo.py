@@ -770,4 +770,4 @@ def test_the_trainer_runs_on_suction_debris_v8(tmp_path):
     run = tmp_path / "run"
     final = mappo.train(config, 0, run, progress=False, log=lambda *_: None)
     assert final["steps"] == 2048
-    assert suction_debris_v8.batched_env(num_envs=1, **config.env).template.params.deliver_at_grip
+    assert suction_debris_v8.batched_env(num_envs=1, **config.env).params.deliver_at_grip

@@ -60,7 +60,7 @@ def test_reach_stage_hands_over_once_the_tip_is_within_delta():
     arm = env.arms["grasper"]
     home = pipeline.base + np.array((-0.015, 0.02, -0.08))
     arm.set_tip(*arm.to_base(home).tolist())
-    observations = {"grasper": env._observe("grasper")}
+    observations = {"grasper": env.seat_observation("grasper")}
     pipeline(observations["grasper"])
     assert pipeline.stage_index == 1  # already at home: straight on to the next stage
     assert any("end idle stage 0" in entry for _, entry in pipeline.log)
@@ -156,7 +156,7 @@ def test_reach_stages_lift_over_the_phantom_and_position_precisely():
     arm = env.arms["grasper"]
     cavity = env.phantom.cavities[1]
     arm.set_tip(*arm.to_base((cavity.centre_x, cavity.centre_y, cavity.floor_z + 0.002)).tolist())  # start deep
-    observations = {"grasper": env._observe("grasper")}
+    observations = {"grasper": env.seat_observation("grasper")}
     first_stage_heights = []
     while pipeline.stage_index < 2 and pipeline.steps < 800:
         action = pipeline(observations["grasper"])

@@ -59,23 +59,24 @@ def test_v0_pins_still_appear_on_the_surface_at_once():
     assert _drop(env, pin)[0] == floor
 
 
-def _cavity_blood(**kwargs):
-    env = v1_rules.parallel_env(**kwargs)
+def _drawn(height: float, reach: float) -> tuple[float, float]:
+    """(ml drawn in one step with the valve open and the tube's tip ``height`` above the blood, the full step's ml)."""
+    env = v1_rules.parallel_env(suction_reach=reach)
     env.reset(seed=0)
-    return env.blood, env.phantom.cavities[0]
+    cavity, arm = env.phantom.cavities[0], env.arms["suction"]
+    arm.set_tip(*arm.to_base((cavity.centre_x, cavity.centre_y, env.blood.surface_z[0] + height)).tolist())
+    before = env.blood.remaining_ml[0]
+    env.step({"suction": np.array([0.0, 0.0, 0.0, 1.0]), "grasper": np.array([0.0, 0.0, 0.0, 1.0])})
+    return before - env.blood.remaining_ml[0], env.params.suction_rate_ml_s * env.params.control_dt
 
 
 def test_suction_flow_falls_off_above_the_surface():
-    blood, cavity = _cavity_blood()
-    rate, dt = blood.suction_rate_ml_s, 0.02
-    surface = blood.surface_z[0]
     for height, fraction in ((-0.003, 1.0), (0.0, 1.0), (0.0005, 0.75), (0.001, 0.5), (0.002, 0.0), (0.01, 0.0)):
-        blood.reset()
-        _, removed = blood.suck(cavity.centre_x, cavity.centre_y, surface + height, dt, reach=0.002)
-        assert removed == pytest.approx(fraction * rate * dt, abs=1e-15)
-    blood.reset()  # v0's box: nothing at the surface itself
-    assert blood.suck(cavity.centre_x, cavity.centre_y, surface, dt)[1] == 0.0
-    assert blood.suck(cavity.centre_x, cavity.centre_y, surface - 1e-6, dt)[1] == pytest.approx(rate * dt)
+        removed, full = _drawn(height, reach=0.002)
+        assert removed == pytest.approx(fraction * full, abs=1e-12), height
+    assert _drawn(0.0, reach=0.0)[0] == 0.0  # v0's box: nothing at the surface itself
+    removed, full = _drawn(-1e-6, reach=0.0)
+    assert removed == pytest.approx(full)
 
 
 def test_bleeding_refills_the_cavities_from_a_seeded_onset():

@@ -88,11 +88,12 @@ def _pixel_of(env, point):
     """(row, column) of a world point in the endoscope camera's 640 x 480 picture."""
     import mujoco
 
-    mujoco.mj_forward(env.model, env.data)
-    camera = env.model.camera("endoscope").id
-    position, rotation = env.data.cam_xpos[camera], env.data.cam_xmat[camera].reshape(3, 3)
+    mirror = env.mirrored()
+    mujoco.mj_forward(mirror.model, mirror.data)
+    camera = mirror.model.camera("endoscope").id
+    position, rotation = mirror.data.cam_xpos[camera], mirror.data.cam_xmat[camera].reshape(3, 3)
     local = rotation.T @ (np.asarray(point) - position)  # camera frame: x right, y up, looking along -z
-    focal = 240.0 / math.tan(math.radians(env.model.cam_fovy[camera]) / 2.0)
+    focal = 240.0 / math.tan(math.radians(mirror.model.cam_fovy[camera]) / 2.0)
     return 240.0 - focal * local[1] / -local[2], 320.0 + focal * local[0] / -local[2]
 
 

@@ -1,10 +1,12 @@
-"""The batched core of the collaborative scene (suction_debris_v8): N worlds as arrays.
+"""The collaborative scene's step, written once: N worlds as arrays (suction_debris_v8).
 
 One step advances every world: eta moves of both arms (workspace box, the phantom's surface, joint limits,
-instruments that may not pass through each other), suction and the blood level in each cavity, debris revealed,
-grasped by the paper's rule, carried and delivered, the team's reward, completion and truncation. It is the same
-arithmetic as :class:`dvrl_marl.envs.suction_debris_v8.SuctionDebrisEnv`, in the same order, so world ``i`` of a
-batch follows its single environment (tested over 1,000 steps with resets).
+instruments that may not pass through each other), suction and the blood level in each cavity, bleeding, debris
+revealed, grasped by the paper's rule, carried, dropped and delivered, the team's reward, completion and truncation.
+Every form of the scene (the parallel and AEC envs, one world; the batched env; the seat envs; the Gymnasium vector
+envs) is a shell over this core, and one world is a batch of one. It is built from the task's parameters and the
+scene file's geometry (:class:`~dvrl_marl.core.scene_geometry.SceneGeometry`) and imports no MuJoCo: a MuJoCo model
+only mirrors a world to render it.
 
 Memory: about 1.5 kB per world with 3 debris (plus one ``numpy.random.Generator`` per world).
 """
@@ -18,10 +20,13 @@ import numpy as np
 from dvrl_marl import kinematics
 from dvrl_marl.core import sliding, tools
 from dvrl_marl.core.arms import ArmBatch
+from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
+from dvrl_marl.core.phantom import Cavities
+from dvrl_marl.core.scene_geometry import SceneGeometry
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
 
-__all__ = ["CollaborativeCore", "Cavities", "AGENTS", "TOOLS", "sample_debris", "segment_distance",
+__all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "TOOLS", "sample_debris", "segment_distance",
            "SHAFT_RADIUS", "WRIST_RADIUS"]
 
 AGENTS = ("suction", "grasper")
@@ -33,10 +38,9 @@ CONTACT_MARGIN = 5e-4
 OBSERVATION_BOUND = 10.0
 #: Released pins fall at g (m/s^2) when the task's ``pins_fall`` is set (suction_debris_v8).
 GRAVITY = 9.81
-#: Pin geometry (spring pins: 3 mm x 28 mm) and the spacing of the slots they lie in on a cavity floor.
+#: Pin geometry (spring pins: 3 mm x 28 mm; the slots they lie in: collaborative_task.PIN_SLOTS).
 PIN_RADIUS = 0.0015
 PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28 mm
-PIN_SLOTS = (0.0, -0.004, 0.004, -0.008, 0.008)
 #: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
 PIN_SENSOR_RANGE = PIN_RADIUS + 0.0015
 #: suction_debris_v8: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
@@ -45,7 +49,6 @@ PHANTOM_EDGE_MARGIN = 0.005
 #: Tip start positions (world) before the seeded jitter.
 STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
-_ML = 1e-6  # m^3 per millilitre
 
 
 def sample_debris(rng: np.random.Generator, cavities, count: int) -> list:
@@ -90,72 +93,6 @@ def _distance(u, v) -> np.ndarray:
     return np.sqrt(_dot(difference, difference))
 
 
-class Cavities:
-    """The phantom's cavities as arrays, with the batched forms of :mod:`dvrl_marl.envs.blood`'s geometry."""
-
-    def __init__(self, phantom):
-        cavities = phantom.cavities
-        self.count = len(cavities)
-        self.centre_x = np.array([c.centre_x for c in cavities])
-        self.centre_y = np.array([c.centre_y for c in cavities])
-        self.mouth_radius = np.array([c.mouth_radius for c in cavities])
-        self.depth = np.array([c.depth for c in cavities])
-        self.sphere_radius = np.array([c.sphere_radius for c in cavities])
-        self.floor_z = np.array([c.floor_z for c in cavities])
-        self.capacity_ml = np.array([c.capacity_ml for c in cavities])
-        self.phantom = phantom
-
-    def _r2(self, x, y):
-        return (x[..., None] - self.centre_x) ** 2 + (y[..., None] - self.centre_y) ** 2
-
-    def surface_height(self, x, y) -> np.ndarray:
-        """Height of the first solid surface below (x, y): cavity floor, phantom top or table."""
-        p = self.phantom
-        r2 = self._r2(x, y)
-        radius = self.sphere_radius
-        with np.errstate(invalid="ignore"):
-            depth = np.where(r2 >= self.mouth_radius**2, 0.0, self.depth - (radius - np.sqrt(radius * radius - r2)))
-        depth = np.maximum(depth.max(axis=-1), 0.0)
-        outside = (np.abs(x - p.centre_x) > p.half_x) | (np.abs(y - p.centre_y) > p.half_y)
-        return np.where(outside, p.table_z, p.top_z - depth)
-
-    def nearest_on_top(self, x, y, margin: float):
-        """:meth:`Phantom.nearest_on_top` element-wise."""
-        p = self.phantom
-        dx, dy = x - p.centre_x, y - p.centre_y
-        over = (np.abs(dx) <= p.half_x) & (np.abs(dy) <= p.half_y)
-        reach_x, reach_y = p.half_x - margin, p.half_y - margin
-        return (np.where(over, x, p.centre_x + np.minimum(np.maximum(dx, -reach_x), reach_x)),
-                np.where(over, y, p.centre_y + np.minimum(np.maximum(dy, -reach_y), reach_y)))
-
-    def cavity_at(self, x, y) -> np.ndarray:
-        """Index of the first cavity whose mouth contains (x, y), or -1."""
-        inside = self._r2(x, y) < self.mouth_radius**2
-        return np.where(inside.any(axis=-1), np.argmax(inside, axis=-1), -1)
-
-    def fill_depth(self, cavity: np.ndarray, volume_ml: np.ndarray) -> np.ndarray:
-        """:meth:`Cavity.fill_depth` element-wise (the same Newton iterations, each element stopping on its own)."""
-        depth, radius = self.depth[cavity], self.sphere_radius[cavity]
-        target = volume_ml * _ML * 3.0 / math.pi
-        with np.errstate(invalid="ignore", divide="ignore"):
-            h = np.minimum(np.sqrt(target / (3.0 * radius)), depth)
-            active = (volume_ml > 0.0) & (volume_ml < self.capacity_ml[cavity])
-            for _ in range(30):
-                if not active.any():
-                    break
-                f = h * h * (3.0 * radius - h) - target
-                slope = 6.0 * radius * h - 3.0 * h * h
-                step = f / slope
-                h = np.where(active, np.minimum(np.maximum(h - step, 0.0), depth), h)
-                active &= ~(np.abs(step) < 1e-13)
-        h = np.where(volume_ml <= 0.0, 0.0, np.where(volume_ml >= self.capacity_ml[cavity], depth, h))
-        return h
-
-    def surface_radius(self, cavity, fill_depth) -> np.ndarray:
-        h = np.minimum(np.maximum(fill_depth, 0.0), self.depth[cavity])
-        return np.sqrt(np.maximum(h * (2.0 * self.sphere_radius[cavity] - h), 0.0))
-
-
 class CollaborativeCore:
     """N worlds of the collaborative scene, built from a single ``SuctionDebrisEnv`` (its validated parameters).
 
@@ -164,23 +101,26 @@ class CollaborativeCore:
     episodes for some worlds from their own streams.
     """
 
-    def __init__(self, template, num_worlds: int):
+    def __init__(self, params: SuctionDebrisParams, num_worlds: int, *, reward_type: str = "sparse",
+                 rewarded_agents=AGENTS, geometry: SceneGeometry | None = None, name: str | None = None):
         if int(num_worlds) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_worlds!r}")
-        self.template = template
+        self.name = name or "suction_debris"
         self.num_worlds = n = int(num_worlds)
-        p = self.params = template.params
-        self.sparse = template.reward_type == "sparse"
+        p = self.params = params
+        self.geometry = geometry = geometry or SceneGeometry.from_scene(p.scene)
+        self.phantom = geometry.phantom
+        self.sparse = reward_type == "sparse"
         self.move_rules = {agent: sliding.MoveRules.of(p.blocked_moves, agent) for agent in AGENTS}
-        self.cavities = Cavities(template.phantom)
-        self.arms = {agent: ArmBatch(TOOLS[agent], n, template.arms[agent].base_position) for agent in AGENTS}
+        self.cavities = Cavities(geometry.phantom)
+        self.arms = {agent: ArmBatch(TOOLS[agent], n, geometry.base_positions[agent]) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
         self.inverse_range = 1.0 / p.workspace_range
         self.low = self.centre - p.workspace_range
         self.high = self.centre + p.workspace_range
-        self.handoff = np.asarray(template.handoff, dtype=np.float64)
+        self.handoff = np.asarray(geometry.handoff, dtype=np.float64)
         self.handoff_normalised = self.normalise(self.handoff)
-        self.rewarded_agents = tuple(template.possible_agents)
+        self.rewarded_agents = tuple(rewarded_agents)
         c, d = self.cavities.count, p.debris_count
         self.valve_opening = np.zeros(n)  # the valve's stroke, 0 closed .. 1 open (core.tools)
         self.initial_ml = np.tile(np.asarray(p.blood_ml, dtype=np.float64), (n, 1))
@@ -205,6 +145,8 @@ class CollaborativeCore:
         self.contact = np.zeros(n, dtype=bool)
         self.complete = np.zeros(n, dtype=bool)
         self.work_distance = {agent: np.zeros(n) for agent in AGENTS}
+        self.blocked = {agent: np.zeros(n, dtype=bool) for agent in AGENTS}  # its last move was refused
+        self.drawn_ml = np.zeros(n)  # blood the suction drew in the last step
         self.random = WorldRandom(n)
         self._rows = np.arange(n)
 
@@ -213,7 +155,7 @@ class CollaborativeCore:
         return (position - self.centre) * self.inverse_range
 
     def worlds_of(self, worlds) -> np.ndarray:
-        return world_indices(worlds, self.num_worlds, self.template.name)
+        return world_indices(worlds, self.num_worlds, self.name)
 
     def _update_surfaces(self, worlds, cavity) -> None:
         self.surface_z[worlds, cavity] = self.cavities.floor_z[cavity] + self.cavities.fill_depth(
@@ -224,9 +166,9 @@ class CollaborativeCore:
         volumes = np.asarray(blood_ml, dtype=np.float64)
         c = self.cavities.count
         if volumes.shape[-1:] != (c,) or volumes.ndim > 2:
-            raise ValueError(f"{self.template.name}: blood_ml needs one volume per cavity ({c}), got {volumes.tolist()}")
+            raise ValueError(f"{self.name}: blood_ml needs one volume per cavity ({c}), got {volumes.tolist()}")
         if not np.all(np.isfinite(volumes)) or np.any(volumes < 0.0) or np.any(volumes > self.cavities.capacity_ml):
-            raise ValueError(f"{self.template.name}: blood volumes {volumes.tolist()} ml must lie in "
+            raise ValueError(f"{self.name}: blood volumes {volumes.tolist()} ml must lie in "
                              f"[0, {self.cavities.capacity_ml.tolist()}] ml (the cavities' capacity)")
         self.initial_ml[worlds] = volumes
 
@@ -245,7 +187,7 @@ class CollaborativeCore:
             rng = self.random[world]
             for agent in AGENTS:
                 tips[agent][row] = np.array(STARTS[agent]) + rng.uniform(-START_JITTER, START_JITTER, 3)
-            for pin, (position, yaw, cavity) in enumerate(sample_debris(rng, self.template.phantom.cavities,
+            for pin, (position, yaw, cavity) in enumerate(sample_debris(rng, self.phantom.cavities,
                                                                         self.params.debris_count)):
                 self.debris_position[world, pin] = position
                 self.debris_yaw[world, pin] = yaw
@@ -272,7 +214,9 @@ class CollaborativeCore:
         self.limit[indices] = self.params.max_cycles
         self.contact[indices] = False
         self.complete[indices] = False
+        self.drawn_ml[indices] = 0.0
         for agent in AGENTS:
+            self.blocked[agent][indices] = False
             self.work_distance[agent][indices] = self._work_distance(agent)[indices]
 
     # --- start-state curricula ----------------------------------------------------------------------------
@@ -288,7 +232,7 @@ class CollaborativeCore:
             clearance = self._instrument_distance()[indices]
             if np.any(clearance < 0.0):
                 row = int(np.argmax(clearance < 0.0))
-                raise ValueError(f"{self.template.name}: tip positions make the instruments intersect "
+                raise ValueError(f"{self.name}: tip positions make the instruments intersect "
                                  f"(world {int(indices[row])})")
         except ValueError:  # a refused placement leaves every tip where it was, whichever agent failed
             for agent, (tip, q) in previous.items():
@@ -299,23 +243,23 @@ class CollaborativeCore:
 
     def _place_one(self, agent: str, indices: np.ndarray, positions) -> None:
         if agent not in AGENTS:
-            raise ValueError(f"{self.template.name}: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
+            raise ValueError(f"{self.name}: unknown agent {agent!r} in tip positions; agents are {list(AGENTS)}")
         positions = np.asarray(positions, dtype=np.float64)
         if positions.shape != (len(indices), 3) or not np.all(np.isfinite(positions)):
-            raise ValueError(f"{self.template.name}: tip positions of {agent!r} must be finite, shape "
+            raise ValueError(f"{self.name}: tip positions of {agent!r} must be finite, shape "
                              f"({len(indices)}, 3), got shape {positions.shape}")
         outside = np.any((positions < self.low - 1e-12) | (positions > self.high + 1e-12), axis=1)
         below = positions[:, 2] < self._floor(positions[:, 0], positions[:, 1]) - 1e-12
         bad = outside | below
         if bad.any():
             row = int(np.argmax(bad))
-            raise ValueError(f"{self.template.name}: tip position {positions[row].tolist()} of {agent!r} (world "
+            raise ValueError(f"{self.name}: tip position {positions[row].tolist()} of {agent!r} (world "
                              f"{int(indices[row])}) is {'outside the workspace box' if outside[row] else 'below the surface'}")
         arm = self.arms[agent]
         try:
             arm.set_tips(indices, positions - arm.base_position)
         except kinematics.UnreachableError as error:
-            raise ValueError(f"{self.template.name}: a tip position of {agent!r} is unreachable: {error}") from None
+            raise ValueError(f"{self.name}: a tip position of {agent!r} is unreachable: {error}") from None
 
     def limit_debris(self, worlds, count) -> None:
         """Keep only the first ``count`` debris (per world in ``worlds``) in play this episode: the others start
@@ -323,7 +267,7 @@ class CollaborativeCore:
         indices = self.worlds_of(worlds)
         count = np.broadcast_to(np.asarray(count), (len(indices),))
         if not np.issubdtype(count.dtype, np.integer) or np.any(count < 0) or np.any(count > self.params.debris_count):
-            raise ValueError(f"{self.template.name}: debris_count must be integers in 0..{self.params.debris_count}, "
+            raise ValueError(f"{self.name}: debris_count must be integers in 0..{self.params.debris_count}, "
                              f"got {count.tolist()}")
         out = np.arange(self.params.debris_count)[None, :] >= count[:, None]
         self.delivered[indices] |= out
@@ -352,7 +296,7 @@ class CollaborativeCore:
                 if self.params.hold_until_handoff:  # a held pin's jaw stays shut until the hand-off
                     given &= self.holding < 0
                 arm.jaw = np.where(given, jaw, arm.jaw)
-        removed = self._suction()
+        removed = self.drawn_ml = self._suction()
         self._bleed()
         lifted, delivered = self._grasping()
         self._fall()
@@ -381,6 +325,7 @@ class CollaborativeCore:
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
         refused = clearance < 0.0  # instruments never pass through each other
+        self.blocked[agent] = refused.copy()  # (a person's cue: the move as commanded was refused, slid or not)
         if rules.slide:
             stuck = refused | (cut & np.all(arm.tip == previous_tip, axis=1))
             if stuck.any():
@@ -548,6 +493,10 @@ class CollaborativeCore:
     def _complete(self) -> np.ndarray:
         return self._cleared().all(axis=1) & self.delivered.all(axis=1)
 
+    def is_complete(self) -> np.ndarray:
+        """(N,) whether each world's field is clear now: every cavity cleared, every pin delivered."""
+        return self._complete()
+
     def _rewards(self, removed, lifted, delivered, contact) -> dict:
         if self.sparse:
             team = np.where(self.complete, 0.0, -1.0)
@@ -649,10 +598,16 @@ class CollaborativeCore:
             "is_success": self.complete.copy(),
         }
 
+    @property
+    def removed_ml(self) -> np.ndarray:
+        """(N, C): blood removed from each cavity this episode (ml): what it started with and gained, less what is left."""
+        return self.initial_ml + self.added_ml - self.remaining_ml
+
     def world_state(self, world: int) -> dict:
-        """World ``world``'s state as the single environment's ``set_state`` takes it (to render it)."""
+        """World ``world``'s state, as :meth:`set_world` takes it (and the MuJoCo mirror shows it)."""
         return {
             "tips": {agent: self.arms[agent].tip[world].copy() for agent in AGENTS},
+            "joints": {agent: self.arms[agent].q[world].copy() for agent in AGENTS},
             "jaw": float(self.arms["grasper"].jaw[world]),
             "valve_open": bool(self.valve_open[world]),
             "valve_opening": float(self.valve_opening[world]),
@@ -663,16 +618,39 @@ class CollaborativeCore:
             "delivered": self.delivered[world].copy(),
         }
 
+    def set_world(self, world: int, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible,
+                  delivered, valve_opening=None, joints=None) -> None:
+        """Put world ``world`` in a given state (tips in each arm's base frame, metres; ``joints`` the arms' joint
+        values where known, else inverse kinematics finds them), e.g. to set up a scene or show a recorded one.
+        ``valve_opening`` (0..1, :mod:`dvrl_marl.core.tools`): the valve's stroke; by default all or nothing."""
+        rows = np.array([int(world)])
+        for agent in AGENTS:
+            tip = np.asarray(tips[agent], dtype=np.float64).reshape(1, 3)
+            if joints is None:
+                self.arms[agent].set_tips(rows, tip)
+            else:
+                self.arms[agent].tip[rows], self.arms[agent].q[rows] = tip, np.asarray(joints[agent], dtype=np.float64)
+        self.arms["grasper"].jaw[world] = float(jaw)
+        self.valve_opening[world] = float(bool(valve_open)) if valve_opening is None else float(valve_opening)
+        volumes = np.asarray(blood_ml, dtype=np.float64)
+        self.remaining_ml[world] = np.minimum(np.maximum(volumes, 0.0), self.cavities.capacity_ml)
+        for cavity in range(self.cavities.count):
+            self._update_surfaces(rows, np.array([cavity]))
+        self.debris_position[world] = np.asarray(debris_positions, dtype=np.float64)
+        self.debris_yaw[world] = np.asarray(debris_yaws, dtype=np.float64)
+        self.visible[world] = np.asarray(visible, dtype=bool)
+        self.delivered[world] = np.asarray(delivered, dtype=bool)
+
     def read_commands(self, actions, agents) -> dict:
         """Validate ``{agent: (N, 4)}`` for ``agents`` (ValueError naming agent and world)."""
         if not isinstance(actions, dict):
-            raise ValueError(f"{self.template.name}: actions must be a dict keyed by agent, got {type(actions).__name__}")
+            raise ValueError(f"{self.name}: actions must be a dict keyed by agent, got {type(actions).__name__}")
         for agent in actions:
             if agent not in agents:
-                raise ValueError(f"{self.template.name}: unknown agent {agent!r} in actions; agents are {list(agents)}")
+                raise ValueError(f"{self.name}: unknown agent {agent!r} in actions; agents are {list(agents)}")
         commands = {}
         for agent in agents:
             if agent not in actions:
-                raise ValueError(f"{self.template.name}: no action for agent {agent!r}")
-            commands[agent] = check_action_batch(actions[agent], self.num_worlds, 4, f"{self.template.name}: agent {agent!r}")
+                raise ValueError(f"{self.name}: no action for agent {agent!r}")
+            commands[agent] = check_action_batch(actions[agent], self.num_worlds, 4, f"{self.name}: agent {agent!r}")
         return commands

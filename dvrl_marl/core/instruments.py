@@ -59,10 +59,18 @@ def contact_normal(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
 
 def instrument_clearance(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
     """Clearance between the suction (a) and the grasper (b), each a shaft RCM-wrist and a wrist-tip segment
-    (negative when they intersect)."""
+    (negative when they intersect). The four pairs of segments go through one batched call."""
     ra, rb = WRIST_RADIUS["suction"], WRIST_RADIUS["grasper"]
-    return np.minimum(
-        np.minimum(segment_distance(rcm_a, wrist_a, rcm_b, wrist_b) - 2 * SHAFT_RADIUS,
-                   segment_distance(rcm_a, wrist_a, wrist_b, tip_b) - SHAFT_RADIUS - rb),
-        np.minimum(segment_distance(wrist_a, tip_a, rcm_b, wrist_b) - ra - SHAFT_RADIUS,
-                   segment_distance(wrist_a, tip_a, wrist_b, tip_b) - ra - rb))
+    shape = np.broadcast_shapes(np.shape(tip_a), np.shape(tip_b))
+    starts_a, ends_a, starts_b, ends_b = (np.empty((4,) + shape) for _ in range(4))
+    for row, (start_a, end_a, start_b, end_b) in enumerate(((rcm_a, wrist_a, rcm_b, wrist_b),
+                                                            (rcm_a, wrist_a, wrist_b, tip_b),
+                                                            (wrist_a, tip_a, rcm_b, wrist_b),
+                                                            (wrist_a, tip_a, wrist_b, tip_b))):
+        starts_a[row], ends_a[row], starts_b[row], ends_b[row] = start_a, end_a, start_b, end_b
+    distances = segment_distance(starts_a, ends_a, starts_b, ends_b)
+    column = (4,) + (1,) * (len(shape) - 1)
+    # (subtracted one radius after the other, as the pairs were written singly: the same floating-point results)
+    gaps = (distances - np.array([2 * SHAFT_RADIUS, SHAFT_RADIUS, ra, ra]).reshape(column)
+            - np.array([0.0, rb, SHAFT_RADIUS, rb]).reshape(column))
+    return np.minimum(np.minimum(gaps[0], gaps[1]), np.minimum(gaps[2], gaps[3]))

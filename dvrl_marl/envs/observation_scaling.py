@@ -137,7 +137,7 @@ def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_
 
 def write(path: Path = SCALES_FILE) -> dict:
     """Measure every feature set (and none) and write the file the option reads."""
-    from dvrl_marl.policies.features import FEATURES
+    from dvrl_marl.envs.features import FEATURES
 
     content = {"source": "dvrl_marl.envs.observation_scaling.measure", "task": MEASURE_TASK,
                "worlds": MEASURE_WORLDS, "seed": MEASURE_SEED, "min_spread": MIN_SPREAD,

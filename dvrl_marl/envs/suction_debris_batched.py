@@ -51,21 +51,41 @@ environment's MuJoCo scene.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from gymnasium import spaces
 
-from dvrl_marl.core.collaborative import AGENTS, CollaborativeCore
+from dvrl_marl import assets
+from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
+from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
 from dvrl_marl.core.worlds import check_action_batch
-from dvrl_marl.envs import start_levels
-from dvrl_marl.envs.guidance import GuidedReward, OverRims
+from dvrl_marl.envs import features, start_levels
+from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
+from dvrl_marl.envs.observation_scaling import ObservationScaling
 from dvrl_marl.envs.presets import accepts_preset
-from dvrl_marl.envs.suction_debris import TASK, SuctionDebrisEnv, env_name
-from dvrl_marl.policies import features
 
-__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "batched_env", "takes_worlds"]
+__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "SceneLayout", "batched_env", "takes_worlds"]
 
 AUTORESET_MODES = ("same_step", "disabled")
+#: "guided": the dense reward plus the guided terms (:mod:`dvrl_marl.envs.guidance`).
+REWARD_TYPES = ("sparse", "dense", "guided")
+
+
+@dataclass(frozen=True)
+class SceneLayout:
+    """Fixed facts of the scene in normalised coordinates, for scripted agents and pipelines."""
+
+    cavity_centres: tuple[tuple[float, float], ...]  # x~, y~
+    cavity_mouth_radius: float  # normalised
+    cavity_floor: tuple[float, ...]  # z~ of each floor centre
+    phantom_top: float  # z~
+    blood_threshold_fraction: tuple[float, ...]
+    handoff: tuple[float, float, float]
+    base_positions: dict  # agent -> RCM position~
+    gain: float  # rho / eta: steps per normalised unit
+    clearance: float  # tip clearance, normalised
 
 
 class SuctionDebrisBatchedEnv:
@@ -76,49 +96,143 @@ class SuctionDebrisBatchedEnv:
     @accepts_preset
     def __init__(self, num_envs: int = 1, surgeon=None, surgeon_seat: str = "grasper", reward_type: str = "sparse",
                  render_mode: str | None = None, max_cycles: int | None = None, autoreset_mode: str = "same_step",
-                 render_world: int = 0, **kwargs):
-        self.name = env_name(Path(str(kwargs.get("task", TASK))).stem)
-        self.metadata = {**self.metadata, "name": self.name}
-        from dvrl_marl.schemas import PositiveInt, validated
+                 render_world: int = 0, task: str = TASK, guidance: dict | None = None, observation_features: str = "",
+                 start_level: float | str = 1.0,
+                 easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
+                 state_observations: bool = False, normalize_observations: bool = False, width: int = 640,
+                 height: int = 480, **params):
+        from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
 
+        if not isinstance(task, (str, Path)):
+            raise ValueError(f"{TASK}: task must be a task file's name or path, got {task!r}")
+        #: The environment's name (its version), as its messages say it.
+        self.name = env_name(Path(task).stem)
+        self.metadata = {**self.metadata, "name": self.name}
         num_envs = validated(PositiveInt, num_envs, f"{self.name}: num_envs")
+        if reward_type not in REWARD_TYPES:
+            raise ValueError(f"{self.name}: reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"{self.name}: autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"{self.name}: the batched env renders 'rgb_array' only, got {render_mode!r}")
+        if surgeon_seat not in AGENTS:
+            raise ValueError(f"{self.name}: surgeon_seat must be one of {AGENTS}, got {surgeon_seat!r}")
         if hasattr(surgeon, "action") and callable(surgeon.action):
             raise ValueError(f"{self.name}: a teleop device drives one world; use parallel_env(surgeon=device)")
-        # The single env validates every argument and holds the scene (for rendering and the layout).
-        self.template = SuctionDebrisEnv(surgeon=None, surgeon_seat=surgeon_seat, reward_type=reward_type,
-                                         render_mode=render_mode, max_cycles=max_cycles, **kwargs)
+        self.params = p = SuctionDebrisParams.from_task(task, max_cycles=max_cycles, **params)
+        self.reward_type = reward_type
         self.surgeon_seat = surgeon_seat if surgeon is not None else None
         self.possible_agents = [agent for agent in AGENTS if agent != self.surgeon_seat]
         self.agents = list(self.possible_agents)
-        self.core = CollaborativeCore(self.template, num_envs)
-        self.core.rewarded_agents = tuple(self.possible_agents)
+        self.core = CollaborativeCore(p, num_envs, reward_type=reward_type, rewarded_agents=self.possible_agents,
+                                      name=self.name)
+        self.core.set_blood(np.arange(num_envs), p.blood_ml)  # (each volume within its cavity's capacity)
+        self.phantom, self.handoff = self.core.phantom, tuple(self.core.handoff.tolist())
+        self.workspace_centre = self.core.centre.copy()
+        self.workspace_range = float(p.workspace_range)
+        self._check_scene_fits()
         self.num_envs = self.core.num_worlds
         self.autoreset_mode = autoreset_mode
         self.render_mode = render_mode
-        if not 0 <= int(render_world) < self.num_envs:
+        if not isinstance(render_world, (int, np.integer)) or not 0 <= int(render_world) < self.num_envs:
             raise ValueError(f"{self.name}: render_world must be in [0, {self.num_envs}), got {render_world!r}")
         self.render_world = int(render_world)
-        self.params = self.template.params
-        self.observation_layout = self.template.observation_layout
-        self.state_layout = self.template.state_layout
-        self.state_space = self.template.state_space
-        self.workspace_range = self.template.workspace_range
+        self._render_size = tuple(validated(PositiveInt, value, f"{self.name}: render {name}")
+                                  for name, value in (("width", width), ("height", height)))
+        self._mirror = None  # the MuJoCo scene that shows a world (made on the first render)
+        self._spaces(observation_features, validated(Flag, state_observations, f"{self.name}: state_observations"),
+                     validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
+        # Options that help learning: start levels, the guided reward.
+        self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
+        if easy_episode_steps is not None:  # 0 says what None does where there is no null (a TOML configuration)
+            easy_episode_steps = validated(NonNegativeInt, easy_episode_steps,
+                                           f"{self.name}: easy_episode_steps") or None
+        #: an easy episode's time limit (None: the task's max_cycles)
+        self.easy_episode_steps = easy_episode_steps
+        if guidance is not None and reward_type != "guided":
+            raise ValueError(f"{self.name}: guidance settings need reward_type='guided', got {reward_type!r}")
+        #: the guided reward's settings (:class:`dvrl_marl.envs.guidance.Guidance`; None unless reward_type="guided")
+        self.guidance = _guidance_settings(guidance, self.name) if reward_type == "guided" else None
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
         self._surgeon_resets_worlds = takes_worlds(getattr(self._surgeon, "reset", None))
-        # Options that help learning (validated by the template): features, start levels, guided reward.
-        self.feature_spec = self.template.feature_spec
-        self.observation_scaling = self.template.observation_scaling
-        self.levels = np.full(self.num_envs, self.template.start_level)  # each world's start level
+        self.levels = np.full(self.num_envs, self.start_level)  # each world's start level
         self._level_rngs = [start_levels.level_generator(None) for _ in range(self.num_envs)]
         self._rims = None  # the way around the rims, for easy starts that recede (built on first use)
         self._level_blood = np.zeros(self.num_envs, dtype=bool)  # worlds whose blood a level's draw set
-        self._guided = (GuidedReward(self.template, self.possible_agents, self.template.guidance)
-                        if reward_type == "guided" else None)
+        self._guided = GuidedReward(self, self.possible_agents, self.guidance) if self.guidance is not None else None
         self._potential = None
+
+    def _spaces(self, observation_features: str, state_observations: bool, normalize: bool) -> None:
+        """Observation, action and state spaces and their layouts, with the observation options."""
+        p, c = self.params, self.core.cavities.count
+        d = p.debris_count
+        self.observation_layout = {
+            "own_tip": slice(0, 3), "own_tool": slice(3, 4), "other_tip": slice(4, 7),
+            "blood": slice(7, 7 + c), "debris": slice(7 + c, 7 + c + 6 * d),
+            "handoff": slice(7 + c + 6 * d, 10 + c + 6 * d),
+        }
+        #: Slices of ``state()``: both tips and tools, blood, every debris (hidden ones too), hand-off point.
+        self.state_layout = {
+            "suction_tip": slice(0, 3), "valve": slice(3, 4), "grasper_tip": slice(4, 7), "jaw": slice(7, 8),
+            "blood": slice(8, 8 + c), "debris": slice(8 + c, 8 + c + 6 * d),
+            "handoff": slice(8 + c + 6 * d, 11 + c + 6 * d),
+        }
+        obs_dim, state_dim = 10 + c + 6 * d, 11 + c + 6 * d
+        observation_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, shape=(obs_dim,), dtype=np.float64)
+        if not isinstance(observation_features, str):
+            raise ValueError(f"{self.name}: observation_features must be a feature set's name or '', "
+                             f"got {observation_features!r}")
+        self.feature_spec = None
+        if observation_features:
+            try:
+                self.feature_spec = features.spec(observation_features, self.layout(), d)
+            except ValueError as error:
+                raise ValueError(f"{self.name}: observation_features: {error}") from None
+            # appended after the plain observation (differences of positions: twice the bound)
+            count = features.feature_count(observation_features)
+            self.observation_layout["features"] = slice(obs_dim, obs_dim + count)
+            low = np.concatenate([np.full(obs_dim, -OBSERVATION_BOUND), np.full(count, -2 * OBSERVATION_BOUND)])
+            observation_space = spaces.Box(low, -low, dtype=np.float64)
+        self._observation_spaces = {agent: observation_space for agent in AGENTS}
+        self._action_spaces = {agent: spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32) for agent in AGENTS}
+        self.state_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, shape=(state_dim,), dtype=np.float64)
+        #: ``state()`` followed by every arm's observation, features included (the option; see the module's docs)
+        self.state_observations = state_observations
+        if state_observations:
+            width = observation_space.shape[0]
+            for index, agent in enumerate(AGENTS):
+                self.state_layout[f"{agent}_observation"] = slice(state_dim + index * width,
+                                                                  state_dim + (index + 1) * width)
+            low = np.concatenate([self.state_space.low, *([observation_space.low] * len(AGENTS))])
+            self.state_space = spaces.Box(low, -low, dtype=np.float64)
+        #: ``normalize_observations``: every agent's observation and the state mapped by fixed, measured centres and
+        #: spreads (:mod:`dvrl_marl.envs.observation_scaling`); None without the option. The seat's observation stays
+        #: plain (a scripted surgeon and an exported policy read the scene's units).
+        self.observation_scaling = None
+        if normalize:
+            scaling = ObservationScaling.for_env(self.name, observation_features, AGENTS, observation_space.shape[0],
+                                                 state_dim, state_observations)
+            self._observation_spaces = {
+                agent: spaces.Box(*scaling.observation_bounds(agent, observation_space.low, observation_space.high),
+                                  dtype=np.float64) for agent in AGENTS}
+            self.state_space = spaces.Box(*scaling.state_bounds(self.state_space.low, self.state_space.high),
+                                          dtype=np.float64)
+            self.observation_scaling = scaling
+
+    def _check_scene_fits(self) -> None:
+        """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
+        must normalise inside the observation space's bound: a tiny workspace_range would put them outside it."""
+        p = self.params
+        points = [self.handoff] + [(c.centre_x + dx, c.centre_y + dy, c.floor_z) for c in self.phantom.cavities
+                                   for dx, dy in ((-c.mouth_radius, 0.0), (c.mouth_radius, 0.0),
+                                                  (0.0, -c.mouth_radius), (0.0, c.mouth_radius))]
+        farthest = max(abs(v - c) for point in points for v, c in zip(point, p.workspace_centre)) / p.workspace_range
+        if farthest > OBSERVATION_BOUND:
+            raise ValueError(f"{self.name}: workspace_range {p.workspace_range!r} (m) with workspace_centre "
+                             f"{p.workspace_centre!r} puts the scene's cavities or hand-off point {farthest:.3g} "
+                             f"ranges from the centre, outside the observation space's bound of "
+                             f"{OBSERVATION_BOUND:g}; the scene needs workspace_range >= "
+                             f"{farthest * p.workspace_range / OBSERVATION_BOUND:.3g} m")
 
     def _bind_surgeon(self, surgeon, seat):
         if surgeon is None:
@@ -128,21 +242,46 @@ class SuctionDebrisBatchedEnv:
                 raise ValueError(f"{self.name}: surgeon must be None, 'scripted' or a callable, got {surgeon!r}")
             from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon  # agents build on envs
 
-            return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self.template)
+            return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self)
         if callable(surgeon):
             return surgeon
         raise ValueError(f"{self.name}: surgeon {surgeon!r} is not callable")
 
     # --- spaces and facts ---------------------------------------------------------------------------------
     def observation_space(self, agent):
-        return self.template.observation_space(agent)
+        try:
+            return self._observation_spaces[agent]
+        except (KeyError, TypeError):
+            raise ValueError(f"{self.name}: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
 
     def action_space(self, agent):
-        return self.template.action_space(agent)
+        try:
+            return self._action_spaces[agent]
+        except (KeyError, TypeError):
+            raise ValueError(f"{self.name}: unknown agent {agent!r}; agents are {list(AGENTS)}") from None
 
-    def layout(self):
+    def normalise(self, position_world) -> np.ndarray:
+        """x~ = (x - p_c) / rho for world positions (..., 3)."""
+        return self.core.normalise(np.asarray(position_world, dtype=np.float64))
+
+    def layout(self) -> SceneLayout:
         """The scene's fixed facts in normalised coordinates (for scripted agents and pipelines)."""
-        return self.template.layout()
+        k = 1.0 / self.workspace_range
+        cavities = self.phantom.cavities
+        norm = self.normalise
+        return SceneLayout(
+            cavity_centres=tuple(tuple(norm((c.centre_x, c.centre_y, 0.0))[:2].tolist()) for c in cavities),
+            cavity_mouth_radius=assets.CAVITY_MOUTH_RADIUS * k,
+            cavity_floor=tuple(float(norm((0.0, 0.0, c.floor_z))[2]) for c in cavities),
+            phantom_top=float(norm((0.0, 0.0, self.phantom.top_z))[2]),
+            blood_threshold_fraction=tuple(
+                self.params.blood_threshold_ml / v if v > 0 else 0.0 for v in self.params.blood_ml
+            ),
+            handoff=tuple(norm(self.handoff).tolist()),
+            base_positions={a: tuple(norm(self.core.arms[a].base_position).tolist()) for a in AGENTS},
+            gain=self.workspace_range / self.params.step_size,
+            clearance=self.params.tip_clearance * k,
+        )
 
     @property
     def unwrapped(self):
@@ -265,7 +404,7 @@ class SuctionDebrisBatchedEnv:
             return
         easy = np.array(easy)
         core.limit_debris(easy, np.array([draws[world].debris_count for world in easy.tolist()]))
-        core.limit[easy] = min(params.max_cycles, self.template.easy_episode_steps or params.max_cycles)
+        core.limit[easy] = min(params.max_cycles, self.easy_episode_steps or params.max_cycles)
         if self._rims is None:
             self._rims = OverRims(core.cavities)
         grasper = core.arms["grasper"]
@@ -309,12 +448,24 @@ class SuctionDebrisBatchedEnv:
             seat = self.surgeon_seat
             commands[seat] = check_action_batch(self._surgeon(core.observation(seat)), self.num_envs, 4,
                                                 f"{self.name}: surgeon in seat {seat!r}")
+        rewards, terminated, truncated = self.advance(commands)
+        return self._outcome(rewards, terminated, truncated)
+
+    def advance(self, commands: dict):
+        """One step of the core with both arms' commands, already checked: ``{agent: (N, 4)}`` float64 in [-1, 1],
+        a NaN tool value meaning "unchanged" (a held seat). Returns ``(rewards {agent: (N,)}, terminated (N,),
+        truncated (N,))`` with the guided terms; nothing resets."""
+        core = self.core
         rewards, terminated, truncated = core.step(commands)
         if self._guided is not None:  # the guided terms' change over the step (potential-based)
             potential = self._guided.potentials(core.state(), core.remaining_ml)
             for agent in rewards:
                 rewards[agent] = rewards[agent] + (potential[agent] - self._potential[agent])
             self._potential = potential
+        return rewards, terminated, truncated
+
+    def _outcome(self, rewards, terminated, truncated):
+        core = self.core
         observations = self.observations()
         info = core.info()
         infos = {agent: dict(info) for agent in self.agents}
@@ -345,7 +496,7 @@ class SuctionDebrisBatchedEnv:
         """(N, state_dim): the global state of every world, for centralised critics (with ``state_observations``,
         every arm's observation after it, as the single env's)."""
         state = self.core.state()
-        if self.template.state_observations:
+        if self.state_observations:
             observations = [self.core.observation(agent) for agent in AGENTS]
             if self.feature_spec is not None:
                 observations = [features.apply(self.feature_spec, observation) for observation in observations]
@@ -353,15 +504,28 @@ class SuctionDebrisBatchedEnv:
         return state if self.observation_scaling is None else self.observation_scaling.state(state)
 
     def render(self, world: int | None = None):
-        """World ``world`` (default :attr:`render_world`) from the endoscope, through the single env's scene."""
-        world = self.render_world if world is None else int(world)
-        if not 0 <= world < self.num_envs:
-            raise ValueError(f"{self.name}: world must be in [0, {self.num_envs}), got {world}")
-        self.template.set_state(**self.core.world_state(world))
-        return self.template.render()
+        """World ``world`` (default :attr:`render_world`) from the endoscope (None without a render mode)."""
+        world = self.render_world if world is None else world
+        if not isinstance(world, (int, np.integer)) or not 0 <= int(world) < self.num_envs:
+            raise ValueError(f"{self.name}: world must be in [0, {self.num_envs}), got {world!r}")
+        if self.render_mode is None:
+            return None
+        mirror = self.mirror()
+        mirror.show(self.core.world_state(int(world)))
+        return mirror.render()
+
+    def mirror(self, **renderer_options):
+        """The MuJoCo scene that shows a world (made on first use: stepping needs no MuJoCo)."""
+        if self._mirror is None:
+            from dvrl_marl.envs.scene_mirror import SceneMirror
+
+            width, height = self._render_size
+            self._mirror = SceneMirror(self.params, self.render_mode, width=width, height=height, **renderer_options)
+        return self._mirror
 
     def close(self) -> None:
-        self.template.close()
+        if self._mirror is not None:
+            self._mirror.close()
 
 
 def takes_worlds(reset) -> bool:
@@ -372,6 +536,19 @@ def takes_worlds(reset) -> bool:
         return reset is not None and "worlds" in inspect.signature(reset).parameters
     except (TypeError, ValueError):
         return False
+
+
+def _guidance_settings(values, owner: str) -> Guidance:
+    """``guidance`` (a dict of :class:`Guidance` fields, or None for the defaults), checked."""
+    if values is None:
+        return Guidance()
+    if isinstance(values, Guidance):
+        return values
+    from dvrl_marl.schemas import validated
+
+    if not isinstance(values, dict):
+        raise ValueError(f"{owner}: guidance must be a dict of Guidance settings, got {type(values).__name__}")
+    return validated(Guidance, values, f"{owner}: guidance")
 
 
 def batched_env(num_envs: int = 1, **kwargs) -> SuctionDebrisBatchedEnv:

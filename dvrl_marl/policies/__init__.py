@@ -14,7 +14,7 @@ A multi-agent PPO policy also records the exploration noise it trained with (``p
 ``policy.with_noise(seed)`` acts as it did in training (its mean action plus that noise, seeded), which is the
 policy PPO optimised; some of these act better that way than by their mean (``baselines/README.md``). A policy may
 also name observation ``features`` it computes from its observation before its first layer
-(:mod:`dvrl_marl.policies.features`).
+(:mod:`dvrl_marl.envs.features`).
 """
 
 from __future__ import annotations
@@ -62,8 +62,8 @@ class NumpyPolicy:
         self.action_low = np.asarray(spec["action_low"], dtype=np.float64)
         self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
         self._feature_count = 0
-        if "features" in spec:  # checked once here, not on every call (dvrl_marl.policies.features)
-            from dvrl_marl.policies import features
+        if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
+            from dvrl_marl.envs import features
 
             self._feature_count = features.feature_count((spec["features"] or {}).get("name"))
 
@@ -83,7 +83,7 @@ class NumpyPolicy:
             x = np.asarray(observation, dtype=np.float64)
         expected = self.weights[0][0].shape[1] - self._feature_count
         if self._feature_count and x.shape[-1] == expected:  # features it computes from its observation
-            from dvrl_marl.policies import features
+            from dvrl_marl.envs import features
 
             return features.apply(self.spec["features"], x)
         if self._feature_count and x.shape[-1] == expected + self._feature_count:

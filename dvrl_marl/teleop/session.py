@@ -213,7 +213,8 @@ class TeleopSession:
     def _run(self) -> None:
         from dvrl_marl.rendering import SceneRenderer
 
-        renderer = SceneRenderer(self.scene.model, self.scene.data, "rgb_array", width=self.width,
+        mirror = self.scene.mirrored()
+        renderer = SceneRenderer(mirror.model, mirror.data, "rgb_array", width=self.width,
                                  height=self.height, frame_budget=0.5 * self.frame_every * self.control_dt,
                                  decorate=self.scene.draw_marks)
         self._renderer = renderer
@@ -351,6 +352,7 @@ class TeleopSession:
     def _publish(self) -> None:
         from PIL import Image
 
+        self.scene.mirrored()  # the world as it is now
         pixels = self._renderer.render()
         buffer = io.BytesIO()
         Image.fromarray(pixels).save(buffer, format="JPEG", quality=self.jpeg_quality)

@@ -1,0 +1,179 @@
+"""The phantom and its cavities: plain geometry, no MuJoCo inside.
+
+Each cavity is a spherical cap (mouth radius ``a``, depth ``D``, sphere radius ``R = (a^2 + D^2) / (2 D)``). Blood of
+volume V fills it to the depth h with ``V = pi h^2 (3R - h) / 3``; its surface is a disc of radius
+``sqrt(h (2R - h))``. :class:`Cavity` and :class:`Phantom` answer for one point; :class:`Cavities` holds the same
+geometry as arrays and answers for many worlds at once (the collaborative core's step and the sliding rules read it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Cavity", "Phantom", "Cavities"]
+
+_ML = 1e-6  # m^3 per millilitre
+
+
+@dataclass(frozen=True)
+class Cavity:
+    """A spherical-cap cavity; positions in world coordinates (metres)."""
+
+    centre_x: float
+    centre_y: float
+    top_z: float
+    mouth_radius: float
+    depth: float
+
+    @property
+    def sphere_radius(self) -> float:
+        return (self.mouth_radius**2 + self.depth**2) / (2.0 * self.depth)
+
+    @property
+    def floor_z(self) -> float:
+        return self.top_z - self.depth
+
+    @property
+    def capacity_ml(self) -> float:
+        return self.volume_ml(self.depth)
+
+    def volume_ml(self, fill_depth: float) -> float:
+        """Blood volume (ml) filling the cavity to ``fill_depth`` above its floor."""
+        h = min(max(fill_depth, 0.0), self.depth)
+        return math.pi * h * h * (3.0 * self.sphere_radius - h) / 3.0 / _ML
+
+    def fill_depth(self, volume_ml: float) -> float:
+        """Inverse of :meth:`volume_ml` (Newton's method on the monotonic cubic, then bisection-safe clamp)."""
+        if volume_ml <= 0.0:
+            return 0.0
+        if volume_ml >= self.capacity_ml:
+            return self.depth
+        radius = self.sphere_radius
+        target = volume_ml * _ML * 3.0 / math.pi  # h^2 (3R - h)
+        h = min(math.sqrt(target / (3.0 * radius)), self.depth)  # small-h guess
+        for _ in range(30):
+            f = h * h * (3.0 * radius - h) - target
+            slope = 6.0 * radius * h - 3.0 * h * h
+            step = f / slope
+            h = min(max(h - step, 0.0), self.depth)
+            if abs(step) < 1e-13:
+                break
+        return h
+
+    def surface_radius(self, fill_depth: float) -> float:
+        h = min(max(fill_depth, 0.0), self.depth)
+        return math.sqrt(max(h * (2.0 * self.sphere_radius - h), 0.0))
+
+    def floor_depth_at(self, x: float, y: float) -> float:
+        """Depth of the cavity surface below the phantom top at (x, y); 0 outside the mouth."""
+        r2 = (x - self.centre_x) ** 2 + (y - self.centre_y) ** 2
+        if r2 >= self.mouth_radius**2:
+            return 0.0
+        radius = self.sphere_radius
+        return self.depth - (radius - math.sqrt(radius * radius - r2))
+
+
+@dataclass(frozen=True)
+class Phantom:
+    """The gelatin block: a rectangle (world x/y half extents around a centre) with cavities cut into its top."""
+
+    centre_x: float
+    centre_y: float
+    half_x: float
+    half_y: float
+    top_z: float
+    table_z: float
+    cavities: tuple[Cavity, ...]
+
+    def surface_height(self, x: float, y: float) -> float:
+        """Height of the first solid surface below (x, y): cavity floor, phantom top or table."""
+        if abs(x - self.centre_x) > self.half_x or abs(y - self.centre_y) > self.half_y:
+            return self.table_z
+        depth = 0.0
+        for cavity in self.cavities:
+            depth = max(depth, cavity.floor_depth_at(x, y))
+        return self.top_z - depth
+
+    def nearest_on_top(self, x: float, y: float, margin: float) -> tuple[float, float]:
+        """(x, y) when it is over the phantom; else the nearest point ``margin`` inside its top's edge."""
+        dx, dy = x - self.centre_x, y - self.centre_y
+        if abs(dx) <= self.half_x and abs(dy) <= self.half_y:
+            return x, y
+        reach_x, reach_y = self.half_x - margin, self.half_y - margin
+        return (self.centre_x + min(max(dx, -reach_x), reach_x), self.centre_y + min(max(dy, -reach_y), reach_y))
+
+    def cavity_at(self, x: float, y: float) -> int:
+        """Index of the cavity whose mouth contains (x, y), or -1."""
+        for index, cavity in enumerate(self.cavities):
+            if (x - cavity.centre_x) ** 2 + (y - cavity.centre_y) ** 2 < cavity.mouth_radius**2:
+                return index
+        return -1
+
+
+class Cavities:
+    """The phantom's cavities as arrays, as arrays: :class:`Phantom`'s geometry for many points at once."""
+
+    def __init__(self, phantom):
+        cavities = phantom.cavities
+        self.count = len(cavities)
+        self.centre_x = np.array([c.centre_x for c in cavities])
+        self.centre_y = np.array([c.centre_y for c in cavities])
+        self.mouth_radius = np.array([c.mouth_radius for c in cavities])
+        self.depth = np.array([c.depth for c in cavities])
+        self.sphere_radius = np.array([c.sphere_radius for c in cavities])
+        self.floor_z = np.array([c.floor_z for c in cavities])
+        self.capacity_ml = np.array([c.capacity_ml for c in cavities])
+        self.phantom = phantom
+
+    def _r2(self, x, y):
+        return (x[..., None] - self.centre_x) ** 2 + (y[..., None] - self.centre_y) ** 2
+
+    def surface_height(self, x, y) -> np.ndarray:
+        """Height of the first solid surface below (x, y): cavity floor, phantom top or table."""
+        p = self.phantom
+        r2 = self._r2(x, y)
+        radius = self.sphere_radius
+        with np.errstate(invalid="ignore"):
+            depth = np.where(r2 >= self.mouth_radius**2, 0.0, self.depth - (radius - np.sqrt(radius * radius - r2)))
+        depth = np.maximum(depth.max(axis=-1), 0.0)
+        outside = (np.abs(x - p.centre_x) > p.half_x) | (np.abs(y - p.centre_y) > p.half_y)
+        return np.where(outside, p.table_z, p.top_z - depth)
+
+    def nearest_on_top(self, x, y, margin: float):
+        """:meth:`Phantom.nearest_on_top` element-wise."""
+        p = self.phantom
+        dx, dy = x - p.centre_x, y - p.centre_y
+        over = (np.abs(dx) <= p.half_x) & (np.abs(dy) <= p.half_y)
+        reach_x, reach_y = p.half_x - margin, p.half_y - margin
+        return (np.where(over, x, p.centre_x + np.minimum(np.maximum(dx, -reach_x), reach_x)),
+                np.where(over, y, p.centre_y + np.minimum(np.maximum(dy, -reach_y), reach_y)))
+
+    def cavity_at(self, x, y) -> np.ndarray:
+        """Index of the first cavity whose mouth contains (x, y), or -1."""
+        inside = self._r2(x, y) < self.mouth_radius**2
+        return np.where(inside.any(axis=-1), np.argmax(inside, axis=-1), -1)
+
+    def fill_depth(self, cavity: np.ndarray, volume_ml: np.ndarray) -> np.ndarray:
+        """:meth:`Cavity.fill_depth` element-wise (the same Newton iterations, each element stopping on its own)."""
+        depth, radius = self.depth[cavity], self.sphere_radius[cavity]
+        target = volume_ml * _ML * 3.0 / math.pi
+        with np.errstate(invalid="ignore", divide="ignore"):
+            h = np.minimum(np.sqrt(target / (3.0 * radius)), depth)
+            active = (volume_ml > 0.0) & (volume_ml < self.capacity_ml[cavity])
+            for _ in range(30):
+                if not active.any():
+                    break
+                f = h * h * (3.0 * radius - h) - target
+                slope = 6.0 * radius * h - 3.0 * h * h
+                step = f / slope
+                h = np.where(active, np.minimum(np.maximum(h - step, 0.0), depth), h)
+                active &= ~(np.abs(step) < 1e-13)
+        h = np.where(volume_ml <= 0.0, 0.0, np.where(volume_ml >= self.capacity_ml[cavity], depth, h))
+        return h
+
+    def surface_radius(self, cavity, fill_depth) -> np.ndarray:
+        h = np.minimum(np.maximum(fill_depth, 0.0), self.depth[cavity])
+        return np.sqrt(np.maximum(h * (2.0 * self.sphere_radius[cavity] - h), 0.0))

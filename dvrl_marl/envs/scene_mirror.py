@@ -1,0 +1,136 @@
+"""The collaborative scene in MuJoCo, only to be seen: a model that shows one world of the core's state.
+
+The core (:mod:`dvrl_marl.core.collaborative`) steps the worlds; to render one, its state is written into this model
+(joint values, jaw, blood surfaces, pins) and drawn. Nothing here feeds back into the step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from dvrl_marl import assets
+from dvrl_marl.arm import Arm
+from dvrl_marl.core.collaborative import AGENTS, TOOLS
+from dvrl_marl.core.phantom import Cavity, Phantom
+from dvrl_marl.core.scene_geometry import ARM_PREFIXES, SceneGeometry
+from dvrl_marl.rendering import SceneRenderer
+from dvrl_marl.scene import geom_top, load_model, object_id
+
+__all__ = ["SceneMirror"]
+
+
+class SceneMirror:
+    """The MuJoCo model of ``params.scene`` with ``params.debris_count`` pins; :meth:`show` writes a world's state
+    (:meth:`CollaborativeCore.world_state`) into it, :meth:`render` draws it (:class:`SceneRenderer` options)."""
+
+    def __init__(self, params, render_mode: str | None = None, **renderer_options):
+        self.model = _model_with_debris(params.scene, params.debris_count)
+        self.data = mujoco.MjData(self.model)
+        self.arms = {agent: Arm(self.model, self.data, ARM_PREFIXES[agent], TOOLS[agent]) for agent in AGENTS}
+        self.cavities = self.geometry().phantom.cavities
+        self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.cavities))]
+        self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
+        bodies = [object_id(self.model, "body", f"debris_{i}") for i in range(params.debris_count)]
+        self._debris_qpos = [int(self.model.jnt_qposadr[self.model.body_jntadr[b]]) for b in bodies]
+        self.renderer = SceneRenderer(self.model, self.data, render_mode, **renderer_options)
+
+    def geometry(self) -> SceneGeometry:
+        """The scene's geometry as MuJoCo compiled it (the core reads the file's text: a test holds them equal)."""
+        geom = object_id(self.model, "geom", "phantom")
+        size = self.model.hfield_size[self.model.geom_dataid[geom]]
+        px, py, pz = (float(v) for v in self.model.geom_pos[geom])
+        top = pz + float(size[2])
+        cavities = tuple(Cavity(px + cx, py + cy, top, assets.CAVITY_MOUTH_RADIUS, assets.CAVITY_DEPTH)
+                         for cx, cy in assets.CAVITY_CENTRES)
+        phantom = Phantom(px, py, float(size[0]), float(size[1]), top, geom_top(self.model, "table"), cavities)
+        mujoco.mj_kinematics(self.model, self.data)
+        handoff = tuple(float(v) for v in self.data.site_xpos[object_id(self.model, "site", "handoff")])
+        return SceneGeometry(phantom, {agent: arm.base_position.copy() for agent, arm in self.arms.items()}, handoff)
+
+    def show(self, state: dict) -> None:
+        """Write one world's state into the model."""
+        joints = state.get("joints")
+        for agent in AGENTS:
+            tip = np.asarray(state["tips"][agent], dtype=np.float64).tolist()
+            if joints is None:
+                self.arms[agent].set_tip(*tip)
+            else:
+                self.arms[agent].set_solved_tip(*tip, tuple(float(v) for v in joints[agent]))
+        self.arms["grasper"].set_jaw(float(state["jaw"]))
+        for index, (cavity, volume) in enumerate(zip(self.cavities, state["blood_ml"])):
+            self._show_blood(index, cavity, float(volume))
+        for index, address in enumerate(self._debris_qpos):
+            if state["delivered"][index]:  # handed to the assistant: out of the scene
+                self.data.qpos[address:address + 3] = (0.0, 0.0, -1.0)
+                continue
+            self.data.qpos[address:address + 3] = state["debris_positions"][index]
+            # Capsule axis is the body z axis: turn it horizontal (about y), then to the pin's yaw (about z).
+            half_yaw, c = 0.5 * float(state["debris_yaws"][index]), math.sqrt(0.5)
+            self.data.qpos[address + 3:address + 7] = (c * math.cos(half_yaw), -c * math.sin(half_yaw),
+                                                       c * math.cos(half_yaw), c * math.sin(half_yaw))
+
+    def _show_blood(self, index: int, cavity: Cavity, volume_ml: float) -> None:
+        geom = self._blood_geoms[index]
+        depth = cavity.fill_depth(volume_ml)
+        radius = cavity.surface_radius(depth)
+        if volume_ml <= 0.0 or radius <= 1e-4:
+            self.model.geom_rgba[geom][3] = 0.0
+            return
+        self.model.geom_rgba[geom] = self._blood_rgba[index]
+        self.model.geom_size[geom][0] = radius
+        self.model.geom_pos[geom][2] = cavity.floor_z + depth - self.model.geom_size[geom][1]
+
+    def blood_surface_height(self, index: int) -> float:
+        """The drawn blood surface's height in cavity ``index`` (m)."""
+        geom = self._blood_geoms[index]
+        return float(self.model.geom_pos[geom][2] + self.model.geom_size[geom][1])
+
+    def render(self):
+        return self.renderer.render()
+
+    @property
+    def viewer(self):
+        return self.renderer.viewer
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
+def _model_with_debris(scene: str, count: int) -> mujoco.MjModel:
+    """The scene with exactly ``count`` pins in play: extra pins (copies of debris_0) when the file has fewer, the
+    file's surplus ones out of sight and out of contact."""
+    model = load_model(scene)
+    available = 0
+    while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"debris_{available}") >= 0:
+        available += 1
+    if count > available:
+        return _model_with_more_debris(scene, count)
+    for index in range(count, available):
+        geom = object_id(model, "geom", f"debris_{index}")
+        model.geom_rgba[geom][3] = 0.0
+        model.geom_contype[geom] = 0
+        model.geom_conaffinity[geom] = 0
+        body = object_id(model, "body", f"debris_{index}")
+        model.body_pos[body] = (0.0, 0.0, -1.0)
+        model.qpos0[model.jnt_qposadr[model.body_jntadr[body]] + 2] = -1.0
+    return model
+
+
+def _model_with_more_debris(scene: str, count: int) -> mujoco.MjModel:
+    spec = mujoco.MjSpec.from_file(str(assets.scene_path(scene)))
+    # Lookups through the lists (MjSpec.geom/.body by name are newer than the mujoco floor, 3.2).
+    template = next(geom for geom in spec.geoms if geom.name == "debris_0")
+    bodies = {body.name for body in spec.bodies}
+    index = 0
+    while f"debris_{index}" in bodies:
+        index += 1
+    while index < count:
+        body = spec.worldbody.add_body(name=f"debris_{index}", pos=[0.0, 0.0, -1.0])
+        body.add_freejoint(name=f"debris_{index}")
+        body.add_geom(name=f"debris_{index}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=template.size,
+                      material=template.material, density=template.density)
+        index += 1
+    return spec.compile()
