@@ -30,7 +30,7 @@ _VECTOR_ENTRY_POINTS = {
 #: One seat of the collaborative scene as a Gymnasium env, the partner inside (datasets, behaviour cloning); its
 #: version is the scene's.
 SEAT_ENV_IDS = {
-    "dvrl_marl/SurgeonSeat-v8": ("dvrl_marl.envs.seat:SeatEnv", {"seat": "grasper"}),
+    "dvrl_marl/SurgeonSeat-v8": ("dvrl_marl.seats.seat_env:SeatEnv", {"seat": "grasper"}),
 }
 
 #: PettingZoo ids -> (parallel entry point, AEC entry point): the current version of the collaborative scene.
@@ -52,7 +52,7 @@ def register_envs() -> None:
     for env_id, (entry_point, kwargs) in SEAT_ENV_IDS.items():
         if env_id not in gym.registry:  # the scene truncates its own episodes (max_cycles)
             gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs,
-                         vector_entry_point="dvrl_marl.envs.seat_vector:make_seat_vector")
+                         vector_entry_point="dvrl_marl.seats.seat_vector:make_seat_vector")
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but registration must never break import

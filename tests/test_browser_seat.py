@@ -124,16 +124,16 @@ def test_in_the_scene_a_lost_browser_holds_the_seat_and_says_so():
     device = BrowserDevice()
     env = suction_debris_v8.parallel_env(surgeon=device)
     env.reset(seed=3)
-    start = env.progress()["tips"]["grasper"]
+    start = env.view.progress()["tips"]["grasper"]
     for _ in range(10):
         _, _, _, _, infos = env.step({"suction": np.zeros(4, np.float32)})
         assert infos["suction"]["teleop_lost"]
-    assert env.progress()["tips"]["grasper"] == start
+    assert env.view.progress()["tips"]["grasper"] == start
     device.connect()
     device.handle({"type": "key", "code": "KeyD", "down": True})
     _, _, _, _, infos = env.step({"suction": np.zeros(4, np.float32)})
     assert "teleop_lost" not in infos["suction"]
-    assert env.progress()["tips"]["grasper"][0] > start[0]
+    assert env.view.progress()["tips"]["grasper"][0] > start[0]
     env.close()
 
 

@@ -380,7 +380,7 @@ def test_the_desktop_seat_shows_the_cues_and_delivers_a_pin_gripped_off_centre(d
     _xdotool(desktop, "key", "space")  # a person closes the jaw: 9 mm from the pin's centre
     for _ in range(10):
         env.step({"suction": np.zeros(4)})
-    assert env.cues("grasper")["holding"], _overlay_text(env)
+    assert env.view.cues("grasper")["holding"], _overlay_text(env)
     assert "holding a pin" in _overlay_text(env) and "mm to the hand-off" in _overlay_text(env)
     window_keys = (("a", "d"), ("s", "w"), ("f", "r"))
     down = set()

@@ -8,6 +8,7 @@ from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import ScriptedSuction
+from dvrl_marl.envs.scene_view import SceneView
 from dvrl_marl.core.collaborative import PHANTOM_EDGE_MARGIN, PIN_RADIUS, PIN_SENSOR_RANGE
 from rule_sets import v1_rules, v2_rules
 from dvrl_marl.teleop.person import run_episode
@@ -55,7 +56,7 @@ def test_a_pin_gripped_nine_mm_off_centre_reaches_the_assistant_in_v2_only(modul
     # The pin lies along x; the jaws take it 9 mm from its centre on the assistant's side, so its centre trails the
     # tip by 9 mm and can come no nearer than 7 mm to the hand-off point (x = 78 mm; the tip stops at 80 mm).
     env = _with_one_pin(module, (0.04, 0.02), 0.0, (0.049, 0.02))
-    assert env.cues("grasper")["in_reach"]
+    assert SceneView(env).cues("grasper")["in_reach"]
     beyond = (env.handoff[0] + 0.01, env.handoff[1], env.handoff[2])  # as far towards the assistant as it goes
     assert _carry_to(env, beyond) == delivered
     if not delivered:  # v1's trap: held at the face of the workspace, 7 mm short, for as long as one likes
@@ -99,20 +100,20 @@ def _pixel_of(env, point):
 
 def test_the_cues_say_height_reach_holding_and_hand_off_distance():
     env = _with_one_pin(v2_rules, (0.04, 0.02), 0.0, (0.04, 0.02))
-    cues = env.cues("grasper")
+    cues = SceneView(env).cues("grasper")
     tip = env.arms["grasper"].tip_world()
     assert cues["tip_height_mm"] == pytest.approx(1000.0 * (tip[2] - env.phantom.surface_height(tip[0], tip[1])))
     assert cues["in_reach"] and cues["pin_mm"] <= 1000.0 * PIN_SENSOR_RANGE and not cues["holding"]
     assert cues["handoff_mm"] is None
     env.step({"suction": HOLD, "grasper": np.array([0.0, 0.0, 1.0, -1.0])})  # close the jaw and rise 1 mm
-    cues = env.cues("grasper")
+    cues = SceneView(env).cues("grasper")
     assert cues["holding"] and not cues["in_reach"]
     assert cues["handoff_mm"] == pytest.approx(1000.0 * math.dist(env.arms["grasper"].tip_world(), env.handoff),
                                                abs=1000.0 * PIN_SENSOR_RANGE)
     far = _with_one_pin(v2_rules, (0.04, 0.02), 0.0, (0.0, 0.0))
-    assert not far.cues("grasper")["in_reach"] and far.cues("grasper")["pin_mm"] > 30.0
+    assert not SceneView(far).cues("grasper")["in_reach"] and SceneView(far).cues("grasper")["pin_mm"] > 30.0
     with pytest.raises(ValueError, match="unknown agent"):
-        env.cues("assistant")
+        SceneView(env).cues("assistant")
 
 
 def test_the_cues_say_when_the_other_instrument_refuses_a_move():
@@ -123,12 +124,12 @@ def test_the_cues_say_when_the_other_instrument_refuses_a_move():
         target = np.asarray(env.arms["grasper"].tip_world())
         move = np.clip((target - np.asarray(env.arms["suction"].tip_world())) / 0.001, -1.0, 1.0)
         env.step({"suction": np.append(move, -1.0), "grasper": HOLD})
-        blocked |= env.cues("suction")["blocked"]
+        blocked |= SceneView(env).cues("suction")["blocked"]
         if blocked:
             break
     assert blocked
     env.step({"suction": np.array([0.0, 0.0, 1.0, -1.0]), "grasper": HOLD})  # up and away: free again
-    assert not env.cues("suction")["blocked"]
+    assert not SceneView(env).cues("suction")["blocked"]
 
 
 def test_the_suction_cue_says_how_high_above_the_blood_and_whether_it_draws():
@@ -138,7 +139,7 @@ def test_the_suction_cue_says_how_high_above_the_blood_and_whether_it_draws():
     drew = False
     for _ in range(300):
         observations, *_ = env.step({"suction": suction(observations["suction"]), "grasper": HOLD})
-        cues = env.cues("suction")
+        cues = SceneView(env).cues("suction")
         if cues["drawing"]:
             drew = True
             assert cues["above_blood_mm"] is not None and cues["above_blood_mm"] < 2.0
@@ -148,7 +149,7 @@ def test_the_suction_cue_says_how_high_above_the_blood_and_whether_it_draws():
 def test_blood_below_the_threshold_reads_clear():
     env = v2_rules.parallel_env(blood_ml=[0.45, 3.0])
     env.reset(seed=0)
-    assert env.blood_text() == ["clear", "3.0 ml"]
+    assert SceneView(env).blood_text() == ["clear", "3.0 ml"]
 
 
 def test_the_scripted_team_still_succeeds():

@@ -23,7 +23,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
+from dvrl_marl.envs.suction_debris_batched import takes_worlds
+
+__all__ = ["Partners", "Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
            "training_partners", "ZOO_SEED", "TRAINING_SEED"]
 
 
@@ -155,11 +157,50 @@ class PersonLikePartner:
         return f"PersonLikePartner({self.agent!r}, {self.profile})"
 
 
+class Partners:
+    """Several partners filling one seat of a batch of worlds, a share each: world ``i`` is played by
+    ``members[i % len(members)]`` (a fixed assignment, so each partner keeps the same worlds across resets)."""
+
+    def __init__(self, members, names):
+        if not members:
+            raise ValueError("Partners: no partner given")
+        self.members, self.names = list(members), [str(name) for name in names]
+        self._resets = [(getattr(member, "reset", None), takes_worlds(getattr(member, "reset", None)))
+                        for member in self.members]
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        observations = np.asarray(observations)
+        actions = np.empty((len(observations), 4), dtype=np.float64)
+        count = len(self.members)
+        for index, member in enumerate(self.members):
+            if index < len(observations):
+                actions[index::count] = member(observations[index::count])
+        return actions
+
+    def reset(self, worlds=None) -> None:
+        """Every member starts again (``worlds`` None), or only in those worlds (a member that keeps state world by
+        world is told which of its own worlds; one that cannot is left as it is)."""
+        count = len(self.members)
+        if worlds is not None:
+            worlds = np.asarray(worlds)
+            worlds = np.flatnonzero(worlds) if worlds.dtype == bool else worlds
+        for index, (reset, resets_worlds) in enumerate(self._resets):
+            if reset is None:
+                continue
+            if worlds is None:
+                reset()
+            elif resets_worlds:
+                mine = worlds[worlds % count == index] // count  # this member's own rows (world i is member i % n's)
+                if len(mine):
+                    reset(mine)
+
+    def __repr__(self) -> str:
+        return f"Partners({self.names})"
+
+
 def zoo_partner(kind: str, agent: str, env, members: int = 4):
     """A held-out kind (:data:`HELD_OUT`, or ``"person"``) in ``agent``'s seat: ``members`` profiles drawn from
-    its ranges with :data:`ZOO_SEED`, a share of the worlds each (:class:`dvrl_marl.training.teams.Partners`)."""
-    from dvrl_marl.training.teams import Partners
-
+    its ranges with :data:`ZOO_SEED`, a share of the worlds each (:class:`Partners`)."""
     if agent not in ("suction", "grasper"):
         raise ValueError(f"zoo_partner: agent must be 'suction' or 'grasper', got {agent!r}")
     ranges = PERSON if kind == "person" else HELD_OUT.get(kind)
@@ -175,8 +216,6 @@ def training_partners(agent: str, env, members: int = 8):
     """The person-like partners a trainer may use in ``agent``'s seat (the seat name ``"person-like"`` of
     :func:`dvrl_marl.training.teams.seat`): ``members`` profiles from :data:`TRAINING_RANGES`, drawn with
     :data:`TRAINING_SEED`, a share of the worlds each."""
-    from dvrl_marl.training.teams import Partners
-
     if agent not in ("suction", "grasper"):
         raise ValueError(f"training_partners: agent must be 'suction' or 'grasper', got {agent!r}")
     stream = TRAINING_SEED + (agent == "grasper")

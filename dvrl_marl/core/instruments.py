@@ -57,20 +57,26 @@ def contact_normal(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
     return offsets[nearest, rows] / np.maximum(lengths[nearest, rows], 1e-12)[:, None]
 
 
+#: Batches up to this many points take the four pairs of segments in one call (numpy's per-call cost dominates
+#: there); larger ones take them one by one (copying them into one array would cost more than it saves).
+_STACKED_BELOW = 64
+
+
 def instrument_clearance(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
     """Clearance between the suction (a) and the grasper (b), each a shaft RCM-wrist and a wrist-tip segment
-    (negative when they intersect). The four pairs of segments go through one batched call."""
+    (negative when they intersect). Both ways of computing it give the same floating-point results."""
     ra, rb = WRIST_RADIUS["suction"], WRIST_RADIUS["grasper"]
+    pairs = ((rcm_a, wrist_a, rcm_b, wrist_b), (rcm_a, wrist_a, wrist_b, tip_b), (wrist_a, tip_a, rcm_b, wrist_b),
+             (wrist_a, tip_a, wrist_b, tip_b))
+    first, second = (2 * SHAFT_RADIUS, SHAFT_RADIUS, ra, ra), (0.0, rb, SHAFT_RADIUS, rb)
     shape = np.broadcast_shapes(np.shape(tip_a), np.shape(tip_b))
-    starts_a, ends_a, starts_b, ends_b = (np.empty((4,) + shape) for _ in range(4))
-    for row, (start_a, end_a, start_b, end_b) in enumerate(((rcm_a, wrist_a, rcm_b, wrist_b),
-                                                            (rcm_a, wrist_a, wrist_b, tip_b),
-                                                            (wrist_a, tip_a, rcm_b, wrist_b),
-                                                            (wrist_a, tip_a, wrist_b, tip_b))):
-        starts_a[row], ends_a[row], starts_b[row], ends_b[row] = start_a, end_a, start_b, end_b
-    distances = segment_distance(starts_a, ends_a, starts_b, ends_b)
-    column = (4,) + (1,) * (len(shape) - 1)
-    # (subtracted one radius after the other, as the pairs were written singly: the same floating-point results)
-    gaps = (distances - np.array([2 * SHAFT_RADIUS, SHAFT_RADIUS, ra, ra]).reshape(column)
-            - np.array([0.0, rb, SHAFT_RADIUS, rb]).reshape(column))
+    if int(np.prod(shape[:-1])) < _STACKED_BELOW:
+        ends = [np.empty((4,) + shape) for _ in range(4)]
+        for row, pair in enumerate(pairs):
+            for end, point in zip(ends, pair):
+                end[row] = point
+        column = (4,) + (1,) * (len(shape) - 1)
+        gaps = segment_distance(*ends) - np.array(first).reshape(column) - np.array(second).reshape(column)
+    else:
+        gaps = [segment_distance(*pair) - a - b for pair, a, b in zip(pairs, first, second)]
     return np.minimum(np.minimum(gaps[0], gaps[1]), np.minimum(gaps[2], gaps[3]))

@@ -240,7 +240,7 @@ class SuctionDebrisBatchedEnv:
         if isinstance(surgeon, str):
             if surgeon != "scripted":
                 raise ValueError(f"{self.name}: surgeon must be None, 'scripted' or a callable, got {surgeon!r}")
-            from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon  # agents build on envs
+            from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
 
             return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self)
         if callable(surgeon):

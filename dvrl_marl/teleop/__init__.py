@@ -5,7 +5,7 @@ A device follows :class:`Device`: ``reset()``, ``action(observation) -> array`` 
 not answer within the environment's ``teleop_timeout`` makes the seat hold still that step (zero Delta, jaw or
 valve unchanged) with ``infos[agent]["teleop_lost"] = True``; the episode goes on. A device with
 ``human_operated = True`` (the keyboard) is driven by a person: in ``render_mode="human"`` the environment waits
-for ENTER before an episode and runs it in real time (:mod:`dvrl_marl.teleop.pacing`).
+for ENTER before an episode and runs it in real time (:mod:`dvrl_marl.pacing`).
 
 In a web browser (``dvrl-marl teleop``): :class:`~dvrl_marl.teleop.browser.BrowserDevice` is the device,
 :mod:`dvrl_marl.teleop.session` runs a person's episodes in real time and records them as Minari datasets, and
@@ -15,6 +15,6 @@ In a web browser (``dvrl-marl teleop``): :class:`~dvrl_marl.teleop.browser.Brows
 from dvrl_marl.teleop import devices as _devices
 from dvrl_marl.teleop.devices import *  # noqa: F403 (the public names are devices.__all__)
 from dvrl_marl.teleop.browser import BrowserDevice, TeleopLost
-from dvrl_marl.teleop.pacing import PacedDisplay, RealTimePacer
+from dvrl_marl.pacing import PacedDisplay, RealTimePacer
 
 __all__ = [*_devices.__all__, "RealTimePacer", "PacedDisplay", "BrowserDevice", "TeleopLost"]

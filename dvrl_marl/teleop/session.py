@@ -26,7 +26,8 @@ from collections.abc import Callable
 import numpy as np
 
 from dvrl_marl.teleop.browser import BrowserDevice
-from dvrl_marl.teleop.pacing import RealTimePacer
+from dvrl_marl.envs.scene_view import SceneView
+from dvrl_marl.pacing import RealTimePacer
 
 __all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "TELEOP_ENV_ID", "scene_view", "pack_frame", "unpack_frame"]
 
@@ -72,20 +73,21 @@ def _rounded(value, digits: int = 1):
 def scene_view(scene, seat: str, outline: dict | None = None) -> dict:
     """What the page shows of ``scene`` (a ``suction_debris`` parallel env) to the person in ``seat``: blood (ml and
     as read: "clear"), debris found and delivered, time, both tips (mm, world), the visible pins, the seat's cues
-    (:meth:`~dvrl_marl.envs.suction_debris_v8.SuctionDebrisEnv.cues`), the jaw and valve, and the scene's outline
+    (:meth:`~dvrl_marl.envs.scene_view.SceneView.cues`), the jaw and valve, and the scene's outline
     for the top and side views (pass it in to reuse it: it never changes). A person-like script reads this and
     nothing else (:mod:`dvrl_marl.teleop.person`)."""
-    progress = scene.progress()
+    view = SceneView(scene)
+    progress = view.progress()
     return {
         "time_s": round(progress["time_s"], 2),
-        "blood_ml": [round(v, 2) for v in progress["blood_ml"]], "blood_text": scene.blood_text(),
+        "blood_ml": [round(v, 2) for v in progress["blood_ml"]], "blood_text": view.blood_text(),
         "debris_found": progress["debris_found"], "debris_delivered": progress["debris_delivered"],
         "debris_total": progress["debris_total"],
         "seat": seat, "seat_tool": _TOOLS[seat],
         "tip_mm": [round(1000.0 * v, 2) for v in progress["tips"][seat]],
         "tips_mm": {agent: [round(1000.0 * v, 1) for v in tip] for agent, tip in progress["tips"].items()},
-        "cues": _rounded(scene.cues(seat)), "pins": _rounded(scene.pins()),
-        "outline": outline if outline is not None else _rounded(scene.outline()),
+        "cues": _rounded(view.cues(seat)), "pins": _rounded(view.pins()),
+        "outline": outline if outline is not None else _rounded(view.outline()),
         "jaw": round(progress["jaw"], 3), "valve_open": progress["valve_open"],
     }
 
@@ -153,7 +155,7 @@ class TeleopSession:
         self._state, self._episode, self._episode_seed, self._steps = "starting", -1, self.seed, 0
         self._lost, self._success, self._recording = True, False, self.record_default
         self._recorder, self._buffers = None, []
-        self._outline = _rounded(self.scene.outline())  # fixed: the page's top and side views
+        self._outline = _rounded(SceneView(self.scene).outline())  # fixed: the page's top and side views
         self._thread = threading.Thread(target=self._run, name="teleop-session", daemon=True)
         self._started = False
 
@@ -216,7 +218,7 @@ class TeleopSession:
         mirror = self.scene.mirrored()
         renderer = SceneRenderer(mirror.model, mirror.data, "rgb_array", width=self.width,
                                  height=self.height, frame_budget=0.5 * self.frame_every * self.control_dt,
-                                 decorate=self.scene.draw_marks)
+                                 decorate=SceneView(self.scene).draw_marks)
         self._renderer = renderer
         try:
             self._new_episode()
@@ -340,7 +342,7 @@ class TeleopSession:
             "state": self._state, "error": self.error,
             "episode": self._episode, "seed": self._episode_seed,
             "step": self._steps, "max_steps": self.max_cycles, "max_time_s": round(self.max_cycles * self.control_dt, 2),
-            "success": self._success or self.scene.progress()["success"], "partner": self.partner_name,
+            "success": self._success or SceneView(self.scene).progress()["success"], "partner": self.partner_name,
             "teleop_lost": bool(self._lost if self._state == "running" else self.device.lost),
             "input_seq": int(self.device.applied_seq),
             "recording": self._recording, "recorded_steps": len(self._recorder) if self._recorder else 0,

@@ -124,7 +124,7 @@ def make_seat_vector(num_envs: int = 1, partner="pipeline", **kwargs) -> gym.vec
 
     num_envs = validated(PositiveInt, num_envs, "make_vec: num_envs")
     if partner == "pipeline":
-        from dvrl_marl.envs.seat import SeatEnv
+        from dvrl_marl.seats.seat_env import SeatEnv
 
         vector_kwargs = {key: kwargs.pop(key) for key in ("autoreset_mode",) if key in kwargs}
         if vector_kwargs.get("autoreset_mode", "next_step") != "next_step":

@@ -1,0 +1,316 @@
+"""Scripted experts for the collaborative scene (suction_debris_v8): the suction arm and the surgeon (LND).
+
+They read only their agent's observation plus the scene's fixed layout (:meth:`SuctionDebrisEnv.layout`), so they
+can sit in the surgeon seat or act as an agent's policy. Their plan keeps the instruments apart: the suction clears
+the cavity farther from its own RCM first and parks on its own side afterwards; the surgeon only works in cavities
+the suction has cleared.
+
+For the bleeding field, where clearing first and picking afterwards fails (a cleared cavity refills before the last
+hand-off), :class:`KeepClearSuction` and :class:`KeepClearSurgeon` work at the same time: the suction keeps going
+back to whichever cavity fills and keeps out of the grasper's way, the grasper picks where the suction is not and
+holds the last pin over the hand-off point until the field is clear (``benchmarks/bleeding_field.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
+
+__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon"]
+
+
+
+class _Scripted:
+    """Shared by both experts. ``__call__`` takes one observation ``(d,)`` or a batch ``(N, d)`` (the batched
+    environment's worlds)."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float):
+        self.layout = layout
+        self.slices = observation_layout
+        self.gain = layout.gain
+        self.safe_z = layout.phantom_top + SAFE_HEIGHT / workspace_range
+        self.park_z = park_height(layout, workspace_range)
+        self.near = 0.001 / workspace_range  # 1 mm
+        self.cavity_centres = np.asarray(layout.cavity_centres, dtype=np.float64)  # (C, 2)
+        self.threshold = np.asarray(layout.blood_threshold_fraction, dtype=np.float64)
+
+    @classmethod
+    def for_env(cls, env):
+        """An expert for ``env`` (a single or batched suction_debris_v8 environment)."""
+        unwrapped = getattr(env, "unwrapped", env)
+        return cls(unwrapped.layout(), unwrapped.observation_layout, unwrapped.workspace_range)
+
+    def reset(self) -> None:
+        """Stateless; present so a scripted expert can stand wherever a device can."""
+
+    def __call__(self, observation) -> np.ndarray:
+        obs = np.asarray(observation)
+        if obs.ndim == 2:
+            return self.act(obs.astype(np.float64, copy=False))
+        return self.act_one(obs)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions ``(N, 4)`` for observations ``(N, d)``."""
+        raise NotImplementedError
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        """The action for one observation: the same plan on plain rows, several times faster than ``act`` on one
+        row (the single env's seat calls it every step); a test holds both to the same actions."""
+        raise NotImplementedError
+
+    def _parts(self, obs: np.ndarray):
+        """One observation's own tip, other tip, blood fractions, debris rows (D, 6) and hand-off point."""
+        s = self.slices
+        return (obs[s["own_tip"]], obs[s["other_tip"]], obs[s["blood"]], obs[s["debris"]].reshape(-1, 6),
+                obs[s["handoff"]])
+
+    def _cavity_of(self, position) -> int:
+        """The cavity whose centre is nearest (x, y) of ``position``."""
+        return int(np.argmin(np.hypot(self.cavity_centres[:, 0] - position[0], self.cavity_centres[:, 1] - position[1])))
+
+    def _towards_one(self, tip, target) -> np.ndarray:
+        return np.clip((np.asarray(target) - tip) * self.gain, -1.0, 1.0)
+
+    def _via_safe_height_one(self, tip, target, tolerance) -> np.ndarray:
+        horizontal = np.linalg.norm(np.asarray(target[:2]) - tip[:2])
+        if horizontal > tolerance:
+            return np.array([target[0], target[1], max(self.safe_z, target[2])])
+        return np.asarray(target, dtype=float)
+
+    def _towards(self, tip, target) -> np.ndarray:
+        return np.clip((target - tip) * self.gain, -1.0, 1.0)
+
+    def _via_safe_height(self, tip, target, tolerance) -> np.ndarray:
+        """Rise to the safe height before travelling sideways, then descend on the target (rows of (N, 3));
+        ``tolerance`` is a number or one per row."""
+        target = np.broadcast_to(target, tip.shape)
+        offset = target[:, :2] - tip[:, :2]
+        far = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1]) > tolerance
+        via = target.copy()
+        via[:, 2] = np.where(far, np.maximum(self.safe_z, target[:, 2]), target[:, 2])
+        return via
+
+    @staticmethod
+    def _with_tool(move, tool) -> np.ndarray:
+        action = np.empty((move.shape[0], 4), dtype=np.float32)
+        action[:, :3] = move
+        action[:, 3] = tool
+        return action
+
+
+class ScriptedSuction(_Scripted):
+    """Clears each cavity in turn (valve open while inside it), then parks out of the surgeon's way."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float):
+        super().__init__(layout, observation_layout, workspace_range)
+        base = np.asarray(layout.base_positions["suction"][:2])
+        distances = [np.linalg.norm(np.asarray(c) - base) for c in layout.cavity_centres]
+        self.order = [int(i) for i in np.argsort(distances)[::-1]]  # farthest cavity first
+        self.park = suction_parking_place(layout, workspace_range)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        tip = obs[:, self.slices["own_tip"]]
+        blood = obs[:, self.slices["blood"]]
+        target = np.broadcast_to(self.park, tip.shape).copy()
+        tolerance = np.full(len(obs), 4 * self.near)
+        valve = np.full(len(obs), -1.0)
+        for cavity in reversed(self.order):  # the first cavity in the order that still needs clearing wins
+            pending = (blood[:, cavity] >= self.threshold[cavity]) & (blood[:, cavity] > 0.0)
+            cx, cy = self.cavity_centres[cavity]
+            target[pending] = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
+            tolerance[pending] = 2 * self.near
+            inside = (np.hypot(tip[:, 0] - cx, tip[:, 1] - cy) < self.layout.cavity_mouth_radius) & (
+                tip[:, 2] < self.layout.phantom_top)
+            valve[pending] = np.where(inside[pending], 1.0, -1.0)
+        return self._with_tool(self._towards(tip, self._via_safe_height(tip, target, tolerance)), valve)
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip = obs[self.slices["own_tip"]]
+        blood = obs[self.slices["blood"]]
+        for cavity in self.order:
+            if blood[cavity] >= self.layout.blood_threshold_fraction[cavity] and blood[cavity] > 0.0:
+                cx, cy = self.layout.cavity_centres[cavity]
+                bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
+                move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
+                inside = np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius and tip[2] < self.layout.phantom_top
+                return np.append(move, 1.0 if inside else -1.0).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.park, 4 * self.near)), -1.0).astype(np.float32)
+
+
+class ScriptedSurgeon(_Scripted):
+    """Picks each revealed debris in a cleared cavity, carries it over the phantom to the hand-off point."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float):
+        super().__init__(layout, observation_layout, workspace_range)
+        self.home = surgeon_waiting_place(layout, workspace_range)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        n = len(obs)
+        rows = np.arange(n)
+        tip = obs[:, self.slices["own_tip"]]
+        blood = obs[:, self.slices["blood"]]
+        debris = obs[:, self.slices["debris"]].reshape(n, -1, 6)
+        handoff = obs[:, self.slices["handoff"]]
+        # Default: wait at home with the jaw open.
+        action = self._with_tool(self._towards(tip, self._via_safe_height(tip, self.home, 4 * self.near)), 1.0)
+
+        # A pin whose cavity is clear, visible and not delivered, nearest the tip.
+        dx = debris[:, :, None, 0] - self.cavity_centres[:, 0]
+        dy = debris[:, :, None, 1] - self.cavity_centres[:, 1]
+        cavity = np.argmin(np.hypot(dx, dy), axis=2)  # (N, D)
+        cleared = blood[rows[:, None], cavity] < self.threshold[cavity]
+        candidate = (debris[:, :, 3] > 0.5) & (debris[:, :, 5] < 0.5) & cleared
+        offset = debris[:, :, :3] - tip[:, None, :]
+        distance = np.linalg.norm(offset, axis=2)
+        hunting = candidate.any(axis=1)
+        if hunting.any():
+            nearest = np.argmin(np.where(candidate, distance, np.inf), axis=1)
+            pin = debris[rows, nearest, :3]
+            on_it = distance[rows, nearest] <= self.near
+            move = self._towards(tip, self._via_safe_height(tip, pin, self.near))
+            approach = self._with_tool(move, 1.0)
+            approach[on_it] = (0.0, 0.0, 0.0, -1.0)  # close the jaw on it
+            action[hunting] = approach[hunting]
+
+        held = debris[:, :, 4] > 0.5
+        carrying = held.any(axis=1)
+        if carrying.any():
+            pin = debris[rows, np.argmax(held, axis=1), :3]
+            # Carry: move so that the pin (not the tip) reaches the hand-off point, above the phantom.
+            move = self._towards(pin, self._via_safe_height(pin, handoff, 2 * self.near))
+            action[carrying] = self._with_tool(move, -1.0)[carrying]
+        return action
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip, _, blood, debris, handoff = self._parts(obs)
+        held = [d for d in debris if d[4] > 0.5]
+        if held:
+            pin = held[0][:3]
+            target_for_pin = self._via_safe_height_one(pin, handoff, 2 * self.near)
+            return np.append(self._towards_one(pin, target_for_pin), -1.0).astype(np.float32)
+        candidates = [
+            d[:3] for d in debris
+            if d[3] > 0.5 and d[5] < 0.5
+            and blood[self._cavity_of(d[:3])] < self.layout.blood_threshold_fraction[self._cavity_of(d[:3])]
+        ]
+        if candidates:
+            pin = min(candidates, key=lambda c: np.linalg.norm(c - tip))
+            if np.linalg.norm(pin - tip) <= self.near:
+                return np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32)
+            return np.append(self._towards_one(tip, self._via_safe_height_one(tip, pin, self.near)), 1.0).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.home, 4 * self.near)), 1.0).astype(np.float32)
+
+
+class _KeepClear(_Scripted):
+    """What the two cooperative experts share: where each arm is, and which cavity lies on whose side.
+
+    The arms come from opposite sides, so their shafts cross when the grasper reaches over the cavity on its own side
+    while the suction works in it: the grasper's *near* cavity is the suction's *far* one."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float):
+        super().__init__(layout, observation_layout, workspace_range)
+        bases = {agent: np.asarray(layout.base_positions[agent][:2]) for agent in ("suction", "grasper")}
+        distance = {agent: np.hypot(*(self.cavity_centres - base).T) for agent, base in bases.items()}
+        self.suction_near = int(np.argmin(distance["suction"]))
+        self.grasper_near = int(np.argmin(distance["grasper"]))
+        self.grasper_base = bases["grasper"]
+        self.spare = 0.005 / workspace_range
+        # Where the suction waits when no cavity needs it: outside its own near cavity, on its side.
+        near = self.cavity_centres[self.suction_near]
+        outward = (bases["suction"] - near) / np.linalg.norm(bases["suction"] - near)
+        self.wait = np.array([*(near + outward * (layout.cavity_mouth_radius + 0.012 / workspace_range)), self.safe_z])
+        # How far (in x, from its base) the grasper's tip reaches before its shaft is over its near cavity.
+        self.reach_over = (abs(self.cavity_centres[self.grasper_near, 0] - self.grasper_base[0])
+                           - layout.cavity_mouth_radius)
+
+    def _inside(self, tip, cavity) -> bool:
+        cx, cy = self.cavity_centres[cavity]
+        return bool(np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius
+                    and tip[2] < self.layout.phantom_top + 0.5 * (self.safe_z - self.layout.phantom_top))
+
+    def _over(self, tip, cavity) -> bool:
+        """Above (at any height) or in the cavity's mouth, with 5 mm to spare."""
+        cx, cy = self.cavity_centres[cavity]
+        return bool(np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius + self.spare)
+
+    def _grasper_reaching_over(self, grasper_tip) -> bool:
+        return bool(abs(grasper_tip[0] - self.grasper_base[0]) > self.reach_over)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.stack([self.act_one(row) for row in obs])
+
+
+class KeepClearSuction(_KeepClear):
+    """The suction for a bleeding field: keeps going back to whichever cavity fills up, and keeps out of the
+    grasper's way (never into a cavity the grasper's tip is in, nor into the grasper's near cavity while the grasper
+    reaches over it).
+
+    It empties the cavity it is in (to ``empty`` x the threshold), then waits outside its own near cavity's mouth
+    until a cavity it may enter holds ``refill`` x the threshold."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float, empty: float = 0.1, refill: float = 1.5):
+        super().__init__(layout, observation_layout, workspace_range)
+        self.empty, self.refill = float(empty), float(refill)
+        self.settled = 0.003 / workspace_range  # within 3 mm of the floor: working there
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip, other, blood, _, _ = self._parts(obs)
+        level = blood / self.threshold  # in thresholds
+        free = [c for c in range(len(level)) if not self._inside(other, c)
+                and not (c == self.grasper_near and self._grasper_reaching_over(other))]
+        for cavity in free:  # keep emptying the cavity it works in: all of a full one; a low one while still down
+            down = tip[2] < self.layout.cavity_floor[cavity] + self.layout.clearance + self.settled  # (once it
+            committed = level[cavity] > self.refill or (down and level[cavity] > self.empty)  # rises, it has left)
+            if self._inside(tip, cavity) and committed:
+                return self._suck(tip, cavity)
+        wanted = [c for c in free if level[c] > self.refill]
+        if wanted:
+            return self._suck(tip, max(wanted, key=lambda c: level[c]))
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
+                         -1.0).astype(np.float32)
+
+    def _suck(self, tip, cavity) -> np.ndarray:
+        cx, cy = self.cavity_centres[cavity]
+        bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
+        move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
+        return np.append(move, 1.0 if self._inside(tip, cavity) else -1.0).astype(np.float32)
+
+
+class KeepClearSurgeon(_KeepClear):
+    """The surgeon for a bleeding field: picks revealed pins where the suction is not in its way (its near cavity
+    when the suction is not over it; its far cavity only while the suction waits), and holds the last pin
+    ``hold_height`` above the hand-off point until every cavity is below ``margin`` x the threshold, then hands it
+    over: the arms time the end together."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float, hold_height: float = 0.004,
+                 margin: float = 0.7):
+        super().__init__(layout, observation_layout, workspace_range)
+        self.home = surgeon_waiting_place(layout, workspace_range, self.grasper_base)
+        self.hold = np.array([0.0, 0.0, hold_height / workspace_range])
+        self.margin = float(margin)
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        tip, other, blood, debris, handoff = self._parts(obs)
+        held = [d for d in debris if d[4] > 0.5]
+        if held:
+            pin = held[0][:3]
+            last = sum(d[5] < 0.5 for d in debris) == 1
+            clear = bool(np.all(blood < self.margin * self.threshold))
+            goal = handoff + self.hold if last and not clear else handoff
+            return np.append(self._towards_one(pin, self._via_safe_height_one(pin, goal, 2 * self.near)),
+                             -1.0).astype(np.float32)
+        # Its near cavity when the suction is not over it; anywhere when the suction waits (its shaft would cross
+        # the suction's on the way to the far cavity otherwise).
+        allowed = set() if self._over(other, self.grasper_near) else {self.grasper_near}
+        if np.hypot(*(other[:2] - self.wait[:2])) < self.spare:
+            allowed = set(range(len(self.cavity_centres)))
+        candidates = [d[:3] for d in debris if d[3] > 0.5 and d[5] < 0.5 and self._cavity_of(d[:3]) in allowed]
+        if candidates:
+            pin = min(candidates, key=lambda c: np.linalg.norm(c - tip))
+            if np.linalg.norm(pin - tip) <= self.near:
+                return np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32)
+            return np.append(self._towards_one(tip, self._via_safe_height_one(tip, pin, self.near)),
+                             1.0).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.home, 4 * self.near)),
+                         1.0).astype(np.float32)
