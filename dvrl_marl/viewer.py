@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable
 import mujoco
 import numpy as np
 
-from dvrl_marl.rendering import DisplayUnavailableError, require_display
+from dvrl_marl.display import DisplayUnavailableError, require_display
 
 __all__ = ["ViewerWindow", "KeyListener"]
 

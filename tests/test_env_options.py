@@ -428,11 +428,11 @@ def test_shipped_observation_scales_are_what_measure_gives():
     set gives the file's numbers."""
     import json
 
-    from dvrl_marl.envs import observation_scaling
+    from dvrl_marl.envs import observation_measure, observation_scaling
 
     shipped = json.loads(observation_scaling.SCALES_FILE.read_text())
     name = OPTIONS["observation_features"]
-    assert shipped["feature_sets"][name] == observation_scaling.measure(name)
+    assert shipped["feature_sets"][name] == observation_measure.measure(name)
     assert set(shipped["feature_sets"]) == {"", *features.FEATURES}
 
 

@@ -1,10 +1,9 @@
-"""One module per idea, no module reaching into another's internals: no import circles among the training package's
-modules (any import, at module level or inside a function), and no private name imported from another module."""
+"""One module per idea, imports only down the layers: every module has a rank, no import (at module level or inside a
+function) reaches a higher one, no import circles anywhere, and no private name imported from another module."""
 
 import ast
 from pathlib import Path
 
-import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "dvrl_marl"
 
@@ -46,13 +45,49 @@ def test_no_private_names_are_imported_across_modules():
     assert not offenders, offenders
 
 
-# (dvrl_marl.envs keeps one: suction_debris_v8.batched_env imports the batched module that builds on it.)
-@pytest.mark.parametrize("package", ["dvrl_marl.training", "dvrl_marl.integrations", "dvrl_marl.core",
-                                     "dvrl_marl.agents"])
-def test_no_import_circles_within(package):
-    graph = {name: {t for module, names in _imports(path) for t in _targets(module, names)
-                    if t.startswith(package) and t != name}
-             for name, path in MODULES.items() if name.startswith(package)}
+#: Each module's layer, lowest first (the longest dotted prefix decides). A module may import its own layer and those
+#: below it, never one above: kinematics -> core -> the MuJoCo mirror and rendering -> envs -> policies -> agents and
+#: pipelines -> seats and devices -> datasets -> the browser session, integrations and training -> demo and CLI.
+LAYERS = (
+    ("kinematics", "schemas", "files", "task", "assets", "validation"),
+    ("core",),
+    ("scene", "arm", "display", "rendering", "viewer", "video", "frames", "preview", "pacing"),
+    ("envs", "registration", ""),  # ("": the package itself, which registers the environments)
+    ("policies",),
+    ("agents", "pipeline"),
+    ("seats", "teleop"),
+    ("datasets",),
+    ("teleop.session", "teleop.web", "teleop.person", "integrations", "training"),
+    ("demo", "cli"),
+)
+RANKS = {name: rank for rank, names in enumerate(LAYERS) for name in names}
+
+
+def _rank(module: str) -> int | None:
+    parts = module.split(".")[1:]
+    if not parts:
+        return RANKS[""]
+    for length in range(len(parts), 0, -1):
+        rank = RANKS.get(".".join(parts[:length]))
+        if rank is not None:
+            return rank
+    return None
+
+
+def test_every_module_has_a_layer():
+    assert [name for name in MODULES if _rank(name) is None] == []
+
+
+def test_every_import_goes_down_the_layers():
+    upward = [f"{name} ({_rank(name)}) imports {target} ({_rank(target)})"
+              for name, path in MODULES.items() for module, names in _imports(path)
+              for target in _targets(module, names) if target != name and _rank(target) > _rank(name)]
+    assert not upward, upward
+
+
+def test_no_import_circles():
+    graph = {name: {t for module, names in _imports(path) for t in _targets(module, names) if t != name}
+             for name, path in MODULES.items()}
     state, cycles = {}, []
 
     def visit(node, trail):

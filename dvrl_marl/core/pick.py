@@ -15,7 +15,6 @@ import numpy as np
 
 from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
 from dvrl_marl.core.reach import GoalCoreBase
-from dvrl_marl.scene import has_warnings
 
 __all__ = ["PickCore", "simulate_free_object", "REST_LINEAR_SPEED", "REST_ANGULAR_SPEED"]
 
@@ -33,7 +32,7 @@ def simulate_free_object(model, data, n_substeps: int, qvel_address: int) -> tup
     """
     saved_qpos = data.qpos.copy()
     mujoco.mj_step(model, data, nstep=n_substeps)
-    if has_warnings(data) or not np.all(np.isfinite(data.qpos)):
+    if np.any(data.warning.number) or not np.all(np.isfinite(data.qpos)):  # a MuJoCo warning, or worse
         data.qpos[:] = saved_qpos
         data.qvel[:] = 0.0
         for warning in data.warning:

@@ -10,10 +10,10 @@ agent's observation (features included) and of ``state()`` becomes ``(x - centre
 
 The centres and spreads are constants, not running statistics, so an episode's observations depend on nothing but
 the episode (determinism, evaluation equal to training, a policy that runs anywhere). They were measured by
-:func:`measure` (``python -m dvrl_marl.envs.observation_scaling`` rewrites ``observation_scales.json``; a test
-measures again and compares): :data:`MEASURE_WORLDS` worlds of the default task at the default level, one episode
-of the scripted team (which clears, grasps, carries and delivers) and one of uniformly random actions (what a
-policy meets first), per feature set. A spread is floored at :data:`MIN_SPREAD` (the floor of this project's
+:func:`dvrl_marl.envs.observation_measure.measure` (``python -m dvrl_marl.envs.observation_measure`` rewrites
+``observation_scales.json``; a test measures again and compares): :data:`MEASURE_WORLDS` worlds of the default task at
+the default level, one episode of the scripted team (which clears, grasps, carries and delivers) and one of uniformly
+random actions (what a policy meets first), per feature set. A spread is floored at :data:`MIN_SPREAD` (the floor of this project's
 trainer's normaliser) so that constant dimensions (the hand-off point) stay finite.
 """
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ObservationScaling", "measure", "write", "SCALES_FILE", "MEASURE_WORLDS", "MEASURE_SEED", "MIN_SPREAD"]
+__all__ = ["ObservationScaling", "SCALES_FILE", "MEASURE_WORLDS", "MEASURE_SEED", "MIN_SPREAD", "MEASURE_TASK"]
 
 #: Where the measured centres and spreads are kept (package data).
 SCALES_FILE = Path(__file__).with_name("observation_scales.json")
@@ -100,52 +100,3 @@ class ObservationScaling:
 
     def state_bounds(self, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.state(low), self.state(high)
-
-
-def _statistics(samples: np.ndarray) -> dict:
-    spread = np.maximum(samples.std(axis=0), MIN_SPREAD)
-    return {"centre": [round(float(v), 6) for v in samples.mean(axis=0)],
-            "spread": [round(float(v), 6) for v in spread]}
-
-
-def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_SEED) -> dict:
-    """Centres and spreads of every agent's observation (with ``feature_set``) and of the plain state, over one
-    episode of the scripted team and one of uniformly random actions in each of ``worlds`` worlds."""
-    from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
-    from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
-
-    env = SuctionDebrisBatchedEnv(num_envs=worlds, task=MEASURE_TASK, observation_features=feature_set,
-                                  autoreset_mode="disabled")
-    experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
-    random = np.random.default_rng(seed)
-    samples = {agent: [] for agent in env.agents} | {"state": []}
-    plain = env.observation_layout["handoff"].stop  # the experts read the plain observation
-    for scripted, episode_seed in ((True, seed), (False, seed + 1)):
-        observations, _ = env.reset(seed=episode_seed)
-        done = np.zeros(worlds, dtype=bool)
-        while not done.all():
-            for agent in env.agents:
-                samples[agent].append(observations[agent][~done])
-            samples["state"].append(env.core.state()[~done])
-            actions = {agent: (experts[agent](observations[agent][:, :plain]) if scripted
-                               else random.uniform(-1.0, 1.0, (worlds, 4))) for agent in env.agents}
-            observations, _, terminations, truncations, _ = env.step(actions)
-            done |= terminations[env.agents[0]] | truncations[env.agents[0]]
-    env.close()
-    return {key: _statistics(np.concatenate(rows)) for key, rows in samples.items()}
-
-
-def write(path: Path = SCALES_FILE) -> dict:
-    """Measure every feature set (and none) and write the file the option reads."""
-    from dvrl_marl.envs.features import FEATURES
-
-    content = {"source": "dvrl_marl.envs.observation_scaling.measure", "task": MEASURE_TASK,
-               "worlds": MEASURE_WORLDS, "seed": MEASURE_SEED, "min_spread": MIN_SPREAD,
-               "feature_sets": {name: measure(name) for name in ["", *sorted(FEATURES)]}}
-    path.write_text(json.dumps(content, indent=1) + "\n")
-    return content
-
-
-if __name__ == "__main__":
-    write()
-    print(f"wrote {SCALES_FILE}")
