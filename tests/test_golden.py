@@ -1,9 +1,14 @@
 """Golden trajectories: the collaborative scene's behaviour held still across refactors.
 
-``tests/golden/suction_debris_v8.npz`` was recorded at commit 36a42a0 on suction_debris_v7 (the same rules) by
-``tests/golden/record.py``: random actions and the scripted team, with the defaults, the benchmark's setting, a
-bleeding field and the tool and jaw options. Every step's scene state, rewards and flags must come back to 1e-9, and a
-difference names the case, the first step and the column where it appears.
+Both files were recorded at commit 36a42a0 on suction_debris_v7 (the same rules), with random actions and the scripted
+team, with the defaults, the benchmark's setting, a bleeding field and the tool and jaw options:
+
+- ``tests/golden/steps_v8.npz`` (``tests/golden/record_steps.py``): every step's full state before it, the commands the
+  core was given, the state after it and the env's rewards and flags. Each step, taken from its recorded state with its
+  recorded commands, must give the recorded state, rewards and flags to 1e-9: this holds the step itself, whatever
+  draws a reset makes. A difference names the case, the field and the first step where it appears.
+- ``tests/golden/suction_debris_v8.npz`` (``tests/golden/record.py``): whole trajectories from ``reset(seed=7)``, the
+  scene's state, rewards and flags per step; they hold the reset's draws as well, until those change on purpose.
 """
 
 from pathlib import Path
@@ -46,3 +51,38 @@ def test_the_scene_replays_its_golden_trajectories(recorded, recorder):
             step, world, column = (int(i[0]) for i in np.nonzero(differs))
             pytest.fail(f"{case}: first difference at step {step}, world {world}, column {column}: "
                         f"{got[step, world, column]!r} != {expected[step, world, column]!r}")
+
+
+@pytest.fixture(scope="module")
+def steps():
+    return dict(np.load(GOLDEN / "steps_v8.npz"))
+
+
+def test_every_recorded_step_gives_its_recorded_outcome(steps):
+    from dvrl_marl.envs import suction_debris_v8
+
+    agents = ("suction", "grasper")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("golden_record_steps", GOLDEN / "record_steps.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for case, (kwargs, worlds, count, _) in module.STEP_CASES.items():
+        env = suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", **kwargs)
+        fields = sorted(key.split("/", 2)[2] for key in steps if key.startswith(f"{case}/before/"))
+        assert set(fields) == set(env.core.snapshot()), case
+        for index in range(count):
+            env.restore({name: steps[f"{case}/before/{name}"][index] for name in fields})
+            rewards, terminated, truncated = env.advance({a: steps[f"{case}/commands/{a}"][index] for a in agents})
+            got = env.core.snapshot()
+            for name in fields:
+                expected = steps[f"{case}/after/{name}"][index]
+                same = (np.allclose(got[name], expected, rtol=0, atol=1e-9, equal_nan=True)
+                        if np.issubdtype(expected.dtype, np.floating) else np.array_equal(got[name], expected))
+                if not same:
+                    pytest.fail(f"{case}: step {index}: {name} is {got[name].tolist()}, recorded {expected.tolist()}")
+            for agent in agents:
+                assert np.allclose(rewards[agent], steps[f"{case}/rewards/{agent}"][index], rtol=0, atol=1e-9), \
+                    f"{case}: step {index}: the reward of {agent}"
+            assert np.array_equal(terminated, steps[f"{case}/terminated"][index]), f"{case}: step {index}: terminated"
+            assert np.array_equal(truncated, steps[f"{case}/truncated"][index]), f"{case}: step {index}: truncated"

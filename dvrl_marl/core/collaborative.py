@@ -51,6 +51,14 @@ STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
 
 
+#: What the next step depends on, world by world (:meth:`CollaborativeCore.snapshot`): the scene's arrays, then each
+#: arm's tip (base frame), joints, jaw and shaping distance as ``"<agent>.<name>"``.
+STATE_FIELDS = ("valve_opening", "initial_ml", "remaining_ml", "surface_z", "debris_position", "debris_yaw",
+                "debris_cavity", "visible", "held", "delivered", "lifted", "fall_speed", "added_ml", "bleed_onset",
+                "bleed_rate", "holding", "hold_offset", "grip_offset", "elapsed", "limit", "contact", "complete")
+ARM_FIELDS = ("tip", "q", "jaw")
+
+
 def sample_debris(rng: np.random.Generator, cavities, count: int) -> list:
     """Seeded pin placement: ``count`` entries ``(position [x, y, z], yaw, cavity index)`` lying across the bowls.
 
@@ -597,6 +605,25 @@ class CollaborativeCore:
             "collision": self.contact.copy(),
             "is_success": self.complete.copy(),
         }
+
+    def snapshot(self) -> dict:
+        """Every world's state (copies): :data:`STATE_FIELDS`, and per arm ``"<agent>.tip"``, ``".q"``, ``".jaw"`` and
+        ``".work_distance"``. :meth:`restore` puts it back; a step from it is the step from the state it was taken in
+        (the golden trajectories hold the step to that, step by step)."""
+        state = {name: getattr(self, name).copy() for name in STATE_FIELDS}
+        for agent, arm in self.arms.items():
+            state.update({f"{agent}.{name}": getattr(arm, name).copy() for name in ARM_FIELDS})
+            state[f"{agent}.work_distance"] = self.work_distance[agent].copy()
+        return state
+
+    def restore(self, state: dict) -> None:
+        """Put back a :meth:`snapshot` (of as many worlds as this core has)."""
+        for name in STATE_FIELDS:
+            setattr(self, name, np.array(state[name], dtype=getattr(self, name).dtype))
+        for agent, arm in self.arms.items():
+            for name in ARM_FIELDS:
+                setattr(arm, name, np.array(state[f"{agent}.{name}"], dtype=np.float64))
+            self.work_distance[agent] = np.array(state[f"{agent}.work_distance"], dtype=np.float64)
 
     @property
     def removed_ml(self) -> np.ndarray:

@@ -1,12 +1,17 @@
 """The two instruments as segments, for contact: an RCM-to-wrist shaft and a wrist-to-tip segment per arm.
 
 Shared by the collaborative scene's batched core (contact and the refusal of intersecting moves) and the sliding rules
-(:mod:`dvrl_marl.core.sliding`: the contact's normal), batched over leading axes.
+(:mod:`dvrl_marl.core.sliding`: the contact's normal), batched over leading axes. Written against the Python array API
+standard (``array_api_compat.array_namespace``): the same functions take numpy arrays (the default), torch tensors
+on a CPU or a GPU, or JAX arrays (under ``jax.jit`` too), and give each the same floating-point results
+(``benchmarks/backend_prototype.py`` measures them on each).
 """
 
 from __future__ import annotations
 
 import numpy as np
+import array_api_compat.numpy  # noqa: F401  (numpy's namespace, loaded now rather than on the first step)
+from array_api_compat import array_namespace
 
 from dvrl_marl import assets
 
@@ -18,29 +23,53 @@ SHAFT_RADIUS = assets.SHAFT_RADIUS
 WRIST_RADIUS = {"suction": assets.SUCTION_TUBE_RADIUS, "grasper": 0.0025}
 
 
+_NUMPY = array_namespace(np.empty(0))
+
+
+def _namespace(*arrays):
+    """The arrays' namespace; numpy's own for numpy arrays (its functions, without the compatibility layer's calls)."""
+    xp = array_namespace(*arrays)
+    return np if xp is _NUMPY else xp
+
+
 def _dot(u, v):
     return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
 
 
-def segment_distance(p1, q1, p2, q2) -> np.ndarray:
+def _clip01(x, xp):
+    if xp is np:
+        return np.minimum(np.maximum(x, 0.0), 1.0)
+    return xp.clip(x, 0.0, 1.0)  # (the same values; a scalar bound is what every array_api_compat release takes)
+
+
+def _divide(numerator, denominator, safe, xp):
+    """``numerator / denominator`` where ``safe`` (elsewhere any value: the caller discards it), never dividing by
+    zero on any backend (numpy divides only where it may; the others by 1 elsewhere)."""
+    if xp is np:
+        return np.divide(numerator, denominator, out=np.zeros_like(numerator), where=safe)
+    return numerator / xp.where(safe, denominator, 1.0)
+
+
+def segment_distance(p1, q1, p2, q2, xp=None):
     """Shortest distances between segments p1-q1 and p2-q2, batched over leading axes (..., 3)."""
-    difference = segment_offset(p1, q1, p2, q2)
-    return np.sqrt(_dot(difference, difference))
+    xp = xp or _namespace(p1, q1, p2, q2)
+    difference = segment_offset(p1, q1, p2, q2, xp)
+    return xp.sqrt(_dot(difference, difference))
 
 
-def segment_offset(p1, q1, p2, q2) -> np.ndarray:
+def segment_offset(p1, q1, p2, q2, xp=None):
     """From the point of segment p2-q2 nearest segment p1-q1 to the point of p1-q1 nearest it, (..., 3)."""
+    xp = xp or _namespace(p1, q1, p2, q2)
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e, f, c, b = _dot(d1, d1), _dot(d2, d2), _dot(d2, r), _dot(d1, r), _dot(d1, d2)
     denominator = a * e - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(denominator > 1e-18, np.minimum(np.maximum((b * f - c * e) / denominator, 0.0), 1.0), 0.0)
-        t = np.where(e > 1e-18, (b * s + f) / e, 0.0)
-        a_ok = a > 1e-18
-        below, above = t < 0.0, t > 1.0
-        s = np.where(below, np.where(a_ok, np.minimum(np.maximum(-c / a, 0.0), 1.0), 0.0), s)
-        s = np.where(above, np.where(a_ok, np.minimum(np.maximum((b - c) / a, 0.0), 1.0), 0.0), s)
-    t = np.where(below, 0.0, np.where(above, 1.0, t))
+    general, e_ok, a_ok = denominator > 1e-18, e > 1e-18, a > 1e-18
+    s = xp.where(general, _clip01(_divide(b * f - c * e, denominator, general, xp), xp), 0.0)
+    t = xp.where(e_ok, _divide(b * s + f, e, e_ok, xp), 0.0)
+    below, above = t < 0.0, t > 1.0
+    s = xp.where(below, xp.where(a_ok, _clip01(_divide(-c, a, a_ok, xp), xp), 0.0), s)
+    s = xp.where(above, xp.where(a_ok, _clip01(_divide(b - c, a, a_ok, xp), xp), 0.0), s)
+    t = xp.where(below, 0.0, xp.where(above, 1.0, t))
     return r + d1 * s[..., None] - d2 * t[..., None]
 
 
@@ -62,21 +91,22 @@ def contact_normal(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
 _STACKED_BELOW = 64
 
 
-def instrument_clearance(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
+def instrument_clearance(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b):
     """Clearance between the suction (a) and the grasper (b), each a shaft RCM-wrist and a wrist-tip segment
     (negative when they intersect). Both ways of computing it give the same floating-point results."""
+    xp = _namespace(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b)  # (one backend for all six)
     ra, rb = WRIST_RADIUS["suction"], WRIST_RADIUS["grasper"]
     pairs = ((rcm_a, wrist_a, rcm_b, wrist_b), (rcm_a, wrist_a, wrist_b, tip_b), (wrist_a, tip_a, rcm_b, wrist_b),
              (wrist_a, tip_a, wrist_b, tip_b))
     first, second = (2 * SHAFT_RADIUS, SHAFT_RADIUS, ra, ra), (0.0, rb, SHAFT_RADIUS, rb)
-    shape = np.broadcast_shapes(np.shape(tip_a), np.shape(tip_b))
-    if int(np.prod(shape[:-1])) < _STACKED_BELOW:
+    shape = tuple(np.broadcast_shapes(tuple(tip_a.shape), tuple(tip_b.shape)))
+    if xp is np and int(np.prod(shape[:-1])) < _STACKED_BELOW:
         ends = [np.empty((4,) + shape) for _ in range(4)]
         for row, pair in enumerate(pairs):
             for end, point in zip(ends, pair):
                 end[row] = point
         column = (4,) + (1,) * (len(shape) - 1)
-        gaps = segment_distance(*ends) - np.array(first).reshape(column) - np.array(second).reshape(column)
+        gaps = segment_distance(*ends, xp=np) - np.array(first).reshape(column) - np.array(second).reshape(column)
     else:
-        gaps = [segment_distance(*pair) - a - b for pair, a, b in zip(pairs, first, second)]
-    return np.minimum(np.minimum(gaps[0], gaps[1]), np.minimum(gaps[2], gaps[3]))
+        gaps = [segment_distance(*pair, xp=xp) - a - b for pair, a, b in zip(pairs, first, second)]
+    return xp.minimum(xp.minimum(gaps[0], gaps[1]), xp.minimum(gaps[2], gaps[3]))

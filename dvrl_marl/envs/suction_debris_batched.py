@@ -420,6 +420,11 @@ class SuctionDebrisBatchedEnv:
             except ValueError:
                 pass  # that start is not possible (unreachable, or into the other instrument): the ordinary one
 
+    def restore(self, state: dict) -> None:
+        """Put every world back in a state :meth:`CollaborativeCore.snapshot` took (the guided terms restart there)."""
+        self.core.restore(state)
+        self._restart_potential()
+
     def _restart_potential(self) -> None:
         if self._guided is not None:
             self._potential = self._guided.potentials(self.core.state(), self.core.remaining_ml)
