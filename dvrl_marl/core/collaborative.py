@@ -554,18 +554,27 @@ class CollaborativeCore:
 
     def observation(self, agent: str) -> np.ndarray:
         """(N, obs_dim): the agent's observation in every world (layout: the env's ``observation_layout``)."""
-        other = "grasper" if agent == "suction" else "suction"
+        return self.observations((agent,))[agent]
+
+    def observations(self, agents=AGENTS) -> dict:
+        """``{agent: (N, obs_dim)}`` for ``agents``; what they share (tips, blood, pins) is computed once."""
         n, c, d = self.num_worlds, self.cavities.count, self.params.debris_count
-        out = np.empty((n, 10 + c + 6 * d))
-        out[:, 0:3] = self.normalise(self.arms[agent].tip_world())
-        out[:, 3] = 2.0 * (self.valve_opening if agent == "suction" else self.arms["grasper"].jaw) - 1.0
-        out[:, 4:7] = self.normalise(self.arms[other].tip_world())
-        out[:, 7:7 + c] = self._blood_fraction()
-        debris = out[:, 7 + c:7 + c + 6 * d].reshape(n, d, 6)
+        tips = {agent: self.normalise(self.arms[agent].tip_world()) for agent in AGENTS}
+        tools_ = {"suction": 2.0 * self.valve_opening - 1.0, "grasper": 2.0 * self.arms["grasper"].jaw - 1.0}
+        blood = self._blood_fraction()
         shown = self.visible & ~self.delivered
-        debris[..., 0:3] = np.where(shown[..., None], self.normalise(self.shown_positions()), 0.0)
-        debris[..., 3], debris[..., 4], debris[..., 5] = self.visible, self.held, self.delivered
-        out[:, 7 + c + 6 * d:] = self.handoff_normalised
+        pins = np.where(shown[..., None], self.normalise(self.shown_positions()), 0.0)
+        out = {}
+        for agent in agents:
+            other = "grasper" if agent == "suction" else "suction"
+            row = np.empty((n, 10 + c + 6 * d))
+            row[:, 0:3], row[:, 3], row[:, 4:7] = tips[agent], tools_[agent], tips[other]
+            row[:, 7:7 + c] = blood
+            debris = row[:, 7 + c:7 + c + 6 * d].reshape(n, d, 6)
+            debris[..., 0:3] = pins
+            debris[..., 3], debris[..., 4], debris[..., 5] = self.visible, self.held, self.delivered
+            row[:, 7 + c + 6 * d:] = self.handoff_normalised
+            out[agent] = row
         return out
 
     def shown_positions(self) -> np.ndarray:

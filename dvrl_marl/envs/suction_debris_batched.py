@@ -488,7 +488,7 @@ class SuctionDebrisBatchedEnv:
     def observations(self) -> dict:
         """The current observations of every world, ``{agent: (N, obs_dim)}`` (after ``set_tip_positions``, or
         several masked resets in a row)."""
-        observations = {agent: self.core.observation(agent) for agent in self.agents}
+        observations = self.core.observations(self.agents)
         if self.feature_spec is not None:
             observations = {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
         if self.observation_scaling is not None:
@@ -496,13 +496,12 @@ class SuctionDebrisBatchedEnv:
                             for agent, value in observations.items()}
         return observations
 
-
     def state(self) -> np.ndarray:
         """(N, state_dim): the global state of every world, for centralised critics (with ``state_observations``,
         every arm's observation after it, as the single env's)."""
         state = self.core.state()
         if self.state_observations:
-            observations = [self.core.observation(agent) for agent in AGENTS]
+            observations = list(self.core.observations(AGENTS).values())
             if self.feature_spec is not None:
                 observations = [features.apply(self.feature_spec, observation) for observation in observations]
             state = np.concatenate([state, *observations], axis=1)
