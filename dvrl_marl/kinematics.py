@@ -353,23 +353,31 @@ def wrist_position_point(tool: Tool, q) -> tuple[float, float, float]:
     return (length * s1 * c2, -length * s2, -length * c1 * c2)
 
 
-def wrist_position_batch(tool: Tool, q: np.ndarray) -> np.ndarray:
-    """:func:`wrist_position_point` for joint vectors ``q`` ``(M, n_joints)``: ``(M, 3)``, base frame."""
-    s1, c1 = np.sin(q[:, 0]), np.cos(q[:, 0])
-    s2, c2 = np.sin(q[:, 1]), np.cos(q[:, 1])
+def wrist_position_batch(tool: Tool, q):
+    """:func:`wrist_position_point` for joint vectors ``q`` ``(M, n_joints)``: ``(M, 3)``, base frame (any array
+    library's arrays: numpy's, torch's, JAX's)."""
+    xp = _namespace(q)
+    s1, c1 = xp.sin(q[:, 0]), xp.cos(q[:, 0])
+    s2, c2 = xp.sin(q[:, 1]), xp.cos(q[:, 1])
     length = q[:, 2] - tool.insertion_offset
-    wrist = np.empty((len(q), 3))
-    wrist[:, 0] = length * s1 * c2
-    wrist[:, 1] = -length * s2
-    wrist[:, 2] = -length * c1 * c2
-    return wrist
+    return xp.stack([length * s1 * c2, -length * s2, -length * c1 * c2], axis=1)
 
 
-def _solve_batch(tool: Tool, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _solve_batch(tool: Tool, position):
+    xp = _namespace(position)
     x, y, z = position[..., 0], position[..., 1], position[..., 2]
-    outer_yaw, outer_pitch, insertion, radial = _solve(tool, x, y, z, np.sqrt, np.arctan2)
-    q = np.stack(np.broadcast_arrays(*_joint_vector(tool, outer_yaw, outer_pitch, insertion)), axis=-1)
+    atan2 = np.arctan2 if xp is np else xp.atan2
+    outer_yaw, outer_pitch, insertion, radial = _solve(tool, x, y, z, xp.sqrt, atan2)
+    q = xp.stack(xp.broadcast_arrays(*_joint_vector(tool, outer_yaw, outer_pitch, insertion)), axis=-1)
     return q, radial
+
+
+def _namespace(x):
+    if isinstance(x, np.ndarray):
+        return np
+    from array_api_compat import array_namespace
+
+    return array_namespace(x)
 
 
 def within_limits(tool: Tool | str, position) -> np.ndarray:
@@ -381,15 +389,19 @@ def within_limits(tool: Tool | str, position) -> np.ndarray:
     return (radial > 0.0) & np.all((q >= lower) & (q <= upper), axis=-1)
 
 
-def inverse_kinematics_batch(tool: Tool, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unchecked batched IK for the batched core: ``(q, reachable)`` for finite positions ``(..., 3)``.
+def inverse_kinematics_batch(tool: Tool, position):
+    """Unchecked batched IK for the batched core: ``(q, reachable)`` for finite positions ``(..., 3)`` (any array
+    library's arrays).
 
     The same closed form and limit test as :func:`inverse_kinematics_point`, over arrays; ``q`` of unreachable
     positions is returned as computed (outside the limits), ``reachable`` says which rows are valid.
     """
     q, radial = _solve_batch(tool, position)
     lower, upper = _limit_arrays(tool)
-    return q, (radial > 0.0) & np.all((q >= lower) & (q <= upper), axis=-1)
+    xp = _namespace(q)
+    if xp is not np:
+        lower, upper = xp.asarray(lower, dtype=q.dtype), xp.asarray(upper, dtype=q.dtype)
+    return q, (radial > 0.0) & xp.all((q >= lower) & (q <= upper), axis=-1)
 
 
 @functools.lru_cache(maxsize=None)

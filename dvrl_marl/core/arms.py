@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from dvrl_marl import kinematics
+from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
 
 __all__ = ["ArmBatch"]
 
@@ -51,29 +52,30 @@ class ArmBatch:
         self.tip[worlds] = positions
         self.q[worlds] = q
 
-    def move(self, delta: np.ndarray, low, high) -> np.ndarray:
+    def move(self, delta, low, high):
         """Move every tip by ``delta`` ``(N, 3)``, clamped to ``[low, high]`` (per axis, ``(3,)`` or ``(N, 3)``).
 
         Returns the mask of worlds whose move was cut short by the joint limits.
         """
+        xp = namespace(self.tip, delta)
         start = self.tip
-        target = np.minimum(np.maximum(start + delta, low), high)
+        target = xp.minimum(xp.maximum(start + delta, low), high)
         q, reachable = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(target))
         blocked = ~reachable
-        if blocked.any():
-            rows = np.flatnonzero(blocked)
-            origin, goal = start[rows], target[rows]
+        if needed(blocked):  # cut short along the move by bisection, where the target leaves the joint limits
+            rows = rows_of(blocked)
+            origin, goal = take(start, rows), take(target, rows)
             span = goal - origin
-            good = np.zeros(len(rows))
-            bad = np.ones(len(rows))
+            good = xp.zeros(origin.shape[:1], dtype=origin.dtype)
+            bad = xp.ones(origin.shape[:1], dtype=origin.dtype)
             for _ in range(_PROJECTION_ITERATIONS):
                 mid = 0.5 * (good + bad)
                 _, ok = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(origin + mid[:, None] * span))
-                good = np.where(ok, mid, good)
-                bad = np.where(ok, bad, mid)
+                good = xp.where(ok, mid, good)
+                bad = xp.where(ok, bad, mid)
             reached = origin + good[:, None] * span
-            target[rows] = reached
-            q[rows] = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(reached))[0]
+            target = put(target, rows, blocked, reached)
+            q = put(q, rows, blocked, kinematics.inverse_kinematics_batch(self.tool, self._tool_points(reached))[0])
         self.tip = target
         self.q = q
         return blocked

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dvrl_marl.core.backend import namespace, needed
+
 __all__ = ["Cavity", "Phantom", "Cavities"]
 
 _ML = 1e-6  # m^3 per millilitre
@@ -131,49 +133,56 @@ class Cavities:
     def _r2(self, x, y):
         return (x[..., None] - self.centre_x) ** 2 + (y[..., None] - self.centre_y) ** 2
 
-    def surface_height(self, x, y) -> np.ndarray:
+    def surface_height(self, x, y):
         """Height of the first solid surface below (x, y): cavity floor, phantom top or table."""
-        p = self.phantom
+        xp, p = namespace(x), self.phantom
         r2 = self._r2(x, y)
         radius = self.sphere_radius
-        with np.errstate(invalid="ignore"):
-            depth = np.where(r2 >= self.mouth_radius**2, 0.0, self.depth - (radius - np.sqrt(radius * radius - r2)))
-        depth = np.maximum(depth.max(axis=-1), 0.0)
-        outside = (np.abs(x - p.centre_x) > p.half_x) | (np.abs(y - p.centre_y) > p.half_y)
-        return np.where(outside, p.table_z, p.top_z - depth)
+        # (the root's argument is positive inside every mouth, the only place its value is kept)
+        bowl = self.depth - (radius - xp.sqrt(xp.maximum(radius * radius - r2, 0.0)))
+        depth = xp.where(r2 >= self.mouth_radius**2, 0.0, bowl)
+        depth = xp.maximum(xp.max(depth, axis=-1), 0.0)
+        outside = (xp.abs(x - p.centre_x) > p.half_x) | (xp.abs(y - p.centre_y) > p.half_y)
+        return xp.where(outside, p.table_z, p.top_z - depth)
 
     def nearest_on_top(self, x, y, margin: float):
         """:meth:`Phantom.nearest_on_top` element-wise."""
-        p = self.phantom
+        xp, p = namespace(x), self.phantom
         dx, dy = x - p.centre_x, y - p.centre_y
-        over = (np.abs(dx) <= p.half_x) & (np.abs(dy) <= p.half_y)
+        over = (xp.abs(dx) <= p.half_x) & (xp.abs(dy) <= p.half_y)
         reach_x, reach_y = p.half_x - margin, p.half_y - margin
-        return (np.where(over, x, p.centre_x + np.minimum(np.maximum(dx, -reach_x), reach_x)),
-                np.where(over, y, p.centre_y + np.minimum(np.maximum(dy, -reach_y), reach_y)))
+        return (xp.where(over, x, p.centre_x + xp.minimum(xp.maximum(dx, -reach_x), reach_x)),
+                xp.where(over, y, p.centre_y + xp.minimum(xp.maximum(dy, -reach_y), reach_y)))
 
-    def cavity_at(self, x, y) -> np.ndarray:
+    def cavity_at(self, x, y):
         """Index of the first cavity whose mouth contains (x, y), or -1."""
+        xp = namespace(x)
         inside = self._r2(x, y) < self.mouth_radius**2
-        return np.where(inside.any(axis=-1), np.argmax(inside, axis=-1), -1)
+        return xp.where(xp.any(inside, axis=-1), xp.argmax(inside * 1, axis=-1), -1)
 
-    def fill_depth(self, cavity: np.ndarray, volume_ml: np.ndarray) -> np.ndarray:
+    def _of(self, values, cavity):
+        """``values`` (one per cavity) of each element of ``cavity`` (indices)."""
+        return values[cavity] if isinstance(cavity, np.ndarray) else namespace(cavity).asarray(values)[cavity]
+
+    def fill_depth(self, cavity, volume_ml):
         """:meth:`Cavity.fill_depth` element-wise (the same Newton iterations, each element stopping on its own)."""
-        depth, radius = self.depth[cavity], self.sphere_radius[cavity]
+        xp = namespace(volume_ml)
+        depth, radius = self._of(self.depth, cavity), self._of(self.sphere_radius, cavity)
+        capacity = self._of(self.capacity_ml, cavity)
         target = volume_ml * _ML * 3.0 / math.pi
-        with np.errstate(invalid="ignore", divide="ignore"):
-            h = np.minimum(np.sqrt(target / (3.0 * radius)), depth)
-            active = (volume_ml > 0.0) & (volume_ml < self.capacity_ml[cavity])
-            for _ in range(30):
-                if not active.any():
-                    break
-                f = h * h * (3.0 * radius - h) - target
-                slope = 6.0 * radius * h - 3.0 * h * h
-                step = f / slope
-                h = np.where(active, np.minimum(np.maximum(h - step, 0.0), depth), h)
-                active &= ~(np.abs(step) < 1e-13)
-        h = np.where(volume_ml <= 0.0, 0.0, np.where(volume_ml >= self.capacity_ml[cavity], depth, h))
-        return h
+        h = xp.minimum(xp.sqrt(xp.maximum(target, 0.0) / (3.0 * radius)), depth)  # (a negative volume: none)
+        active = (volume_ml > 0.0) & (volume_ml < capacity)
+        for _ in range(30):
+            if not needed(active):
+                break
+            f = h * h * (3.0 * radius - h) - target
+            slope = 6.0 * radius * h - 3.0 * h * h
+            step = f / xp.where(active, slope, 1.0)  # (the inactive keep their depth: never divide by their zero)
+            h = xp.where(active, xp.minimum(xp.maximum(h - step, 0.0), depth), h)
+            active = active & ~(xp.abs(step) < 1e-13)
+        return xp.where(volume_ml <= 0.0, 0.0, xp.where(volume_ml >= capacity, depth, h))
 
-    def surface_radius(self, cavity, fill_depth) -> np.ndarray:
-        h = np.minimum(np.maximum(fill_depth, 0.0), self.depth[cavity])
-        return np.sqrt(np.maximum(h * (2.0 * self.sphere_radius[cavity] - h), 0.0))
+    def surface_radius(self, cavity, fill_depth):
+        xp = namespace(fill_depth)
+        h = xp.minimum(xp.maximum(fill_depth, 0.0), self._of(self.depth, cavity))
+        return xp.sqrt(xp.maximum(h * (2.0 * self._of(self.sphere_radius, cavity) - h), 0.0))

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core.backend import namespace
+
 #: Fraction of the valve's stroke above which it is open (it draws): the command's own threshold (open when > 0),
 #: ``(0 + 1) / 2``.
 VALVE_OPEN_ABOVE = 0.5
@@ -46,4 +48,6 @@ def moved_towards(current, target, speed: float):
     the paper's instant tool (the target itself, exactly)."""
     if speed >= 1.0:
         return target
-    return current + np.clip(target - current, -speed, speed)
+    if isinstance(current, (float, int, np.ndarray, np.generic)):
+        return current + np.clip(target - current, -speed, speed)
+    return current + namespace(current).clip(target - current, -speed, speed)

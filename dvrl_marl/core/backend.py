@@ -1,0 +1,55 @@
+"""The core's arithmetic on any array library: numpy (the default), or another that follows the array API standard
+(torch, JAX; ``array_api_compat`` gives each its namespace).
+
+The step is written once. Where numpy runs it eagerly it may skip work no world needs and compute a rule on the rows
+that need it only; elsewhere (a GPU, or JAX under ``jax.jit``, where a shape cannot depend on the data) the same rule
+runs on every row and the rows that need it keep its result. These helpers say which, so that each rule is written
+once for both: ``rows = rows_of(mask)``, compute on ``take(x, rows)``, then ``put(x, rows, mask, values)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from array_api_compat import array_namespace
+
+__all__ = ["namespace", "needed", "rows_of", "take", "put"]
+
+_NUMPY = array_namespace(np.empty(0))
+
+
+def namespace(*arrays):
+    """The arrays' namespace; numpy's own for numpy arrays (its functions, without the compatibility layer's calls)."""
+    xp = array_namespace(*arrays)
+    return np if xp is _NUMPY else xp
+
+
+def needed(mask) -> bool:
+    """Whether any row needs a rule: ``mask.any()`` where that can be known now, True where it cannot (a traced
+    array: the rule then runs on every row, masked)."""
+    if isinstance(mask, np.ndarray):
+        return bool(mask.any())
+    try:
+        return bool(namespace(mask).any(mask))
+    except Exception:  # noqa: BLE001  (a tracer under jax.jit has no value yet)
+        return True
+
+
+def rows_of(mask):
+    """The rows a rule runs on: numpy, the indices where ``mask`` holds; another library, None (every row)."""
+    return np.flatnonzero(mask) if isinstance(mask, np.ndarray) else None
+
+
+def take(x, rows):
+    """``x``'s rows ``rows`` (every row for None)."""
+    return x if rows is None else x[rows]
+
+
+def put(x, rows, mask, values):
+    """``x`` with ``values`` in the rows the rule ran on: numpy, a copy with rows ``rows`` set; another library, the
+    rows where ``mask`` holds taken from ``values`` (computed for every row)."""
+    if rows is not None:
+        out = x.copy()
+        out[rows] = values
+        return out
+    xp = namespace(x, values)
+    return xp.where(xp.reshape(mask, mask.shape + (1,) * (x.ndim - mask.ndim)), values, x)
