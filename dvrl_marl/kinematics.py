@@ -360,7 +360,12 @@ def wrist_position_batch(tool: Tool, q):
     s1, c1 = xp.sin(q[:, 0]), xp.cos(q[:, 0])
     s2, c2 = xp.sin(q[:, 1]), xp.cos(q[:, 1])
     length = q[:, 2] - tool.insertion_offset
-    return xp.stack([length * s1 * c2, -length * s2, -length * c1 * c2], axis=1)
+    parts = (length * s1 * c2, -length * s2, -length * c1 * c2)
+    if xp is not np:
+        return xp.stack(parts, axis=1)
+    wrist = np.empty((len(q), 3))  # (numpy: cheaper than stacking, on the step's path)
+    wrist[:, 0], wrist[:, 1], wrist[:, 2] = parts
+    return wrist
 
 
 def _solve_batch(tool: Tool, position):

@@ -12,14 +12,18 @@ from __future__ import annotations
 import numpy as np
 from array_api_compat import array_namespace
 
-__all__ = ["namespace", "needed", "rows_of", "take", "put"]
+__all__ = ["namespace", "needed", "rows_of", "take", "put", "columns"]
 
 _NUMPY = array_namespace(np.empty(0))
 
 
 def namespace(*arrays):
-    """The arrays' namespace; numpy's own for numpy arrays (its functions, without the compatibility layer's calls)."""
-    xp = array_namespace(*arrays)
+    """The arrays' namespace: that of those not numpy's (numpy arrays beside them are constants, such as an arm's
+    base, which JAX takes as they are), else numpy's own (its functions, without the compatibility layer's calls)."""
+    others = [array for array in arrays if not isinstance(array, (np.ndarray, np.generic, float, int))]
+    if not others:  # (the default, asked on every call: no lookup)
+        return np
+    xp = array_namespace(*others)
     return np if xp is _NUMPY else xp
 
 
@@ -53,3 +57,13 @@ def put(x, rows, mask, values):
         return out
     xp = namespace(x, values)
     return xp.where(xp.reshape(mask, mask.shape + (1,) * (x.ndim - mask.ndim)), values, x)
+
+
+def columns(parts, xp):
+    """``(M, k)`` from ``k`` columns of ``M`` values (numpy: filled in place, cheaper than stacking on a step's path)."""
+    if xp is not np:
+        return xp.stack(parts, axis=1)
+    out = np.empty((len(parts[0]), len(parts)))
+    for index, part in enumerate(parts):
+        out[:, index] = part
+    return out

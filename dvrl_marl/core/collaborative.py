@@ -20,6 +20,7 @@ import numpy as np
 from dvrl_marl import kinematics
 from dvrl_marl.core import sliding, tools
 from dvrl_marl.core.arms import ArmBatch
+from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
 from dvrl_marl.core.phantom import Cavities
 from dvrl_marl.core.scene_geometry import SceneGeometry
@@ -88,17 +89,31 @@ def _dot(u, v):
     return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
 
 
-def _closest_on_segment(point, start, end) -> np.ndarray:
+def _closest_on_segment(point, start, end):
+    xp = namespace(point, start, end)
     d, v = end - start, point - start
     length2 = _dot(d, d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(length2 > 0, np.minimum(np.maximum(_dot(v, d) / length2, 0.0), 1.0), 0.0)
+    positive = length2 > 0
+    t = xp.where(positive, xp.minimum(xp.maximum(_dot(v, d) / xp.where(positive, length2, 1.0), 0.0), 1.0), 0.0)
     return start + t[..., None] * d
 
 
-def _distance(u, v) -> np.ndarray:
+def _distance(u, v):
     difference = u - v
-    return np.sqrt(_dot(difference, difference))
+    return namespace(difference).sqrt(_dot(difference, difference))
+
+
+def _pick(values, index, xp):
+    """``values[i, index[i]]`` for every row i (``values`` (N, K, ...), ``index`` (N,) in [0, K))."""
+    if xp is np:
+        return values[np.arange(len(index)), index]
+    chosen = xp.arange(values.shape[1])[None, :] == index[:, None]
+    chosen = xp.reshape(chosen, chosen.shape + (1,) * (values.ndim - 2))
+    return xp.sum(xp.where(chosen, values, 0.0), axis=1)
+
+
+def _copy(x):
+    return x.copy() if isinstance(x, np.ndarray) else x  # (other libraries' arrays are not changed in place here)
 
 
 class CollaborativeCore:
@@ -121,6 +136,8 @@ class CollaborativeCore:
         self.sparse = reward_type == "sparse"
         self.move_rules = {agent: sliding.MoveRules.of(p.blocked_moves, agent) for agent in AGENTS}
         self.cavities = Cavities(geometry.phantom)
+        c = self.cavities
+        self._cavity_bottoms = np.stack([c.centre_x, c.centre_y, c.floor_z], axis=1)  # (C, 3): the suction's goals
         self.arms = {agent: ArmBatch(TOOLS[agent], n, geometry.base_positions[agent]) for agent in AGENTS}
         self.centre = np.asarray(p.workspace_centre, dtype=np.float64)
         self.inverse_range = 1.0 / p.workspace_range
@@ -286,34 +303,35 @@ class CollaborativeCore:
     # --- step ---------------------------------------------------------------------------------------------
     def step(self, commands: dict):
         """Advance every world by one control step. ``commands[agent]``: (N, 4) in [-1, 1]; for a held seat the
-        tool value may be NaN, meaning "unchanged"."""
+        tool value may be NaN, meaning "unchanged". (Arrays of any array API library: numpy's, JAX's.)"""
         eta = self.params.step_size
-        contact = np.zeros(self.num_worlds, dtype=bool)
+        xp = namespace(commands[AGENTS[0]])
+        contact = xp.zeros(commands[AGENTS[0]].shape[:1], dtype=xp.bool)
         for agent in AGENTS:
             command = commands[agent]
-            contact |= self._move(agent, eta * command[:, :3])
+            contact = contact | self._move(agent, eta * command[:, :3])
             tool = command[:, 3]
-            given = ~np.isnan(tool)
+            given = ~xp.isnan(tool)
             if agent == "suction":
                 opening = tools.moved_towards(self.valve_opening, tools.valve_target(tool), self.params.tool_speed)
-                self.valve_opening = np.where(given, opening, self.valve_opening)
+                self.valve_opening = xp.where(given, opening, self.valve_opening)
             else:
                 arm = self.arms["grasper"]
                 jaw = tools.moved_towards(arm.jaw, tools.jaw_target(tool, self.params.jaw_command),
                                           self.params.tool_speed)
                 if self.params.hold_until_handoff:  # a held pin's jaw stays shut until the hand-off
-                    given &= self.holding < 0
-                arm.jaw = np.where(given, jaw, arm.jaw)
+                    given = given & (self.holding < 0)
+                arm.jaw = xp.where(given, jaw, arm.jaw)
         removed = self.drawn_ml = self._suction()
         self._bleed()
         lifted, delivered = self._grasping()
         self._fall()
-        self.elapsed += 1
+        self.elapsed = self.elapsed + 1
         self.contact = contact
         self.complete = self._complete()
         truncated = (self.elapsed >= self.limit) & ~self.complete
         rewards = self._rewards(removed, lifted, delivered, contact)
-        return rewards, self.complete.copy(), truncated
+        return rewards, _copy(self.complete), truncated
 
     @property
     def valve_open(self) -> np.ndarray:
@@ -329,33 +347,38 @@ class CollaborativeCore:
         p, rules = self.params, self.move_rules[agent]
         target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old, delta,
                                         slide_on_walls=rules.slide, **rules.descents)
+        xp = namespace(old, delta)
         previous_tip, previous_q = arm.tip, arm.q
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
         refused = clearance < 0.0  # instruments never pass through each other
-        self.blocked[agent] = refused.copy()  # (a person's cue: the move as commanded was refused, slid or not)
+        self.blocked[agent] = _copy(refused)  # (a person's cue: the move as commanded was refused, slid or not)
         if rules.slide:
-            stuck = refused | (cut & np.all(arm.tip == previous_tip, axis=1))
-            if stuck.any():
-                self._fall_back(agent, np.flatnonzero(stuck), old, delta, refused, clearance)
-        if refused.any():
-            arm.tip = np.where(refused[:, None], previous_tip, arm.tip)
-            arm.q = np.where(refused[:, None], previous_q, arm.q)
+            stuck = refused | (cut & xp.all(arm.tip == previous_tip, axis=1))
+            if needed(stuck):
+                refused, clearance = self._fall_back(agent, stuck, old, delta, refused, clearance)
+        if needed(refused):
+            arm.tip = xp.where(refused[:, None], previous_tip, arm.tip)
+            arm.q = xp.where(refused[:, None], previous_q, arm.q)
         return refused | (clearance < CONTACT_MARGIN)
 
-    def _fall_back(self, agent, rows, old, delta, refused, clearance) -> None:
-        """The blocked moves of ``rows`` slide (:func:`sliding.resolve_blocked`); ``refused`` and ``clearance``
-        are updated in place for those made."""
+    def _fall_back(self, agent, stuck, old, delta, refused, clearance):
+        """The blocked moves of the ``stuck`` worlds slide (:func:`sliding.resolve_blocked`); returns ``refused``
+        and ``clearance`` with those made."""
         p = self.params
         arm, other = self.arms[agent], self.arms[AGENTS[1 - AGENTS.index(agent)]]
+        rows = rows_of(stuck)
         made, tip, q, gap = sliding.resolve_blocked(
-            {"tool": arm.tool, "base": arm.base_position, "tip": old[rows]},
-            {"tool": other.tool, "base": other.base_position, "tip": other.tip_world()[rows]},
-            agent == "suction", delta[rows], self.cavities, p.tip_clearance, p.step_size, self.low, self.high,
+            {"tool": arm.tool, "base": arm.base_position, "tip": take(old, rows)},
+            {"tool": other.tool, "base": other.base_position, "tip": take(other.tip_world(), rows)},
+            agent == "suction", take(delta, rows), self.cavities, p.tip_clearance, p.step_size, self.low, self.high,
             **self.move_rules[agent].descents)
-        chosen = rows[made]
-        arm.tip[chosen], arm.q[chosen] = tip[made] - arm.base_position, q[made]
-        refused[chosen], clearance[chosen] = False, gap[made]
+        made_here = put(stuck & False, rows, stuck, made) & stuck  # (the worlds whose slide was made)
+        arm.tip = put(arm.tip, rows, made_here, namespace(tip).where(made[:, None], tip - arm.base_position,
+                                                                    take(arm.tip, rows)))
+        arm.q = put(arm.q, rows, made_here, namespace(q).where(made[:, None], q, take(arm.q, rows)))
+        return refused & ~made_here, put(clearance, rows, made_here, namespace(gap).where(made, gap,
+                                                                                          take(clearance, rows)))
 
     def instrument_clearance(self) -> np.ndarray:
         """Clearance between the two instruments in every world (m; they never intersect: never negative)."""
@@ -367,129 +390,150 @@ class CollaborativeCore:
         return instrument_clearance(a.base_position, a.wrist_world(), a.tip_world(),
                                     b.base_position, b.wrist_world(), b.tip_world())
 
-    def _suction(self) -> np.ndarray:
-        removed = np.zeros(self.num_worlds)
+    def _suction(self):
+        xp = namespace(self.remaining_ml)
+        removed = xp.zeros(self.remaining_ml.shape[:1], dtype=self.remaining_ml.dtype)
         open_ = self.valve_open
-        if not open_.any():
+        if not needed(open_):
             return removed
         tip = self.arms["suction"].tip_world()
         cavity = self.cavities.cavity_at(tip[:, 0], tip[:, 1])
-        safe = np.maximum(cavity, 0)
-        remaining = self.remaining_ml[self._rows, safe]
-        height = tip[:, 2] - self.surface_z[self._rows, safe]
+        safe = xp.maximum(cavity, 0)
+        remaining = _pick(self.remaining_ml, safe, xp)
+        height = tip[:, 2] - _pick(self.surface_z, safe, xp)
         reach = self.params.suction_reach
         if reach <= 0.0:  # the simple rule: full flow under the surface, none at or above it
-            flow = np.where(height < 0.0, 1.0, 0.0)
-        else:  # the single env's arithmetic: 1 at or below the surface, falling linearly to 0 at reach above it
-            flow = np.where(height <= 0.0, 1.0, np.where(height < reach, 1.0 - height / reach, 0.0))
+            flow = xp.where(height < 0.0, 1.0, 0.0)
+        else:  # 1 at or below the surface, falling linearly to 0 at reach above it
+            flow = xp.where(height <= 0.0, 1.0, xp.where(height < reach, 1.0 - height / reach, 0.0))
         sucking = open_ & (cavity >= 0) & (remaining > 0.0) & (flow > 0.0)
-        if not sucking.any():
+        if not needed(sucking):
             return removed
-        worlds, cavity = np.flatnonzero(sucking), safe[sucking]
-        amount = np.minimum(flow[sucking] * self.params.suction_rate_ml_s * self.params.control_dt,
-                            remaining[sucking])
-        self.remaining_ml[worlds, cavity] = np.maximum(remaining[sucking] - amount, 0.0)
-        self._update_surfaces(worlds, cavity)
-        removed[worlds] = amount
-        surface = self.surface_z[worlds, cavity]
-        revealed = ((self.debris_cavity[worlds] == cavity[:, None]) & ~self.visible[worlds]
-                    & (self.debris_position[worlds, :, 2] + PIN_RADIUS > surface[:, None]))
-        self.visible[worlds] |= revealed
+        amount = xp.minimum(flow * self.params.suction_rate_ml_s * self.params.control_dt, remaining)
+        drawn = self._in_cavity(safe, sucking)  # (N, C): the cavity each sucking world draws from
+        self.remaining_ml = xp.where(drawn, xp.maximum(remaining - amount, 0.0)[:, None], self.remaining_ml)
+        self._update_surfaces_where(drawn)
+        removed = xp.where(sucking, amount, removed)
+        surface = _pick(self.surface_z, safe, xp)
+        revealed = ((self.debris_cavity == safe[:, None]) & ~self.visible & sucking[:, None]
+                    & (self.debris_position[:, :, 2] + PIN_RADIUS > surface[:, None]))
+        self.visible = self.visible | revealed
         return removed
 
-    def _grasping(self) -> tuple[np.ndarray, np.ndarray]:
+    def _in_cavity(self, cavity, where):
+        """(N, C): True at each world's ``cavity`` where ``where`` holds."""
+        xp = namespace(cavity)
+        return (xp.arange(self.cavities.count)[None, :] == cavity[:, None]) & where[:, None]
+
+    def _update_surfaces_where(self, changed) -> None:
+        """The blood's surface again where ``changed`` (N, C) says its volume changed."""
+        if isinstance(changed, np.ndarray):  # numpy: those cavities only (a surface is 30 Newton steps)
+            worlds, cavity = np.nonzero(changed)
+            if len(worlds):
+                self._update_surfaces(worlds, cavity)
+            return
+        xp = namespace(changed)
+        cavity = xp.broadcast_to(xp.arange(self.cavities.count)[None, :], changed.shape)
+        surfaces = xp.asarray(self.cavities.floor_z)[cavity] + self.cavities.fill_depth(cavity, self.remaining_ml)
+        self.surface_z = xp.where(changed, surfaces, self.surface_z)
+
+    def _grasping(self):
         """The paper's grasp rule for the LND and the hand-off. Returns per-world (first lifts, deliveries)."""
-        n = self.num_worlds
-        lifted = np.zeros(n)
-        delivered = np.zeros(n)
+        xp = namespace(self.debris_position)
+        n, d = self.debris_position.shape[:2]
+        pins_of = xp.arange(d)[None, :]
+        lifted = xp.zeros((n,), dtype=self.debris_position.dtype)
+        delivered = xp.zeros((n,), dtype=self.debris_position.dtype)
         tip = self.arms["grasper"].tip_world()
         closed = self.arms["grasper"].jaw < self.params.grasp_threshold
         holding = self.holding >= 0
         release = holding & ~closed
-        if release.any():  # released away from the assistant: it drops onto the surface below it
-            worlds = np.flatnonzero(release)
-            pins = self.holding[worlds]
+        if needed(release):  # released away from the assistant: it drops onto the surface below it
+            dropped = (pins_of == self.holding[:, None]) & release[:, None]  # (N, D)
+            position = self.debris_position
             if self.params.pins_stay_on_phantom:  # beyond the phantom, it lands on the nearest edge (in view)
-                position = self.debris_position[worlds, pins]
-                x, y = self.cavities.nearest_on_top(position[:, 0], position[:, 1], PHANTOM_EDGE_MARGIN)
-                self.debris_position[worlds, pins, 0], self.debris_position[worlds, pins, 1] = x, y
+                x, y = self.cavities.nearest_on_top(position[..., 0], position[..., 1], PHANTOM_EDGE_MARGIN)
+                position = xp.where(dropped[..., None], xp.stack([x, y, position[..., 2]], axis=-1), position)
             if self.params.pins_fall:  # it falls (see _fall)
-                self.fall_speed[worlds, pins] = 0.0
+                self.fall_speed = xp.where(dropped, 0.0, self.fall_speed)
             else:  # the simple rule: it appears on the surface below it at once
-                position = self.debris_position[worlds, pins]
-                self.debris_position[worlds, pins, 2] = self._surface(position[:, 0], position[:, 1]) + PIN_RADIUS
-            self.held[worlds, pins] = False
-            self.holding[worlds] = -1
+                z = self._surface(position[..., 0], position[..., 1]) + PIN_RADIUS
+                position = xp.where(dropped[..., None], xp.stack([position[..., 0], position[..., 1], z], axis=-1),
+                                    position)
+            self.debris_position = position
+            self.held = self.held & ~dropped
+            self.holding = xp.where(release, -1, self.holding)
         grab = ~holding & closed
-        if grab.any():
-            worlds = np.flatnonzero(grab)
-            position = self.debris_position[worlds]
-            yaw = self.debris_yaw[worlds]
-            axis = np.zeros(position.shape)
-            axis[..., 0] = PIN_HALF_LENGTH * np.cos(yaw)
-            axis[..., 1] = PIN_HALF_LENGTH * np.sin(yaw)
-            grip = _closest_on_segment(tip[worlds, None, :], position - axis, position + axis)
-            distance = _distance(tip[worlds, None, :], grip)
-            seen = self.visible[worlds] & ~self.delivered[worlds] & (distance <= PIN_SENSOR_RANGE)
-            found = seen.any(axis=1)
-            worlds, pins = worlds[found], np.argmax(seen[found], axis=1)
-            self.holding[worlds] = pins
-            self.held[worlds, pins] = True
-            self.fall_speed[worlds, pins] = np.nan  # caught
-            self.hold_offset[worlds] = self.debris_position[worlds, pins] - tip[worlds]
-            self.grip_offset[worlds] = grip[found][np.arange(len(worlds)), pins] - tip[worlds]
-            first = ~self.lifted[worlds, pins]
-            self.lifted[worlds, pins] = True
-            lifted[worlds] = first.astype(np.float64)
+        if needed(grab):
+            position, yaw = self.debris_position, self.debris_yaw
+            axis = xp.stack([PIN_HALF_LENGTH * xp.cos(yaw), PIN_HALF_LENGTH * xp.sin(yaw), 0.0 * yaw], axis=-1)
+            grip = _closest_on_segment(tip[:, None, :], position - axis, position + axis)  # (N, D, 3)
+            distance = _distance(tip[:, None, :], grip)
+            seen = self.visible & ~self.delivered & (distance <= PIN_SENSOR_RANGE) & grab[:, None]
+            found = xp.any(seen, axis=1)
+            pins = xp.argmax(seen * 1, axis=1)  # the first pin in reach
+            chosen = (pins_of == pins[:, None]) & found[:, None]
+            first = found & ~xp.any(self.lifted & chosen, axis=1)
+            self.holding = xp.where(found, pins, self.holding)
+            self.held = self.held | chosen
+            self.fall_speed = xp.where(chosen, float("nan"), self.fall_speed)  # caught
+            self.hold_offset = xp.where(found[:, None], _pick(position, pins, xp) - tip, self.hold_offset)
+            self.grip_offset = xp.where(found[:, None], _pick(grip, pins, xp) - tip, self.grip_offset)
+            self.lifted = self.lifted | chosen
+            lifted = xp.where(found, xp.astype(first, lifted.dtype), lifted)
         holding = self.holding >= 0
-        if holding.any():
-            worlds = np.flatnonzero(holding)
-            pins = self.holding[worlds]
-            position = tip[worlds] + self.hold_offset[worlds]
-            self.debris_position[worlds, pins] = position
+        if needed(holding):
+            carried = (pins_of == self.holding[:, None]) & holding[:, None]
+            position = tip + self.hold_offset
+            self.debris_position = xp.where(carried[..., None], position[:, None, :], self.debris_position)
             if self.params.deliver_at_grip:  # judged where the jaws hold the pin
-                position = tip[worlds] + self.grip_offset[worlds]
-            arrived = _distance(position, self.handoff) <= self.params.distance_threshold
-            worlds, pins = worlds[arrived], pins[arrived]
-            self.held[worlds, pins] = False
-            self.delivered[worlds, pins] = True
-            self.holding[worlds] = -1
-            delivered[worlds] = 1.0
+                position = tip + self.grip_offset
+            arrived = holding & (_distance(position, self.handoff) <= self.params.distance_threshold)
+            handed = carried & arrived[:, None]
+            self.held = self.held & ~handed
+            self.delivered = self.delivered | handed
+            self.holding = xp.where(arrived, -1, self.holding)
+            delivered = xp.where(arrived, 1.0, delivered)
         return lifted, delivered
 
     def _bleed(self) -> None:
         """Each bleeding cavity gains rate x dt of blood (up to its capacity) once its onset has passed."""
         if self.params.bleeding_ml_s <= 0.0:
             return
+        xp = namespace(self.remaining_ml)
         dt = self.params.control_dt
         now = self.elapsed * dt
-        bleeding = (now[:, None] >= self.bleed_onset)
-        if not bleeding.any():
+        bleeding = now[:, None] >= self.bleed_onset
+        if not needed(bleeding):
             return
-        worlds, cavity = np.nonzero(bleeding)
-        room = self.cavities.capacity_ml[cavity] - self.remaining_ml[worlds, cavity]
-        added = np.minimum(self.bleed_rate[worlds, cavity] * dt, room)
+        room = self.cavities.capacity_ml - self.remaining_ml
+        added = xp.where(bleeding, xp.minimum(self.bleed_rate * dt, room), 0.0)
         grew = added > 0.0
-        worlds, cavity, added = worlds[grew], cavity[grew], added[grew]
-        self.remaining_ml[worlds, cavity] += added
-        self.added_ml[worlds, cavity] += added
-        self._update_surfaces(worlds, cavity)
+        self.remaining_ml = xp.where(grew, self.remaining_ml + added, self.remaining_ml)
+        self.added_ml = xp.where(grew, self.added_ml + added, self.added_ml)
+        self._update_surfaces_where(grew)
 
     def _fall(self) -> None:
-        """Released pins fall under gravity onto the surface below them (the single env's arithmetic)."""
+        """Released pins fall under gravity onto the surface below them."""
         if not self.params.pins_fall:  # the simple rule: released pins never fall
             return
-        falling = ~np.isnan(self.fall_speed)
-        if not falling.any():
+        xp = namespace(self.fall_speed)
+        falling = ~xp.isnan(self.fall_speed)
+        if not needed(falling):
             return
         dt = self.params.control_dt
-        worlds, pins = np.nonzero(falling)
-        speed = self.fall_speed[worlds, pins] + GRAVITY * dt
-        position = self.debris_position[worlds, pins]
+        n, d = falling.shape
+        flat = xp.reshape(falling, (n * d,))
+        rows = rows_of(flat)
+        speed = take(xp.reshape(self.fall_speed, (n * d,)), rows) + GRAVITY * dt
+        position = take(xp.reshape(self.debris_position, (n * d, 3)), rows)
         floor = self._surface(position[:, 0], position[:, 1]) + PIN_RADIUS
-        z = np.maximum(position[:, 2] - speed * dt, floor)
-        self.debris_position[worlds, pins, 2] = z
-        self.fall_speed[worlds, pins] = np.where(z <= floor, np.nan, speed)
+        z = xp.maximum(position[:, 2] - speed * dt, floor)
+        landed = xp.where(z <= floor, float("nan"), speed)
+        moved = xp.stack([position[:, 0], position[:, 1], z], axis=1)
+        self.debris_position = xp.reshape(put(xp.reshape(self.debris_position, (n * d, 3)), rows, flat, moved),
+                                          (n, d, 3))
+        self.fall_speed = xp.reshape(put(xp.reshape(self.fall_speed, (n * d,)), rows, flat, landed), (n, d))
 
     def _surface(self, x, y):
         return self.cavities.surface_height(x, y)
@@ -498,17 +542,19 @@ class CollaborativeCore:
         """(N, C): which cavities are clear (below the threshold, or empty)."""
         return (self.remaining_ml < self.params.blood_threshold_ml) | (self.remaining_ml <= 0.0)
 
-    def _complete(self) -> np.ndarray:
-        return self._cleared().all(axis=1) & self.delivered.all(axis=1)
+    def _complete(self):
+        xp = namespace(self.remaining_ml)
+        return xp.all(self._cleared(), axis=1) & xp.all(self.delivered, axis=1)
 
-    def is_complete(self) -> np.ndarray:
+    def is_complete(self):
         """(N,) whether each world's field is clear now: every cavity cleared, every pin delivered."""
         return self._complete()
 
     def _rewards(self, removed, lifted, delivered, contact) -> dict:
+        xp = namespace(removed)
         if self.sparse:
-            team = np.where(self.complete, 0.0, -1.0)
-            rewards = {agent: team.copy() for agent in self.rewarded_agents}
+            team = xp.where(self.complete, 0.0, -1.0)
+            rewards = {agent: team * 1.0 for agent in self.rewarded_agents}  # (an array each)
         else:
             team = removed + 2.0 * lifted + 5.0 * delivered
             rewards = {}
@@ -517,40 +563,39 @@ class CollaborativeCore:
                 distance = self._work_distance(agent)
                 rewards[agent] = team + 10.0 * (self.work_distance[agent] - distance)
                 self.work_distance[agent] = distance
-        if contact.any():
+        if needed(contact):
             for agent in rewards:
-                rewards[agent] = np.where(contact, rewards[agent] - self.params.contact_penalty, rewards[agent])
+                rewards[agent] = xp.where(contact, rewards[agent] - self.params.contact_penalty, rewards[agent])
         return rewards
 
-    def _work_distance(self, agent: str) -> np.ndarray:
+    def _work_distance(self, agent: str):
         """Distance (m) from the agent's tip to what it should work on next (0 when nothing is left)."""
         tip = self.arms[agent].tip_world()
+        xp = namespace(tip)
         if agent == "suction":
-            c = self.cavities
-            bottoms = np.stack([c.centre_x, c.centre_y, c.floor_z], axis=1)  # (C, 3)
-            distance = _distance(tip[:, None, :], bottoms)
+            distance = _distance(tip[:, None, :], self._cavity_bottoms)
             pending = (self.remaining_ml >= self.params.blood_threshold_ml) & (self.remaining_ml > 0.0)
         else:
             distance = _distance(tip[:, None, :], self.debris_position)
             pending = self.visible & ~self.delivered
-        nearest = np.where(pending, distance, np.inf).min(axis=1)
-        nearest = np.where(pending.any(axis=1), nearest, 0.0)
+        nearest = xp.min(xp.where(pending, distance, float("inf")), axis=1)
+        nearest = xp.where(xp.any(pending, axis=1), nearest, 0.0)
         if agent == "grasper":
             holding = self.holding >= 0
-            if holding.any():
-                worlds = np.flatnonzero(holding)
-                held = self.shown_positions()[worlds, self.holding[worlds]]
-                nearest[worlds] = _distance(held, self.handoff)
+            if needed(holding):
+                held = _pick(self.shown_positions(), xp.maximum(self.holding, 0), xp)
+                nearest = xp.where(holding, _distance(held, self.handoff), nearest)
         return nearest
 
     # --- observations -------------------------------------------------------------------------------------
-    def _blood_fraction(self) -> np.ndarray:
+    def _blood_fraction(self):
         """Each cavity's blood as a fraction of what it started with (of its capacity if it started empty), at most
         :data:`OBSERVATION_BOUND` (a bleed into a cavity that started nearly empty would leave the space)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            fraction = np.where(self.initial_ml > 0.0, self.remaining_ml / self.initial_ml,
-                                self.remaining_ml / self.cavities.capacity_ml)
-        return np.minimum(fraction, OBSERVATION_BOUND)
+        xp = namespace(self.remaining_ml)
+        started = self.initial_ml > 0.0
+        fraction = xp.where(started, self.remaining_ml / xp.where(started, self.initial_ml, 1.0),
+                            self.remaining_ml / self.cavities.capacity_ml)
+        return xp.minimum(fraction, OBSERVATION_BOUND)
 
     def observation(self, agent: str) -> np.ndarray:
         """(N, obs_dim): the agent's observation in every world (layout: the env's ``observation_layout``)."""
@@ -558,81 +603,81 @@ class CollaborativeCore:
 
     def observations(self, agents=AGENTS) -> dict:
         """``{agent: (N, obs_dim)}`` for ``agents``; what they share (tips, blood, pins) is computed once."""
-        n, c, d = self.num_worlds, self.cavities.count, self.params.debris_count
+        xp = namespace(self.remaining_ml)
+        n, d = self.debris_position.shape[:2]
         tips = {agent: self.normalise(self.arms[agent].tip_world()) for agent in AGENTS}
         tools_ = {"suction": 2.0 * self.valve_opening - 1.0, "grasper": 2.0 * self.arms["grasper"].jaw - 1.0}
-        blood = self._blood_fraction()
         shown = self.visible & ~self.delivered
-        pins = np.where(shown[..., None], self.normalise(self.shown_positions()), 0.0)
-        out = {}
-        for agent in agents:
-            other = "grasper" if agent == "suction" else "suction"
-            row = np.empty((n, 10 + c + 6 * d))
-            row[:, 0:3], row[:, 3], row[:, 4:7] = tips[agent], tools_[agent], tips[other]
-            row[:, 7:7 + c] = blood
-            debris = row[:, 7 + c:7 + c + 6 * d].reshape(n, d, 6)
-            debris[..., 0:3] = pins
-            debris[..., 3], debris[..., 4], debris[..., 5] = self.visible, self.held, self.delivered
-            row[:, 7 + c + 6 * d:] = self.handoff_normalised
-            out[agent] = row
-        return out
+        pins = self._pins(xp.where(shown[..., None], self.normalise(self.shown_positions()), 0.0), xp)
+        blood, handoff = self._blood_fraction(), self._handoff_rows(n, xp)
+        return {agent: xp.concat([tips[agent], tools_[agent][:, None], tips[AGENTS[1 - AGENTS.index(agent)]], blood,
+                                  pins, handoff], axis=1) for agent in agents}
 
-    def shown_positions(self) -> np.ndarray:
+    def _pins(self, positions, xp):
+        """(N, 6 D): each pin's position, then whether it is visible, held, delivered."""
+        n, d = positions.shape[:2]
+        flags = [xp.astype(flag, positions.dtype)[..., None] for flag in (self.visible, self.held, self.delivered)]
+        return xp.reshape(xp.concat([positions, *flags], axis=-1), (n, 6 * d))
+
+    def _handoff_rows(self, n, xp):
+        return xp.broadcast_to(xp.asarray(self.handoff_normalised, dtype=self.remaining_ml.dtype)[None, :], (n, 3))
+
+    def shown_positions(self):
         """(N, D, 3) world: where observations, the state and the dense reward's carry place the pins: their centres,
         a held pin with ``held_pin_at_grip`` where the jaws hold it, the point the hand-off judges."""
         if not (self.params.held_pin_at_grip and self.params.deliver_at_grip):  # (without the grip rule: the centre)
             return self.debris_position
         holding = self.holding >= 0
-        if not holding.any():
+        if not needed(holding):
             return self.debris_position
-        shown = self.debris_position.copy()
-        worlds = np.flatnonzero(holding)
-        shown[worlds, self.holding[worlds]] = self.arms["grasper"].tip_world()[worlds] + self.grip_offset[worlds]
-        return shown
+        xp = namespace(self.debris_position)
+        at = (xp.arange(self.debris_position.shape[1])[None, :] == self.holding[:, None]) & holding[:, None]
+        grip = self.arms["grasper"].tip_world() + self.grip_offset
+        return xp.where(at[..., None], grip[:, None, :], self.debris_position)
 
-    def state(self) -> np.ndarray:
+    def state(self):
         """(N, state_dim): tips, valve, jaw, blood, every debris (hidden included), hand-off point."""
-        n, c, d = self.num_worlds, self.cavities.count, self.params.debris_count
-        out = np.empty((n, 11 + c + 6 * d))
-        out[:, 0:3] = self.normalise(self.arms["suction"].tip_world())
-        out[:, 3] = 2.0 * self.valve_opening - 1.0
-        out[:, 4:7] = self.normalise(self.arms["grasper"].tip_world())
-        out[:, 7] = 2.0 * self.arms["grasper"].jaw - 1.0
-        out[:, 8:8 + c] = self._blood_fraction()
-        debris = out[:, 8 + c:8 + c + 6 * d].reshape(n, d, 6)
-        debris[..., 0:3] = self.normalise(self.shown_positions())
-        debris[..., 3], debris[..., 4], debris[..., 5] = self.visible, self.held, self.delivered
-        out[:, 8 + c + 6 * d:] = self.handoff_normalised
-        return out
+        xp = namespace(self.remaining_ml)
+        n = self.debris_position.shape[0]
+        return xp.concat([self.normalise(self.arms["suction"].tip_world()), (2.0 * self.valve_opening - 1.0)[:, None],
+                          self.normalise(self.arms["grasper"].tip_world()),
+                          (2.0 * self.arms["grasper"].jaw - 1.0)[:, None], self._blood_fraction(),
+                          self._pins(self.normalise(self.shown_positions()), xp), self._handoff_rows(n, xp)], axis=1)
 
     def info(self) -> dict:
         """Per-world figures (arrays of leading dimension N), the single env's info keys."""
+        xp = namespace(self.remaining_ml)
         return {
-            "blood_remaining": self.remaining_ml.sum(axis=1),
-            "blood_remaining_per_cavity": self.remaining_ml.copy(),
-            "debris_delivered": self.delivered.sum(axis=1),
-            "collision": self.contact.copy(),
-            "is_success": self.complete.copy(),
+            "blood_remaining": xp.sum(self.remaining_ml, axis=1),
+            "blood_remaining_per_cavity": _copy(self.remaining_ml),
+            "debris_delivered": xp.sum(xp.astype(self.delivered, xp.int64), axis=1),
+            "collision": _copy(self.contact),
+            "is_success": _copy(self.complete),
         }
 
     def snapshot(self) -> dict:
         """Every world's state (copies): :data:`STATE_FIELDS`, and per arm ``"<agent>.tip"``, ``".q"``, ``".jaw"`` and
         ``".work_distance"``. :meth:`restore` puts it back; a step from it is the step from the state it was taken in
         (the golden trajectories hold the step to that, step by step)."""
-        state = {name: getattr(self, name).copy() for name in STATE_FIELDS}
+        state = {name: _copy(getattr(self, name)) for name in STATE_FIELDS}
         for agent, arm in self.arms.items():
-            state.update({f"{agent}.{name}": getattr(arm, name).copy() for name in ARM_FIELDS})
-            state[f"{agent}.work_distance"] = self.work_distance[agent].copy()
+            state.update({f"{agent}.{name}": _copy(getattr(arm, name)) for name in ARM_FIELDS})
+            state[f"{agent}.work_distance"] = _copy(self.work_distance[agent])
         return state
 
     def restore(self, state: dict) -> None:
-        """Put back a :meth:`snapshot` (of as many worlds as this core has)."""
+        """Put back a :meth:`snapshot` (of as many worlds as this core has). numpy arrays are copied in; another
+        library's (JAX's, say) are taken as they are, and the core then steps on that library."""
+
+        def value(given, like):
+            return np.array(given, dtype=like.dtype) if isinstance(given, (np.ndarray, list, tuple)) else given
+
         for name in STATE_FIELDS:
-            setattr(self, name, np.array(state[name], dtype=getattr(self, name).dtype))
+            setattr(self, name, value(state[name], getattr(self, name)))
         for agent, arm in self.arms.items():
             for name in ARM_FIELDS:
-                setattr(arm, name, np.array(state[f"{agent}.{name}"], dtype=np.float64))
-            self.work_distance[agent] = np.array(state[f"{agent}.work_distance"], dtype=np.float64)
+                setattr(arm, name, value(state[f"{agent}.{name}"], getattr(arm, name)))
+            self.work_distance[agent] = value(state[f"{agent}.work_distance"], self.work_distance[agent])
 
     @property
     def removed_ml(self) -> np.ndarray:

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 import array_api_compat.numpy  # noqa: F401  (numpy's namespace, loaded now rather than on the first step)
-from array_api_compat import array_namespace
 
 from dvrl_marl import assets
+from dvrl_marl.core.backend import namespace
 
 __all__ = ["SHAFT_RADIUS", "WRIST_RADIUS", "segment_distance", "segment_offset", "instrument_clearance",
            "contact_normal"]
@@ -23,13 +23,6 @@ SHAFT_RADIUS = assets.SHAFT_RADIUS
 WRIST_RADIUS = {"suction": assets.SUCTION_TUBE_RADIUS, "grasper": 0.0025}
 
 
-_NUMPY = array_namespace(np.empty(0))
-
-
-def _namespace(*arrays):
-    """The arrays' namespace; numpy's own for numpy arrays (its functions, without the compatibility layer's calls)."""
-    xp = array_namespace(*arrays)
-    return np if xp is _NUMPY else xp
 
 
 def _dot(u, v):
@@ -52,14 +45,14 @@ def _divide(numerator, denominator, safe, xp):
 
 def segment_distance(p1, q1, p2, q2, xp=None):
     """Shortest distances between segments p1-q1 and p2-q2, batched over leading axes (..., 3)."""
-    xp = xp or _namespace(p1, q1, p2, q2)
+    xp = xp or namespace(p1, q1, p2, q2)
     difference = segment_offset(p1, q1, p2, q2, xp)
     return xp.sqrt(_dot(difference, difference))
 
 
 def segment_offset(p1, q1, p2, q2, xp=None):
     """From the point of segment p2-q2 nearest segment p1-q1 to the point of p1-q1 nearest it, (..., 3)."""
-    xp = xp or _namespace(p1, q1, p2, q2)
+    xp = xp or namespace(p1, q1, p2, q2)
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e, f, c, b = _dot(d1, d1), _dot(d2, d2), _dot(d2, r), _dot(d1, r), _dot(d1, d2)
     denominator = a * e - b * b
@@ -73,17 +66,20 @@ def segment_offset(p1, q1, p2, q2, xp=None):
     return r + d1 * s[..., None] - d2 * t[..., None]
 
 
-def contact_normal(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b) -> np.ndarray:
+def contact_normal(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b):
     """The unit normal between the suction (a) and the grasper (b) where they come closest (the pair of segments
     with the least clearance), pointing from b to a: ``(M, 3)``."""
+    xp = namespace(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b)
     ra, rb = WRIST_RADIUS["suction"], WRIST_RADIUS["grasper"]
     pairs = ((rcm_a, wrist_a, rcm_b, wrist_b, 2 * SHAFT_RADIUS), (rcm_a, wrist_a, wrist_b, tip_b, SHAFT_RADIUS + rb),
              (wrist_a, tip_a, rcm_b, wrist_b, ra + SHAFT_RADIUS), (wrist_a, tip_a, wrist_b, tip_b, ra + rb))
-    offsets = np.stack([np.broadcast_to(segment_offset(*pair[:4]), np.shape(tip_a)) for pair in pairs])
-    lengths = np.sqrt(_dot(offsets, offsets))
-    nearest = np.argmin(lengths - np.array([pair[4] for pair in pairs])[:, None], axis=0)
-    rows = np.arange(lengths.shape[1])
-    return offsets[nearest, rows] / np.maximum(lengths[nearest, rows], 1e-12)[:, None]
+    offsets = xp.stack([xp.broadcast_to(segment_offset(*pair[:4], xp=xp), tip_a.shape) for pair in pairs])
+    lengths = xp.sqrt(_dot(offsets, offsets))  # (4, M)
+    nearest = xp.argmin(lengths - xp.asarray([[pair[4]] for pair in pairs], dtype=lengths.dtype), axis=0)
+    chosen = xp.arange(4)[:, None] == nearest[None, :]  # (4, M): the nearest pair of each row
+    offset = xp.sum(xp.where(chosen[..., None], offsets, 0.0), axis=0)
+    length = xp.sum(xp.where(chosen, lengths, 0.0), axis=0)
+    return offset / xp.maximum(length, 1e-12)[:, None]
 
 
 #: Batches up to this many points take the four pairs of segments in one call (numpy's per-call cost dominates
@@ -94,7 +90,7 @@ _STACKED_BELOW = 64
 def instrument_clearance(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b):
     """Clearance between the suction (a) and the grasper (b), each a shaft RCM-wrist and a wrist-tip segment
     (negative when they intersect). Both ways of computing it give the same floating-point results."""
-    xp = _namespace(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b)  # (one backend for all six)
+    xp = namespace(rcm_a, wrist_a, tip_a, rcm_b, wrist_b, tip_b)  # (one backend for all six)
     ra, rb = WRIST_RADIUS["suction"], WRIST_RADIUS["grasper"]
     pairs = ((rcm_a, wrist_a, rcm_b, wrist_b), (rcm_a, wrist_a, wrist_b, tip_b), (wrist_a, tip_a, rcm_b, wrist_b),
              (wrist_a, tip_a, wrist_b, tip_b))

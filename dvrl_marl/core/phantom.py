@@ -160,15 +160,15 @@ class Cavities:
         inside = self._r2(x, y) < self.mouth_radius**2
         return xp.where(xp.any(inside, axis=-1), xp.argmax(inside * 1, axis=-1), -1)
 
-    def _of(self, values, cavity):
+    def per_cavity(self, values, cavity):
         """``values`` (one per cavity) of each element of ``cavity`` (indices)."""
         return values[cavity] if isinstance(cavity, np.ndarray) else namespace(cavity).asarray(values)[cavity]
 
     def fill_depth(self, cavity, volume_ml):
         """:meth:`Cavity.fill_depth` element-wise (the same Newton iterations, each element stopping on its own)."""
         xp = namespace(volume_ml)
-        depth, radius = self._of(self.depth, cavity), self._of(self.sphere_radius, cavity)
-        capacity = self._of(self.capacity_ml, cavity)
+        depth, radius = self.per_cavity(self.depth, cavity), self.per_cavity(self.sphere_radius, cavity)
+        capacity = self.per_cavity(self.capacity_ml, cavity)
         target = volume_ml * _ML * 3.0 / math.pi
         h = xp.minimum(xp.sqrt(xp.maximum(target, 0.0) / (3.0 * radius)), depth)  # (a negative volume: none)
         active = (volume_ml > 0.0) & (volume_ml < capacity)
@@ -184,5 +184,5 @@ class Cavities:
 
     def surface_radius(self, cavity, fill_depth):
         xp = namespace(fill_depth)
-        h = xp.minimum(xp.maximum(fill_depth, 0.0), self._of(self.depth, cavity))
-        return xp.sqrt(xp.maximum(h * (2.0 * self._of(self.sphere_radius, cavity) - h), 0.0))
+        h = xp.minimum(xp.maximum(fill_depth, 0.0), self.per_cavity(self.depth, cavity))
+        return xp.sqrt(xp.maximum(h * (2.0 * self.per_cavity(self.sphere_radius, cavity) - h), 0.0))

@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dvrl_marl import kinematics
+from dvrl_marl.core.backend import columns, namespace, needed
 from dvrl_marl.core.instruments import contact_normal, instrument_clearance
 
 __all__ = ["MoveRules", "BLOCKED_MOVES", "wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT",
@@ -92,25 +93,32 @@ class MoveRules:
         return {"climb": self.climb, "ahead": self.ahead, "settle": self.settle}
 
 
-def wall_slide(cavities, old: np.ndarray, delta: np.ndarray) -> np.ndarray:
+def wall_slide(cavities, old, delta):
     """``delta`` (N, 3) less its component into the wall of the cavity that ``old`` (N, 3, world) lies over (the
     sphere's inward normal at the tip); unchanged for a tip over no cavity or a move away from the wall."""
+    xp = namespace(old, delta)
     cavity = cavities.cavity_at(old[:, 0], old[:, 1])
     over = cavity >= 0
-    index = np.maximum(cavity, 0)
-    radius = cavities.sphere_radius[index]
-    centre = np.stack([cavities.centre_x[index], cavities.centre_y[index],
-                       cavities.phantom.top_z - cavities.depth[index] + radius], axis=1)
+    index = xp.maximum(cavity, 0)
+    radius = cavities.per_cavity(cavities.sphere_radius, index)
+    centre = columns((cavities.per_cavity(cavities.centre_x, index), cavities.per_cavity(cavities.centre_y, index),
+                      cavities.phantom.top_z - cavities.per_cavity(cavities.depth, index) + radius), xp)
     normal = centre - old
-    length = np.sqrt((normal * normal).sum(axis=1))
-    normal = normal / np.maximum(length, 1e-12)[:, None]
-    into = np.minimum((delta * normal).sum(axis=1), 0.0)
-    return np.where(over[:, None], delta - into[:, None] * normal, delta)
+    length = xp.sqrt(xp.sum(normal * normal, axis=1))
+    normal = normal / xp.maximum(length, 1e-12)[:, None]
+    into = xp.minimum(xp.sum(delta * normal, axis=1), 0.0)
+    return xp.where(over[:, None], delta - into[:, None] * normal, delta)
 
 
-def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray, high: np.ndarray,
-                   old: np.ndarray, delta: np.ndarray, slide_on_walls: bool = True, climb: bool = False,
-                   ahead: bool = False, settle: bool = False) -> np.ndarray:
+_LEVEL = np.array([1.0, 1.0, 0.0])  # keeps a move's level part
+
+
+def _length(v, xp):
+    return xp.sqrt(xp.sum(v * v, axis=1))
+
+
+def surface_target(cavities, tip_clearance: float, step: float, low, high, old, delta, slide_on_walls: bool = True,
+                   climb: bool = False, ahead: bool = False, settle: bool = False):
     """Where a tip at ``old`` (N, 3, world) commanded by ``delta`` goes against the box and the phantom: clamped to
     the box ``[low, high]``; below the surface, up a slope of at most one ``step`` onto it; against a steeper wall
     slid along it (:func:`wall_slide`), then, if the move still enters the wall, only its vertical part (all that
@@ -122,97 +130,102 @@ def surface_target(cavities, tip_clearance: float, step: float, low: np.ndarray,
     is made as under ``climb``). ``settle``: a descending move that still makes less than :data:`NO_HEADWAY` of its
     length, over a cavity, slides down the bowl where that makes more (its component into the wall taken away,
     :func:`wall_slide`, on the gentle slopes too)."""
+    xp = namespace(old, delta)
     target = _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls)
     if climb:
-        length = np.sqrt((delta * delta).sum(axis=1))
-        made = np.sqrt(((target - old) ** 2).sum(axis=1))
-        level = delta * np.array([1.0, 1.0, 0.0])
-        heading = np.zeros(len(delta), dtype=bool)
+        length = _length(delta, xp)
+        made = _length(target - old, xp)
+        level = delta * _LEVEL if xp is np else delta * xp.asarray(_LEVEL, dtype=delta.dtype)
+        heading = xp.zeros(delta.shape[:1], dtype=xp.bool)
         if ahead:  # a move with a level part: the made part's advance the way it heads
-            level_length = np.sqrt((level * level).sum(axis=1))
+            level_length = _length(level, xp)
             heading = level_length >= NO_HEADWAY * length
-            advance = ((target - old) * level).sum(axis=1) / np.maximum(level_length, 1e-300)
-            made = np.where(heading, advance, made)
+            advance = xp.sum((target - old) * level, axis=1) / xp.maximum(level_length, 1e-300)
+            made = xp.where(heading, advance, made)
         stalled = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length)
-        if stalled.any():
+        if needed(stalled):
             climbed = _surface_target(cavities, tip_clearance, step, low, high, old, level, slide_on_walls)
             if ahead:  # only where the level part gets further that way (not into the box's face, say)
-                further = ((climbed - old) * level).sum(axis=1) / np.maximum(level_length, 1e-300) > made
-                stalled &= ~heading | further
-            target = np.where(stalled[:, None], climbed, target)
+                further = xp.sum((climbed - old) * level, axis=1) / xp.maximum(level_length, 1e-300) > made
+                stalled = stalled & (~heading | further)
+            target = xp.where(stalled[:, None], climbed, target)
     if settle:
-        length = np.sqrt((delta * delta).sum(axis=1))
-        made = np.sqrt(((target - old) ** 2).sum(axis=1))
+        length = _length(delta, xp)
+        made = _length(target - old, xp)
         resting = (delta[:, 2] < 0.0) & (made < NO_HEADWAY * length)
-        if resting.any():  # (the cavity lookup only then: most steps make headway)
-            resting &= cavities.cavity_at(old[:, 0], old[:, 1]) >= 0
+        if needed(resting):  # (the cavity lookup only then: most steps make headway)
+            resting = resting & (cavities.cavity_at(old[:, 0], old[:, 1]) >= 0)
             settled = _surface_target(cavities, tip_clearance, step, low, high, old, wall_slide(cavities, old, delta),
                                       slide_on_walls)
-            resting &= np.sqrt(((settled - old) ** 2).sum(axis=1)) > made  # never less than ``ahead`` makes
-            target = np.where(resting[:, None], settled, target)
+            resting = resting & (_length(settled - old, xp) > made)  # never less than ``ahead`` makes
+            target = xp.where(resting[:, None], settled, target)
     return target
 
 
 def _surface_target(cavities, tip_clearance, step, low, high, old, delta, slide_on_walls):
     """:func:`surface_target` without ``climb``."""
+    xp = namespace(old, delta)
 
     def floor(x, y):
         return cavities.surface_height(x, y) + tip_clearance
 
-    target = np.minimum(np.maximum(old + delta, low), high)
+    target = xp.minimum(xp.maximum(old + delta, low), high)
     ground = floor(target[:, 0], target[:, 1])
     into_wall = (target[:, 2] < ground) & (ground - old[:, 2] > step + 1e-12)
-    if slide_on_walls and into_wall.any():
-        slid = np.minimum(np.maximum(old + wall_slide(cavities, old, target - old), low), high)
-        target = np.where(into_wall[:, None], slid, target)
+    if slide_on_walls and needed(into_wall):
+        slid = xp.minimum(xp.maximum(old + wall_slide(cavities, old, target - old), low), high)
+        target = xp.where(into_wall[:, None], slid, target)
         ground = floor(target[:, 0], target[:, 1])
     x, y, z = target[:, 0], target[:, 1], target[:, 2]
     below = z < ground
-    if below.any():
+    if needed(below):
         gentle = below & (ground - old[:, 2] <= step + 1e-12)
         wall = below & ~gentle
-        x = np.where(wall, old[:, 0], x)
-        y = np.where(wall, old[:, 1], y)
-        z = np.where(gentle, ground, np.where(wall, np.maximum(z, floor(old[:, 0], old[:, 1])), z))
-        target = np.stack([x, y, z], axis=1)
+        x = xp.where(wall, old[:, 0], x)
+        y = xp.where(wall, old[:, 1], y)
+        z = xp.where(gentle, ground, xp.where(wall, xp.maximum(z, floor(old[:, 0], old[:, 1])), z))
+        target = columns((x, y, z), xp)
     return target
 
 
-def fallback_moves(delta: np.ndarray) -> list[np.ndarray]:
+def fallback_moves(delta) -> list:
     """The moves a blocked ``delta`` (N, 3) falls back to, in order: without its smallest component, without its
     middle one, without its largest; then its largest alone, its middle one alone, its smallest alone (ties: x
     before y before z). A zero row stays zero."""
-    order = np.argsort(np.abs(delta), axis=1, kind="stable")  # smallest first
-    rows = np.arange(len(delta))[:, None]
+    xp = namespace(delta)
+    order = xp.argsort(xp.abs(delta), axis=1, stable=True)  # smallest first
+    axes = xp.arange(3)[None, :]
     keep_sets = ([1, 2], [0, 2], [0, 1], [2], [1], [0])  # positions in ``order`` kept
     moves = []
     for keep in keep_sets:
-        mask = np.zeros_like(delta)
-        mask[rows, order[:, keep]] = 1.0
-        moves.append(delta * mask)
+        kept = (axes == order[:, keep[0]][:, None])
+        for position in keep[1:]:
+            kept = kept | (axes == order[:, position][:, None])
+        moves.append(delta * xp.astype(kept, delta.dtype))
     return moves
 
 
-def _clamped_to_joint_limits(tool, base, target: np.ndarray) -> np.ndarray:
+def _clamped_to_joint_limits(tool, base, target):
     """Where ``target`` (M, 3, world) goes with the outer joints clamped to their limits: the wrist where the clamped
     joints put it, the tip at the same offset from it as the unclamped solution's."""
+    xp = namespace(target)
     q, _ = kinematics.inverse_kinematics_batch(tool, target - base)
-    lower, upper = np.asarray(tool.lower[:OUTER_JOINTS]), np.asarray(tool.upper[:OUTER_JOINTS])
-    clamped = q.copy()
-    clamped[:, :OUTER_JOINTS] = np.minimum(np.maximum(q[:, :OUTER_JOINTS], lower), upper)
+    lower = xp.asarray(tool.lower[:OUTER_JOINTS], dtype=q.dtype)
+    upper = xp.asarray(tool.upper[:OUTER_JOINTS], dtype=q.dtype)
+    clamped = xp.concat([xp.minimum(xp.maximum(q[:, :OUTER_JOINTS], lower), upper), q[:, OUTER_JOINTS:]], axis=1)
     offset = target - base - kinematics.wrist_position_batch(tool, q)  # wrist to tip, kept
     return kinematics.wrist_position_batch(tool, clamped) + offset + base
 
 
-def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray, cavities, tip_clearance: float,
-                    step: float, low: np.ndarray, high: np.ndarray, climb: bool = False, ahead: bool = False,
-                    settle: bool = False):
+def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta, cavities, tip_clearance: float, step: float,
+                    low, high, climb: bool = False, ahead: bool = False, settle: bool = False):
     """The slide of M blocked moves: ``arm`` and ``other`` ``{"tool", "base" (3,), "tip" (M, 3)}`` (world, before
     the move; the other instrument's shaft follows from its tip, as the joints do), ``delta`` (M, 3) the commanded
     move. Returns ``(made (M,), tip (M, 3) world, q (M, n), clearance (M,))`` for the first candidate of each row
     that can be made (rows not made: unchanged, clearance NaN). ``climb``, ``ahead``, ``settle``:
     :func:`surface_target`'s (``climb``, ``ahead``, ``settle``)."""
-    tool, base, start = arm["tool"], np.asarray(arm["base"]), arm["tip"]
+    tool, base, start = arm["tool"], arm["base"], arm["tip"]
+    xp = namespace(start, delta)
 
     def segment(tool, base, tip):
         joints, reachable = kinematics.inverse_kinematics_batch(tool, tip - base)
@@ -221,38 +234,40 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta: np.ndarray,
     # Joints from the tips by the batched IK, not the arms' stored joints: the single env solves its joints with
     # scalar math, and the last bits of the shafts must not make one world slide otherwise than its batched twin.
     own_start, start_q, _ = segment(tool, base, start)
-    partner, _, _ = segment(other["tool"], np.asarray(other["base"]), other["tip"])
+    partner, _, _ = segment(other["tool"], other["base"], other["tip"])
     normal = contact_normal(*own_start, *partner) if is_suction else contact_normal(*partner, *own_start)
-    into = np.minimum((delta * normal).sum(axis=1), 0.0)
+    into = xp.minimum(xp.sum(delta * normal, axis=1), 0.0)
     along = delta - into[:, None] * normal
     # A step along a round shaft in contact enters it by about step^2 / (2 x radius) (0.06 mm for 1 mm on the
     # 8.5 mm shaft): the same step lifted off the contact by a tenth of its length clears that.
-    lifted = along + (CONTACT_LIFT * np.sqrt((delta * delta).sum(axis=1)) * (into < 0.0))[:, None] * normal
+    lifted = along + (CONTACT_LIFT * _length(delta, xp) * xp.astype(into < 0.0, delta.dtype))[:, None] * normal
     candidates = [delta, along, lifted, *fallback_moves(delta)]
-    made = np.zeros(len(delta), dtype=bool)
-    tip, q, clearance = start.copy(), start_q, np.full(len(delta), np.nan)
+    made = xp.zeros(delta.shape[:1], dtype=xp.bool)
+    tip, q, clearance = start, start_q, xp.full(delta.shape[:1], float("nan"), dtype=delta.dtype)
     for index, move in enumerate(candidates):
-        live = ~made & np.any(move != 0.0, axis=1)
-        if not live.any():
+        live = ~made & xp.any(move != 0.0, axis=1)
+        if not needed(live):
             continue
         target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb, ahead=ahead,
                                 settle=settle)
         own, joints, reachable = segment(tool, base, target)
         if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
-            live &= ~reachable
-            if not live.any():
+            live = live & ~reachable
+            if not needed(live):
                 continue
-        if not reachable[live].all():
+        if needed(live & ~reachable):
             slid = _clamped_to_joint_limits(tool, base, target)
-            slid = np.minimum(np.maximum(slid, low), high)
+            slid = xp.minimum(xp.maximum(slid, low), high)
             above = slid[:, 2] >= cavities.surface_height(slid[:, 0], slid[:, 1]) + tip_clearance
-            target = np.where((~reachable & above)[:, None], slid, target)
+            target = xp.where((~reachable & above)[:, None], slid, target)
             own, joints, reachable = segment(tool, base, target)
-        moved = np.any(target != start, axis=1)
+        moved = xp.any(target != start, axis=1)
         gap = instrument_clearance(*own, *partner) if is_suction else instrument_clearance(*partner, *own)
         accept = live & moved & reachable & (gap >= 0.0)
-        tip[accept], q[accept], clearance[accept] = target[accept], joints[accept], gap[accept]
-        made |= accept
-        if made.all():
+        tip = xp.where(accept[:, None], target, tip)
+        q = xp.where(accept[:, None], joints, q)
+        clearance = xp.where(accept, gap, clearance)
+        made = made | accept
+        if isinstance(made, np.ndarray) and made.all():
             break
     return made, tip, q, clearance

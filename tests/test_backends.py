@@ -1,0 +1,63 @@
+"""The collaborative core on another array library: the recorded golden steps, taken under ``jax.jit`` from their
+recorded states with their recorded commands, give the recorded states and rewards (to 1e-9), as on numpy."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+jax = pytest.importorskip("jax")
+jax.config.update("jax_enable_x64", True)  # the core is float64
+import jax.numpy as jnp  # noqa: E402
+
+GOLDEN = Path(__file__).resolve().parent / "golden"
+AGENTS = ("suction", "grasper")
+#: Steps taken per case, spread over its recording (compiling the step costs 20-40 s a case here: two cases cover every
+#: rule, drops, falls and the bleeding field included).
+STEPS_PER_CASE = 12
+CASES = ("drops_scripted", "bleeding_random")
+
+
+@pytest.fixture(scope="module")
+def steps():
+    return dict(np.load(GOLDEN / "steps_v8.npz"))
+
+
+def _cases():
+    spec = importlib.util.spec_from_file_location("golden_record_steps", GOLDEN / "record_steps.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.STEP_CASES
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_the_golden_steps_hold_under_jax_jit(steps, case):
+    from dvrl_marl.envs import suction_debris_v8
+
+    kwargs, worlds, count, _ = _cases()[case]
+    kwargs = {key: value for key, value in kwargs.items() if key not in ("observation_features", "state_observations")}
+    reward_type = kwargs.pop("reward_type", "sparse")
+    env = suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled",
+                                        reward_type="dense" if reward_type == "guided" else reward_type, **kwargs)
+    core = env.core
+
+    def step(state, commands):
+        core.restore(state)
+        rewards, terminated, truncated = core.step(commands)
+        return core.snapshot(), rewards, terminated, truncated
+
+    compiled = jax.jit(step)
+    fields = sorted(key.split("/", 2)[2] for key in steps if key.startswith(f"{case}/before/"))
+    for index in np.linspace(0, count - 1, STEPS_PER_CASE).astype(int):
+        state = {name: jnp.asarray(steps[f"{case}/before/{name}"][index]) for name in fields}
+        after, rewards, terminated, truncated = compiled(state, {a: jnp.asarray(steps[f"{case}/commands/{a}"][index])
+                                                                 for a in AGENTS})
+        for name in fields:
+            expected, got = steps[f"{case}/after/{name}"][index], np.asarray(after[name])
+            assert np.isclose(got, expected, rtol=0, atol=1e-9, equal_nan=True).all(), f"{case}: step {index}: {name}"
+        if reward_type != "guided":  # (the guided terms are the env's, on numpy)
+            for agent in AGENTS:
+                assert np.allclose(np.asarray(rewards[agent]), steps[f"{case}/rewards/{agent}"][index], atol=1e-9)
+        assert np.array_equal(np.asarray(terminated), steps[f"{case}/terminated"][index])
+        assert np.array_equal(np.asarray(truncated), steps[f"{case}/truncated"][index])
