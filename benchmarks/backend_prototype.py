@@ -4,8 +4,10 @@ The piece is the instruments' clearance (:func:`dvrl_marl.core.instruments.instr
 segments between the two instruments, about a third of the step's arithmetic), written once against the array API
 standard and run here on numpy, on torch (CPU, and CUDA where there is a GPU) and on JAX (``jax.jit``; where JAX is
 installed). Each figure is the median of several timed rounds of calls on one core's worth of work; a line per
-backend and N gives microseconds per call and world-evaluations per second. The full numpy step of the core at the same
-N (random commands) is printed beside it, for scale.
+backend and N gives microseconds per call and world-evaluations per second. The whole step of the core at the same N
+(random commands) follows: on numpy, and on JAX under ``jax.jit`` (where JAX is installed), which traces every rule
+for every world (the rare ones too: a blocked move's nine slides, the joint-limit bisection), where numpy skips
+those no world needs.
 
     taskset -c 1 python benchmarks/backend_prototype.py [--sizes 1 4096] [--rounds 5]
 """
@@ -76,6 +78,41 @@ def core_step_seconds(n: int, rounds: int) -> float:
     return _time(lambda: core.step(rounds_of_commands[next(turn) % 64]), max(1, 2000 // n), rounds)
 
 
+def jax_step_seconds(n: int, rounds: int) -> float | None:
+    """The whole step under ``jax.jit``: the core's state in and out as one record of arrays."""
+    try:
+        import jax
+    except ImportError:
+        return None
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    from dvrl_marl.core.collaborative import CollaborativeCore
+    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+
+    core = CollaborativeCore(SuctionDebrisParams.from_task(), n)
+    core.reset(seed=0)
+
+    def step(state, commands):
+        core.restore(state)
+        core.step(commands)
+        return core.snapshot()
+
+    compiled = jax.jit(step)
+    state = {key: jnp.asarray(value) for key, value in core.snapshot().items()}
+    rng = np.random.default_rng(1)
+    rounds_of_commands = [{agent: jnp.asarray(rng.uniform(-1, 1, (n, 4))) for agent in ("suction", "grasper")}
+                          for _ in range(8)]
+    turn = iter(range(10**9))
+    holder = {"state": state}
+
+    def call():
+        holder["state"] = compiled(holder["state"], rounds_of_commands[next(turn) % 8])
+        return holder["state"]
+
+    return _time(call, max(1, 200 // n), rounds, lambda value: jax.block_until_ready(value))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 4096])
@@ -94,7 +131,10 @@ def main() -> None:
             seconds = _time(lambda: function(*inputs), calls, args.rounds, sync)
             print(f"{name:<16} {n:>9,} {seconds * 1e6:>10.1f} {n / seconds:>14,.0f}")
         step = core_step_seconds(n, args.rounds)
-        print(f"{'(numpy step)':<16} {n:>9,} {step * 1e6:>10.1f} {n / step:>14,.0f}")
+        print(f"{'step, numpy':<16} {n:>9,} {step * 1e6:>10.1f} {n / step:>14,.0f}")
+        step = jax_step_seconds(n, args.rounds)
+        if step is not None:
+            print(f"{'step, jax-jit':<16} {n:>9,} {step * 1e6:>10.1f} {n / step:>14,.0f}")
 
 
 if __name__ == "__main__":

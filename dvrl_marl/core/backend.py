@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from array_api_compat import array_namespace
 
-__all__ = ["namespace", "needed", "rows_of", "take", "put", "columns"]
+__all__ = ["namespace", "needed", "rows_of", "take", "put", "columns", "join"]
 
 _NUMPY = array_namespace(np.empty(0))
 
@@ -66,4 +66,17 @@ def columns(parts, xp):
     out = np.empty((len(parts[0]), len(parts)))
     for index, part in enumerate(parts):
         out[:, index] = part
+    return out
+
+
+def join(parts, xp):
+    """``(M, k1 + k2 + ...)`` from blocks ``(M, k_i)`` side by side (numpy: filled in place, cheaper than a
+    concatenation of small blocks on a step's path)."""
+    if xp is not np:
+        return xp.concat(parts, axis=1)
+    out = np.empty((parts[0].shape[0], sum(part.shape[1] for part in parts)))
+    start = 0
+    for part in parts:
+        out[:, start:start + part.shape[1]] = part
+        start += part.shape[1]
     return out

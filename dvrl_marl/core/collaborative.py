@@ -20,7 +20,7 @@ import numpy as np
 from dvrl_marl import kinematics
 from dvrl_marl.core import sliding, tools
 from dvrl_marl.core.arms import ArmBatch
-from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
+from dvrl_marl.core.backend import join, namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
 from dvrl_marl.core.phantom import Cavities
 from dvrl_marl.core.scene_geometry import SceneGeometry
@@ -464,23 +464,28 @@ class CollaborativeCore:
             self.held = self.held & ~dropped
             self.holding = xp.where(release, -1, self.holding)
         grab = ~holding & closed
-        if needed(grab):
-            position, yaw = self.debris_position, self.debris_yaw
+        if needed(grab):  # (numpy: on the closing worlds only)
+            rows = rows_of(grab)
+            position, yaw, tip_here = take(self.debris_position, rows), take(self.debris_yaw, rows), take(tip, rows)
             axis = xp.stack([PIN_HALF_LENGTH * xp.cos(yaw), PIN_HALF_LENGTH * xp.sin(yaw), 0.0 * yaw], axis=-1)
-            grip = _closest_on_segment(tip[:, None, :], position - axis, position + axis)  # (N, D, 3)
-            distance = _distance(tip[:, None, :], grip)
-            seen = self.visible & ~self.delivered & (distance <= PIN_SENSOR_RANGE) & grab[:, None]
+            grip = _closest_on_segment(tip_here[:, None, :], position - axis, position + axis)  # (M, D, 3)
+            distance = _distance(tip_here[:, None, :], grip)
+            seen = (take(self.visible, rows) & ~take(self.delivered, rows) & (distance <= PIN_SENSOR_RANGE)
+                    & take(grab, rows)[:, None])
             found = xp.any(seen, axis=1)
             pins = xp.argmax(seen * 1, axis=1)  # the first pin in reach
             chosen = (pins_of == pins[:, None]) & found[:, None]
-            first = found & ~xp.any(self.lifted & chosen, axis=1)
-            self.holding = xp.where(found, pins, self.holding)
-            self.held = self.held | chosen
-            self.fall_speed = xp.where(chosen, float("nan"), self.fall_speed)  # caught
-            self.hold_offset = xp.where(found[:, None], _pick(position, pins, xp) - tip, self.hold_offset)
-            self.grip_offset = xp.where(found[:, None], _pick(grip, pins, xp) - tip, self.grip_offset)
-            self.lifted = self.lifted | chosen
-            lifted = xp.where(found, xp.astype(first, lifted.dtype), lifted)
+            first = found & ~xp.any(take(self.lifted, rows) & chosen, axis=1)
+            taken = put(self.held & False, rows, grab, chosen)  # (N, D): the pin each world took
+            self.holding = put(self.holding, rows, grab, xp.where(found, pins, take(self.holding, rows)))
+            self.held = self.held | taken
+            self.fall_speed = xp.where(taken, float("nan"), self.fall_speed)  # caught
+            self.hold_offset = put(self.hold_offset, rows, grab, xp.where(
+                found[:, None], _pick(position, pins, xp) - tip_here, take(self.hold_offset, rows)))
+            self.grip_offset = put(self.grip_offset, rows, grab, xp.where(
+                found[:, None], _pick(grip, pins, xp) - tip_here, take(self.grip_offset, rows)))
+            self.lifted = self.lifted | taken
+            lifted = put(lifted, rows, grab, xp.where(found, xp.astype(first, lifted.dtype), 0.0))
         holding = self.holding >= 0
         if needed(holding):
             carried = (pins_of == self.holding[:, None]) & holding[:, None]
@@ -610,12 +615,16 @@ class CollaborativeCore:
         shown = self.visible & ~self.delivered
         pins = self._pins(xp.where(shown[..., None], self.normalise(self.shown_positions()), 0.0), xp)
         blood, handoff = self._blood_fraction(), self._handoff_rows(n, xp)
-        return {agent: xp.concat([tips[agent], tools_[agent][:, None], tips[AGENTS[1 - AGENTS.index(agent)]], blood,
-                                  pins, handoff], axis=1) for agent in agents}
+        return {agent: join([tips[agent], tools_[agent][:, None], tips[AGENTS[1 - AGENTS.index(agent)]], blood, pins,
+                             handoff], xp) for agent in agents}
 
     def _pins(self, positions, xp):
         """(N, 6 D): each pin's position, then whether it is visible, held, delivered."""
         n, d = positions.shape[:2]
+        if xp is np:
+            out = np.empty((n, d, 6))
+            out[..., 0:3], out[..., 3], out[..., 4], out[..., 5] = positions, self.visible, self.held, self.delivered
+            return out.reshape(n, 6 * d)
         flags = [xp.astype(flag, positions.dtype)[..., None] for flag in (self.visible, self.held, self.delivered)]
         return xp.reshape(xp.concat([positions, *flags], axis=-1), (n, 6 * d))
 
@@ -639,10 +648,10 @@ class CollaborativeCore:
         """(N, state_dim): tips, valve, jaw, blood, every debris (hidden included), hand-off point."""
         xp = namespace(self.remaining_ml)
         n = self.debris_position.shape[0]
-        return xp.concat([self.normalise(self.arms["suction"].tip_world()), (2.0 * self.valve_opening - 1.0)[:, None],
-                          self.normalise(self.arms["grasper"].tip_world()),
-                          (2.0 * self.arms["grasper"].jaw - 1.0)[:, None], self._blood_fraction(),
-                          self._pins(self.normalise(self.shown_positions()), xp), self._handoff_rows(n, xp)], axis=1)
+        return join([self.normalise(self.arms["suction"].tip_world()), (2.0 * self.valve_opening - 1.0)[:, None],
+                     self.normalise(self.arms["grasper"].tip_world()), (2.0 * self.arms["grasper"].jaw - 1.0)[:, None],
+                     self._blood_fraction(), self._pins(self.normalise(self.shown_positions()), xp),
+                     self._handoff_rows(n, xp)], xp)
 
     def info(self) -> dict:
         """Per-world figures (arrays of leading dimension N), the single env's info keys."""
