@@ -7,7 +7,9 @@ machine slows both alike. ``--against`` takes ``path:module`` pairs, e.g. a work
 versions it had:
 
     git worktree add /tmp/at-36a42a0 36a42a0
-    python benchmarks/versus_commit.py --against /tmp/at-36a42a0:suction_debris_v7 /tmp/at-36a42a0:suction_debris_v2
+    git worktree add /tmp/at-5d1d265 5d1d265   # the last commit with the parallel env's own scalar path
+    python benchmarks/versus_commit.py --against /tmp/at-36a42a0:suction_debris_v7 /tmp/at-36a42a0:suction_debris_v2 \
+        /tmp/at-5d1d265:suction_debris_v8
 """
 
 from __future__ import annotations
