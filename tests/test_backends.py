@@ -13,10 +13,11 @@ import jax.numpy as jnp  # noqa: E402
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 AGENTS = ("suction", "grasper")
-#: Steps taken per case, spread over its recording (compiling the step costs 20-40 s a case here: two cases cover every
-#: rule, drops, falls and the bleeding field included).
+#: Steps taken, spread over the recording. Compiling the step costs about 40 s a configuration here, so one case runs:
+#: the scripted team with drops (moves, slides, suction, grasps, carries, drops, falls, landings, rewards). The other
+#: cases passed too when this was written (set CASES to every case of record_steps.STEP_CASES to run them).
 STEPS_PER_CASE = 12
-CASES = ("drops_scripted", "bleeding_random")
+CASES = ("drops_scripted",)
 
 
 @pytest.fixture(scope="module")
