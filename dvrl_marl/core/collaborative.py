@@ -27,7 +27,7 @@ from dvrl_marl.core.scene_geometry import SceneGeometry
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
 
-__all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "TOOLS", "sample_debris", "segment_distance",
+__all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "closest_on_segment", "distance", "TOOLS", "sample_debris", "segment_distance",
            "SHAFT_RADIUS", "WRIST_RADIUS"]
 
 AGENTS = ("suction", "grasper")
@@ -63,7 +63,7 @@ ARM_FIELDS = ("tip", "q", "jaw")
 def sample_debris(rng: np.random.Generator, cavities, count: int) -> list:
     """Seeded pin placement: ``count`` entries ``(position [x, y, z], yaw, cavity index)`` lying across the bowls.
 
-    The single environment and the batched core both place debris through this, with the world's generator.
+    Every world's reset places its debris through this, with the world's generator.
     """
     slots = [list(rng.permutation(len(PIN_SLOTS))) for _ in cavities]
     yaws = [float(rng.uniform(0.0, math.pi)) for _ in cavities]
@@ -89,7 +89,8 @@ def _dot(u, v):
     return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
 
 
-def _closest_on_segment(point, start, end):
+def closest_on_segment(point, start, end):
+    """The point of segment ``start``-``end`` nearest ``point``, batched over leading axes (..., 3)."""
     xp = namespace(point, start, end)
     d, v = end - start, point - start
     length2 = _dot(d, d)
@@ -98,7 +99,8 @@ def _closest_on_segment(point, start, end):
     return start + t[..., None] * d
 
 
-def _distance(u, v):
+def distance(u, v):
+    """Euclidean distances between points ``u`` and ``v`` (..., 3)."""
     difference = u - v
     return namespace(difference).sqrt(_dot(difference, difference))
 
@@ -117,7 +119,7 @@ def _copy(x):
 
 
 class CollaborativeCore:
-    """N worlds of the collaborative scene, built from a single ``SuctionDebrisEnv`` (its validated parameters).
+    """N worlds of the collaborative scene, built from the task's parameters and the scene file's geometry.
 
     ``step(commands)`` takes ``{agent: (N, 4)}`` for both arms (already validated, clipped to [-1, 1]) and returns
     ``(rewards {agent: (N,)}, terminated (N,), truncated (N,))``; it never resets. ``reset(worlds)`` draws new
@@ -352,7 +354,7 @@ class CollaborativeCore:
         cut = arm.move(target - old, -1.0, 1.0)
         clearance = self._instrument_distance()
         refused = clearance < 0.0  # instruments never pass through each other
-        self.blocked[agent] = _copy(refused)  # (a person's cue: the move as commanded was refused, slid or not)
+        self.blocked[agent] = refused  # (a person's cue: the move as commanded was refused, slid or not)
         if rules.slide:
             stuck = refused | (cut & xp.all(arm.tip == previous_tip, axis=1))
             if needed(stuck):
@@ -373,7 +375,7 @@ class CollaborativeCore:
             {"tool": other.tool, "base": other.base_position, "tip": take(other.tip_world(), rows)},
             agent == "suction", take(delta, rows), self.cavities, p.tip_clearance, p.step_size, self.low, self.high,
             **self.move_rules[agent].descents)
-        made_here = put(stuck & False, rows, stuck, made) & stuck  # (the worlds whose slide was made)
+        made_here = put(namespace(stuck).zeros_like(stuck), rows, stuck, made)  # the worlds whose slide was made
         arm.tip = put(arm.tip, rows, made_here, namespace(tip).where(made[:, None], tip - arm.base_position,
                                                                     take(arm.tip, rows)))
         arm.q = put(arm.q, rows, made_here, namespace(q).where(made[:, None], q, take(arm.q, rows)))
@@ -468,15 +470,15 @@ class CollaborativeCore:
             rows = rows_of(grab)
             position, yaw, tip_here = take(self.debris_position, rows), take(self.debris_yaw, rows), take(tip, rows)
             axis = xp.stack([PIN_HALF_LENGTH * xp.cos(yaw), PIN_HALF_LENGTH * xp.sin(yaw), 0.0 * yaw], axis=-1)
-            grip = _closest_on_segment(tip_here[:, None, :], position - axis, position + axis)  # (M, D, 3)
-            distance = _distance(tip_here[:, None, :], grip)
-            seen = (take(self.visible, rows) & ~take(self.delivered, rows) & (distance <= PIN_SENSOR_RANGE)
+            grip = closest_on_segment(tip_here[:, None, :], position - axis, position + axis)  # (M, D, 3)
+            gap = distance(tip_here[:, None, :], grip)
+            seen = (take(self.visible, rows) & ~take(self.delivered, rows) & (gap <= PIN_SENSOR_RANGE)
                     & take(grab, rows)[:, None])
             found = xp.any(seen, axis=1)
             pins = xp.argmax(seen * 1, axis=1)  # the first pin in reach
             chosen = (pins_of == pins[:, None]) & found[:, None]
             first = found & ~xp.any(take(self.lifted, rows) & chosen, axis=1)
-            taken = put(self.held & False, rows, grab, chosen)  # (N, D): the pin each world took
+            taken = put(xp.zeros_like(self.held), rows, grab, chosen)  # (N, D): the pin each world took
             self.holding = put(self.holding, rows, grab, xp.where(found, pins, take(self.holding, rows)))
             self.held = self.held | taken
             self.fall_speed = xp.where(taken, float("nan"), self.fall_speed)  # caught
@@ -493,7 +495,7 @@ class CollaborativeCore:
             self.debris_position = xp.where(carried[..., None], position[:, None, :], self.debris_position)
             if self.params.deliver_at_grip:  # judged where the jaws hold the pin
                 position = tip + self.grip_offset
-            arrived = holding & (_distance(position, self.handoff) <= self.params.distance_threshold)
+            arrived = holding & (distance(position, self.handoff) <= self.params.distance_threshold)
             handed = carried & arrived[:, None]
             self.held = self.held & ~handed
             self.delivered = self.delivered | handed
@@ -578,18 +580,18 @@ class CollaborativeCore:
         tip = self.arms[agent].tip_world()
         xp = namespace(tip)
         if agent == "suction":
-            distance = _distance(tip[:, None, :], self._cavity_bottoms)
+            away = distance(tip[:, None, :], self._cavity_bottoms)
             pending = (self.remaining_ml >= self.params.blood_threshold_ml) & (self.remaining_ml > 0.0)
         else:
-            distance = _distance(tip[:, None, :], self.debris_position)
+            away = distance(tip[:, None, :], self.debris_position)
             pending = self.visible & ~self.delivered
-        nearest = xp.min(xp.where(pending, distance, float("inf")), axis=1)
+        nearest = xp.min(xp.where(pending, away, float("inf")), axis=1)
         nearest = xp.where(xp.any(pending, axis=1), nearest, 0.0)
         if agent == "grasper":
             holding = self.holding >= 0
             if needed(holding):
                 held = _pick(self.shown_positions(), xp.maximum(self.holding, 0), xp)
-                nearest = xp.where(holding, _distance(held, self.handoff), nearest)
+                nearest = xp.where(holding, distance(held, self.handoff), nearest)
         return nearest
 
     # --- observations -------------------------------------------------------------------------------------

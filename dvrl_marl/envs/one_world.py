@@ -75,45 +75,29 @@ class WorldBlood:
         return self.remaining_ml[index] / (initial if initial > 0.0 else self._capacity_ml[index])
 
 
+def _pin_field(name: str, kind):
+    """A property reading pin ``index``'s ``name`` of world 0 from the core, as ``kind``."""
+    return property(lambda pin: kind(getattr(pin._core, name)[0, pin._index]))
+
+
+def _fall_speed(value) -> float | None:
+    return None if math.isnan(value) else float(value)  # (m/s while it falls, None at rest)
+
+
 class WorldPin:
     """Pin ``index`` of world 0, read live from the core (the single env's ``debris[index]``)."""
 
     def __init__(self, core, index: int):
         self._core, self._index = core, index
 
-    @property
-    def position(self) -> list[float]:
-        return self._core.debris_position[0, self._index].tolist()
-
-    @property
-    def yaw(self) -> float:
-        return float(self._core.debris_yaw[0, self._index])
-
-    @property
-    def cavity(self) -> int:
-        return int(self._core.debris_cavity[0, self._index])
-
-    @property
-    def visible(self) -> bool:
-        return bool(self._core.visible[0, self._index])
-
-    @property
-    def held(self) -> bool:
-        return bool(self._core.held[0, self._index])
-
-    @property
-    def delivered(self) -> bool:
-        return bool(self._core.delivered[0, self._index])
-
-    @property
-    def lifted(self) -> bool:
-        return bool(self._core.lifted[0, self._index])
-
-    @property
-    def fall_speed(self) -> float | None:
-        """m/s while it falls, None at rest."""
-        speed = float(self._core.fall_speed[0, self._index])
-        return None if math.isnan(speed) else speed
+    position = property(lambda pin: pin._core.debris_position[0, pin._index].tolist())
+    yaw = _pin_field("debris_yaw", float)
+    cavity = _pin_field("debris_cavity", int)
+    visible = _pin_field("visible", bool)
+    held = _pin_field("held", bool)
+    delivered = _pin_field("delivered", bool)
+    lifted = _pin_field("lifted", bool)
+    fall_speed = _pin_field("fall_speed", _fall_speed)
 
     def axis_ends(self):
         dx, dy = PIN_HALF_LENGTH * math.cos(self.yaw), PIN_HALF_LENGTH * math.sin(self.yaw)

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import math
 
-from dvrl_marl.core.collaborative import AGENTS, PIN_SENSOR_RANGE
+import numpy as np
+
+from dvrl_marl.core.collaborative import AGENTS, PIN_SENSOR_RANGE, closest_on_segment, distance
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
 
 __all__ = ["SceneView"]
@@ -68,9 +70,13 @@ class SceneView:
         cues["holding"] = held
         cues["handoff_mm"] = (1000.0 * math.dist(self._judged_point(held_pin), env.handoff)
                               if held else None)
-        reachable = [_point_segment_distance(tip, *pin.axis_ends()) for pin in env.debris
-                     if pin.visible and not pin.delivered and not pin.held]
-        nearest = min(reachable, default=None)
+        core = env.core
+        ends = [pin.axis_ends() for pin in env.debris]
+        start, end = (np.array([pair[k] for pair in ends]) for k in (0, 1))
+        # as the grasp rule measures it: from the jaws to each pin's axis
+        gaps = distance(np.asarray(tip), closest_on_segment(np.asarray(tip), start, end))
+        free = core.visible[0] & ~core.delivered[0] & ~core.held[0]
+        nearest = float(gaps[free].min()) if free.any() else None
         cues["pin_mm"] = None if nearest is None else 1000.0 * nearest
         cues["in_reach"] = not held and nearest is not None and nearest <= PIN_SENSOR_RANGE
         return cues
@@ -151,15 +157,3 @@ class SceneView:
         if self.env.params.deliver_at_grip:
             return (core.arms["grasper"].tip_world()[0] + core.grip_offset[0]).tolist()
         return core.debris_position[0, index].tolist()
-
-
-def _closest_on_segment(point, start, end) -> tuple[float, float, float]:
-    d = (end[0] - start[0], end[1] - start[1], end[2] - start[2])
-    v = (point[0] - start[0], point[1] - start[1], point[2] - start[2])
-    length2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-    t = min(max((v[0] * d[0] + v[1] * d[1] + v[2] * d[2]) / length2, 0.0), 1.0) if length2 > 0 else 0.0
-    return (start[0] + t * d[0], start[1] + t * d[1], start[2] + t * d[2])
-
-
-def _point_segment_distance(point, start, end) -> float:
-    return math.dist(point, _closest_on_segment(point, start, end))

@@ -108,7 +108,8 @@ class SuctionDebrisEnv(ParallelEnv):
         self.world.reset(seed=seed, options=known or None)
         self.agents = list(self.possible_agents)
         self.episodes += 1
-        return self._observations(), {agent: self._info() for agent in self.agents}
+        info = self._info()
+        return self._observations(), {agent: dict(info) for agent in self.agents}
 
     def step(self, actions):
         if not self.agents:
@@ -124,7 +125,8 @@ class SuctionDebrisEnv(ParallelEnv):
         complete, truncated = bool(terminated[0]), bool(truncated[0])
         rewards = {agent: float(rewards[agent][0]) for agent in self.agents}
         observations = self._observations()
-        infos = {agent: self._info() for agent in self.agents}
+        info = self._info()
+        infos = {agent: dict(info) for agent in self.agents}
         terminations = {agent: complete for agent in self.agents}
         truncations = {agent: truncated for agent in self.agents}
         if complete or truncated:
