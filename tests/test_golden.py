@@ -1,6 +1,6 @@
 """Golden trajectories: the collaborative scene's behaviour held still across refactors.
 
-Both files were recorded at commit 36a42a0 on suction_debris_v7 (the same rules), with random actions and the scripted
+The step file was recorded at commit 36a42a0 on suction_debris_v7 (the same rules), with random actions and the scripted
 team, with the defaults, the benchmark's setting, a bleeding field and the tool and jaw options:
 
 - ``tests/golden/steps_v8.npz`` (``tests/golden/record_steps.py``): every step's full state before it, the commands the
@@ -8,7 +8,8 @@ team, with the defaults, the benchmark's setting, a bleeding field and the tool 
   recorded commands, must give the recorded state, rewards and flags to 1e-9: this holds the step itself, whatever
   draws a reset makes. A difference names the case, the field and the first step where it appears.
 - ``tests/golden/suction_debris_v8.npz`` (``tests/golden/record.py``): whole trajectories from ``reset(seed=7)``, the
-  scene's state, rewards and flags per step; they hold the reset's draws as well, until those change on purpose.
+  scene's state, rewards and flags per step; they hold the reset's draws as well, until those change on purpose (they
+  did once: recorded again when resets moved to counter-based streams, with a case at a start level).
 """
 
 from pathlib import Path

@@ -373,8 +373,8 @@ def test_colliding_tip_positions_are_refused():
     env = suction_debris_v8.batched_env(num_envs=1, autoreset_mode="disabled")
     env.reset(seed=0)
     suction_tip = env.core.arms["suction"].tip_world()
-    with pytest.raises(ValueError, match="intersect"):
-        env.reset(options={"tip_positions": {"grasper": suction_tip}})
+    with pytest.raises(ValueError, match="intersect"):  # (the same seed: the same episode, the same suction tip)
+        env.reset(seed=0, options={"tip_positions": {"grasper": suction_tip}})
 
 
 def test_set_tip_positions_keeps_the_drawn_episode():

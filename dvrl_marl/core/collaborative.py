@@ -8,7 +8,7 @@ envs) is a shell over this core, and one world is a batch of one. It is built fr
 scene file's geometry (:class:`~dvrl_marl.core.scene_geometry.SceneGeometry`) and imports no MuJoCo: a MuJoCo model
 only mirrors a world to render it.
 
-Memory: about 1.5 kB per world with 3 debris (plus one ``numpy.random.Generator`` per world).
+Memory: about 1.5 kB per world with 3 debris.
 """
 
 from __future__ import annotations
@@ -25,9 +25,10 @@ from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
 from dvrl_marl.core.phantom import Cavities
 from dvrl_marl.core.scene_geometry import SceneGeometry
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
-from dvrl_marl.core.worlds import WorldRandom, check_action_batch, world_indices
+from dvrl_marl.core.streams import ResetStreams
+from dvrl_marl.core.worlds import check_action_batch, world_indices
 
-__all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "closest_on_segment", "distance", "TOOLS", "sample_debris", "segment_distance",
+__all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "closest_on_segment", "distance", "TOOLS", "place_debris", "segment_distance",
            "SHAFT_RADIUS", "WRIST_RADIUS"]
 
 AGENTS = ("suction", "grasper")
@@ -60,29 +61,35 @@ STATE_FIELDS = ("valve_opening", "initial_ml", "remaining_ml", "surface_z", "deb
 ARM_FIELDS = ("tip", "q", "jaw")
 
 
-def sample_debris(rng: np.random.Generator, cavities, count: int) -> list:
-    """Seeded pin placement: ``count`` entries ``(position [x, y, z], yaw, cavity index)`` lying across the bowls.
-
-    Every world's reset places its debris through this, with the world's generator.
-    """
-    slots = [list(rng.permutation(len(PIN_SLOTS))) for _ in cavities]
-    yaws = [float(rng.uniform(0.0, math.pi)) for _ in cavities]
-    placed = []
-    for _ in range(count):
-        cavity_index = int(rng.integers(len(cavities)))
-        if not slots[cavity_index]:
-            cavity_index = 1 - cavity_index if len(cavities) == 2 else next(i for i, s in enumerate(slots) if s)
-        cavity = cavities[cavity_index]
-        offset = PIN_SLOTS[slots[cavity_index].pop()]
-        yaw = yaws[cavity_index] + float(rng.uniform(-0.15, 0.15))
-        # Lying across the bowl: its end caps touch the sphere, so its axis sits this far below the centre.
-        radius = cavity.sphere_radius - PIN_RADIUS
-        below_centre = math.sqrt(radius**2 - PIN_HALF_LENGTH**2 - offset**2)
-        sphere_centre_z = cavity.top_z - cavity.depth + cavity.sphere_radius
-        position = [cavity.centre_x - offset * math.sin(yaw), cavity.centre_y + offset * math.cos(yaw),
-                    sphere_centre_z - below_centre]
-        placed.append((position, yaw, cavity_index))
-    return placed
+def place_debris(streams, worlds: np.ndarray, cavities, count: int):
+    """Seeded pin placement for ``worlds`` (:class:`~dvrl_marl.core.streams.ResetStreams`): ``count`` pins lying
+    across the bowls, each in a slot of :data:`PIN_SLOTS` of a cavity drawn uniformly (the other when that one's
+    slots are taken), turned by the cavity's yaw and a few degrees more. Returns positions ``(M, count, 3)``,
+    yaws and cavity indices ``(M, count)``."""
+    m, c, s = len(worlds), cavities.count, len(PIN_SLOTS)
+    slot_order = np.argsort(streams.uniforms(worlds, "pin_slots", c * s).reshape(m, c, s), axis=2)
+    cavity_yaw = streams.uniforms(worlds, "pin_yaws", c) * math.pi
+    chosen = np.minimum((streams.uniforms(worlds, "pin_cavities", count) * c).astype(np.int64), c - 1)
+    turns = -0.15 + 0.3 * streams.uniforms(worlds, "pin_turns", count)
+    rows, used = np.arange(m), np.zeros((m, c), dtype=np.int64)
+    slots, positions = np.asarray(PIN_SLOTS, dtype=np.float64), np.empty((m, count, 3))
+    yaws, indices = np.empty((m, count)), np.empty((m, count), dtype=np.int64)
+    # Lying across the bowl: its end caps touch the sphere, so its axis sits this far below the sphere's centre.
+    radius = cavities.sphere_radius - PIN_RADIUS
+    sphere_centre_z = cavities.floor_z + cavities.sphere_radius
+    for pin in range(count):
+        cavity = chosen[:, pin]
+        full = used[rows, cavity] >= s
+        cavity = np.where(full, np.argmax(used < s, axis=1), cavity)
+        offset = slots[slot_order[rows, cavity, used[rows, cavity]]]
+        used[rows, cavity] += 1
+        yaw = cavity_yaw[rows, cavity] + turns[:, pin]
+        below_centre = np.sqrt(radius[cavity] ** 2 - PIN_HALF_LENGTH**2 - offset**2)
+        positions[:, pin, 0] = cavities.centre_x[cavity] - offset * np.sin(yaw)
+        positions[:, pin, 1] = cavities.centre_y[cavity] + offset * np.cos(yaw)
+        positions[:, pin, 2] = sphere_centre_z[cavity] - below_centre
+        yaws[:, pin], indices[:, pin] = yaw, cavity
+    return positions, yaws, indices
 
 
 def _dot(u, v):
@@ -174,7 +181,7 @@ class CollaborativeCore:
         self.work_distance = {agent: np.zeros(n) for agent in AGENTS}
         self.blocked = {agent: np.zeros(n, dtype=bool) for agent in AGENTS}  # its last move was refused
         self.drawn_ml = np.zeros(n)  # blood the suction drew in the last step
-        self.random = WorldRandom(n)
+        self.random = ResetStreams(n)
         self._rows = np.arange(n)
 
     # --- helpers ------------------------------------------------------------------------------------------
@@ -209,20 +216,15 @@ class CollaborativeCore:
             self.set_blood(indices, blood_ml)
         if len(indices) == 0:
             return
-        tips = {agent: np.empty((len(indices), 3)) for agent in AGENTS}
-        for row, world in enumerate(indices.tolist()):
-            rng = self.random[world]
-            for agent in AGENTS:
-                tips[agent][row] = np.array(STARTS[agent]) + rng.uniform(-START_JITTER, START_JITTER, 3)
-            for pin, (position, yaw, cavity) in enumerate(sample_debris(rng, self.phantom.cavities,
-                                                                        self.params.debris_count)):
-                self.debris_position[world, pin] = position
-                self.debris_yaw[world, pin] = yaw
-                self.debris_cavity[world, pin] = cavity
-            if self.params.bleeding_ml_s > 0.0:  # the single env's draws, in its order
-                for cavity in range(self.cavities.count):
-                    self.bleed_onset[world, cavity] = float(rng.uniform(0.0, self.params.bleeding_onset_s))
-                    self.bleed_rate[world, cavity] = float(rng.uniform(0.5, 1.0)) * self.params.bleeding_ml_s
+        jitter = -START_JITTER + 2 * START_JITTER * self.random.uniforms(indices, "tips", 3 * len(AGENTS))
+        tips = {agent: np.asarray(STARTS[agent]) + jitter[:, 3 * k:3 * k + 3] for k, agent in enumerate(AGENTS)}
+        (self.debris_position[indices], self.debris_yaw[indices],
+         self.debris_cavity[indices]) = place_debris(self.random, indices, self.cavities, self.params.debris_count)
+        if self.params.bleeding_ml_s > 0.0:
+            draws = self.random.uniforms(indices, "bleeding", 2 * self.cavities.count).reshape(len(indices), 2, -1)
+            self.bleed_onset[indices] = draws[:, 0] * self.params.bleeding_onset_s
+            self.bleed_rate[indices] = (0.5 + 0.5 * draws[:, 1]) * self.params.bleeding_ml_s
+        self.random.next_episode(indices)
         for agent, arm in self.arms.items():
             arm.set_tips(indices, tips[agent] - arm.base_position)
         self.arms["grasper"].jaw[indices] = 1.0

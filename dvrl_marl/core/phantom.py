@@ -157,8 +157,11 @@ class Cavities:
     def cavity_at(self, x, y):
         """Index of the first cavity whose mouth contains (x, y), or -1."""
         xp = namespace(x)
-        inside = self._r2(x, y) < self.mouth_radius**2
-        return xp.where(xp.any(inside, axis=-1), xp.argmax(inside * 1, axis=-1), -1)
+        index = -1
+        for cavity in reversed(range(self.count)):  # (a few cavities: no (..., C) array to reduce)
+            dx, dy = x - self.centre_x[cavity], y - self.centre_y[cavity]
+            index = xp.where(dx * dx + dy * dy < self.mouth_radius[cavity] ** 2, cavity, index)
+        return index
 
     def per_cavity(self, values, cavity):
         """``values`` (one per cavity) of each element of ``cavity`` (indices)."""

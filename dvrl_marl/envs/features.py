@@ -54,6 +54,12 @@ class _Ops:
         return values.astype(self.dtype) if self.numpy else self.torch.as_tensor(values, dtype=self.dtype,
                                                                                  device=self.device)
 
+    def row(self, x, index):
+        """``x[..., index, :]`` for each leading index (``x`` (..., K, k), ``index`` (...))."""
+        if self.numpy:
+            return np.take_along_axis(x, index[..., None, None], axis=-2)[..., 0, :]
+        return self.torch.gather(x, -2, index[..., None, None].expand(*index.shape, 1, x.shape[-1]))[..., 0, :]
+
     def positive_part(self, x):
         return np.maximum(x, 0.0) if self.numpy else x.clamp_min(0.0)
 
@@ -61,13 +67,18 @@ class _Ops:
         return np.tanh(x) if self.numpy else self.torch.tanh(x)
 
 
+def _squared(v):
+    """Squared lengths of the last axis's 2 or 3 components (a sum written out: numpy reduces a short axis slowly)."""
+    out = v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
+    return out + v[..., 2] * v[..., 2] if v.shape[-1] == 3 else out
+
+
 def _nearest(ops, offset, pending):
     """``offset`` (..., K, 3) from the tip to K candidates, ``pending`` (..., K): the offset to the nearest pending
     one (zeros when none is) and whether there is one."""
-    distance = ops.where(pending, (offset * offset).sum(-1), _FAR)
-    chosen = ops.as_float(distance.argmin(-1)[..., None] == ops.arange(offset.shape[-2]))  # one-hot of the nearest
+    distance = ops.where(pending, _squared(offset), _FAR)
     has = pending.any(-1)
-    return (offset * (chosen * ops.as_float(has)[..., None])[..., None]).sum(-2), has
+    return ops.row(offset, distance.argmin(-1)) * ops.as_float(has)[..., None], has
 
 
 def feature_count(name: str) -> int:
@@ -75,6 +86,26 @@ def feature_count(name: str) -> int:
     if name not in FEATURES:
         raise ValueError(f"unknown observation features {name!r} (known: {sorted(FEATURES)})")
     return FEATURES[name]
+
+
+def _slots(observation, cavities, debris):
+    first = 7 + cavities
+    return observation[..., first:first + 6 * debris].reshape(*observation.shape[:-1], debris, 6)
+
+
+def _targets_parts(ops, observation, cavities, debris):
+    tip, other = observation[..., 0:3], observation[..., 4:7]
+    slots = _slots(observation, cavities, debris)
+    position = slots[..., 0:3]
+    visible, held, delivered = slots[..., 3] > 0.5, slots[..., 4] > 0.5, slots[..., 5] > 0.5
+    pending = visible & ~held & ~delivered
+    to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
+    holding = held.any(-1)
+    handoff = observation[..., -3:]
+    held_position = (position * ops.as_float(held)[..., None]).sum(-2)  # at most one pin is held
+    carry = (handoff - held_position) * ops.as_float(holding)[..., None]
+    return [to_pin, ops.as_float(has_pin)[..., None], ops.as_float(holding)[..., None], carry, handoff - tip,
+            other - tip]
 
 
 def suction_debris_targets(observation, *, cavities: int, debris: int):
@@ -87,19 +118,7 @@ def suction_debris_targets(observation, *, cavities: int, debris: int):
     - ``to_handoff`` (3): from the tip to the hand-off point; ``to_other`` (3): from the tip to the other arm's tip.
     """
     ops = _Ops(observation)
-    tip, other = observation[..., 0:3], observation[..., 4:7]
-    first = 7 + cavities
-    slots = observation[..., first:first + 6 * debris].reshape(*observation.shape[:-1], debris, 6)
-    position = slots[..., 0:3]
-    visible, held, delivered = slots[..., 3] > 0.5, slots[..., 4] > 0.5, slots[..., 5] > 0.5
-    pending = visible & ~held & ~delivered
-    to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
-    holding = held.any(-1)
-    handoff = observation[..., -3:]
-    held_position = (position * ops.as_float(held)[..., None]).sum(-2)  # at most one pin is held
-    carry = (handoff - held_position) * ops.as_float(holding)[..., None]
-    return ops.concatenate([to_pin, ops.as_float(has_pin)[..., None], ops.as_float(holding)[..., None], carry,
-                            handoff - tip, other - tip])
+    return ops.concatenate(_targets_parts(ops, observation, cavities, debris))
 
 
 def spec(name: str, layout, debris: int) -> dict:
@@ -122,6 +141,35 @@ def routes_geometry(layout) -> dict:
             "blood_threshold_fraction": [float(v) for v in layout.blood_threshold_fraction]}
 
 
+def _routes_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius, cavity_targets_z, rim_z,
+                  blood_threshold_fraction):
+    parts = _targets_parts(ops, observation, cavities, debris)
+    tip = observation[..., 0:3]
+    levels = observation[..., 7:7 + cavities]
+    centres = ops.constant(cavity_centres)  # (C, 2)
+    targets = ops.concatenate([centres, ops.constant(cavity_targets_z)[:, None]])  # (C, 3)
+    pending = (levels >= ops.constant(blood_threshold_fraction)) & (levels > 0.0)
+    to_cavity, has_cavity = _nearest(ops, targets - tip[..., None, :], pending)
+
+    mouth2 = float(cavity_mouth_radius) ** 2
+
+    def inside(points):  # (..., 3) -> (..., C): which cavity mouths the point lies over
+        return _squared(points[..., None, 0:2] - centres) < mouth2
+
+    # Below the rim the tip is in a cavity or beside the phantom: every way out but into the same cavity is walled.
+    below_rim = ops.positive_part(rim_z - tip[..., 2])
+    tip_over = inside(tip)
+
+    def climb(target, valid=None):
+        walled = ~(tip_over & inside(target)).any(-1)
+        return (below_rim * ops.as_float(walled if valid is None else walled & valid))[..., None]
+
+    handoff = observation[..., -3:]
+    pin = tip + parts[0]
+    return parts + [to_cavity, ops.as_float(has_cavity)[..., None], climb(tip + to_cavity, has_cavity),
+                    climb(pin, parts[1][..., 0] > 0.5), climb(handoff)]
+
+
 def suction_debris_routes(observation, *, cavities: int, debris: int, cavity_centres, cavity_mouth_radius,
                           cavity_targets_z, rim_z, blood_threshold_fraction):
     """``(..., obs_dim)`` -> ``(..., 21)``: :func:`suction_debris_targets`'s 14, then where to go next and whether
@@ -138,33 +186,32 @@ def suction_debris_routes(observation, *, cavities: int, debris: int, cavity_cen
     ``policy.json``), not state: the actor still reads nothing but its own observation.
     """
     ops = _Ops(observation)
-    base = suction_debris_targets(observation, cavities=cavities, debris=debris)
+    return ops.concatenate(_routes_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius,
+                                         cavity_targets_z, rim_z, blood_threshold_fraction))
+
+
+def _cleared_pins_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius, cavity_targets_z,
+                        rim_z, blood_threshold_fraction):
+    parts = _routes_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius, cavity_targets_z,
+                          rim_z, blood_threshold_fraction)
     tip = observation[..., 0:3]
     levels = observation[..., 7:7 + cavities]
-    centres = ops.constant(cavity_centres)  # (C, 2)
-    targets = ops.concatenate([centres, ops.constant(cavity_targets_z)[:, None]])  # (C, 3)
-    pending = (levels >= ops.constant(blood_threshold_fraction)) & (levels > 0.0)
-    to_cavity, has_cavity = _nearest(ops, targets - tip[..., None, :], pending)
-
+    centres = ops.constant(cavity_centres)
+    slots = _slots(observation, cavities, debris)
+    position = slots[..., 0:3]
+    home = ops.as_float(_squared(position[..., None, 0:2] - centres).argmin(-1)[..., None]
+                        == ops.arange(cavities))  # (..., D, C)
+    cleared = (levels < ops.constant(blood_threshold_fraction)) | (levels <= 0.0)  # (..., C)
+    in_cleared = (home * ops.as_float(cleared)[..., None, :]).sum(-1) > 0.5  # (..., D)
+    pending = (slots[..., 3] > 0.5) & (slots[..., 4] < 0.5) & (slots[..., 5] < 0.5) & in_cleared
+    to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
+    # the climb toward it, as suction_debris_routes measures its own
     mouth2 = float(cavity_mouth_radius) ** 2
-
-    def inside(points):  # (..., 3) -> (..., C): which cavity mouths the point lies over
-        horizontal = points[..., None, 0:2] - centres
-        return (horizontal * horizontal).sum(-1) < mouth2
-
-    # Below the rim the tip is in a cavity or beside the phantom: every way out but into the same cavity is walled.
-    below_rim = ops.positive_part(rim_z - tip[..., 2])
-    tip_over = inside(tip)
-
-    def climb(target, valid=None):
-        walled = ~(tip_over & inside(target)).any(-1)
-        return (below_rim * ops.as_float(walled if valid is None else walled & valid))[..., None]
-
-    handoff = observation[..., -3:]
-    pin = tip + base[..., 0:3]
-    return ops.concatenate([base, to_cavity, ops.as_float(has_cavity)[..., None],
-                            climb(tip + to_cavity, has_cavity), climb(pin, base[..., 3] > 0.5),
-                            climb(handoff)])
+    target = tip + to_pin
+    same = ((_squared(tip[..., None, 0:2] - centres) < mouth2) & (_squared(target[..., None, 0:2] - centres) < mouth2)
+            ).any(-1)
+    climb = ops.positive_part(rim_z - tip[..., 2]) * ops.as_float(~same & has_pin)
+    return parts + [to_pin, ops.as_float(has_pin)[..., None], climb[..., None]]
 
 
 def suction_debris_cleared_pins(observation, *, cavities: int, debris: int, cavity_centres, cavity_mouth_radius,
@@ -176,34 +223,20 @@ def suction_debris_cleared_pins(observation, *, cavities: int, debris: int, cavi
     1,500 steps (return 1.75 against 14.5 for one that kept away), and learnt to keep away from every pin.
     """
     ops = _Ops(observation)
-    geometry = dict(cavity_centres=cavity_centres, cavity_mouth_radius=cavity_mouth_radius,
-                    cavity_targets_z=cavity_targets_z, rim_z=rim_z, blood_threshold_fraction=blood_threshold_fraction)
-    base = suction_debris_routes(observation, cavities=cavities, debris=debris, **geometry)
-    tip = observation[..., 0:3]
-    levels = observation[..., 7:7 + cavities]
-    centres = ops.constant(cavity_centres)
-    first = 7 + cavities
-    slots = observation[..., first:first + 6 * debris].reshape(*observation.shape[:-1], debris, 6)
-    position = slots[..., 0:3]
-    horizontal = position[..., None, 0:2] - centres  # (..., D, C, 2)
-    home = ops.as_float((horizontal * horizontal).sum(-1).argmin(-1)[..., None] == ops.arange(cavities))  # (..., D, C)
-    cleared = (levels < ops.constant(blood_threshold_fraction)) | (levels <= 0.0)  # (..., C)
-    in_cleared = (home * ops.as_float(cleared)[..., None, :]).sum(-1) > 0.5  # (..., D)
-    pending = (slots[..., 3] > 0.5) & (slots[..., 4] < 0.5) & (slots[..., 5] < 0.5) & in_cleared
-    to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
-    # the climb toward it, as suction_debris_routes measures its own
-    mouth2 = float(cavity_mouth_radius) ** 2
-    target = tip + to_pin
-    tip_h, target_h = tip[..., None, 0:2] - centres, target[..., None, 0:2] - centres
-    same = (((tip_h * tip_h).sum(-1) < mouth2) & ((target_h * target_h).sum(-1) < mouth2)).any(-1)
-    climb = ops.positive_part(rim_z - tip[..., 2]) * ops.as_float(~same & has_pin)
-    return ops.concatenate([base, to_pin, ops.as_float(has_pin)[..., None], climb[..., None]])
+    return ops.concatenate(_cleared_pins_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius,
+                                               cavity_targets_z, rim_z, blood_threshold_fraction))
 
 
 #: :func:`suction_debris_cleared_pins_zoom`'s scale: 5 mm in the observation's normalised units (workspace range
 #: 80 mm, tasks/suction_debris.toml), fixed as every feature set's definition is; tanh(offset / ZOOM) resolves the
 #: last few millimetres and saturates beyond about a centimetre.
 ZOOM = 0.005 / 0.08
+
+
+def _cleared_pins_zoom_parts(ops, observation, *arguments):
+    parts = _cleared_pins_parts(ops, observation, *arguments)
+    to_clear_pin, carry = parts[-3], parts[3]
+    return parts + [ops.tanh(to_clear_pin / ZOOM), ops.tanh(carry / ZOOM)]
 
 
 def suction_debris_cleared_pins_zoom(observation, *, cavities: int, debris: int, cavity_centres,
@@ -216,19 +249,18 @@ def suction_debris_cleared_pins_zoom(observation, *, cavities: int, debris: int,
     detail a small tanh network resolves slowly. The zoomed copies give those millimetres the whole of a unit's
     range (multi-scale inputs); they are functions of the actor's own observation, as every feature here."""
     ops = _Ops(observation)
-    geometry = dict(cavity_centres=cavity_centres, cavity_mouth_radius=cavity_mouth_radius,
-                    cavity_targets_z=cavity_targets_z, rim_z=rim_z, blood_threshold_fraction=blood_threshold_fraction)
-    base = suction_debris_cleared_pins(observation, cavities=cavities, debris=debris, **geometry)
-    to_clear_pin, carry = base[..., 21:24], base[..., 5:8]
-    return ops.concatenate([base, ops.tanh(to_clear_pin / ZOOM), ops.tanh(carry / ZOOM)])
+    return ops.concatenate(_cleared_pins_zoom_parts(ops, observation, cavities, debris, cavity_centres,
+                                                    cavity_mouth_radius, cavity_targets_z, rim_z,
+                                                    blood_threshold_fraction))
 
 
 #: Known feature sets and how many values each appends.
 FEATURES = {"suction_debris_targets": 14, "suction_debris_routes": 21, "suction_debris_cleared_pins": 26,
             "suction_debris_cleared_pins_zoom": 32}
-_FUNCTIONS = {"suction_debris_targets": suction_debris_targets, "suction_debris_routes": suction_debris_routes,
-              "suction_debris_cleared_pins": suction_debris_cleared_pins,
-              "suction_debris_cleared_pins_zoom": suction_debris_cleared_pins_zoom}
+_PARTS = {"suction_debris_targets": _targets_parts, "suction_debris_routes": _routes_parts,
+          "suction_debris_cleared_pins": _cleared_pins_parts, "suction_debris_cleared_pins_zoom": _cleared_pins_zoom_parts}
+_ARGUMENTS = ("cavities", "debris", "cavity_centres", "cavity_mouth_radius", "cavity_targets_z", "rim_z",
+              "blood_threshold_fraction")
 #: Feature sets that carry the scene's geometry in their spec (:func:`routes_geometry`).
 NEEDS_GEOMETRY = {"suction_debris_routes", "suction_debris_cleared_pins", "suction_debris_cleared_pins_zoom"}
 
@@ -237,7 +269,15 @@ def apply(spec: dict, observation):
     """``observation`` with the features ``spec`` names appended (``spec``: ``{"name": ..., **arguments}`` as a
     policy's ``policy.json`` keeps it under ``"features"``)."""
     name = spec.get("name")
-    if name not in _FUNCTIONS:
-        raise ValueError(f"unknown observation features {name!r} (known: {sorted(_FUNCTIONS)})")
+    if name not in _PARTS:
+        raise ValueError(f"unknown observation features {name!r} (known: {sorted(_PARTS)})")
     arguments = {k: v for k, v in spec.items() if k != "name"}
-    return _Ops(observation).concatenate([observation, _FUNCTIONS[name](observation, **arguments)])
+    unknown = sorted(set(arguments) - set(_ARGUMENTS))
+    if unknown:
+        raise ValueError(f"observation features {name!r}: unknown arguments {unknown}")
+    ops = _Ops(observation)
+    try:
+        values = [arguments[key] for key in _ARGUMENTS[:2 if name == "suction_debris_targets" else len(_ARGUMENTS)]]
+    except KeyError as missing:
+        raise ValueError(f"observation features {name!r}: missing argument {missing}") from None
+    return ops.concatenate([observation, *_PARTS[name](ops, observation, *values)])  # (one copy of the row)

@@ -32,6 +32,16 @@ from dvrl_marl.schemas import STRICT, Flag, NonNegative
 __all__ = ["Guidance", "GuidedReward", "SceneFacts", "GraspPathShaping", "SuctionRouteShaping", "OverRims"]
 
 
+def _length(v):
+    """Lengths of (..., 3) vectors (the sum written out: numpy's ``linalg.norm`` reduces a short axis slowly; the
+    same additions in the same order)."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+
+
+def _squared_2d(v):
+    return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
+
+
 @dataclass(frozen=True, config=STRICT)
 class Guidance:
     """The guided reward's settings (``guidance={...}`` beside ``reward_type="guided"``); the defaults are the
@@ -188,8 +198,8 @@ class GraspPathShaping:
         handoff = state[:, None, self.handoff]
         visible, held, delivered = debris[..., 3] > 0.5, debris[..., 4] > 0.5, debris[..., 5] > 0.5
         pending = visible & ~delivered & ~held
-        to_pin = np.linalg.norm(debris[..., :3] - tip, axis=-1) * self.range
-        to_handoff = np.linalg.norm(debris[..., :3] - handoff, axis=-1) * self.range
+        to_pin = _length(debris[..., :3] - tip) * self.range
+        to_handoff = _length(debris[..., :3] - handoff) * self.range
         rise = np.array([0.0, 0.0, self.APPROACH_HEIGHT / self.range]) if self.centred else np.zeros(3)
         approach = debris[..., :3] + rise  # centred: come down onto the pin's centre from above it
         # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
@@ -201,7 +211,7 @@ class GraspPathShaping:
         carry = np.zeros(len(state))
         height = self.APPROACH_HEIGHT if self.centred else 0.0
         if self.over_rims is None:
-            to_approach = np.linalg.norm(approach - tip, axis=-1) * self.range + height if self.centred else to_pin
+            to_approach = _length(approach - tip) * self.range + height if self.centred else to_pin
             path = np.where(targets, to_approach + to_handoff, np.inf).min(axis=1)
         else:  # the same path, measured around the phantom (and the carry too)
             world = lambda x: x * self.range + self.centre  # noqa: E731
@@ -214,8 +224,8 @@ class GraspPathShaping:
         way_home = np.zeros(len(state))
         if self.home is not None:  # nothing to collect or carry: the way to the waiting place
             tip_w = tip[:, 0] * self.range + self.centre
-            way_home = self.over_rims.distance(tip_w, self.home) if self.over_rims is not None else np.linalg.norm(
-                tip_w - self.home, axis=-1)
+            way_home = self.over_rims.distance(tip_w, self.home) if self.over_rims is not None else _length(
+                tip_w - self.home)
         # idle: the env's pull toward pins not to be collected yet (cleared_only) is cancelled
         detour = (np.where(live, np.where(live, path, 0.0) - env_term, 0.0) + np.where(idle, way_home - env_term, 0.0)
                   + np.where(holding, carry, 0.0))
@@ -226,7 +236,7 @@ class GraspPathShaping:
             bonus = bonus * np.clip(1.0 - beyond / self.delivery_threshold, 0.0, 1.0)
         if self.off_centre > 0.0:  # the held pin's horizontal distance from the tip: 0 for a grasp at its centre
             pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
-            off = np.linalg.norm((pin - tip[:, 0])[:, :2], axis=-1) * self.range
+            off = np.sqrt(_squared_2d((pin - tip[:, 0])[:, :2])) * self.range
             detour = detour + self.off_centre * np.where(holding, off, 0.0)
         return -self.weight * detour + bonus
 
@@ -235,7 +245,7 @@ class GraspPathShaping:
         the held pin onto the hand-off point, keeping its grasp; 0 when nothing is held."""
         pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
         needed = handoff - (pin - tip)
-        outside = np.linalg.norm(needed - np.clip(needed, -1.0, 1.0), axis=-1) * self.range
+        outside = _length(needed - np.clip(needed, -1.0, 1.0)) * self.range
         return np.where(held.any(axis=1), outside, 0.0)
 
     def _in_cleared_cavity(self, state, debris) -> np.ndarray:
@@ -273,8 +283,9 @@ class OverRims:
         self.height = self.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
 
     def _lift(self, point, region):
-        z = np.where(region != -1, np.maximum(point[..., 2], self.height), point[..., 2])
-        return np.concatenate([point[..., :2], z[..., None]], axis=-1)
+        lifted = np.array(point, dtype=np.float64)
+        lifted[..., 2] = np.where(region != -1, np.maximum(point[..., 2], self.height), point[..., 2])
+        return lifted
 
     def region(self, point) -> np.ndarray:
         """The cavity a point lies over (its index), BESIDE the phantom below its top, or -1 (above the top)."""
@@ -288,10 +299,9 @@ class OverRims:
         start, goal = np.broadcast_arrays(start, goal)
         from_cavity = self.region(start)
         to_cavity = self.region(goal)
-        straight = np.linalg.norm(goal - start, axis=-1)
+        straight = _length(goal - start)
         up, down = self._lift(start, from_cavity), self._lift(goal, to_cavity)
-        around = (np.linalg.norm(up - start, axis=-1) + np.linalg.norm(down - up, axis=-1)
-                  + np.linalg.norm(goal - down, axis=-1))
+        around = _length(up - start) + _length(down - up) + _length(goal - down)
         return np.where(from_cavity == to_cavity, straight, around)
 
     def point_along(self, start, goal, fraction: float) -> np.ndarray:
@@ -347,6 +357,8 @@ class SuctionRouteShaping:
         self.floors = np.stack([cavities.centre_x, cavities.centre_y, cavities.floor_z], axis=1)  # (C, 3)
         self.orders = np.array(list(itertools.permutations(range(len(self.floors)))))  # (P, C)
         self.park = (suction_parking_place(env.layout, self.range) * self.range + self.centre) if park else None
+        self.between = self._measure(self.floors[:, None, :], self.floors[None])  # (C, C): floor to floor
+        self.floor_to_park = self._measure(self.floors, self.park) if park else None  # (C,)
 
     @property
     def active(self) -> bool:
@@ -356,26 +368,29 @@ class SuctionRouteShaping:
         """``state``: (N, state_dim); ``blood_ml``: (N, C), each cavity's remaining blood."""
         tip = state[:, self.tip] * self.range + self.centre
         pending = (blood_ml >= self.threshold) & (blood_ml > 0.0)
-        to_floor = np.linalg.norm(tip[:, None, :] - self.floors[None], axis=-1)  # (N, C)
+        to_floor = _length(tip[:, None, :] - self.floors[None])  # (N, C)
         nearest = np.where(pending, to_floor, np.inf).min(axis=1)
         nearest = np.where(pending.any(axis=1), nearest, 0.0)
-        # shortest route tip -> every pending cavity, over the visiting orders (2 cavities: 2 orders)
+        # shortest route tip -> every pending cavity, over the visiting orders (2 cavities: 2 orders); only the
+        # first leg starts at the tip, the others join fixed points (measured once, in __init__)
         measure = self._measure
+        from_tip = measure(tip[:, None, :], self.floors[None])  # (N, C)
+        to_park = measure(tip, self.park) if self.park is not None else None
         route = np.full(len(state), np.inf)
         for order in self.orders:
             length = np.zeros(len(state))
-            here = tip
+            here = np.full(len(state), -1)  # -1: the tip, else the cavity whose floor the route has reached
             for cavity in order:
-                step = measure(here, self.floors[cavity])
-                length = length + np.where(pending[:, cavity], step, 0.0)
-                here = np.where(pending[:, cavity, None], self.floors[cavity], here)
+                leg = np.where(here < 0, from_tip[:, cavity], self.between[np.maximum(here, 0), cavity])
+                length = length + np.where(pending[:, cavity], leg, 0.0)
+                here = np.where(pending[:, cavity], cavity, here)
             if self.park is not None:
-                length = length + measure(here, self.park)
+                length = length + np.where(here < 0, to_park, self.floor_to_park[np.maximum(here, 0)])
             route = np.minimum(route, length)
         cleared = (~pending).sum(axis=1)
         return -self.weight * (route - nearest) + self.clear_bonus * cleared
 
     def _measure(self, start, goal):
         if self.over_rims is None:
-            return np.linalg.norm(np.broadcast_to(goal, start.shape) - start, axis=-1)
+            return _length(goal - start)
         return self.over_rims.distance(start, goal)

@@ -22,9 +22,9 @@ the near-pin starts receding over the first 30 % of the run, then the easy share
 lived in the MAPPO trainer until 0.1.0 moved it into the env: a library's own curriculum drives it by setting the level
 at each reset; the trainer's ``[curriculum]`` schedule is one such curriculum.
 
-The level's draws come from a stream of their own, seeded with the env's ``reset(seed=...)`` (world ``i`` of the
-batched env draws what a single env reset with ``seed + i`` draws), so the default task's random stream is never
-touched and single and batched envs start the same episodes.
+The level's draws come from streams of their own (:mod:`dvrl_marl.core.streams`: a draw is a function of the
+world's seed, its episode and the quantity drawn), so the default task's draws are never touched, level 1 is the
+default task bit for bit, and single and batched envs start the same episodes.
 """
 
 from __future__ import annotations
@@ -33,16 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["EASY", "DEFAULT", "NAMED_LEVELS", "EasyEpisodes", "EASY_EPISODES", "StartDraw", "checked_level",
-           "checked_schedule", "scheduled_level", "draw", "grasper_start", "level_generator"]
+__all__ = ["EASY", "DEFAULT", "NAMED_LEVELS", "EasyEpisodes", "EASY_EPISODES", "StartDraws", "checked_level",
+           "checked_schedule", "scheduled_level", "draw", "grasper_uniforms", "grasper_start"]
 
 EASY = 0.0
 DEFAULT = 1.0
 NAMED_LEVELS = {"easy": EASY, "default": DEFAULT}
-#: Entropy that separates the levels' stream from the episode's own (any fixed number; changing it changes the
-#: easy episodes a seed draws).
-_LEVEL_STREAM = 0x5EED_1E7E
-
 
 @dataclass(frozen=True)
 class EasyEpisodes:
@@ -63,14 +59,14 @@ EASY_EPISODES = EasyEpisodes()
 
 
 @dataclass(frozen=True)
-class StartDraw:
-    """One episode's start at a level: ``easy``, the blood (ml per cavity), the debris in play and how far back
-    from its pin the grasper starts (a fraction of the way to its ordinary start)."""
+class StartDraws:
+    """The starts of M episodes at their levels: ``easy`` (M,), the blood (M, C) ml, the debris in play (M,) and
+    how far back from its pin the grasper starts (M,), a fraction of the way to its ordinary start."""
 
-    easy: bool
+    easy: np.ndarray
     blood_ml: np.ndarray
-    debris_count: int
-    reach: float
+    debris_count: np.ndarray
+    reach: np.ndarray
 
 
 def checked_level(value, owner: str) -> float:
@@ -108,34 +104,43 @@ def scheduled_level(levels, progress: float) -> float:
     return float(np.interp(min(max(progress, 0.0), 1.0), points, values))
 
 
-def level_generator(seed: int | None) -> np.random.Generator:
-    """The levels' random stream of an env reset with ``seed`` (fresh entropy for None)."""
-    return np.random.default_rng(None if seed is None else (_LEVEL_STREAM, int(seed)))
-
-
-def draw(rng: np.random.Generator, level: float, blood_ml, debris_count: int,
-         easy: EasyEpisodes = EASY_EPISODES) -> StartDraw:
-    """The start of one episode at ``level`` (< 1; level 1 draws nothing), given the task's blood and debris."""
+def draw(streams, worlds: np.ndarray, levels: np.ndarray, blood_ml, debris_count: int,
+         easy: EasyEpisodes = EASY_EPISODES) -> StartDraws:
+    """The starts of the episodes ``worlds`` begin at ``levels`` (M,), given the task's blood and debris, from
+    ``streams`` (:class:`~dvrl_marl.core.streams.ResetStreams`, before the core's reset moves them on). A world at
+    level 1 is never easy."""
     blood_ml = np.asarray(blood_ml, dtype=np.float64)
-    if not rng.random() < 1.0 - level:
-        return StartDraw(False, blood_ml.copy(), int(debris_count), 0.0)
-    blood = rng.random(len(blood_ml)) * blood_ml
+    levels = np.asarray(levels, dtype=np.float64)
+    is_easy = streams.uniforms(worlds, "level", 1)[:, 0] < 1.0 - levels
+    blood = streams.uniforms(worlds, "level_blood", len(blood_ml)) * blood_ml
     if easy.empty_cavity_probability > 0:
-        blood[rng.random(len(blood)) < easy.empty_cavity_probability] = 0.0
-    count = int(rng.integers(1, debris_count + 1))
-    return StartDraw(True, blood, count, min(1.0, 2.0 * level))
+        blood = np.where(streams.uniforms(worlds, "level_empty", len(blood_ml)) < easy.empty_cavity_probability,
+                         0.0, blood)
+    count = 1 + np.minimum((streams.uniforms(worlds, "level_debris", 1)[:, 0] * debris_count).astype(np.int64),
+                           debris_count - 1)
+    return StartDraws(is_easy, np.where(is_easy[:, None], blood, blood_ml),
+                      np.where(is_easy, count, int(debris_count)),
+                      np.where(is_easy, np.minimum(1.0, 2.0 * levels), 0.0))
 
 
-def grasper_start(rng: np.random.Generator, pins, pending, ordinary_tip, reach: float, rims,
+def grasper_uniforms(streams, worlds: np.ndarray) -> np.ndarray:
+    """(M, 5): what :func:`grasper_start` draws for each of ``worlds`` (taken with :func:`draw`, before the reset)."""
+    return np.concatenate([streams.uniforms(worlds, "level_pin", 1), streams.uniforms(worlds, "level_aside", 3),
+                           streams.uniforms(worlds, "level_reach", 1)], axis=1)
+
+
+def grasper_start(draws: np.ndarray, pins, pending, ordinary_tip, reach: float, rims,
                   easy: EasyEpisodes = EASY_EPISODES):
     """Where an easy episode's grasper starts (world metres, (3,)), or None when no pin is in view: above one of the
     ``pending`` pins (``pins``: (D, 3) world positions), moved back toward ``ordinary_tip`` by a uniform share of at
-    most ``reach`` of the way :meth:`OverRims.point_along` measures (``rims``)."""
+    most ``reach`` of the way :meth:`OverRims.point_along` measures (``rims``). ``draws``: the world's row of
+    :func:`grasper_uniforms`."""
     candidates = np.flatnonzero(pending)
     if len(candidates) == 0:
         return None
-    pin = np.asarray(pins[candidates[int(rng.integers(len(candidates)))]], dtype=np.float64)
-    target = pin + np.array([0.0, 0.0, easy.above_pin]) + rng.uniform(-easy.aside, easy.aside, 3) * [1, 1, 0.25]
+    pin = np.asarray(pins[candidates[min(int(draws[0] * len(candidates)), len(candidates) - 1)]], dtype=np.float64)
+    aside = -easy.aside + 2.0 * easy.aside * draws[1:4]
+    target = pin + np.array([0.0, 0.0, easy.above_pin]) + aside * [1, 1, 0.25]
     if reach > 0:
-        target = rims.point_along(target, np.asarray(ordinary_tip, dtype=np.float64), rng.uniform(0.0, reach))
+        target = rims.point_along(target, np.asarray(ordinary_tip, dtype=np.float64), reach * draws[4])
     return target

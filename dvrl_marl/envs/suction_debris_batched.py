@@ -40,9 +40,10 @@ the three options above. World ``i``'s level draws are those of a single env res
 ``(N, obs_dim)`` and returns ``(N, 4)``. Teleoperation devices drive one world: use ``parallel_env`` for them.
 
 ## Seeding
-``reset(seed=s)`` gives world ``i`` the random stream of ``parallel_env().reset(seed=s + i)``; a world that
-resets automatically continues that stream, as a single env reset without a seed does. Same seeds and actions
-give the single environment's trajectories, world by world (tested over 1,000 steps with resets).
+``reset(seed=s)`` gives world ``i`` the seed ``s + i``: it starts the episodes ``parallel_env().reset(seed=s + i)``
+starts, episode after episode. A reset's draws are counter-based (:mod:`dvrl_marl.core.streams`): a function of
+the world's seed, its episode count and the quantity drawn, so a world is the same world in a batch of any size,
+whatever the other worlds do, and on every array library.
 
 ## Rendering
 ``render()`` draws world ``render_world`` (default 0; ``render(world=i)`` any other) through the single
@@ -156,7 +157,6 @@ class SuctionDebrisBatchedEnv:
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
         self._surgeon_resets_worlds = takes_worlds(getattr(self._surgeon, "reset", None))
         self.levels = np.full(self.num_envs, self.start_level)  # each world's start level
-        self._level_rngs = [start_levels.level_generator(None) for _ in range(self.num_envs)]
         self._rims = None  # the way around the rims, for easy starts that recede (built on first use)
         self._level_blood = np.zeros(self.num_envs, dtype=bool)  # worlds whose blood a level's draw set
         self._guided = GuidedReward(self, self.possible_agents, self.guidance) if self.guidance is not None else None
@@ -314,7 +314,6 @@ class SuctionDebrisBatchedEnv:
                              "blood_ml / debris_count / tip_positions or level, not both")
         if seed is not None:
             self.core.random.seed(seed)  # (validates the seed before anything is drawn)
-            self._seed_levels(seed)
         self.levels = levels
         if np.any(self.levels[worlds] < start_levels.DEFAULT):
             self._start_at_levels(worlds)
@@ -379,39 +378,27 @@ class SuctionDebrisBatchedEnv:
             return np.array([start_levels.checked_level(v, f"{self.name}: level") for v in values])
         return np.full(self.num_envs, start_levels.checked_level(level, f"{self.name}: level"))
 
-    def _seed_levels(self, seed) -> None:
-        """World i's level stream: a single env's reset with seed + i (or the i-th of a list of seeds)."""
-        seeds = [int(s) for s in seed] if hasattr(seed, "__iter__") and not isinstance(seed, (str, bytes)) else [
-            int(seed) + i for i in range(self.num_envs)]
-        self._level_rngs = [start_levels.level_generator(s) for s in seeds]
-
     def _start_at_levels(self, worlds: np.ndarray) -> None:
         """New episodes for ``worlds`` at their levels (easy starts: :mod:`dvrl_marl.envs.start_levels`)."""
         core, params = self.core, self.params
-        draws = {}
-        for world in worlds.tolist():
-            if self.levels[world] < start_levels.DEFAULT:
-                draws[world] = start_levels.draw(self._level_rngs[world], float(self.levels[world]), params.blood_ml,
-                                                 params.debris_count)
-        blood = np.tile(np.asarray(params.blood_ml, dtype=np.float64), (len(worlds), 1))
-        for row, world in enumerate(worlds.tolist()):
-            if world in draws:
-                blood[row] = draws[world].blood_ml
-        core.reset(worlds, blood_ml=blood)
+        drawn = start_levels.draw(core.random, worlds, np.minimum(self.levels[worlds], start_levels.DEFAULT),
+                                  params.blood_ml, params.debris_count)
+        grasper_draws = start_levels.grasper_uniforms(core.random, worlds)  # (this episode's: before the reset)
+        core.reset(worlds, blood_ml=drawn.blood_ml)
         self._level_blood[worlds] = True
-        easy = [world for world, drawn in draws.items() if drawn.easy]
-        if not easy:
+        if not drawn.easy.any():
             return
-        easy = np.array(easy)
-        core.limit_debris(easy, np.array([draws[world].debris_count for world in easy.tolist()]))
+        easy = worlds[drawn.easy]
+        core.limit_debris(easy, drawn.debris_count[drawn.easy])
         core.limit[easy] = min(params.max_cycles, self.easy_episode_steps or params.max_cycles)
         if self._rims is None:
             self._rims = OverRims(core.cavities)
         grasper = core.arms["grasper"]
-        for world in easy.tolist():
+        for row in np.flatnonzero(drawn.easy).tolist():
+            world = int(worlds[row])
             pending = core.visible[world] & ~core.delivered[world]
-            target = start_levels.grasper_start(self._level_rngs[world], core.debris_position[world], pending,
-                                                grasper.tip[world] + grasper.base_position, draws[world].reach,
+            target = start_levels.grasper_start(grasper_draws[row], core.debris_position[world], pending,
+                                                grasper.tip[world] + grasper.base_position, float(drawn.reach[row]),
                                                 self._rims)
             if target is None:
                 continue
@@ -490,20 +477,30 @@ class SuctionDebrisBatchedEnv:
         several masked resets in a row)."""
         observations = self.core.observations(self.agents)
         if self.feature_spec is not None:
-            observations = {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
+            observations = self._with_features(observations)
         if self.observation_scaling is not None:
             observations = {agent: self.observation_scaling.observation(agent, value)
                             for agent, value in observations.items()}
         return observations
+
+    def _with_features(self, observations: dict) -> dict:
+        """Every agent's observations with the feature set appended, computed for all agents in one call (rows are
+        independent; one call instead of one per agent is what a small batch needs)."""
+        values = list(observations.values())
+        if len({value.shape for value in values}) > 1:
+            return {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
+        together = features.apply(self.feature_spec, np.concatenate(values, axis=0))
+        return dict(zip(observations, np.split(together, len(values), axis=0)))
 
     def state(self) -> np.ndarray:
         """(N, state_dim): the global state of every world, for centralised critics (with ``state_observations``,
         every arm's observation after it, as the single env's)."""
         state = self.core.state()
         if self.state_observations:
-            observations = list(self.core.observations(AGENTS).values())
+            observations = self.core.observations(AGENTS)
             if self.feature_spec is not None:
-                observations = [features.apply(self.feature_spec, observation) for observation in observations]
+                observations = self._with_features(observations)
+            observations = list(observations.values())
             state = np.concatenate([state, *observations], axis=1)
         return state if self.observation_scaling is None else self.observation_scaling.state(state)
 

@@ -2,10 +2,11 @@
 
     python tests/golden/record.py <env module> <out.npz>
 
-``<env module>``: ``suction_debris_v8`` here; at commit 36a42a0, where the file was first recorded,
-``suction_debris_v7`` (the same rules), with the benchmark's options spelt out, as this script does. Each case steps a
-batch of worlds with seeded random actions (numpy's PCG64, stable across releases), or the scripted team in one world,
-and keeps every step's state, rewards and flags.
+``<env module>``: ``suction_debris_v8``. The file was first recorded at commit 36a42a0 (``suction_debris_v7``, the same
+rules) and recorded again when resets moved to counter-based streams (``dvrl_marl.core.streams``: every reset draw
+changed on purpose; the step goldens, ``record_steps.py``, held every step unchanged). Each case steps a batch of worlds
+with seeded random actions (numpy's PCG64, stable across releases), or the scripted team in one world, and keeps
+every step's state, rewards and flags; ``levels_random`` starts episodes at start level 0.3 (easy draws included).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ CASES = {
     "default_scripted": ({}, 1, 1000, True),
     "benchmark_scripted": (BENCHMARK, 1, 1000, True),
     "bleeding_scripted": ({"bleeding_ml_s": 0.1}, 1, 1000, True),
+    "levels_random": ({"start_level": 0.3, "bleeding_ml_s": 0.1}, 4, 400, False),
 }
 
 

@@ -23,7 +23,9 @@ from record import CASES  # noqa: E402
 
 #: The trajectory cases, and the scripted team with noise whose grasper opens its jaw now and then: held pins drop
 #: mid-air, fall and land (on a cavity floor, the phantom's top or its edge), and are taken again.
-STEP_CASES = {**CASES, "drops_scripted": ({}, 4, 600, "drops")}
+STEP_CASES = {**{name: CASES[name] for name in ("default_random", "benchmark_random", "bleeding_random", "tools_random",
+                                                "default_scripted", "benchmark_scripted", "bleeding_scripted")},
+              "drops_scripted": ({}, 4, 600, "drops")}
 
 FIELDS = ("valve_opening", "initial_ml", "remaining_ml", "surface_z", "debris_position", "debris_yaw", "debris_cavity",
           "visible", "held", "delivered", "lifted", "fall_speed", "added_ml", "bleed_onset", "bleed_rate", "holding",

@@ -1,0 +1,95 @@
+"""Counter-based random streams for resets: a world's draws are a function of (its seed, its episode, the draw).
+
+A generator object per world (``numpy.random.Generator``) makes world i's episodes depend on how many numbers it
+drew before, on the library that holds it and on a Python loop over the worlds. Here a draw is a pure function of
+four integers, ``(key, episode, stream, index)``: the world's seed, how many episodes it started since it was
+seeded, which quantity is drawn (a fixed number per purpose, :data:`STREAMS`) and which of them. So world i is the
+same world on every backend (the hash below uses only integer additions, multiplications, shifts and xors, which
+numpy, torch and JAX compute alike), in a batch of any size, and whatever the other worlds do; all worlds reset in
+a step draw together, as arrays.
+
+The hash is ``lowbias32`` (Wellons, "Hash function prospector", 2018) chained over the four inputs; two 32-bit
+outputs make one double in [0, 1) with 53 random bits. Its arithmetic runs in int64 with 32-bit masks (torch has
+no unsigned 64-bit multiply), every product below 2^63.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvrl_marl.core.backend import namespace
+
+__all__ = ["STREAMS", "ResetStreams", "uniforms"]
+
+#: One stream per quantity a reset draws (changing a number changes what every seed draws).
+STREAMS = {"tips": 1, "pin_slots": 2, "pin_yaws": 3, "pin_cavities": 4, "pin_turns": 5, "bleeding": 6,
+           "level": 7, "level_blood": 8, "level_empty": 9, "level_debris": 10, "level_pin": 11, "level_aside": 12,
+           "level_reach": 13}
+
+_MASK = 0xFFFFFFFF
+
+
+def _times(x, constant: int):
+    """``x * constant`` modulo 2^32, for ``x`` in [0, 2^32) held in int64 (the halves keep every product < 2^48)."""
+    low, high = x & 0xFFFF, x >> 16
+    return (low * constant + ((high * constant) & 0xFFFF) * 65536) & _MASK
+
+
+def _mix(x):
+    """lowbias32: a bijection of [0, 2^32) that spreads every input bit over the output."""
+    x = x ^ (x >> 16)
+    x = _times(x, 0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = _times(x, 0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def uniforms(key_low, key_high, episode, stream: int, count: int):
+    """``(M, count)`` doubles in [0, 1): draws ``0 .. count - 1`` of ``stream`` for M worlds, each given by its
+    key's two 32-bit halves and its episode (``(M,)`` int64 arrays of any array library)."""
+    xp = namespace(key_low)
+    index = xp.arange(2 * count, dtype=xp.int64)[None, :]
+    h = _mix(key_low[:, None] ^ _mix(key_high[:, None] ^ _mix((episode[:, None] & _MASK) ^ _mix(
+        (index + (stream << 20)) & _MASK))))
+    high, low = h[:, 0::2] >> 5, h[:, 1::2] >> 6  # 27 + 26 bits, as numpy's own random doubles take them
+    return xp.astype(high * 67108864 + low, xp.float64) / 9007199254740992.0
+
+
+class ResetStreams:
+    """The reset draws of N worlds. ``seed(s)`` gives world i the key ``s + i`` (a list of seeds: one per world),
+    so world i of a batch draws what a single env reset with ``seed=s + i`` draws, episode after episode;
+    ``seed(None)`` takes fresh entropy. ``uniforms(worlds, stream, count)`` draws for the episode each of ``worlds``
+    is starting; :meth:`next_episode` then moves those worlds on."""
+
+    def __init__(self, num_worlds: int):
+        self.num_worlds = int(num_worlds)
+        self.keys = np.zeros(self.num_worlds, dtype=np.uint64)
+        self.episode = np.zeros(self.num_worlds, dtype=np.int64)
+        self.seed(None)
+
+    def seed(self, seed) -> None:
+        if seed is None:
+            base = np.random.SeedSequence().generate_state(1, np.uint64)[0]
+            seeds = [(int(base) + i) % 2**64 for i in range(self.num_worlds)]
+        else:
+            from dvrl_marl.schemas import Seed, Seeds, validated
+
+            if isinstance(seed, (str, bytes)) or not hasattr(seed, "__iter__"):  # one seed (a string is no list)
+                seeds = [validated(Seed, seed, "reset(seed=...)") + i for i in range(self.num_worlds)]
+            else:
+                seeds = validated(Seeds, list(seed), "reset(seed=[...]): one seed per world")
+                if len(seeds) != self.num_worlds:
+                    raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
+        self.keys = np.array([s % 2**64 for s in seeds], dtype=np.uint64)
+        self.episode[:] = 0
+
+    def uniforms(self, worlds: np.ndarray, stream: str, count: int) -> np.ndarray:
+        """``(len(worlds), count)`` doubles in [0, 1) of ``stream`` (a name of :data:`STREAMS`) for the episode
+        each world is starting."""
+        keys = self.keys[worlds]
+        low = (keys & np.uint64(_MASK)).astype(np.int64)
+        high = (keys >> np.uint64(32)).astype(np.int64)
+        return uniforms(low, high, self.episode[worlds], STREAMS[stream], int(count))
+
+    def next_episode(self, worlds: np.ndarray) -> None:
+        self.episode[worlds] += 1
