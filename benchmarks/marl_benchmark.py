@@ -319,6 +319,8 @@ def command_run(args) -> int:
     results = Path(args.results)
     options = _task_options(args.level)  # read once: the record says what ran, whatever the file says later
     ppo = _rllib_recipe().benchmark_ppo_settings() if args.library == "rllib" else None  # read once, as the options
+    if ppo is not None and args.batch_frames:  # (a smaller batch, named in the record's settings)
+        ppo.update(train_batch=int(args.batch_frames), minibatch=min(int(ppo["minibatch"]), int(args.batch_frames)))
     settings = (_benchmarl_settings(args.algorithm, args.algorithm_file, args.model_file, args.experiment_file)
                 if args.library == "benchmarl" else _rllib_settings(ppo) if args.library == "rllib"
                 else None)  # read once, as the options
@@ -512,7 +514,7 @@ def main(argv=None) -> int:
     run.add_argument("--frames", type=int, default=2_000_000, help="env steps of all worlds (default %(default)s)")
     run.add_argument("--worlds", type=int, default=256, help="BenchMARL: worlds per batch (default %(default)s)")
     run.add_argument("--batch-frames", type=int, default=0,
-                     help="BenchMARL: frames per collected batch (0: the shipped experiment.yaml's)")
+                     help="BenchMARL, RLlib: frames per collected batch (0: the shipped experiment.yaml's)")
     run.add_argument("--eval-every", type=int, default=245_760, help="frames between validations (default %(default)s)")
     run.add_argument("--test-episodes", type=int, default=TEST_EPISODES, help="held-out test episodes (default %(default)s)")
     run.add_argument("--eval-episodes", type=int, default=0,
