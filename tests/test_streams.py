@@ -41,7 +41,7 @@ def test_streams_are_uniform_and_apart():
     assert np.all(np.abs(counts - 8000) < 5 * np.sqrt(8000))  # 5 sigma
     assert abs(np.corrcoef(a[:, 0], b[:, 0])[0, 1]) < 0.03  # two quantities of one world
     assert abs(np.corrcoef(a[:-1, 0], a[1:, 0])[0, 1]) < 0.03  # neighbouring seeds
-    streams.next_episode(worlds)
+    streams.next_episode(np.ones(20000, dtype=bool))
     assert abs(np.corrcoef(a[:, 0], streams.uniforms(worlds, "tips", 1)[:, 0])[0, 1]) < 0.03  # the next episode
 
 

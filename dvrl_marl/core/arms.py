@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from dvrl_marl import kinematics
-from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
+from dvrl_marl.core.backend import namespace, needed, put, repeat, rows_of, take
 
 __all__ = ["ArmBatch"]
 
@@ -66,13 +66,15 @@ class ArmBatch:
             rows = rows_of(blocked)
             origin, goal = take(start, rows), take(target, rows)
             span = goal - origin
-            good = xp.zeros(origin.shape[:1], dtype=origin.dtype)
-            bad = xp.ones(origin.shape[:1], dtype=origin.dtype)
-            for _ in range(_PROJECTION_ITERATIONS):
+
+            def halve(carry):
+                good, bad = carry
                 mid = 0.5 * (good + bad)
                 _, ok = kinematics.inverse_kinematics_batch(self.tool, self._tool_points(origin + mid[:, None] * span))
-                good = xp.where(ok, mid, good)
-                bad = xp.where(ok, bad, mid)
+                return xp.where(ok, mid, good), xp.where(ok, bad, mid)
+
+            good, _ = repeat(_PROJECTION_ITERATIONS, halve, (xp.zeros(origin.shape[:1], dtype=origin.dtype),
+                                                             xp.ones(origin.shape[:1], dtype=origin.dtype)))
             reached = origin + good[:, None] * span
             target = put(target, rows, blocked, reached)
             q = put(q, rows, blocked, kinematics.inverse_kinematics_batch(self.tool, self._tool_points(reached))[0])

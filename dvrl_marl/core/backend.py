@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from array_api_compat import array_namespace
 
-__all__ = ["namespace", "needed", "rows_of", "take", "put", "columns", "join"]
+__all__ = ["namespace", "needed", "rows_of", "take", "put", "columns", "join", "repeat", "scan"]
 
 _NUMPY = array_namespace(np.empty(0))
 
@@ -80,3 +80,39 @@ def join(parts, xp):
         out[:, start:start + part.shape[1]] = part
         start += part.shape[1]
     return out
+
+
+def _traced(tree) -> bool:
+    """Whether a (nested) value holds JAX arrays (under ``jax.jit``: tracers), whose loops JAX should compile once."""
+    if isinstance(tree, (tuple, list)):
+        return any(_traced(item) for item in tree)
+    return type(tree).__module__.startswith("jax")
+
+
+def repeat(count: int, body, carry, until=None):
+    """``carry = body(carry)``, ``count`` times. numpy (and torch): a Python loop that stops early once
+    ``until(carry)`` says no row needs more; JAX: ``lax.fori_loop``, the body traced and compiled once (an unrolled
+    loop costs its length in compile time)."""
+    if _traced(carry):
+        from jax import lax
+
+        return lax.fori_loop(0, count, lambda _, value: body(value), carry)
+    for _ in range(count):
+        if until is not None and until(carry):
+            break
+        carry = body(carry)
+    return carry
+
+
+def scan(body, carry, items, until=None):
+    """``carry = body(carry, item)`` for each item in turn; ``items``: a tuple of arrays stacked along their first
+    axis (one row per item). numpy: a Python loop that stops early once ``until(carry)`` holds; JAX: ``lax.scan``."""
+    if _traced(carry) or _traced(items):
+        from jax import lax
+
+        return lax.scan(lambda value, item: (body(value, item), None), carry, items)[0]
+    for index in range(len(items[0])):
+        if until is not None and until(carry):
+            break
+        carry = body(carry, tuple(item[index] for item in items))
+    return carry

@@ -25,7 +25,7 @@ from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
 from dvrl_marl.core.phantom import Cavities
 from dvrl_marl.core.scene_geometry import SceneGeometry
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
-from dvrl_marl.core.streams import ResetStreams
+from dvrl_marl.core.streams import STREAMS, ResetStreams, uniforms
 from dvrl_marl.core.worlds import check_action_batch, world_indices
 
 __all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "closest_on_segment", "distance", "TOOLS", "place_debris", "segment_distance",
@@ -61,35 +61,50 @@ STATE_FIELDS = ("valve_opening", "initial_ml", "remaining_ml", "surface_z", "deb
 ARM_FIELDS = ("tip", "q", "jaw")
 
 
-def place_debris(streams, worlds: np.ndarray, cavities, count: int):
-    """Seeded pin placement for ``worlds`` (:class:`~dvrl_marl.core.streams.ResetStreams`): ``count`` pins lying
-    across the bowls, each in a slot of :data:`PIN_SLOTS` of a cavity drawn uniformly (the other when that one's
-    slots are taken), turned by the cavity's yaw and a few degrees more. Returns positions ``(M, count, 3)``,
-    yaws and cavity indices ``(M, count)``."""
-    m, c, s = len(worlds), cavities.count, len(PIN_SLOTS)
-    slot_order = np.argsort(streams.uniforms(worlds, "pin_slots", c * s).reshape(m, c, s), axis=2)
-    cavity_yaw = streams.uniforms(worlds, "pin_yaws", c) * math.pi
-    chosen = np.minimum((streams.uniforms(worlds, "pin_cavities", count) * c).astype(np.int64), c - 1)
-    turns = -0.15 + 0.3 * streams.uniforms(worlds, "pin_turns", count)
-    rows, used = np.arange(m), np.zeros((m, c), dtype=np.int64)
-    slots, positions = np.asarray(PIN_SLOTS, dtype=np.float64), np.empty((m, count, 3))
-    yaws, indices = np.empty((m, count)), np.empty((m, count), dtype=np.int64)
+def _one_hot(index, count: int, xp):
+    """(..., count) booleans: True at ``index``."""
+    return index[..., None] == xp.arange(count)[None, :]
+
+
+def _choose(values, index, xp):
+    """``values[row, index[row]]`` for (M, K) ``values`` and (M,) ``index``, by a one-hot sum (any array library)."""
+    return xp.sum(xp.where(_one_hot(index, values.shape[1], xp), values, xp.zeros_like(values)), axis=1)
+
+
+def place_debris(draw, cavities, count: int, xp=np):
+    """Seeded pin placement for M worlds: ``count`` pins lying across the bowls, each in a slot of
+    :data:`PIN_SLOTS` of a cavity drawn uniformly (the other when that one's slots are taken), turned by the cavity's
+    yaw and a few degrees more. ``draw(stream, k)``: (M, k) uniforms of the worlds' streams
+    (:mod:`dvrl_marl.core.streams`). Returns positions ``(M, count, 3)``, yaws and cavity indices ``(M, count)``."""
+    c, s = cavities.count, len(PIN_SLOTS)
+    keys = draw("pin_slots", c * s)
+    m = keys.shape[0]
+    slot_order = xp.reshape(xp.argsort(xp.reshape(keys, (m, c, s)), axis=2), (m, c * s))
+    cavity_yaw = draw("pin_yaws", c) * math.pi
+    chosen = xp.minimum(xp.astype(draw("pin_cavities", count) * c, xp.int64), c - 1)
+    turns = -0.15 + 0.3 * draw("pin_turns", count)
+    used = xp.zeros((m, c), dtype=xp.int64)
+    slots = xp.asarray(np.asarray(PIN_SLOTS, dtype=np.float64))
+    per_cavity = cavities.per_cavity
     # Lying across the bowl: its end caps touch the sphere, so its axis sits this far below the sphere's centre.
     radius = cavities.sphere_radius - PIN_RADIUS
     sphere_centre_z = cavities.floor_z + cavities.sphere_radius
+    positions, yaws, indices = [], [], []
     for pin in range(count):
         cavity = chosen[:, pin]
-        full = used[rows, cavity] >= s
-        cavity = np.where(full, np.argmax(used < s, axis=1), cavity)
-        offset = slots[slot_order[rows, cavity, used[rows, cavity]]]
-        used[rows, cavity] += 1
-        yaw = cavity_yaw[rows, cavity] + turns[:, pin]
-        below_centre = np.sqrt(radius[cavity] ** 2 - PIN_HALF_LENGTH**2 - offset**2)
-        positions[:, pin, 0] = cavities.centre_x[cavity] - offset * np.sin(yaw)
-        positions[:, pin, 1] = cavities.centre_y[cavity] + offset * np.cos(yaw)
-        positions[:, pin, 2] = sphere_centre_z[cavity] - below_centre
-        yaws[:, pin], indices[:, pin] = yaw, cavity
-    return positions, yaws, indices
+        full = _choose(used, cavity, xp) >= s
+        cavity = xp.where(full, xp.argmax(xp.astype(used < s, xp.int64), axis=1), cavity)
+        taken = _choose(used, cavity, xp)
+        offset = slots[_choose(slot_order, cavity * s + taken, xp)]
+        used = used + xp.astype(_one_hot(cavity, c, xp), xp.int64)
+        yaw = _choose(cavity_yaw, cavity, xp) + turns[:, pin]
+        below_centre = xp.sqrt(per_cavity(radius, cavity) ** 2 - PIN_HALF_LENGTH**2 - offset**2)
+        positions.append(xp.stack([per_cavity(cavities.centre_x, cavity) - offset * xp.sin(yaw),
+                                   per_cavity(cavities.centre_y, cavity) + offset * xp.cos(yaw),
+                                   per_cavity(sphere_centre_z, cavity) - below_centre], axis=1))
+        yaws.append(yaw)
+        indices.append(cavity)
+    return xp.stack(positions, axis=1), xp.stack(yaws, axis=1), xp.stack(indices, axis=1)
 
 
 def _dot(u, v):
@@ -216,37 +231,68 @@ class CollaborativeCore:
             self.set_blood(indices, blood_ml)
         if len(indices) == 0:
             return
-        jitter = -START_JITTER + 2 * START_JITTER * self.random.uniforms(indices, "tips", 3 * len(AGENTS))
-        tips = {agent: np.asarray(STARTS[agent]) + jitter[:, 3 * k:3 * k + 3] for k, agent in enumerate(AGENTS)}
-        (self.debris_position[indices], self.debris_yaw[indices],
-         self.debris_cavity[indices]) = place_debris(self.random, indices, self.cavities, self.params.debris_count)
-        if self.params.bleeding_ml_s > 0.0:
-            draws = self.random.uniforms(indices, "bleeding", 2 * self.cavities.count).reshape(len(indices), 2, -1)
-            self.bleed_onset[indices] = draws[:, 0] * self.params.bleeding_onset_s
-            self.bleed_rate[indices] = (0.5 + 0.5 * draws[:, 1]) * self.params.bleeding_ml_s
-        self.random.next_episode(indices)
-        for agent, arm in self.arms.items():
-            arm.set_tips(indices, tips[agent] - arm.base_position)
-        self.arms["grasper"].jaw[indices] = 1.0
-        self.valve_opening[indices] = 0.0
-        self.remaining_ml[indices] = self.initial_ml[indices]
-        self.added_ml[indices] = 0.0
-        self.fall_speed[indices] = np.nan
-        for cavity in range(self.cavities.count):
-            self._update_surfaces(indices, np.full(len(indices), cavity))
-        surface = np.take_along_axis(self.surface_z[indices], self.debris_cavity[indices], axis=1)
-        self.visible[indices] = self.debris_position[indices, :, 2] + PIN_RADIUS > surface
-        self.held[indices] = self.delivered[indices] = self.lifted[indices] = False
-        self.holding[indices] = -1
-        self.hold_offset[indices] = 0.0
-        self.elapsed[indices] = 0
-        self.limit[indices] = self.params.max_cycles
-        self.contact[indices] = False
-        self.complete[indices] = False
-        self.drawn_ml[indices] = 0.0
+        mask = np.zeros(self.num_worlds, dtype=bool)
+        mask[indices] = True
+        self.start_episodes(mask)
+
+    def start_episodes(self, mask) -> None:
+        """New episodes in the worlds where ``mask`` (N,) holds, drawn from their streams. Written once for every
+        array library: numpy draws for those rows only; under ``jax.jit`` every row draws and the others keep theirs
+        (the device's autoreset)."""
+        xp = namespace(mask, self.remaining_ml)
+        p, rows, n_agents = self.params, rows_of(mask), len(AGENTS)
+        streams = self.random
+        low, high, episode = take(streams.key_low, rows), take(streams.key_high, rows), take(streams.episode, rows)
+
+        def draw(stream, count):
+            return uniforms(low, high, episode, STREAMS[stream], count)
+
+        def renew(value, fresh):
+            return put(value, rows, mask, fresh)
+
+        jitter = -START_JITTER + 2 * START_JITTER * draw("tips", 3 * n_agents)
+        for k, agent in enumerate(AGENTS):
+            arm = self.arms[agent]
+            tips = (xp.asarray(np.asarray(STARTS[agent])) + jitter[:, 3 * k:3 * k + 3]) - arm.base_position
+            arm.tip = renew(arm.tip, tips)
+            arm.q = renew(arm.q, kinematics.inverse_kinematics_batch(arm.tool, arm._tool_points(tips))[0])
+        position, yaw, cavity = place_debris(draw, self.cavities, p.debris_count, xp)
+        self.debris_position = renew(self.debris_position, position)
+        self.debris_yaw = renew(self.debris_yaw, yaw)
+        self.debris_cavity = renew(self.debris_cavity, cavity)
+        if p.bleeding_ml_s > 0.0:
+            c = self.cavities.count
+            bleeding = draw("bleeding", 2 * c)
+            self.bleed_onset = renew(self.bleed_onset, bleeding[:, :c] * p.bleeding_onset_s)
+            self.bleed_rate = renew(self.bleed_rate, (0.5 + 0.5 * bleeding[:, c:]) * p.bleeding_ml_s)
+        streams.next_episode(mask)
+        grasper = self.arms["grasper"]
+        grasper.jaw = xp.where(mask, 1.0, grasper.jaw)
+        self.valve_opening = xp.where(mask, 0.0, self.valve_opening)
+        initial = take(self.initial_ml, rows)
+        self.remaining_ml = renew(self.remaining_ml, initial)
+        self.added_ml = xp.where(mask[:, None], 0.0, self.added_ml)
+        self.fall_speed = xp.where(mask[:, None], float("nan"), self.fall_speed)
+        cavity_of = xp.broadcast_to(xp.arange(self.cavities.count)[None, :], initial.shape)
+        surface = self.cavities.per_cavity(self.cavities.floor_z, cavity_of) + self.cavities.fill_depth(cavity_of,
+                                                                                                           initial)
+        self.surface_z = renew(self.surface_z, surface)
+        pin_surface = xp.zeros_like(yaw)
+        for index in range(self.cavities.count):
+            pin_surface = xp.where(cavity == index, surface[:, index:index + 1], pin_surface)
+        self.visible = renew(self.visible, position[:, :, 2] + PIN_RADIUS > pin_surface)
+        pins = mask[:, None]
+        self.held, self.delivered, self.lifted = (self.held & ~pins, self.delivered & ~pins, self.lifted & ~pins)
+        self.holding = xp.where(mask, -1, self.holding)
+        self.hold_offset = xp.where(mask[:, None], 0.0, self.hold_offset)
+        self.elapsed = xp.where(mask, 0, self.elapsed)
+        self.limit = xp.where(mask, p.max_cycles, self.limit)
+        self.contact = self.contact & ~mask
+        self.complete = self.complete & ~mask
+        self.drawn_ml = xp.where(mask, 0.0, self.drawn_ml)
         for agent in AGENTS:
-            self.blocked[agent][indices] = False
-            self.work_distance[agent][indices] = self._work_distance(agent)[indices]
+            self.blocked[agent] = self.blocked[agent] & ~mask
+            self.work_distance[agent] = xp.where(mask, self._work_distance(agent), self.work_distance[agent])
 
     # --- start-state curricula ----------------------------------------------------------------------------
     def place_tips(self, worlds, tips: dict) -> None:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dvrl_marl.core.backend import namespace, needed
+from dvrl_marl.core.backend import namespace, needed, repeat
 
 __all__ = ["Cavity", "Phantom", "Cavities"]
 
@@ -175,14 +175,15 @@ class Cavities:
         target = volume_ml * _ML * 3.0 / math.pi
         h = xp.minimum(xp.sqrt(xp.maximum(target, 0.0) / (3.0 * radius)), depth)  # (a negative volume: none)
         active = (volume_ml > 0.0) & (volume_ml < capacity)
-        for _ in range(30):
-            if not needed(active):
-                break
+
+        def newton(carry):
+            h, active = carry
             f = h * h * (3.0 * radius - h) - target
             slope = 6.0 * radius * h - 3.0 * h * h
             step = f / xp.where(active, slope, 1.0)  # (the inactive keep their depth: never divide by their zero)
-            h = xp.where(active, xp.minimum(xp.maximum(h - step, 0.0), depth), h)
-            active = active & ~(xp.abs(step) < 1e-13)
+            return xp.where(active, xp.minimum(xp.maximum(h - step, 0.0), depth), h), active & ~(xp.abs(step) < 1e-13)
+
+        h, _ = repeat(30, newton, (h, active), until=lambda carry: not needed(carry[1]))
         return xp.where(volume_ml <= 0.0, 0.0, xp.where(volume_ml >= capacity, depth, h))
 
     def surface_radius(self, cavity, fill_depth):

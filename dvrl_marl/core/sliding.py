@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dvrl_marl import kinematics
-from dvrl_marl.core.backend import columns, namespace, needed
+from dvrl_marl.core.backend import columns, namespace, needed, scan
 from dvrl_marl.core.instruments import contact_normal, instrument_clearance
 
 __all__ = ["MoveRules", "BLOCKED_MOVES", "wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT",
@@ -242,19 +242,20 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta, cavities, t
     # 8.5 mm shaft): the same step lifted off the contact by a tenth of its length clears that.
     lifted = along + (CONTACT_LIFT * _length(delta, xp) * xp.astype(into < 0.0, delta.dtype))[:, None] * normal
     candidates = [delta, along, lifted, *fallback_moves(delta)]
-    made = xp.zeros(delta.shape[:1], dtype=xp.bool)
-    tip, q, clearance = start, start_q, xp.full(delta.shape[:1], float("nan"), dtype=delta.dtype)
-    for index, move in enumerate(candidates):
+
+    def attempt(carry, item):
+        made, tip, q, clearance = carry
+        move, first = item
         live = ~made & xp.any(move != 0.0, axis=1)
         if not needed(live):
-            continue
+            return carry
         target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb, ahead=ahead,
                                 settle=settle)
         own, joints, reachable = segment(tool, base, target)
-        if index == 0:  # the blocked move itself: only its slide along the joint limits can differ from it
-            live = live & ~reachable
-            if not needed(live):
-                continue
+        # the blocked move itself (first): only its slide along the joint limits can differ from it
+        live = xp.where(first, live & ~reachable, live)
+        if not needed(live):
+            return carry
         if needed(live & ~reachable):
             slid = _clamped_to_joint_limits(tool, base, target)
             slid = xp.minimum(xp.maximum(slid, low), high)
@@ -264,10 +265,15 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta, cavities, t
         moved = xp.any(target != start, axis=1)
         gap = instrument_clearance(*own, *partner) if is_suction else instrument_clearance(*partner, *own)
         accept = live & moved & reachable & (gap >= 0.0)
-        tip = xp.where(accept[:, None], target, tip)
-        q = xp.where(accept[:, None], joints, q)
-        clearance = xp.where(accept, gap, clearance)
-        made = made | accept
-        if isinstance(made, np.ndarray) and made.all():
-            break
+        return (made | accept, xp.where(accept[:, None], target, tip), xp.where(accept[:, None], joints, q),
+                xp.where(accept, gap, clearance))
+
+    # one candidate after another (numpy: stopping once every row has made one; JAX: lax.scan, compiled once)
+    first = np.arange(len(candidates)) == 0
+    if xp is not np:
+        first = xp.asarray(first)
+    made, tip, q, clearance = scan(attempt, (xp.zeros(delta.shape[:1], dtype=xp.bool), start, start_q,
+                                             xp.full(delta.shape[:1], float("nan"), dtype=delta.dtype)),
+                                   (xp.stack(candidates), first), until=lambda carry: bool(np.all(carry[0]))
+                                   if isinstance(carry[0], np.ndarray) else False)
     return made, tip, q, clearance

@@ -63,8 +63,8 @@ class ResetStreams:
 
     def __init__(self, num_worlds: int):
         self.num_worlds = int(num_worlds)
-        self.keys = np.zeros(self.num_worlds, dtype=np.uint64)
-        self.episode = np.zeros(self.num_worlds, dtype=np.int64)
+        #: each world's key as two 32-bit halves, and the episode it starts next (int64 arrays of the core's library)
+        self.key_low = self.key_high = self.episode = np.zeros(self.num_worlds, dtype=np.int64)
         self.seed(None)
 
     def seed(self, seed) -> None:
@@ -80,16 +80,24 @@ class ResetStreams:
                 seeds = validated(Seeds, list(seed), "reset(seed=[...]): one seed per world")
                 if len(seeds) != self.num_worlds:
                     raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
-        self.keys = np.array([s % 2**64 for s in seeds], dtype=np.uint64)
-        self.episode[:] = 0
+        keys = np.array([s % 2**64 for s in seeds], dtype=np.uint64)
+        self.key_low = (keys & np.uint64(_MASK)).astype(np.int64)
+        self.key_high = (keys >> np.uint64(32)).astype(np.int64)
+        self.episode = np.zeros(self.num_worlds, dtype=np.int64)
 
-    def uniforms(self, worlds: np.ndarray, stream: str, count: int) -> np.ndarray:
-        """``(len(worlds), count)`` doubles in [0, 1) of ``stream`` (a name of :data:`STREAMS`) for the episode
-        each world is starting."""
-        keys = self.keys[worlds]
-        low = (keys & np.uint64(_MASK)).astype(np.int64)
-        high = (keys >> np.uint64(32)).astype(np.int64)
-        return uniforms(low, high, self.episode[worlds], STREAMS[stream], int(count))
+    def uniforms(self, worlds, stream: str, count: int):
+        """``(M, count)`` doubles in [0, 1) of ``stream`` (a name of :data:`STREAMS`) for the episode each world
+        of ``worlds`` (indices, or None for every world) is starting."""
+        pick = (lambda x: x) if worlds is None else (lambda x: x[worlds])
+        return uniforms(pick(self.key_low), pick(self.key_high), pick(self.episode), STREAMS[stream], int(count))
 
-    def next_episode(self, worlds: np.ndarray) -> None:
-        self.episode[worlds] += 1
+    def next_episode(self, mask) -> None:
+        """The worlds where ``mask`` (N,) holds have started their episode: their next draws are the next one's."""
+        self.episode = self.episode + (mask * 1)
+
+    def state(self) -> dict:
+        return {"stream_key_low": self.key_low, "stream_key_high": self.key_high, "stream_episode": self.episode}
+
+    def restore(self, state: dict) -> None:
+        self.key_low, self.key_high = state["stream_key_low"], state["stream_key_high"]
+        self.episode = state["stream_episode"]

@@ -27,44 +27,52 @@ _FAR = 1e6
 
 
 class _Ops:
-    """The handful of array operations that differ between numpy and torch."""
+    """The handful of array operations that differ between numpy (or JAX, whose ``jax.numpy`` takes numpy's calls)
+    and torch."""
 
     def __init__(self, x):
-        self.numpy = isinstance(x, np.ndarray)
         self.dtype = x.dtype
-        if not self.numpy:
+        self.torch = None
+        if isinstance(x, np.ndarray):
+            self.np = np
+        elif type(x).__module__.startswith("torch"):
             import torch
 
             self.torch, self.device = torch, x.device
+        else:  # a JAX array (under jax.jit too)
+            import jax.numpy
+
+            self.np = jax.numpy
 
     def where(self, condition, a, b):
-        return np.where(condition, a, b) if self.numpy else self.torch.where(condition, a, b)
+        return self.np.where(condition, a, b) if self.torch is None else self.torch.where(condition, a, b)
 
     def concatenate(self, parts):
-        return np.concatenate(parts, axis=-1) if self.numpy else self.torch.cat(parts, dim=-1)
+        return self.np.concatenate(parts, axis=-1) if self.torch is None else self.torch.cat(parts, dim=-1)
 
     def as_float(self, mask):
-        return mask.astype(self.dtype) if self.numpy else mask.to(self.dtype)
+        return mask.astype(self.dtype) if self.torch is None else mask.to(self.dtype)
 
     def arange(self, count):
-        return np.arange(count) if self.numpy else self.torch.arange(count, device=self.device)
+        return self.np.arange(count) if self.torch is None else self.torch.arange(count, device=self.device)
 
     def constant(self, values):
         values = np.asarray(values, dtype=np.float64)
-        return values.astype(self.dtype) if self.numpy else self.torch.as_tensor(values, dtype=self.dtype,
-                                                                                 device=self.device)
+        if self.torch is None:
+            return self.np.asarray(values.astype(self.dtype))
+        return self.torch.as_tensor(values, dtype=self.dtype, device=self.device)
 
     def row(self, x, index):
         """``x[..., index, :]`` for each leading index (``x`` (..., K, k), ``index`` (...))."""
-        if self.numpy:
-            return np.take_along_axis(x, index[..., None, None], axis=-2)[..., 0, :]
+        if self.torch is None:
+            return self.np.take_along_axis(x, index[..., None, None], axis=-2)[..., 0, :]
         return self.torch.gather(x, -2, index[..., None, None].expand(*index.shape, 1, x.shape[-1]))[..., 0, :]
 
     def positive_part(self, x):
-        return np.maximum(x, 0.0) if self.numpy else x.clamp_min(0.0)
+        return self.np.maximum(x, 0.0) if self.torch is None else x.clamp_min(0.0)
 
     def tanh(self, x):
-        return np.tanh(x) if self.numpy else self.torch.tanh(x)
+        return self.np.tanh(x) if self.torch is None else self.torch.tanh(x)
 
 
 def _squared(v):

@@ -25,6 +25,7 @@ from dataclasses import asdict
 import numpy as np
 from pydantic.dataclasses import dataclass
 
+from dvrl_marl.core.backend import namespace
 from dvrl_marl.core.collaborative import Cavities
 from dvrl_marl.envs.places import suction_parking_place, surgeon_waiting_place
 from dvrl_marl.schemas import STRICT, Flag, NonNegative
@@ -35,7 +36,7 @@ __all__ = ["Guidance", "GuidedReward", "SceneFacts", "GraspPathShaping", "Suctio
 def _length(v):
     """Lengths of (..., 3) vectors (the sum written out: numpy's ``linalg.norm`` reduces a short axis slowly; the
     same additions in the same order)."""
-    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+    return namespace(v).sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
 
 
 def _squared_2d(v):
@@ -103,7 +104,8 @@ class GuidedReward:
 
     def potentials(self, state: np.ndarray, blood_ml: np.ndarray) -> dict:
         """``state`` (N, state_dim), ``blood_ml`` (N, C) -> ``{agent: (N,)}`` (zeros for an agent without a term)."""
-        out = {agent: np.zeros(len(state)) for agent in self.agents}
+        xp = namespace(state)
+        out = {agent: xp.zeros(len(state)) for agent in self.agents}
         if self.grasp.active:
             out["grasper"] = self.grasp.potential(state)
         if self.route.active:
@@ -193,6 +195,7 @@ class GraspPathShaping:
         return (self.weight > 0.0 or self.hold_bonus > 0.0) and self.index is not None
 
     def potential(self, state: np.ndarray) -> np.ndarray:
+        xp = namespace(state)
         debris = state[:, self.debris:self.debris + 6 * self.count].reshape(len(state), self.count, 6)
         tip = state[:, None, self.tip]
         handoff = state[:, None, self.handoff]
@@ -200,61 +203,63 @@ class GraspPathShaping:
         pending = visible & ~delivered & ~held
         to_pin = _length(debris[..., :3] - tip) * self.range
         to_handoff = _length(debris[..., :3] - handoff) * self.range
-        rise = np.array([0.0, 0.0, self.APPROACH_HEIGHT / self.range]) if self.centred else np.zeros(3)
+        rise = xp.asarray([0.0, 0.0, self.APPROACH_HEIGHT / self.range if self.centred else 0.0])
         approach = debris[..., :3] + rise  # centred: come down onto the pin's centre from above it
         # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
         # tip -> pin -> hand-off over the pins to collect, a continuous function of the state.
-        env_term = np.where(pending.any(axis=1), np.where(pending, to_pin, np.inf).min(axis=1), 0.0)
+        env_term = xp.where(pending.any(axis=1), xp.where(pending, to_pin, xp.inf).min(axis=1), 0.0)
         targets = pending & self._in_cleared_cavity(state, debris) if self.cleared_only else pending
         holding = held.any(axis=1)
         live = targets.any(axis=1) & ~holding
-        carry = np.zeros(len(state))
+        carry = xp.zeros(len(state))
         height = self.APPROACH_HEIGHT if self.centred else 0.0
         if self.over_rims is None:
             to_approach = _length(approach - tip) * self.range + height if self.centred else to_pin
-            path = np.where(targets, to_approach + to_handoff, np.inf).min(axis=1)
+            path = xp.where(targets, to_approach + to_handoff, xp.inf).min(axis=1)
         else:  # the same path, measured around the phantom (and the carry too)
             world = lambda x: x * self.range + self.centre  # noqa: E731
             pins, tip_w, handoff_w = world(debris[..., :3]), world(tip), world(handoff)
             to_pin_geo = self.over_rims.distance(tip_w, world(approach)) + height
             to_handoff_geo = self.over_rims.distance(pins, handoff_w)
-            path = np.where(targets, to_pin_geo + to_handoff_geo, np.inf).min(axis=1)
-            carry = np.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
+            path = xp.where(targets, to_pin_geo + to_handoff_geo, xp.inf).min(axis=1)
+            carry = xp.where(held, to_handoff_geo - to_handoff, 0.0).sum(axis=1)  # env's carry term: straight
         idle = ~targets.any(axis=1) & ~holding
-        way_home = np.zeros(len(state))
+        way_home = xp.zeros(len(state))
         if self.home is not None:  # nothing to collect or carry: the way to the waiting place
             tip_w = tip[:, 0] * self.range + self.centre
             way_home = self.over_rims.distance(tip_w, self.home) if self.over_rims is not None else _length(
                 tip_w - self.home)
         # idle: the env's pull toward pins not to be collected yet (cleared_only) is cancelled
-        detour = (np.where(live, np.where(live, path, 0.0) - env_term, 0.0) + np.where(idle, way_home - env_term, 0.0)
-                  + np.where(holding, carry, 0.0))
+        detour = (xp.where(live, xp.where(live, path, 0.0) - env_term, 0.0) + xp.where(idle, way_home - env_term, 0.0)
+                  + xp.where(holding, carry, 0.0))
         bonus = self.hold_bonus * holding
         if self.centred:
             beyond = self._beyond_workspace(debris, tip[:, 0], handoff[:, 0], held)
             detour = detour + self.UNDELIVERABLE_WEIGHT * beyond
-            bonus = bonus * np.clip(1.0 - beyond / self.delivery_threshold, 0.0, 1.0)
+            bonus = bonus * xp.clip(1.0 - beyond / self.delivery_threshold, 0.0, 1.0)
         if self.off_centre > 0.0:  # the held pin's horizontal distance from the tip: 0 for a grasp at its centre
             pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
-            off = np.sqrt(_squared_2d((pin - tip[:, 0])[:, :2])) * self.range
-            detour = detour + self.off_centre * np.where(holding, off, 0.0)
+            off = xp.sqrt(_squared_2d((pin - tip[:, 0])[:, :2])) * self.range
+            detour = detour + self.off_centre * xp.where(holding, off, 0.0)
         return -self.weight * detour + bonus
 
     def _beyond_workspace(self, debris, tip, handoff, held) -> np.ndarray:
+        xp = namespace(debris)
         """(N,): how far (m) the tip would have to leave the workspace (the box [-1, 1] in normalised units) to bring
         the held pin onto the hand-off point, keeping its grasp; 0 when nothing is held."""
         pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
         needed = handoff - (pin - tip)
-        outside = _length(needed - np.clip(needed, -1.0, 1.0)) * self.range
-        return np.where(held.any(axis=1), outside, 0.0)
+        outside = _length(needed - xp.clip(needed, -1.0, 1.0)) * self.range
+        return xp.where(held.any(axis=1), outside, 0.0)
 
     def _in_cleared_cavity(self, state, debris) -> np.ndarray:
+        xp = namespace(state)
         """(N, D): whether each pin lies in a cavity below its clearing threshold (the cavity nearest it)."""
         horizontal = debris[..., None, 0:2] - self.cavity_centres  # (N, D, C, 2)
         cavity = (horizontal * horizontal).sum(-1).argmin(-1)  # (N, D)
         blood = state[:, self.blood]
         cleared = (blood < self.clear_fraction) | (blood <= 0.0)  # (N, C)
-        return np.take_along_axis(cleared, cavity, axis=1)
+        return xp.take_along_axis(cleared, cavity, axis=1)
 
 
 class OverRims:
@@ -283,26 +288,32 @@ class OverRims:
         self.height = self.phantom.top_z + margin  # margin above the top: the tip clearance and a bit
 
     def _lift(self, point, region):
-        lifted = np.array(point, dtype=np.float64)
-        lifted[..., 2] = np.where(region != -1, np.maximum(point[..., 2], self.height), point[..., 2])
+        xp = namespace(point)
+        z = xp.where(region != -1, xp.maximum(point[..., 2], self.height), point[..., 2])
+        if xp is not np:
+            return xp.concatenate([point[..., :2], z[..., None]], axis=-1)
+        lifted = np.array(point, dtype=np.float64)  # (numpy: a copy set in place, cheaper than a concatenation)
+        lifted[..., 2] = z
         return lifted
 
     def region(self, point) -> np.ndarray:
+        xp = namespace(point)
         """The cavity a point lies over (its index), BESIDE the phantom below its top, or -1 (above the top)."""
         p = self.phantom
-        beside = ((np.abs(point[..., 0] - p.centre_x) > p.half_x) | (np.abs(point[..., 1] - p.centre_y) > p.half_y)) & (
+        beside = ((xp.abs(point[..., 0] - p.centre_x) > p.half_x) | (xp.abs(point[..., 1] - p.centre_y) > p.half_y)) & (
             point[..., 2] < p.top_z)
-        return np.where(beside, self.BESIDE, self.cavities.cavity_at(point[..., 0], point[..., 1]))
+        return xp.where(beside, self.BESIDE, self.cavities.cavity_at(point[..., 0], point[..., 1]))
 
     def distance(self, start, goal) -> np.ndarray:
         """``start``, ``goal``: (..., 3) world positions (broadcast) -> (...) path lengths."""
-        start, goal = np.broadcast_arrays(start, goal)
+        xp = namespace(start, goal)
+        start, goal = xp.broadcast_arrays(start, goal)
         from_cavity = self.region(start)
         to_cavity = self.region(goal)
         straight = _length(goal - start)
         up, down = self._lift(start, from_cavity), self._lift(goal, to_cavity)
         around = _length(up - start) + _length(down - up) + _length(goal - down)
-        return np.where(from_cavity == to_cavity, straight, around)
+        return xp.where(from_cavity == to_cavity, straight, around)
 
     def point_along(self, start, goal, fraction: float) -> np.ndarray:
         """The point ``fraction`` of the way (the one :meth:`distance` measures) from ``start`` to ``goal``, two (3,)
@@ -366,27 +377,28 @@ class SuctionRouteShaping:
 
     def potential(self, state: np.ndarray, blood_ml: np.ndarray) -> np.ndarray:
         """``state``: (N, state_dim); ``blood_ml``: (N, C), each cavity's remaining blood."""
+        xp = namespace(state)
         tip = state[:, self.tip] * self.range + self.centre
         pending = (blood_ml >= self.threshold) & (blood_ml > 0.0)
         to_floor = _length(tip[:, None, :] - self.floors[None])  # (N, C)
-        nearest = np.where(pending, to_floor, np.inf).min(axis=1)
-        nearest = np.where(pending.any(axis=1), nearest, 0.0)
+        nearest = xp.where(pending, to_floor, xp.inf).min(axis=1)
+        nearest = xp.where(pending.any(axis=1), nearest, 0.0)
         # shortest route tip -> every pending cavity, over the visiting orders (2 cavities: 2 orders); only the
         # first leg starts at the tip, the others join fixed points (measured once, in __init__)
         measure = self._measure
         from_tip = measure(tip[:, None, :], self.floors[None])  # (N, C)
         to_park = measure(tip, self.park) if self.park is not None else None
-        route = np.full(len(state), np.inf)
+        route = xp.full(len(state), xp.inf)
         for order in self.orders:
-            length = np.zeros(len(state))
-            here = np.full(len(state), -1)  # -1: the tip, else the cavity whose floor the route has reached
+            length = xp.zeros(len(state))
+            here = xp.full(len(state), -1)  # -1: the tip, else the cavity whose floor the route has reached
             for cavity in order:
-                leg = np.where(here < 0, from_tip[:, cavity], self.between[np.maximum(here, 0), cavity])
-                length = length + np.where(pending[:, cavity], leg, 0.0)
-                here = np.where(pending[:, cavity], cavity, here)
+                leg = xp.where(here < 0, from_tip[:, cavity], xp.asarray(self.between)[xp.maximum(here, 0), cavity])
+                length = length + xp.where(pending[:, cavity], leg, 0.0)
+                here = xp.where(pending[:, cavity], cavity, here)
             if self.park is not None:
-                length = length + np.where(here < 0, to_park, self.floor_to_park[np.maximum(here, 0)])
-            route = np.minimum(route, length)
+                length = length + xp.where(here < 0, to_park, xp.asarray(self.floor_to_park)[xp.maximum(here, 0)])
+            route = xp.minimum(route, length)
         cleared = (~pending).sum(axis=1)
         return -self.weight * (route - nearest) + self.clear_bonus * cleared
 

@@ -59,6 +59,7 @@ import numpy as np
 from gymnasium import spaces
 
 from dvrl_marl import assets
+from dvrl_marl.core.backend import namespace
 from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
 from dvrl_marl.core.worlds import check_action_batch
@@ -412,6 +413,10 @@ class SuctionDebrisBatchedEnv:
         self.core.restore(state)
         self._restart_potential()
 
+    def guided_potentials(self) -> dict:
+        """``{agent: (N,)}``: the guided reward's potentials in the worlds' present state (empty without it)."""
+        return self._guided.potentials(self.core.state(), self.core.remaining_ml) if self._guided is not None else {}
+
     def _restart_potential(self) -> None:
         if self._guided is not None:
             self._potential = self._guided.potentials(self.core.state(), self.core.remaining_ml)
@@ -489,8 +494,10 @@ class SuctionDebrisBatchedEnv:
         values = list(observations.values())
         if len({value.shape for value in values}) > 1:
             return {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
-        together = features.apply(self.feature_spec, np.concatenate(values, axis=0))
-        return dict(zip(observations, np.split(together, len(values), axis=0)))
+        xp = namespace(values[0])
+        together = features.apply(self.feature_spec, xp.concat(values, axis=0))
+        n = values[0].shape[0]
+        return {agent: together[k * n:(k + 1) * n] for k, agent in enumerate(observations)}
 
     def state(self) -> np.ndarray:
         """(N, state_dim): the global state of every world, for centralised critics (with ``state_observations``,
@@ -501,7 +508,7 @@ class SuctionDebrisBatchedEnv:
             if self.feature_spec is not None:
                 observations = self._with_features(observations)
             observations = list(observations.values())
-            state = np.concatenate([state, *observations], axis=1)
+            state = namespace(state).concat([state, *observations], axis=1)
         return state if self.observation_scaling is None else self.observation_scaling.state(state)
 
     def render(self, world: int | None = None):
@@ -553,6 +560,6 @@ def _guidance_settings(values, owner: str) -> Guidance:
 
 
 def batched_env(num_envs: int = 1, **kwargs) -> SuctionDebrisBatchedEnv:
-    """N worlds stepped as arrays; the keyword arguments of ``parallel_env``, plus ``num_envs``, ``autoreset_mode``
-    and ``render_world``."""
+    """N worlds stepped as numpy arrays; the keyword arguments of ``parallel_env``, plus ``num_envs``,
+    ``autoreset_mode`` and ``render_world``."""
     return SuctionDebrisBatchedEnv(num_envs, **kwargs)

@@ -174,7 +174,7 @@ from __future__ import annotations
 from dvrl_marl.envs.presets import PRESETS
 from dvrl_marl.envs.suction_debris import (AGENTS, TASK, SceneLayout, SuctionDebrisEnv, SuctionDebrisParams, env,
                                            parallel_env, raw_env)
-from dvrl_marl.envs.suction_debris_batched import batched_env
+from dvrl_marl.envs.suction_debris_device import batched_env
 
 __all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK", "PRESETS", "SuctionDebrisEnv",
            "SuctionDebrisParams", "SceneLayout"]

@@ -1,0 +1,265 @@
+"""The collaborative scene's batched env on an accelerator: the step compiled whole, its state kept on the device.
+
+``batched_env(num_envs=N, device="cuda")`` (or ``"cpu"``) returns this env. The one implementation of the step
+(:class:`~dvrl_marl.core.collaborative.CollaborativeCore`), the guided reward, the observation features and the
+observation scaling, the automatic resets included, are traced by JAX (``pip install "dvrl-marl[jax]"``; a GPU
+needs JAX's CUDA build) and compiled into one function per env; the worlds' state never leaves the device. Actions
+go in and observations, rewards and flags come out as torch tensors on that device (``arrays="jax"``: JAX arrays),
+exchanged through DLPack without a copy, so a torch learner on the same GPU never waits for a host round trip.
+
+The API is the batched env's: ``reset(seed=...)`` and ``step({agent: (N, 4)})`` giving ``(observations, rewards,
+terminations, truncations, infos)``, dicts over the agents. What differs:
+
+- worlds reset automatically within the step that ended them (``same_step``); ``infos["is_success"]`` says which
+  episodes ended completed (``(N,)``, meaningful where ``terminations | truncations``), ``infos["final_observation"]``
+  holds the observations the step ended on;
+- the arrays are float64 (the core's), observations as the numpy env's;
+- ``reset`` runs on the host through the numpy env and moves the state to the device once; only ``seed`` is taken
+  (no reset options); a seat's filler (``surgeon=``), start levels below 1 and rendering are the numpy env's;
+- actions are checked for shape on the host and for NaN/inf on the device (``check_actions=True``: one boolean
+  read back per step; ``False`` skips it and clips whatever comes).
+
+The step on JAX is the step on numpy: ``tests/test_device_env.py`` holds them equal step by step (to 1e-9) from the
+same state, with the benchmark's setting and with the defaults. JAX's float64 is switched on for the process.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from dvrl_marl.core.collaborative import AGENTS
+from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
+
+__all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
+
+#: Options the device env refuses (the numpy env's), with why.
+_HOST_ONLY = {"surgeon": "a seat's filler runs on the host", "render_mode": "rendering mirrors one world on the host"}
+
+
+def jax_device(device):
+    """The JAX device for ``device``: ``"cpu"``, ``"cuda"``/``"gpu"`` (the first GPU), ``"cuda:1"``, a torch device or a
+    JAX device."""
+    import jax
+
+    if hasattr(device, "platform"):  # a JAX device already
+        return device
+    text = str(device)
+    kind, _, index = text.partition(":")
+    platform = {"cuda": "gpu", "gpu": "gpu", "cpu": "cpu"}.get(kind)
+    if platform is None:
+        raise ValueError(f"device must be 'cpu', 'cuda' or 'cuda:<index>', got {device!r}")
+    try:
+        devices = jax.devices(platform)
+    except RuntimeError:
+        raise ValueError(f"device {device!r}: JAX sees no {platform.upper()} here (a GPU needs JAX's CUDA build: "
+                         f"pip install 'jax[cuda12]'); JAX's devices: {jax.devices()}") from None
+    position = int(index) if index else 0
+    if not 0 <= position < len(devices):
+        raise ValueError(f"device {device!r}: JAX sees {len(devices)} {platform.upper()} device(s)")
+    return devices[position]
+
+
+class SuctionDebrisDeviceEnv:
+    """N worlds of the collaborative scene stepped on ``device`` (see the module documentation)."""
+
+    def __init__(self, num_envs: int = 1, *, device="cpu", arrays: str = "torch", check_actions: bool = True,
+                 **kwargs):
+        try:
+            import jax
+        except ImportError:
+            raise ImportError('the device env needs JAX: pip install "dvrl-marl[jax]"') from None
+        for option, why in _HOST_ONLY.items():
+            if kwargs.get(option) is not None:
+                raise ValueError(f"suction_debris_v8: {option}= is not taken on a device ({why}); use the numpy env")
+        if arrays not in ("torch", "jax"):
+            raise ValueError(f"suction_debris_v8: arrays must be 'torch' or 'jax', got {arrays!r}")
+        jax.config.update("jax_enable_x64", True)  # the core is float64
+        #: the numpy env this one mirrors: options, spaces, layouts and the first reset are its own
+        self.host = SuctionDebrisBatchedEnv(num_envs, autoreset_mode="disabled", **kwargs)
+        if self.host.start_level < 1.0:
+            raise ValueError(f"{self.host.name}: start levels below 1 draw on the host; on a device the default task "
+                             "only (start_level=1)")
+        #: the env the traced functions run through (a copy: its arrays are JAX's while a function is traced)
+        self._tracing = copy.deepcopy(self.host)
+        self._resting = self._arrays(self._tracing.core)
+        self.name = self.host.name
+        self.num_envs = self.host.num_envs
+        self.possible_agents = list(self.host.possible_agents)
+        self.agents = list(self.possible_agents)
+        self.device = jax_device(device)
+        self.arrays = arrays
+        self.check_actions = bool(check_actions)
+        self._jax = jax
+        self._state = None
+        self._step = jax.jit(self._traced_step, donate_argnums=(0,))
+        self._observe = jax.jit(self._traced_observations)
+        self._state_of = jax.jit(self._traced_state)
+
+    # --- spaces and facts: the numpy env's ----------------------------------------------------------------
+    def observation_space(self, agent):
+        return self.host.observation_space(agent)
+
+    def action_space(self, agent):
+        return self.host.action_space(agent)
+
+    @property
+    def state_space(self):
+        return self.host.state_space
+
+    def __getattr__(self, name):  # layout(), params, state_layout, feature_spec...: the host env's
+        if name.startswith("_") or name == "host":
+            raise AttributeError(name)
+        return getattr(self.host, name)
+
+    # --- the traced functions -----------------------------------------------------------------------------
+    @staticmethod
+    def _arrays(core) -> dict:
+        """Every array attribute of a core and its arms (numpy, at rest: what a traced function starts from)."""
+        out = {("core", k): copy.deepcopy(v) for k, v in vars(core).items() if isinstance(v, (np.ndarray, dict))}
+        for agent, arm in core.arms.items():
+            out.update({(agent, k): v.copy() for k, v in vars(arm).items() if isinstance(v, np.ndarray)})
+        out[("random", "")] = core.random.state()
+        return out
+
+    def _rest(self) -> None:
+        """Put the tracing env's arrays back to numpy (no JAX value outlives the function being traced)."""
+        core = self._tracing.core
+        for (owner, name), value in self._resting.items():
+            if owner == "random":
+                core.random.restore(value)
+            elif owner == "core":
+                setattr(core, name, copy.deepcopy(value))
+            else:
+                setattr(core.arms[owner], name, value.copy())
+
+    def _load(self, state):
+        self._rest()
+        core = self._tracing.core
+        core.restore({key: value for key, value in state.items() if not key.startswith(("stream_", "potential/"))})
+        core.random.restore(state)
+
+    def _unload(self, potential) -> dict:
+        core = self._tracing.core
+        state = {**core.snapshot(), **core.random.state()}
+        state.update({f"potential/{agent}": value for agent, value in potential.items()})
+        return state
+
+
+    def _traced_observations(self, state):
+        self._load(state)
+        observations = self._tracing.observations()
+        self._rest()
+        return observations
+
+    def _traced_state(self, state):
+        self._load(state)
+        value = self._tracing.state()
+        self._rest()
+        return value
+
+    def _traced_step(self, state, actions):
+        xp = self._jax.numpy
+        env = self._tracing
+        core = env.core
+        self._load(state)
+        finite = xp.all(xp.stack([xp.all(xp.isfinite(actions[agent])) for agent in self.possible_agents]))
+        commands = {agent: xp.clip(actions[agent], -1.0, 1.0) for agent in self.possible_agents}
+        rewards, terminated, truncated = core.step(commands)
+        potential = env.guided_potentials()
+        for agent in rewards:
+            if agent in potential:
+                rewards[agent] = rewards[agent] + (potential[agent] - state[f"potential/{agent}"])
+        final = env.observations()
+        success = core.complete
+        done = terminated | truncated
+        core.start_episodes(done)
+        restarted = env.guided_potentials()
+        potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
+        infos = {"is_success": success, "final_observation": final, "actions_finite": finite}
+        out = self._unload(potential), env.observations(), rewards, terminated, truncated, infos
+        self._rest()
+        return out
+
+    # --- API ----------------------------------------------------------------------------------------------
+    def reset(self, seed=None, options=None):
+        if options:
+            raise ValueError(f"{self.name}: the device env takes no reset options (got {sorted(options)}); "
+                             "use the numpy env for them")
+        self.host.reset(seed=seed)
+        potential = self.host.guided_potentials()
+        core = self.host.core
+        state = {**core.snapshot(), **core.random.state(),
+                 **{f"potential/{agent}": value for agent, value in potential.items()}}
+        self._state = self._jax.device_put({key: np.asarray(value) for key, value in state.items()}, self.device)
+        observations = self._observe(self._state)
+        return self._out(observations), {}
+
+    def step(self, actions):
+        if self._state is None:
+            raise RuntimeError(f"{self.name}: call reset() before step()")
+        if not isinstance(actions, dict) or set(actions) != set(self.possible_agents):
+            raise ValueError(f"{self.name}: actions must be a dict over the agents {self.possible_agents}, got "
+                             f"{sorted(actions) if isinstance(actions, dict) else type(actions).__name__}")
+        commands = {}
+        for agent in self.possible_agents:
+            value = self._in(actions[agent])
+            if tuple(value.shape) != (self.num_envs, 4):
+                raise ValueError(f"{self.name}: {agent}'s actions must have shape ({self.num_envs}, 4), got "
+                                 f"{tuple(value.shape)}")
+            commands[agent] = value
+        state, observations, rewards, terminated, truncated, infos = self._step(self._state, commands)
+        if self.check_actions and not bool(infos["actions_finite"]):
+            self._state = state  # (the step ran with clipped NaN; the worlds go on from where it left them)
+            raise ValueError(f"{self.name}: actions contain NaN or inf")
+        self._state = state
+        out = self._out
+        infos = {"is_success": out(infos["is_success"]), "final_observation": out(infos["final_observation"])}
+        return (out(observations), out(rewards), {agent: out(terminated) for agent in self.agents},
+                {agent: out(truncated) for agent in self.agents}, {agent: infos for agent in self.agents})
+
+    def state(self):
+        """(N, state_dim): the global state on the device."""
+        return self._out(self._state_of(self._state))
+
+    def close(self) -> None:
+        self.host.close()
+
+    # --- arrays in and out ----------------------------------------------------------------------------------
+    def _in(self, value):
+        jnp = self._jax.numpy
+        if type(value).__module__.startswith("torch"):
+            value = value.detach()
+            if value.dtype != _torch_float64():
+                value = value.double()
+            if value.device.type == "cpu":
+                return self._jax.device_put(value.numpy(), self.device)
+            return self._jax.dlpack.from_dlpack(value.contiguous())
+        return self._jax.device_put(jnp.asarray(value, dtype=jnp.float64), self.device)
+
+    def _out(self, value):
+        if isinstance(value, dict):  # (in the agents' order: JAX hands dicts back sorted)
+            order = [key for key in self.possible_agents if key in value] + sorted(set(value) - set(self.agents))
+            return {key: self._out(value[key]) for key in order}
+        if self.arrays == "jax":
+            return value
+        import torch
+
+        return torch.from_dlpack(value)
+
+
+def _torch_float64():
+    import torch
+
+    return torch.float64
+
+
+def batched_env(num_envs: int = 1, *, device=None, **kwargs):
+    """N worlds stepped as arrays; the keyword arguments of ``parallel_env``, plus ``num_envs``, ``autoreset_mode``
+    and ``render_world``. ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``): the step compiled by JAX and run there,
+    torch tensors in and out (:class:`SuctionDebrisDeviceEnv`); None (the default): numpy
+    (:class:`~dvrl_marl.envs.suction_debris_batched.SuctionDebrisBatchedEnv`)."""
+    if device is None:
+        return SuctionDebrisBatchedEnv(num_envs, **kwargs)
+    return SuctionDebrisDeviceEnv(num_envs, device=device, **kwargs)
