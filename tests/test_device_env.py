@@ -1,6 +1,8 @@
 """The batched env on a device (JAX, compiled whole; here on the CPU): step by step the numpy env's, automatic resets,
 the guided reward and the observation features included, with torch tensors in and out."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,8 @@ torch = pytest.importorskip("torch")
 from dvrl_marl.envs import suction_debris_v8  # noqa: E402
 
 WORLDS, STEPS = 3, 90
+#: Where the device env runs: the CPU here; the device probe (benchmarks/device_probe.py) sets "cuda" on a GPU machine.
+DEVICE = os.environ.get("DVRL_MARL_TEST_DEVICE", "cpu")
 #: The benchmark's setting with short episodes: every world ends and restarts a few times within the run.
 OPTIONS = dict(preset="benchmark", max_cycles=35)
 
@@ -17,7 +21,7 @@ OPTIONS = dict(preset="benchmark", max_cycles=35)
 @pytest.fixture(scope="module")
 def pair():
     host = suction_debris_v8.batched_env(num_envs=WORLDS, **OPTIONS)
-    device = suction_debris_v8.batched_env(num_envs=WORLDS, device="cpu", **OPTIONS)
+    device = suction_debris_v8.batched_env(num_envs=WORLDS, device=DEVICE, **OPTIONS)
     return host, device
 
 
@@ -28,39 +32,39 @@ def test_the_device_env_steps_as_the_numpy_env(pair):
     assert list(got) == host.possible_agents
     for agent in host.possible_agents:
         assert isinstance(got[agent], torch.Tensor) and got[agent].shape == observations[agent].shape
-        np.testing.assert_allclose(got[agent].numpy(), observations[agent], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got[agent].cpu().numpy(), observations[agent], rtol=0, atol=1e-9)
     rng = np.random.default_rng(0)
     ended = 0
     for step in range(STEPS):
         actions = {agent: rng.uniform(-1.2, 1.2, (WORLDS, 4)) for agent in host.possible_agents}
         expected = host.step(actions)
-        got = device.step({agent: torch.from_numpy(value) for agent, value in actions.items()})
+        got = device.step({agent: torch.from_numpy(value).to(DEVICE) for agent, value in actions.items()})
         for part, (want, have) in enumerate(zip(expected[:4], got[:4])):
             for agent in host.possible_agents:
-                np.testing.assert_allclose(have[agent].numpy(), want[agent], rtol=0, atol=1e-9,
+                np.testing.assert_allclose(have[agent].cpu().numpy(), want[agent], rtol=0, atol=1e-9,
                                            err_msg=f"step {step}, output {part}, {agent}")
         done = expected[2]["suction"] | expected[3]["suction"]
         ended += int(done.sum())
-        success = got[4]["suction"]["is_success"].numpy()
+        success = got[4]["suction"]["is_success"].cpu().numpy()
         np.testing.assert_array_equal(success[done], expected[4]["suction"]["is_success"][done])
     assert ended >= WORLDS * 2  # automatic resets were taken, on both sides alike
-    np.testing.assert_allclose(device.state().numpy(), host.state(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(device.state().cpu().numpy(), host.state(), rtol=0, atol=1e-9)
 
 
 def test_bad_input_on_the_device_names_what_was_wrong(pair):
     _, device = pair
     device.reset(seed=1)
     with pytest.raises(ValueError, match=r"suction's actions must have shape \(3, 4\)"):
-        device.step({"suction": torch.zeros(2, 4), "grasper": torch.zeros(3, 4)})
+        device.step({"suction": torch.zeros(2, 4, device=DEVICE), "grasper": torch.zeros(3, 4, device=DEVICE)})
     with pytest.raises(ValueError, match="dict over the agents"):
-        device.step({"suction": torch.zeros(3, 4)})
+        device.step({"suction": torch.zeros(3, 4, device=DEVICE)})
     nan = torch.zeros(3, 4)
     nan[1, 2] = float("nan")
     with pytest.raises(ValueError, match="NaN or inf"):
-        device.step({"suction": nan, "grasper": torch.zeros(3, 4)})
+        device.step({"suction": nan.to(DEVICE), "grasper": torch.zeros(3, 4, device=DEVICE)})
     with pytest.raises(ValueError, match="no reset options"):
         device.reset(options={"level": 0.5})
     with pytest.raises(ValueError, match="device must be"):
         suction_debris_v8.batched_env(num_envs=2, device="tpu-9")
     with pytest.raises(ValueError, match="surgeon= is not taken on a device"):
-        suction_debris_v8.batched_env(num_envs=2, device="cpu", surgeon="scripted")
+        suction_debris_v8.batched_env(num_envs=2, device=DEVICE, surgeon="scripted")

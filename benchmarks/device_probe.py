@@ -1,0 +1,133 @@
+"""The device probe: takes the project to a GPU machine with no network, runs its device tests and prints every figure
+of the device issue, each section under its own timeout, writing what it has as it goes.
+
+Two steps. Here, on a machine with a package registry (once; the wheels are ignored by git):
+
+    python benchmarks/device_probe.py prepare        # wheels for Python 3.12, manylinux x86-64, into .whl/
+
+There (the lent machine has Python 3.12 with torch and JAX's CUDA build; ``$OUT`` is where figures are kept), one
+command, about 5 minutes:
+
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+      && PYTHONPATH=/tmp/site:. python3 benchmarks/device_probe.py run --out "$OUT"
+
+Sections (each a process of its own with its own time limit; one that fails or runs out says so and the next runs):
+
+1. ``machine``: the GPU's name and memory, JAX's and torch's devices, the commit;
+2. ``tests``: the device tests on the GPU (``tests/test_device_env.py``, ``tests/test_backends.py``,
+   ``tests/test_streams.py``; ``DVRL_MARL_TEST_DEVICE=cuda``);
+3. ``speed``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a torch policy's inference, N from
+   1,024 to 1,048,576, with the defaults and with the benchmark's setting, the numpy env beside it up to N = 4,096;
+4. ``trainer``: the device trainer's env-steps/s and time to 0.9 validation success, when it exists.
+
+Figures land in ``$OUT/probe.jsonl`` (one JSON line each) and ``$OUT/probe.log``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+#: What the lent machine lacks (its image has numpy, torch, JAX, pytest, hypothesis, typing-extensions, absl-py,
+#: etils, cloudpickle): what importing the env needs.
+WHEELS = ("pydantic", "pydantic-core", "annotated-types", "typing-inspection", "array-api-compat", "gymnasium",
+          "farama-notifications", "pettingzoo", "mujoco", "pyopengl", "glfw")
+PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64",
+             "manylinux1_x86_64", "any")
+
+
+def prepare(folder: Path) -> int:
+    """Download the wheels of :data:`WHEELS`, at the versions installed here, for Python 3.12 on x86-64 Linux."""
+    from importlib import metadata
+
+    folder.mkdir(exist_ok=True)
+    status = 0
+    for name in WHEELS:
+        try:
+            version = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            print(f"{name}: not installed here; install the project's extras first", file=sys.stderr)
+            status = 1
+            continue
+        command = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:",
+                   "--python-version", "3.12", "--implementation", "cp", "-d", str(folder), f"{name}=={version}"]
+        for platform in PLATFORMS:
+            command += ["--platform", platform]
+        done = subprocess.run(command, capture_output=True, text=True)
+        print(f"{name}=={version}: {'ok' if done.returncode == 0 else done.stderr.strip().splitlines()[-1]}")
+        status |= done.returncode != 0
+    size = sum(f.stat().st_size for f in folder.glob("*.whl")) / 2**20
+    print(f"{folder}: {len(list(folder.glob('*.whl')))} wheels, {size:.1f} MiB (a call carries at most 64 MiB)")
+    return status
+
+
+def _section(name: str, command: list[str], timeout: float, log, env=None) -> int:
+    began = time.perf_counter()
+    log(f"=== {name} (at most {timeout:.0f} s): {' '.join(command)}")
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, cwd=ROOT,
+                              env={**os.environ, **(env or {})})
+        log(done.stdout[-6000:] + (("\n" + done.stderr[-3000:]) if done.returncode else ""))
+        status = done.returncode
+    except subprocess.TimeoutExpired as expired:
+        out = expired.stdout.decode() if isinstance(expired.stdout, bytes) else (expired.stdout or "")
+        log(out[-6000:] + f"\n{name}: stopped at its limit of {timeout:.0f} s")
+        status = 124
+    log(f"=== {name}: exit {status} after {time.perf_counter() - began:.0f} s")
+    return status
+
+
+def run(out: Path, device: str = "cuda") -> int:
+    out.mkdir(parents=True, exist_ok=True)
+    figures, log_file = out / "probe.jsonl", (out / "probe.log").open("a")
+
+    def log(text: str) -> None:
+        print(text, flush=True)
+        log_file.write(text + "\n")
+        log_file.flush()
+
+    env = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false", "PYTHONUNBUFFERED": "1", "MUJOCO_GL": "egl"}
+    python = sys.executable
+    machine = ("import json, jax, torch; print(json.dumps({'torch': torch.__version__, 'jax': jax.__version__, "
+               "'gpu': torch.cuda.get_device_name(0) if torch.cuda.is_available() else None, "
+               "'memory_gib': round(torch.cuda.get_device_properties(0).total_memory / 2**30, 1) "
+               "if torch.cuda.is_available() else None, 'jax_devices': [str(d) for d in jax.devices()]}))")
+    statuses = {"machine": _section("machine", [python, "-c", machine], 60, log, env)}
+    statuses["tests"] = _section("tests", [python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x",
+                                           "tests/test_device_env.py", "tests/test_backends.py",
+                                           "tests/test_streams.py"], 90, log, {**env, "DVRL_MARL_TEST_DEVICE": device})
+    speed = [python, "benchmarks/device_speed.py", "--device", device, "--json", str(figures), "--repeats", "2"]
+    sizes = ["1024", "16384", "262144", "1048576"] if device != "cpu" else ["64", "1024"]  # (cpu: a dry run)
+    statuses["speed"] = _section("speed", speed + ["--sizes", *sizes], 150, log, env)
+    statuses["speed_benchmark"] = _section("speed_benchmark", speed + ["--preset", "benchmark", "--sizes",
+                                                                       *sizes[1:3]], 75, log, env)
+    trainer = ROOT / "benchmarks" / "device_training.py"
+    if trainer.is_file():
+        statuses["trainer"] = _section("trainer", [python, str(trainer), "--device", device, "--json", str(figures)],
+                                       240, log, env)
+    else:
+        log("=== trainer: not built yet (benchmarks/device_training.py)")
+    log("probe: " + json.dumps(statuses))
+    return 0 if all(status == 0 for status in statuses.values()) else 1
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    commands.add_parser("prepare", help="download the wheels the lent machine lacks into .whl/").add_argument(
+        "--folder", default=str(ROOT / ".whl"))
+    runner = commands.add_parser("run", help="on the lent machine: tests and figures")
+    runner.add_argument("--out", required=True)
+    runner.add_argument("--device", default="cuda", help="cuda (default); cpu: a dry run of the script here")
+    args = parser.parse_args()
+    sys.exit(prepare(Path(args.folder)) if args.command == "prepare" else run(Path(args.out), args.device))
+
+
+if __name__ == "__main__":
+    main()
