@@ -68,3 +68,29 @@ def test_bad_input_on_the_device_names_what_was_wrong(pair):
         suction_debris_v8.batched_env(num_envs=2, device="tpu-9")
     with pytest.raises(ValueError, match="surgeon= is not taken on a device"):
         suction_debris_v8.batched_env(num_envs=2, device=DEVICE, surgeon="scripted")
+
+
+def test_the_torchrl_env_steps_on_the_device_as_on_the_host():
+    """TorchRL's adapter with backend="jax" (the default on a GPU): the same rollout, masked resets included, as the
+    host's, within float32."""
+    pytest.importorskip("torchrl")
+    from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+    def policy(td):
+        observation = td.get(("agents", "observation"))
+        return td.set(("agents", "action"), torch.tanh(3.0 * (observation[..., 4:8] - observation[..., 0:4])))
+
+    rollouts = {}
+    for backend in ("numpy", "jax"):
+        env = SuctionDebrisTorchRLEnv(num_envs=WORLDS, device=DEVICE, backend=backend, max_cycles=25, seed=3,
+                                      reward_type="dense")
+        assert env.backend == backend
+        rollouts[backend] = env.rollout(70, policy, break_when_any_done=False).cpu()
+    host, device = rollouts["numpy"], rollouts["jax"]
+    assert int(host["next", "done"].sum()) >= WORLDS * 2  # TorchRL reset the ended worlds by their mask
+    for key in (("agents", "observation"), "state", ("next", "agents", "reward"), ("next", "done"),
+                ("next", "is_success")):
+        np.testing.assert_allclose(device[key].float().numpy(), host[key].float().numpy(), rtol=0, atol=1e-5,
+                                   err_msg=str(key))
+    with pytest.raises(ValueError, match="start levels draw on the host"):
+        SuctionDebrisTorchRLEnv(num_envs=2, device=DEVICE, backend="jax").set_start_level(0.5)

@@ -495,7 +495,7 @@ class SuctionDebrisBatchedEnv:
         if len({value.shape for value in values}) > 1:
             return {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
         xp = namespace(values[0])
-        together = features.apply(self.feature_spec, xp.concat(values, axis=0))
+        together = features.apply(self.feature_spec, xp.concatenate(values, axis=0))
         n = values[0].shape[0]
         return {agent: together[k * n:(k + 1) * n] for k, agent in enumerate(observations)}
 
@@ -508,7 +508,7 @@ class SuctionDebrisBatchedEnv:
             if self.feature_spec is not None:
                 observations = self._with_features(observations)
             observations = list(observations.values())
-            state = namespace(state).concat([state, *observations], axis=1)
+            state = namespace(state).concatenate([state, *observations], axis=1)
         return state if self.observation_scaling is None else self.observation_scaling.state(state)
 
     def render(self, world: int | None = None):

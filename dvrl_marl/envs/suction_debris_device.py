@@ -12,10 +12,11 @@ terminations, truncations, infos)``, dicts over the agents. What differs:
 
 - worlds reset automatically within the step that ended them (``same_step``); ``infos["is_success"]`` says which
   episodes ended completed (``(N,)``, meaningful where ``terminations | truncations``), ``infos["final_observation"]``
-  holds the observations the step ended on;
+  holds the observations the step ended on. ``autoreset_mode="disabled"``: ``reset(options={"reset_mask": mask})``
+  restarts the worlds of a mask, on the device (the TorchRL adapter's way);
 - the arrays are float64 (the core's), observations as the numpy env's;
-- ``reset`` runs on the host through the numpy env and moves the state to the device once; only ``seed`` is taken
-  (no reset options); a seat's filler (``surgeon=``), start levels below 1 and rendering are the numpy env's;
+- a reset of every world runs on the host through the numpy env and moves the state to the device (``seed`` is
+  taken, no other option); a seat's filler (``surgeon=``), start levels below 1 and rendering are the numpy env's;
 - actions are checked for shape on the host and for NaN/inf on the device (``check_actions=True``: one boolean
   read back per step; ``False`` skips it and clips whatever comes).
 
@@ -65,7 +66,7 @@ class SuctionDebrisDeviceEnv:
     """N worlds of the collaborative scene stepped on ``device`` (see the module documentation)."""
 
     def __init__(self, num_envs: int = 1, *, device="cpu", arrays: str = "torch", check_actions: bool = True,
-                 **kwargs):
+                 autoreset_mode: str = "same_step", **kwargs):
         try:
             import jax
         except ImportError:
@@ -73,6 +74,8 @@ class SuctionDebrisDeviceEnv:
         for option, why in _HOST_ONLY.items():
             if kwargs.get(option) is not None:
                 raise ValueError(f"suction_debris_v8: {option}= is not taken on a device ({why}); use the numpy env")
+        if autoreset_mode not in ("same_step", "disabled"):
+            raise ValueError(f"suction_debris_v8: autoreset_mode must be 'same_step' or 'disabled', got {autoreset_mode!r}")
         if arrays not in ("torch", "jax"):
             raise ValueError(f"suction_debris_v8: arrays must be 'torch' or 'jax', got {arrays!r}")
         jax.config.update("jax_enable_x64", True)  # the core is float64
@@ -91,10 +94,12 @@ class SuctionDebrisDeviceEnv:
         self.device = jax_device(device)
         self.arrays = arrays
         self.check_actions = bool(check_actions)
+        self.autoreset_mode = autoreset_mode
         self._jax = jax
         self._state = None
         self._step = jax.jit(self._traced_step, donate_argnums=(0,))
         self._observe = jax.jit(self._traced_observations)
+        self._restart = jax.jit(self._traced_restart, donate_argnums=(0,))
         self._state_of = jax.jit(self._traced_state)
 
     # --- spaces and facts: the numpy env's ----------------------------------------------------------------
@@ -108,10 +113,18 @@ class SuctionDebrisDeviceEnv:
     def state_space(self):
         return self.host.state_space
 
-    def __getattr__(self, name):  # layout(), params, state_layout, feature_spec...: the host env's
-        if name.startswith("_") or name == "host":
-            raise AttributeError(name)
-        return getattr(self.host, name)
+    #: The numpy env's fixed facts, read through this env (its state-dependent methods are not: the state is here).
+    FACTS = ("params", "layout", "state_layout", "observation_layout", "feature_spec", "observation_scaling",
+             "workspace_range", "workspace_centre", "phantom", "handoff", "reward_type", "guidance", "metadata",
+             "state_observations")
+
+    def __getattr__(self, name):
+        if name in type(self).FACTS:
+            return getattr(self.host, name)
+        if name in ("render", "observations", "set_start_level", "set_tip_positions", "restore", "mirror"):
+            raise AttributeError(f"{self.name}: {name}() is the numpy env's (batched_env without device=): the "
+                                 "worlds' state lives on the device here")
+        raise AttributeError(name)
 
     # --- the traced functions -----------------------------------------------------------------------------
     @staticmethod
@@ -173,20 +186,46 @@ class SuctionDebrisDeviceEnv:
                 rewards[agent] = rewards[agent] + (potential[agent] - state[f"potential/{agent}"])
         final = env.observations()
         success = core.complete
-        done = terminated | truncated
-        core.start_episodes(done)
-        restarted = env.guided_potentials()
-        potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
+        if self.autoreset_mode == "same_step":
+            done = terminated | truncated
+            core.start_episodes(done)
+            restarted = env.guided_potentials()
+            potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
         infos = {"is_success": success, "final_observation": final, "actions_finite": finite}
         out = self._unload(potential), env.observations(), rewards, terminated, truncated, infos
         self._rest()
         return out
 
+    def _traced_restart(self, state, mask):
+        """New episodes in the worlds of ``mask``, on the device."""
+        xp = self._jax.numpy
+        env = self._tracing
+        self._load(state)
+        env.core.start_episodes(mask)
+        potential = {agent: xp.where(mask, value, state[f"potential/{agent}"])
+                     for agent, value in env.guided_potentials().items()}
+        out = self._unload(potential), env.observations()
+        self._rest()
+        return out
+
     # --- API ----------------------------------------------------------------------------------------------
     def reset(self, seed=None, options=None):
+        """New episodes: every world (on the host, the state then moved to the device), or, with
+        ``options={"reset_mask": mask}`` ((N,) booleans of any library) and no seed, the worlds of the mask, on the
+        device."""
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
         if options:
-            raise ValueError(f"{self.name}: the device env takes no reset options (got {sorted(options)}); "
-                             "use the numpy env for them")
+            raise ValueError(f"{self.name}: the device env takes no reset options but reset_mask (got "
+                             f"{sorted(options)}); use the numpy env for them")
+        if mask is not None and seed is None and self._state is not None:
+            mask = self._in(mask, dtype="bool")
+            if tuple(mask.shape) != (self.num_envs,):
+                raise ValueError(f"{self.name}: reset_mask must have shape ({self.num_envs},), got {tuple(mask.shape)}")
+            self._state, observations = self._restart(self._state, mask)
+            return self._out(observations), {}
+        if mask is not None and self._state is None:
+            raise ValueError(f"{self.name}: the first reset starts every world; reset_mask is for the resets after it")
         self.host.reset(seed=seed)
         potential = self.host.guided_potentials()
         core = self.host.core
@@ -227,16 +266,19 @@ class SuctionDebrisDeviceEnv:
         self.host.close()
 
     # --- arrays in and out ----------------------------------------------------------------------------------
-    def _in(self, value):
+    def _in(self, value, dtype: str = "float64"):
         jnp = self._jax.numpy
         if type(value).__module__.startswith("torch"):
+            import torch
+
             value = value.detach()
-            if value.dtype != _torch_float64():
-                value = value.double()
+            wanted = torch.bool if dtype == "bool" else torch.float64
+            if value.dtype != wanted:
+                value = value.to(wanted)
             if value.device.type == "cpu":
                 return self._jax.device_put(value.numpy(), self.device)
             return self._jax.dlpack.from_dlpack(value.contiguous())
-        return self._jax.device_put(jnp.asarray(value, dtype=jnp.float64), self.device)
+        return self._jax.device_put(jnp.asarray(value, dtype=getattr(jnp, dtype)), self.device)
 
     def _out(self, value):
         if isinstance(value, dict):  # (in the agents' order: JAX hands dicts back sorted)
@@ -248,11 +290,6 @@ class SuctionDebrisDeviceEnv:
 
         return torch.from_dlpack(value)
 
-
-def _torch_float64():
-    import torch
-
-    return torch.float64
 
 
 def batched_env(num_envs: int = 1, *, device=None, **kwargs):

@@ -19,6 +19,11 @@ The env's options that help learning pass through like any other keyword: ``rewa
 :meth:`SuctionDebrisTorchRLEnv.set_start_level`, or per reset with a ``"level"`` entry ``(N,)`` beside
 ``"_reset"``. ``group_map`` is ``{"agents": agent_names}`` (BenchMARL's grouping;
 :mod:`dvrl_marl.integrations.benchmarl` ships the task).
+
+Where the step runs: ``backend="numpy"`` steps the worlds on the host and hands the tensors to ``device``;
+``backend="jax"`` steps them on ``device`` itself (:mod:`dvrl_marl.envs.suction_debris_device`: compiled by JAX, the
+state kept there, tensors exchanged without a copy; start levels below 1 are the host's). The default is ``"jax"`` for
+a CUDA device and ``"numpy"`` for the CPU.
 """
 
 from __future__ import annotations
@@ -41,7 +46,8 @@ __all__ = ["SuctionDebrisTorchRLEnv"]
 class SuctionDebrisTorchRLEnv(EnvBase):
     """suction_debris_v8, N worlds, as a TorchRL environment (see the module documentation)."""
 
-    def __init__(self, num_envs: int = 1, device="cpu", seed: int | None = None, **kwargs):
+    def __init__(self, num_envs: int = 1, device="cpu", seed: int | None = None, backend: str | None = None,
+                 **kwargs):
         if kwargs.get("autoreset_mode", "disabled") != "disabled":
             raise ValueError("SuctionDebrisTorchRLEnv resets worlds through TorchRL's '_reset' mask; "
                              "autoreset_mode cannot be set")
@@ -53,7 +59,17 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         if device.type == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"SuctionDebrisTorchRLEnv: device {str(device)!r} needs CUDA, which this torch "
                              f"({torch.__version__}) cannot use here; use device='cpu'")
-        self.batched = SuctionDebrisBatchedEnv(num_envs, **kwargs)
+        backend = backend or ("jax" if device.type == "cuda" else "numpy")
+        if backend not in ("numpy", "jax"):
+            raise ValueError(f"SuctionDebrisTorchRLEnv: backend must be 'numpy' or 'jax', got {backend!r}")
+        #: where the step runs: "numpy" (the host) or "jax" (``device``)
+        self.backend = backend
+        if backend == "jax":
+            from dvrl_marl.envs.suction_debris_device import SuctionDebrisDeviceEnv
+
+            self.batched = SuctionDebrisDeviceEnv(num_envs, device=device, **kwargs)
+        else:
+            self.batched = SuctionDebrisBatchedEnv(num_envs, **kwargs)
         super().__init__(device=device, batch_size=torch.Size([self.batched.num_envs]))
         self.agent_names = list(self.batched.possible_agents)
         n, agents = self.batched.num_envs, len(self.agent_names)
@@ -87,39 +103,50 @@ class SuctionDebrisTorchRLEnv(EnvBase):
 
     def set_start_level(self, level, worlds=None) -> None:
         """The start level of the next episodes (see :mod:`dvrl_marl.envs.start_levels`)."""
+        if self.backend == "jax":
+            raise ValueError("SuctionDebrisTorchRLEnv: start levels draw on the host; use backend='numpy' for them")
         self.batched.set_start_level(level, worlds)
 
-    def _tensor(self, array: np.ndarray) -> torch.Tensor:
+    def _tensor(self, array) -> torch.Tensor:
+        if isinstance(array, torch.Tensor):
+            return array.to(device=self.device, dtype=torch.float32)
         return torch.as_tensor(np.asarray(array, dtype=np.float32), device=self.device)
 
-    def _observation(self) -> dict:
-        observations = self.batched.observations()
-        stacked = np.stack([observations[agent] for agent in self.agent_names], axis=1)
-        agents = TensorDict({"observation": self._tensor(stacked)}, batch_size=stacked.shape[:2], device=self.device)
+    def _observation(self, observations=None) -> dict:
+        observations = self.batched.observations() if observations is None else observations
+        stacked = self._tensor(_stack([observations[agent] for agent in self.agent_names], axis=1))
+        agents = TensorDict({"observation": stacked}, batch_size=stacked.shape[:2], device=self.device)
         return {"agents": agents, "state": self._tensor(self.batched.state())}
 
     def _reset(self, tensordict=None, **kwargs):
         mask = None
+        on_host = self.backend == "numpy"
         if tensordict is not None and "_reset" in tensordict.keys():
-            mask = tensordict.get("_reset").reshape(self.batch_size).cpu().numpy()
+            mask = tensordict.get("_reset").reshape(self.batch_size)
+            mask = mask.cpu().numpy() if on_host else mask
         seed, self._seed = self._seed, None
         options = {} if mask is None else {"reset_mask": mask}
         if tensordict is not None and "level" in tensordict.keys():
+            if not on_host:
+                raise ValueError("SuctionDebrisTorchRLEnv: start levels draw on the host; use backend='numpy'")
             options["level"] = tensordict.get("level").reshape(self.batch_size).cpu().numpy().astype(np.float64)
-        self.batched.reset(seed=seed, options=options or None)
+        observations, _ = self.batched.reset(seed=seed, options=options or None)
         flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=self.device)
-        return TensorDict({**self._observation(), "is_success": flags.clone(), "done": flags,
+        return TensorDict({**self._observation(None if on_host else observations), "is_success": flags.clone(),
+                           "done": flags,
                            "terminated": flags.clone(), "truncated": flags.clone()}, batch_size=self.batch_size,
                           device=self.device)
 
     def _step(self, tensordict):
-        action = tensordict.get(("agents", "action")).detach().cpu().numpy().astype(np.float64)
+        on_host = self.backend == "numpy"
+        action = tensordict.get(("agents", "action")).detach()
+        action = action.cpu().numpy().astype(np.float64) if on_host else action.double()
         actions = {agent: action[:, index] for index, agent in enumerate(self.agent_names)}
-        _, rewards, terminations, truncations, infos = self.batched.step(actions)
-        reward = np.stack([rewards[agent] for agent in self.agent_names], axis=1)[..., None]
+        observations, rewards, terminations, truncations, infos = self.batched.step(actions)
+        reward = _stack([rewards[agent] for agent in self.agent_names], axis=1)[..., None]
         terminated = torch.as_tensor(terminations[self.agent_names[0]], device=self.device)[:, None]
         truncated = torch.as_tensor(truncations[self.agent_names[0]], device=self.device)[:, None]
-        out = self._observation()
+        out = self._observation(None if on_host else observations)
         out["agents"].set("reward", self._tensor(reward))
         out["is_success"] = torch.as_tensor(infos[self.agent_names[0]]["is_success"], device=self.device)[:, None]
         return TensorDict({**out, "done": terminated | truncated, "terminated": terminated, "truncated": truncated},
@@ -131,3 +158,7 @@ class SuctionDebrisTorchRLEnv(EnvBase):
 
     def render(self, world: int | None = None):
         return self.batched.render(world)
+
+
+def _stack(values, axis: int):
+    return torch.stack(values, dim=axis) if isinstance(values[0], torch.Tensor) else np.stack(values, axis=axis)
