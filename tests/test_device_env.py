@@ -14,8 +14,9 @@ from dvrl_marl.envs import suction_debris_v8  # noqa: E402
 WORLDS, STEPS = 3, 90
 #: Where the device env runs: the CPU here; the device probe (benchmarks/device_probe.py) sets "cuda" on a GPU machine.
 DEVICE = os.environ.get("DVRL_MARL_TEST_DEVICE", "cpu")
-#: The benchmark's setting with short episodes: every world ends and restarts a few times within the run.
-OPTIONS = dict(preset="benchmark", max_cycles=35)
+#: The benchmark's setting with short episodes: every world ends and restarts a few times within the run, half of
+#: them easy episodes of the start levels (fewer pins, blood drawn, the grasper started by a pin).
+OPTIONS = dict(preset="benchmark", max_cycles=35, start_level=0.5)
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +49,14 @@ def test_the_device_env_steps_as_the_numpy_env(pair):
         success = got[4]["suction"]["is_success"].cpu().numpy()
         np.testing.assert_array_equal(success[done], expected[4]["suction"]["is_success"][done])
     assert ended >= WORLDS * 2  # automatic resets were taken, on both sides alike
+    # a level set between steps reaches the device (the next episodes of world 0 are easy ones, or not, alike)
+    host.set_start_level(0.0, [0])
+    device.set_start_level(0.0, [0])
+    for _ in range(40):
+        actions = {agent: rng.uniform(-1.0, 1.0, (WORLDS, 4)) for agent in host.possible_agents}
+        expected = host.step(actions)
+        got = device.step({agent: torch.from_numpy(value).to(DEVICE) for agent, value in actions.items()})
+        np.testing.assert_allclose(got[0]["grasper"].cpu().numpy(), expected[0]["grasper"], rtol=0, atol=1e-9)
     np.testing.assert_allclose(device.state().cpu().numpy(), host.state(), rtol=0, atol=1e-9)
 
 
@@ -62,8 +71,10 @@ def test_bad_input_on_the_device_names_what_was_wrong(pair):
     nan[1, 2] = float("nan")
     with pytest.raises(ValueError, match="NaN or inf"):
         device.step({"suction": nan.to(DEVICE), "grasper": torch.zeros(3, 4, device=DEVICE)})
-    with pytest.raises(ValueError, match="no reset options"):
-        device.reset(options={"level": 0.5})
+    with pytest.raises(ValueError, match="reset options reset_mask and level only"):
+        device.reset(options={"blood_ml": [1.0, 1.0]})
+    with pytest.raises(ValueError, match="level must lie in"):
+        device.set_start_level(1.5)
     with pytest.raises(ValueError, match="device must be"):
         suction_debris_v8.batched_env(num_envs=2, device="tpu-9")
     with pytest.raises(ValueError, match="surgeon= is not taken on a device"):
@@ -83,7 +94,7 @@ def test_the_torchrl_env_steps_on_the_device_as_on_the_host():
     rollouts = {}
     for backend in ("numpy", "jax"):
         env = SuctionDebrisTorchRLEnv(num_envs=WORLDS, device=DEVICE, backend=backend, max_cycles=25, seed=3,
-                                      reward_type="dense")
+                                      reward_type="dense", start_level=0.3)
         assert env.backend == backend
         rollouts[backend] = env.rollout(70, policy, break_when_any_done=False).cpu()
     host, device = rollouts["numpy"], rollouts["jax"]
@@ -92,5 +103,3 @@ def test_the_torchrl_env_steps_on_the_device_as_on_the_host():
                 ("next", "is_success")):
         np.testing.assert_allclose(device[key].float().numpy(), host[key].float().numpy(), rtol=0, atol=1e-5,
                                    err_msg=str(key))
-    with pytest.raises(ValueError, match="start levels draw on the host"):
-        SuctionDebrisTorchRLEnv(num_envs=2, device=DEVICE, backend="jax").set_start_level(0.5)

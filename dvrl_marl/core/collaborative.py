@@ -344,11 +344,39 @@ class CollaborativeCore:
         if not np.issubdtype(count.dtype, np.integer) or np.any(count < 0) or np.any(count > self.params.debris_count):
             raise ValueError(f"{self.name}: debris_count must be integers in 0..{self.params.debris_count}, "
                              f"got {count.tolist()}")
-        out = np.arange(self.params.debris_count)[None, :] >= count[:, None]
-        self.delivered[indices] |= out
-        self.visible[indices] &= ~out
-        self.complete[indices] = False
-        self.work_distance["grasper"][indices] = self._work_distance("grasper")[indices]
+        mask = np.zeros(self.num_worlds, dtype=bool)
+        mask[indices] = True
+        counts = np.full(self.num_worlds, self.params.debris_count)
+        counts[indices] = count
+        self.keep_debris(mask, counts)
+
+    def keep_debris(self, mask, count) -> None:
+        """:meth:`limit_debris` for the worlds of ``mask`` (N,), ``count`` (N,) checked (any array library)."""
+        xp = namespace(mask, self.remaining_ml)
+        out = (xp.arange(self.params.debris_count)[None, :] >= count[:, None]) & mask[:, None]
+        self.delivered = self.delivered | out
+        self.visible = self.visible & ~out
+        self.complete = self.complete & ~mask
+        self.work_distance["grasper"] = xp.where(mask, self._work_distance("grasper"), self.work_distance["grasper"])
+
+    def try_grasper_starts(self, mask, targets) -> None:
+        """Start the grasper's tip at ``targets`` (N, 3, world) in the worlds of ``mask`` where that start is possible
+        (in the workspace box, above the surface, reachable, apart from the suction); elsewhere, and where it is
+        not, nothing changes. :meth:`place_tips`' checks, as a mask (any array library)."""
+        xp = namespace(mask, targets, self.remaining_ml)
+        arm = self.arms["grasper"]
+        inside = xp.all((targets >= self.low - 1e-12) & (targets <= self.high + 1e-12), axis=1)
+        above = targets[:, 2] >= self._floor(targets[:, 0], targets[:, 1]) - 1e-12
+        tips = targets - arm.base_position
+        q, reachable = kinematics.inverse_kinematics_batch(arm.tool, arm._tool_points(tips))
+        previous_tip, previous_q = arm.tip, arm.q
+        placed = mask & inside & above & reachable
+        arm.tip, arm.q = xp.where(placed[:, None], tips, arm.tip), xp.where(placed[:, None], q, arm.q)
+        placed = placed & (self._instrument_distance() >= 0.0)
+        arm.tip = xp.where(placed[:, None], tips, previous_tip)
+        arm.q = xp.where(placed[:, None], q, previous_q)
+        for agent in AGENTS:
+            self.work_distance[agent] = xp.where(placed, self._work_distance(agent), self.work_distance[agent])
 
     # --- step ---------------------------------------------------------------------------------------------
     def step(self, commands: dict):

@@ -315,21 +315,25 @@ class OverRims:
         around = _length(up - start) + _length(down - up) + _length(goal - down)
         return xp.where(from_cavity == to_cavity, straight, around)
 
-    def point_along(self, start, goal, fraction: float) -> np.ndarray:
-        """The point ``fraction`` of the way (the one :meth:`distance` measures) from ``start`` to ``goal``, two (3,)
-        world positions: straight within a region, else up to just above the top, across, and down."""
-        regions = self.region(np.stack([start, goal]))
-        if regions[0] == regions[1]:
-            corners = np.stack([start, goal])
-        else:
-            corners = np.stack([start, self._lift(start, regions[0]), self._lift(goal, regions[1]), goal])
-        legs = np.linalg.norm(np.diff(corners, axis=0), axis=1)
-        travelled = fraction * legs.sum()
-        for leg, length in enumerate(legs[:-1]):
-            if travelled <= length:
-                return corners[leg] + (corners[leg + 1] - corners[leg]) * (travelled / max(length, 1e-12))
-            travelled -= length
-        return corners[-2] + (corners[-1] - corners[-2]) * min(travelled / max(legs[-1], 1e-12), 1.0)
+    def point_along(self, start, goal, fraction):
+        """The point ``fraction`` of the way (the one :meth:`distance` measures) from ``start`` to ``goal``: straight
+        within a region, else up to just above the top, across, and down. ``start``, ``goal``: (..., 3) world
+        positions, ``fraction`` (...) in [0, 1]; any array library's arrays."""
+        xp = namespace(start, goal)
+        from_region, to_region = self.region(start), self.region(goal)
+        same = (from_region == to_region)[..., None]
+        # four corners; within one region the middle leg is the whole way and the outer ones have no length
+        corners = (start, xp.where(same, start, self._lift(start, from_region)),
+                   xp.where(same, goal, self._lift(goal, to_region)), goal)
+        legs = [_length(corners[k + 1] - corners[k]) for k in range(3)]
+        travelled = fraction * (legs[0] + legs[1] + legs[2])
+        second = travelled - legs[0]
+        third = second - legs[1]
+        on_first = corners[0] + (corners[1] - corners[0]) * (travelled / xp.maximum(legs[0], 1e-12))[..., None]
+        on_second = corners[1] + (corners[2] - corners[1]) * (second / xp.maximum(legs[1], 1e-12))[..., None]
+        last = corners[2] + (corners[3] - corners[2]) * xp.minimum(third / xp.maximum(legs[2], 1e-12), 1.0)[..., None]
+        return xp.where((travelled <= legs[0])[..., None], on_first,
+                        xp.where((second <= legs[1])[..., None], on_second, last))
 
 
 class SuctionRouteShaping:

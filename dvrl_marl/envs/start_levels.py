@@ -33,8 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dvrl_marl.core.backend import namespace
+
 __all__ = ["EASY", "DEFAULT", "NAMED_LEVELS", "EasyEpisodes", "EASY_EPISODES", "StartDraws", "checked_level",
-           "checked_schedule", "scheduled_level", "draw", "grasper_uniforms", "grasper_start"]
+           "checked_schedule", "scheduled_level", "draw", "grasper_uniforms", "grasper_starts"]
 
 EASY = 0.0
 DEFAULT = 1.0
@@ -104,43 +106,49 @@ def scheduled_level(levels, progress: float) -> float:
     return float(np.interp(min(max(progress, 0.0), 1.0), points, values))
 
 
-def draw(streams, worlds: np.ndarray, levels: np.ndarray, blood_ml, debris_count: int,
-         easy: EasyEpisodes = EASY_EPISODES) -> StartDraws:
+def draw(streams, worlds, levels, blood_ml, debris_count: int, easy: EasyEpisodes = EASY_EPISODES) -> StartDraws:
     """The starts of the episodes ``worlds`` begin at ``levels`` (M,), given the task's blood and debris, from
-    ``streams`` (:class:`~dvrl_marl.core.streams.ResetStreams`, before the core's reset moves them on). A world at
-    level 1 is never easy."""
-    blood_ml = np.asarray(blood_ml, dtype=np.float64)
-    levels = np.asarray(levels, dtype=np.float64)
+    ``streams`` (:class:`~dvrl_marl.core.streams.ResetStreams`, before the core's reset moves them on; ``worlds``:
+    indices, or None for every world). A world at level 1 is never easy. Any array library's arrays."""
+    xp = namespace(levels)
+    task_blood = xp.asarray(np.asarray(blood_ml, dtype=np.float64))
+    count = task_blood.shape[0]
     is_easy = streams.uniforms(worlds, "level", 1)[:, 0] < 1.0 - levels
-    blood = streams.uniforms(worlds, "level_blood", len(blood_ml)) * blood_ml
+    blood = streams.uniforms(worlds, "level_blood", count) * task_blood
     if easy.empty_cavity_probability > 0:
-        blood = np.where(streams.uniforms(worlds, "level_empty", len(blood_ml)) < easy.empty_cavity_probability,
-                         0.0, blood)
-    count = 1 + np.minimum((streams.uniforms(worlds, "level_debris", 1)[:, 0] * debris_count).astype(np.int64),
-                           debris_count - 1)
-    return StartDraws(is_easy, np.where(is_easy[:, None], blood, blood_ml),
-                      np.where(is_easy, count, int(debris_count)),
-                      np.where(is_easy, np.minimum(1.0, 2.0 * levels), 0.0))
+        blood = xp.where(streams.uniforms(worlds, "level_empty", count) < easy.empty_cavity_probability, 0.0, blood)
+    debris = 1 + xp.minimum(astype(streams.uniforms(worlds, "level_debris", 1)[:, 0] * debris_count, xp.int64, xp),
+                            debris_count - 1)
+    return StartDraws(is_easy, xp.where(is_easy[:, None], blood, task_blood),
+                      xp.where(is_easy, debris, int(debris_count)),
+                      xp.where(is_easy, xp.minimum(2.0 * levels, 1.0), 0.0))
 
 
-def grasper_uniforms(streams, worlds: np.ndarray) -> np.ndarray:
-    """(M, 5): what :func:`grasper_start` draws for each of ``worlds`` (taken with :func:`draw`, before the reset)."""
-    return np.concatenate([streams.uniforms(worlds, "level_pin", 1), streams.uniforms(worlds, "level_aside", 3),
-                           streams.uniforms(worlds, "level_reach", 1)], axis=1)
+def grasper_uniforms(streams, worlds):
+    """(M, 5): what :func:`grasper_starts` draws for each of ``worlds`` (taken with :func:`draw`, before the reset)."""
+    parts = [streams.uniforms(worlds, name, k) for name, k in (("level_pin", 1), ("level_aside", 3), ("level_reach", 1))]
+    return namespace(parts[0]).concatenate(parts, axis=1)
 
 
-def grasper_start(draws: np.ndarray, pins, pending, ordinary_tip, reach: float, rims,
-                  easy: EasyEpisodes = EASY_EPISODES):
-    """Where an easy episode's grasper starts (world metres, (3,)), or None when no pin is in view: above one of the
-    ``pending`` pins (``pins``: (D, 3) world positions), moved back toward ``ordinary_tip`` by a uniform share of at
-    most ``reach`` of the way :meth:`OverRims.point_along` measures (``rims``). ``draws``: the world's row of
-    :func:`grasper_uniforms`."""
-    candidates = np.flatnonzero(pending)
-    if len(candidates) == 0:
-        return None
-    pin = np.asarray(pins[candidates[min(int(draws[0] * len(candidates)), len(candidates) - 1)]], dtype=np.float64)
-    aside = -easy.aside + 2.0 * easy.aside * draws[1:4]
-    target = pin + np.array([0.0, 0.0, easy.above_pin]) + aside * [1, 1, 0.25]
-    if reach > 0:
-        target = rims.point_along(target, np.asarray(ordinary_tip, dtype=np.float64), reach * draws[4])
-    return target
+def grasper_starts(draws, pins, pending, ordinary_tip, reach, rims, easy: EasyEpisodes = EASY_EPISODES):
+    """Where easy episodes' graspers start (world metres, (M, 3)) and whether each has a pin in view to start at
+    ((M,); where not, the ordinary start stays): above one of the ``pending`` (M, D) pins (``pins``: (M, D, 3) world
+    positions), moved back toward ``ordinary_tip`` (M, 3) by a uniform share of at most ``reach`` (M,) of the way
+    :meth:`OverRims.point_along` measures (``rims``). ``draws``: :func:`grasper_uniforms`' rows. Any array library's
+    arrays."""
+    xp = namespace(pins)
+    count = xp.sum(astype(pending, xp.int64, xp), axis=1)
+    has = count > 0
+    # the k-th pending pin, k drawn uniformly among them
+    k = xp.minimum(astype(draws[:, 0] * count, xp.int64, xp), xp.maximum(count - 1, 0))
+    order = xp.cumsum(astype(pending, xp.int64, xp), axis=1) - 1  # each pending pin's rank among them
+    chosen = pending & (order == k[:, None])
+    pin = xp.sum(xp.where(chosen[..., None], pins, 0.0), axis=1)
+    aside = -easy.aside + 2.0 * easy.aside * draws[:, 1:4]
+    target = pin + xp.asarray([0.0, 0.0, easy.above_pin]) + aside * xp.asarray([1.0, 1.0, 0.25])
+    moved = rims.point_along(target, ordinary_tip, reach * draws[:, 4])
+    return xp.where((reach > 0.0)[:, None], moved, target), has
+
+
+def astype(x, dtype, xp):
+    return x.astype(dtype) if xp is np else xp.astype(x, dtype)

@@ -59,7 +59,7 @@ import numpy as np
 from gymnasium import spaces
 
 from dvrl_marl import assets
-from dvrl_marl.core.backend import namespace
+from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
 from dvrl_marl.core.worlds import check_action_batch
@@ -381,32 +381,36 @@ class SuctionDebrisBatchedEnv:
 
     def _start_at_levels(self, worlds: np.ndarray) -> None:
         """New episodes for ``worlds`` at their levels (easy starts: :mod:`dvrl_marl.envs.start_levels`)."""
-        core, params = self.core, self.params
-        drawn = start_levels.draw(core.random, worlds, np.minimum(self.levels[worlds], start_levels.DEFAULT),
-                                  params.blood_ml, params.debris_count)
-        grasper_draws = start_levels.grasper_uniforms(core.random, worlds)  # (this episode's: before the reset)
-        core.reset(worlds, blood_ml=drawn.blood_ml)
+        mask = np.zeros(self.num_envs, dtype=bool)
+        mask[worlds] = True
+        self.start_at_levels(mask, self.levels)
         self._level_blood[worlds] = True
-        if not drawn.easy.any():
+
+    def start_at_levels(self, mask, levels) -> None:
+        """New episodes in the worlds of ``mask`` (N,) at ``levels`` (N,): written once for every array library (numpy
+        draws for those worlds only; under ``jax.jit`` every world draws and the others keep their state)."""
+        core, params = self.core, self.params
+        xp = namespace(mask, core.remaining_ml)
+        rows = rows_of(mask)
+        drawn = start_levels.draw(core.random, rows, xp.minimum(take(levels, rows), start_levels.DEFAULT),
+                                  params.blood_ml, params.debris_count)
+        grasper_draws = start_levels.grasper_uniforms(core.random, rows)  # (this episode's: before the reset)
+        core.initial_ml = put(core.initial_ml, rows, mask, drawn.blood_ml)
+        core.start_episodes(mask)
+        no = xp.zeros(mask.shape, dtype=xp.bool)
+        easy = put(no, rows, mask, drawn.easy)
+        if not needed(easy):
             return
-        easy = worlds[drawn.easy]
-        core.limit_debris(easy, drawn.debris_count[drawn.easy])
-        core.limit[easy] = min(params.max_cycles, self.easy_episode_steps or params.max_cycles)
+        core.keep_debris(easy, put(xp.full(mask.shape, params.debris_count), rows, mask, drawn.debris_count))
+        core.limit = xp.where(easy, min(params.max_cycles, self.easy_episode_steps or params.max_cycles), core.limit)
         if self._rims is None:
             self._rims = OverRims(core.cavities)
         grasper = core.arms["grasper"]
-        for row in np.flatnonzero(drawn.easy).tolist():
-            world = int(worlds[row])
-            pending = core.visible[world] & ~core.delivered[world]
-            target = start_levels.grasper_start(grasper_draws[row], core.debris_position[world], pending,
-                                                grasper.tip[world] + grasper.base_position, float(drawn.reach[row]),
-                                                self._rims)
-            if target is None:
-                continue
-            try:
-                core.place_tips([world], {"grasper": target[None]})
-            except ValueError:
-                pass  # that start is not possible (unreachable, or into the other instrument): the ordinary one
+        pending = take(core.visible & ~core.delivered, rows)
+        targets, has = start_levels.grasper_starts(grasper_draws, take(core.debris_position, rows), pending,
+                                                   take(grasper.tip_world(), rows), drawn.reach, self._rims)
+        core.try_grasper_starts(easy & put(no, rows, mask, has), put(xp.zeros((mask.shape[0], 3)), rows, mask,
+                                                                    targets))
 
     def restore(self, state: dict) -> None:
         """Put every world back in a state :meth:`CollaborativeCore.snapshot` took (the guided terms restart there)."""

@@ -15,8 +15,9 @@ terminations, truncations, infos)``, dicts over the agents. What differs:
   holds the observations the step ended on. ``autoreset_mode="disabled"``: ``reset(options={"reset_mask": mask})``
   restarts the worlds of a mask, on the device (the TorchRL adapter's way);
 - the arrays are float64 (the core's), observations as the numpy env's;
-- a reset of every world runs on the host through the numpy env and moves the state to the device (``seed`` is
-  taken, no other option); a seat's filler (``surgeon=``), start levels below 1 and rendering are the numpy env's;
+- a reset of every world runs on the host through the numpy env and moves the state to the device (``seed`` and
+  ``level`` are taken); start levels (``start_level=``, ``set_start_level``, a ``level`` reset option) draw easy
+  episodes on the device; a seat's filler (``surgeon=``) and rendering are the numpy env's;
 - actions are checked for shape on the host and for NaN/inf on the device (``check_actions=True``: one boolean
   read back per step; ``False`` skips it and clips whatever comes).
 
@@ -81,9 +82,6 @@ class SuctionDebrisDeviceEnv:
         jax.config.update("jax_enable_x64", True)  # the core is float64
         #: the numpy env this one mirrors: options, spaces, layouts and the first reset are its own
         self.host = SuctionDebrisBatchedEnv(num_envs, autoreset_mode="disabled", **kwargs)
-        if self.host.start_level < 1.0:
-            raise ValueError(f"{self.host.name}: start levels below 1 draw on the host; on a device the default task "
-                             "only (start_level=1)")
         #: the env the traced functions run through (a copy: its arrays are JAX's while a function is traced)
         self._tracing = copy.deepcopy(self.host)
         self._resting = self._arrays(self._tracing.core)
@@ -121,7 +119,7 @@ class SuctionDebrisDeviceEnv:
     def __getattr__(self, name):
         if name in type(self).FACTS:
             return getattr(self.host, name)
-        if name in ("render", "observations", "set_start_level", "set_tip_positions", "restore", "mirror"):
+        if name in ("render", "observations", "set_tip_positions", "restore", "mirror"):
             raise AttributeError(f"{self.name}: {name}() is the numpy env's (batched_env without device=): the "
                                  "worlds' state lives on the device here")
         raise AttributeError(name)
@@ -150,12 +148,13 @@ class SuctionDebrisDeviceEnv:
     def _load(self, state):
         self._rest()
         core = self._tracing.core
-        core.restore({key: value for key, value in state.items() if not key.startswith(("stream_", "potential/"))})
+        core.restore({key: value for key, value in state.items()
+                      if not key.startswith(("stream_", "potential/")) and key != "levels"})
         core.random.restore(state)
 
-    def _unload(self, potential) -> dict:
+    def _unload(self, potential, levels) -> dict:
         core = self._tracing.core
-        state = {**core.snapshot(), **core.random.state()}
+        state = {**core.snapshot(), **core.random.state(), "levels": levels}
         state.update({f"potential/{agent}": value for agent, value in potential.items()})
         return state
 
@@ -188,11 +187,11 @@ class SuctionDebrisDeviceEnv:
         success = core.complete
         if self.autoreset_mode == "same_step":
             done = terminated | truncated
-            core.start_episodes(done)
+            env.start_at_levels(done, state["levels"])
             restarted = env.guided_potentials()
             potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
         infos = {"is_success": success, "final_observation": final, "actions_finite": finite}
-        out = self._unload(potential), env.observations(), rewards, terminated, truncated, infos
+        out = self._unload(potential, state["levels"]), env.observations(), rewards, terminated, truncated, infos
         self._rest()
         return out
 
@@ -201,10 +200,10 @@ class SuctionDebrisDeviceEnv:
         xp = self._jax.numpy
         env = self._tracing
         self._load(state)
-        env.core.start_episodes(mask)
+        env.start_at_levels(mask, state["levels"])
         potential = {agent: xp.where(mask, value, state[f"potential/{agent}"])
                      for agent, value in env.guided_potentials().items()}
-        out = self._unload(potential), env.observations()
+        out = self._unload(potential, state["levels"]), env.observations()
         self._rest()
         return out
 
@@ -215,9 +214,12 @@ class SuctionDebrisDeviceEnv:
         device."""
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
+        level = options.pop("level", None)
         if options:
-            raise ValueError(f"{self.name}: the device env takes no reset options but reset_mask (got "
-                             f"{sorted(options)}); use the numpy env for them")
+            raise ValueError(f"{self.name}: the device env takes the reset options reset_mask and level only (got "
+                             f"{sorted(options)}); use the numpy env for the others")
+        if level is not None:
+            self.set_start_level(level, None if mask is None else np.asarray(self._host_array(mask), dtype=bool))
         if mask is not None and seed is None and self._state is not None:
             mask = self._in(mask, dtype="bool")
             if tuple(mask.shape) != (self.num_envs,):
@@ -229,11 +231,22 @@ class SuctionDebrisDeviceEnv:
         self.host.reset(seed=seed)
         potential = self.host.guided_potentials()
         core = self.host.core
-        state = {**core.snapshot(), **core.random.state(),
+        state = {**core.snapshot(), **core.random.state(), "levels": self.host.levels,
                  **{f"potential/{agent}": value for agent, value in potential.items()}}
         self._state = self._jax.device_put({key: np.asarray(value) for key, value in state.items()}, self.device)
         observations = self._observe(self._state)
         return self._out(observations), {}
+
+    def set_start_level(self, level, worlds=None) -> None:
+        """The start level (:mod:`dvrl_marl.envs.start_levels`) of the next episodes of ``worlds`` (default all; a
+        mask or indices), automatic resets included (checked on the host, then sent to the device)."""
+        self.host.set_start_level(level, worlds)
+        if self._state is not None:
+            self._state = {**self._state, "levels": self._jax.device_put(self.host.levels, self.device)}
+
+    @staticmethod
+    def _host_array(value):
+        return value.detach().cpu().numpy() if type(value).__module__.startswith("torch") else np.asarray(value)
 
     def step(self, actions):
         if self._state is None:

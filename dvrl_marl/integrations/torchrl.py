@@ -22,8 +22,8 @@ The env's options that help learning pass through like any other keyword: ``rewa
 
 Where the step runs: ``backend="numpy"`` steps the worlds on the host and hands the tensors to ``device``;
 ``backend="jax"`` steps them on ``device`` itself (:mod:`dvrl_marl.envs.suction_debris_device`: compiled by JAX, the
-state kept there, tensors exchanged without a copy; start levels below 1 are the host's). The default is ``"jax"`` for
-a CUDA device and ``"numpy"`` for the CPU.
+state kept there, tensors exchanged without a copy, start levels included). The default is ``"jax"`` for a CUDA device
+and ``"numpy"`` for the CPU.
 """
 
 from __future__ import annotations
@@ -103,8 +103,6 @@ class SuctionDebrisTorchRLEnv(EnvBase):
 
     def set_start_level(self, level, worlds=None) -> None:
         """The start level of the next episodes (see :mod:`dvrl_marl.envs.start_levels`)."""
-        if self.backend == "jax":
-            raise ValueError("SuctionDebrisTorchRLEnv: start levels draw on the host; use backend='numpy' for them")
         self.batched.set_start_level(level, worlds)
 
     def _tensor(self, array) -> torch.Tensor:
@@ -127,8 +125,6 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         seed, self._seed = self._seed, None
         options = {} if mask is None else {"reset_mask": mask}
         if tensordict is not None and "level" in tensordict.keys():
-            if not on_host:
-                raise ValueError("SuctionDebrisTorchRLEnv: start levels draw on the host; use backend='numpy'")
             options["level"] = tensordict.get("level").reshape(self.batch_size).cpu().numpy().astype(np.float64)
         observations, _ = self.batched.reset(seed=seed, options=options or None)
         flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=self.device)
