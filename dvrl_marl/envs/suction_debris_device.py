@@ -96,9 +96,7 @@ class SuctionDebrisDeviceEnv:
         self._jax = jax
         self._state = None
         self._step = jax.jit(self._traced_step, donate_argnums=(0,))
-        self._observe = jax.jit(self._traced_observations)
         self._restart = jax.jit(self._traced_restart, donate_argnums=(0,))
-        self._state_of = jax.jit(self._traced_state)
 
     # --- spaces and facts: the numpy env's ----------------------------------------------------------------
     def observation_space(self, agent):
@@ -158,19 +156,6 @@ class SuctionDebrisDeviceEnv:
         state.update({f"potential/{agent}": value for agent, value in potential.items()})
         return state
 
-
-    def _traced_observations(self, state):
-        self._load(state)
-        observations = self._tracing.observations()
-        self._rest()
-        return observations
-
-    def _traced_state(self, state):
-        self._load(state)
-        value = self._tracing.state()
-        self._rest()
-        return value
-
     def _traced_step(self, state, actions):
         xp = self._jax.numpy
         env = self._tracing
@@ -190,7 +175,7 @@ class SuctionDebrisDeviceEnv:
             env.start_at_levels(done, state["levels"])
             restarted = env.guided_potentials()
             potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
-        infos = {"is_success": success, "final_observation": final, "actions_finite": finite}
+        infos = {"is_success": success, "final_observation": final, "actions_finite": finite, "state": env.state()}
         out = self._unload(potential, state["levels"]), env.observations(), rewards, terminated, truncated, infos
         self._rest()
         return out
@@ -203,7 +188,7 @@ class SuctionDebrisDeviceEnv:
         env.start_at_levels(mask, state["levels"])
         potential = {agent: xp.where(mask, value, state[f"potential/{agent}"])
                      for agent, value in env.guided_potentials().items()}
-        out = self._unload(potential, state["levels"]), env.observations()
+        out = self._unload(potential, state["levels"]), env.observations(), env.state()
         self._rest()
         return out
 
@@ -224,7 +209,7 @@ class SuctionDebrisDeviceEnv:
             mask = self._in(mask, dtype="bool")
             if tuple(mask.shape) != (self.num_envs,):
                 raise ValueError(f"{self.name}: reset_mask must have shape ({self.num_envs},), got {tuple(mask.shape)}")
-            self._state, observations = self._restart(self._state, mask)
+            self._state, observations, self._global_state = self._restart(self._state, mask)
             return self._out(observations), {}
         if mask is not None and self._state is None:
             raise ValueError(f"{self.name}: the first reset starts every world; reset_mask is for the resets after it")
@@ -234,7 +219,9 @@ class SuctionDebrisDeviceEnv:
         state = {**core.snapshot(), **core.random.state(), "levels": self.host.levels,
                  **{f"potential/{agent}": value for agent, value in potential.items()}}
         self._state = self._jax.device_put({key: np.asarray(value) for key, value in state.items()}, self.device)
-        observations = self._observe(self._state)
+        # (the host's observations and state are the device's: the same state, held equal by the tests)
+        observations = self._jax.device_put(self.host.observations(), self.device)
+        self._global_state = self._jax.device_put(self.host.state(), self.device)
         return self._out(observations), {}
 
     def set_start_level(self, level, worlds=None) -> None:
@@ -262,10 +249,9 @@ class SuctionDebrisDeviceEnv:
                                  f"{tuple(value.shape)}")
             commands[agent] = value
         state, observations, rewards, terminated, truncated, infos = self._step(self._state, commands)
-        if self.check_actions and not bool(infos["actions_finite"]):
-            self._state = state  # (the step ran with clipped NaN; the worlds go on from where it left them)
+        self._state, self._global_state = state, infos["state"]
+        if self.check_actions and not bool(infos["actions_finite"]):  # (the step ran clipped; the worlds go on)
             raise ValueError(f"{self.name}: actions contain NaN or inf")
-        self._state = state
         out = self._out
         infos = {"is_success": out(infos["is_success"]), "final_observation": out(infos["final_observation"])}
         return (out(observations), out(rewards), {agent: out(terminated) for agent in self.agents},
@@ -273,7 +259,9 @@ class SuctionDebrisDeviceEnv:
 
     def state(self):
         """(N, state_dim): the global state on the device."""
-        return self._out(self._state_of(self._state))
+        if self._state is None:
+            raise RuntimeError(f"{self.name}: call reset() before state()")
+        return self._out(self._global_state)
 
     def close(self) -> None:
         self.host.close()
