@@ -12,8 +12,9 @@ terminations, truncations, infos)``, dicts over the agents. What differs:
 
 - worlds reset automatically within the step that ended them (``same_step``); ``infos["is_success"]`` says which
   episodes ended completed (``(N,)``, meaningful where ``terminations | truncations``), ``infos["final_observation"]``
-  holds the observations the step ended on. ``autoreset_mode="disabled"``: ``reset(options={"reset_mask": mask})``
-  restarts the worlds of a mask, on the device (the TorchRL adapter's way);
+  and ``infos["final_state"]`` the observations and the global state the step ended on (a learner's bootstrap).
+  ``autoreset_mode="disabled"``: ``reset(options={"reset_mask": mask})`` restarts the worlds of a mask, on the device
+  (the TorchRL adapter's way);
 - the arrays are float64 (the core's), observations as the numpy env's;
 - a reset of every world runs on the host through the numpy env and moves the state to the device (``seed`` and
   ``level`` are taken); start levels (``start_level=``, ``set_start_level``, a ``level`` reset option) draw easy
@@ -168,14 +169,15 @@ class SuctionDebrisDeviceEnv:
         for agent in rewards:
             if agent in potential:
                 rewards[agent] = rewards[agent] + (potential[agent] - state[f"potential/{agent}"])
-        final = env.observations()
+        final, final_state = env.observations(), env.state()
         success = core.complete
         if self.autoreset_mode == "same_step":
             done = terminated | truncated
             env.start_at_levels(done, state["levels"])
             restarted = env.guided_potentials()
             potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
-        infos = {"is_success": success, "final_observation": final, "actions_finite": finite, "state": env.state()}
+        infos = {"is_success": success, "final_observation": final, "final_state": final_state,
+                 "actions_finite": finite, "state": env.state()}
         out = self._unload(potential, state["levels"]), env.observations(), rewards, terminated, truncated, infos
         self._rest()
         return out
@@ -253,7 +255,8 @@ class SuctionDebrisDeviceEnv:
         if self.check_actions and not bool(infos["actions_finite"]):  # (the step ran clipped; the worlds go on)
             raise ValueError(f"{self.name}: actions contain NaN or inf")
         out = self._out
-        infos = {"is_success": out(infos["is_success"]), "final_observation": out(infos["final_observation"])}
+        infos = {"is_success": out(infos["is_success"]), "final_observation": out(infos["final_observation"]),
+                 "final_state": out(infos["final_state"])}
         return (out(observations), out(rewards), {agent: out(terminated) for agent in self.agents},
                 {agent: out(truncated) for agent in self.agents}, {agent: infos for agent in self.agents})
 

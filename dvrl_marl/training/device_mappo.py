@@ -1,0 +1,377 @@
+"""MAPPO / IPPO with everything on one device: the worlds, the policy, the rollout and the update.
+
+The batched env runs where the learner runs (``batched_env(device=...)``: the step compiled by JAX, torch tensors in
+and out; on a CPU, ``backend="numpy"`` keeps numpy's env, which is faster there), so a rollout of ``num_envs`` x
+``rollout_steps`` steps never leaves the device until validation. It reads the configurations of the trainer of record
+(:class:`~dvrl_marl.training.mappo_config.MappoConfig`, ``baselines/configs/*.toml``): the same models, the same
+exported numpy policies, the same validation (the exported actors by their mean action, ``teams.VALIDATION_SEED``).
+Read top to bottom: :func:`collect` steps the worlds, :func:`advantages` is GAE, :func:`update` is PPO's clipped
+objective, :func:`validate` exports and scores the actors, :func:`train` ties them together.
+
+    python -m dvrl_marl.training.device_mappo baselines/configs/suction_debris_mappo.toml --device cuda --out runs/x
+
+What it leaves out of the trainer of record (``dvrl_marl.training.mappo``), refused by name: partners in a seat,
+pretraining from demonstrations and the critic's warm-up; it keeps no checkpoints (no resuming) and uses no Ray
+collectors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs.presets import scene_options
+from dvrl_marl.envs.suction_debris import env_name
+from dvrl_marl.training import teams
+from dvrl_marl.training.mappo_config import MappoConfig, load_config
+from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, limit_threads, require_torch,
+                                       switch_gaussian)
+
+__all__ = ["train", "collect", "advantages", "update", "validate", "Rollout"]
+
+#: What this trainer does not do (the trainer of record does): the option, and the value that turns it off.
+_NOT_HERE = {"surgeon": "none", "bc_expert": "", "critic_warmup_steps": 0}
+
+
+@dataclass
+class Rollout:
+    """``rollout_steps`` x ``num_envs`` transitions on the device: observations (T, N, A, d), states (T, N, S),
+    actions (T, N, A, 4), their log-probabilities and values (T, N, A), rewards (T, N, A), and per world whether the
+    step ended the episode (``done``) and by termination (``terminated``) (T, N); ``next_values`` (T, N, A): the value
+    after each step (of the state the step ended on, also when the world was reset within it)."""
+
+    observations: object
+    states: object
+    actions: object
+    log_probs: object
+    values: object
+    rewards: object
+    done: object
+    terminated: object
+    next_values: object
+
+
+class _TorchView:
+    """The numpy batched env with torch tensors in and out (a CPU learner's view of it; the device env is one)."""
+
+    def __init__(self, env, torch):
+        self.env, self.torch = env, torch
+        self.possible_agents = env.possible_agents
+
+    def _out(self, value):
+        if isinstance(value, dict):
+            return {key: self._out(item) for key, item in value.items()}
+        return self.torch.from_numpy(np.asarray(value))
+
+    def reset(self, seed=None):
+        observations, infos = self.env.reset(seed=seed)
+        return self._out(observations), infos
+
+    def step(self, actions):
+        observations, rewards, terminated, truncated, infos = self.env.step(
+            {agent: value.cpu().numpy().astype(np.float64) for agent, value in actions.items()})
+        agents = self.possible_agents
+        info = infos[agents[0]]
+        kept = {"is_success": self._out(info["is_success"])}
+        if "final_state" in info:  # (worlds ended and were reset in this step: each agent's final observation)
+            kept["final_state"] = self._out(info["final_state"])
+            kept["final_observation"] = {agent: self._out(infos[agent]["final_observation"]) for agent in agents}
+        return (self._out(observations), self._out(rewards), self._out(terminated), self._out(truncated),
+                {agent: kept for agent in agents})
+
+    def state(self):
+        return self._out(self.env.state())
+
+    def set_start_level(self, level):
+        self.env.set_start_level(level)
+
+
+def _stack(values: dict, agents, torch):
+    return torch.stack([values[agent] for agent in agents], dim=1)
+
+
+def collect(env, models, observations, state, steps: int, torch, device):
+    """Step every world ``steps`` times with the actors' samples. Returns the :class:`Rollout`, the last observations
+    and state, and the episodes that ended: ``(successes, ended)``."""
+    head, critic, distribution, agents = models["head"], models["critic"], models["distribution"], models["agents"]
+    buffers = {key: [] for key in Rollout.__dataclass_fields__}
+    successes = ended = 0
+    for _ in range(steps):
+        with torch.no_grad():
+            loc, scale = head(observations)
+            policy = distribution(loc, scale)
+            action = policy.sample()
+            value = critic(state, observations)
+        next_observations, rewards, terminated, truncated, infos = env.step(
+            {agent: action[:, index] for index, agent in enumerate(agents)})
+        agent = agents[0]
+        infos = infos[agent]
+        done = (terminated[agent] | truncated[agent]).to(device)
+        next_observations = _stack(next_observations, agents, torch).to(device, torch.float32)
+        next_state = env.state().to(device, torch.float32)
+        # the value after the step: of the state it ended on (a reset world's final state, not its new one)
+        ending_observations, ending_state = next_observations, next_state
+        if bool(done.any()):
+            final = infos["final_observation"]
+            final = _stack(final, agents, torch).to(device, torch.float32) if isinstance(final, dict) else final
+            ending_observations = torch.where(done[:, None, None], final.to(device, torch.float32), next_observations)
+            ending_state = torch.where(done[:, None], infos["final_state"].to(device, torch.float32), next_state)
+            successes += int((infos["is_success"].to(device) & done).sum())
+            ended += int(done.sum())
+        with torch.no_grad():
+            next_value = critic(ending_state, ending_observations)
+        for key, item in (("observations", observations), ("states", state), ("actions", action),
+                          ("log_probs", policy.log_prob(action)), ("values", value),
+                          ("rewards", _stack(rewards, agents, torch).to(device, torch.float32)), ("done", done),
+                          ("terminated", terminated[agent].to(device)), ("next_values", next_value)):
+            buffers[key].append(item)
+        observations, state = next_observations, next_state
+    return Rollout(**{key: torch.stack(items) for key, items in buffers.items()}), observations, state, (successes,
+                                                                                                       ended)
+
+
+def advantages(rollout: Rollout, gamma: float, lam: float, torch):
+    """GAE (Schulman et al. 2016) backwards over the rollout: a terminated episode bootstraps nothing, a truncated
+    one its final state's value; returns (advantages, returns), (T, N, A)."""
+    steps = rollout.rewards.shape[0]
+    out = torch.zeros_like(rollout.rewards)
+    running = torch.zeros_like(rollout.rewards[0])
+    for t in reversed(range(steps)):
+        alive = (~rollout.terminated[t]).to(rollout.rewards.dtype)[:, None]
+        delta = rollout.rewards[t] + gamma * alive * rollout.next_values[t] - rollout.values[t]
+        carry = (~rollout.done[t]).to(rollout.rewards.dtype)[:, None]  # a new episode starts after a done step
+        running = delta + gamma * lam * carry * running
+        out[t] = running
+    return out, out + rollout.values
+
+
+def update(models, optimiser, rollout: Rollout, advantage, returns, config: MappoConfig, torch):
+    """PPO's clipped objective over ``config.epochs`` passes of ``config.minibatches`` minibatches of worlds x steps;
+    returns the mean losses."""
+    head, critic, distribution = models["head"], models["critic"], models["distribution"]
+    flat = lambda x: x.reshape(-1, *x.shape[2:])  # noqa: E731  (T, N, ...) -> (T N, ...)
+    observations, states, actions = flat(rollout.observations), flat(rollout.states), flat(rollout.actions)
+    old_log_probs, advantage, returns = flat(rollout.log_probs), flat(advantage), flat(returns)
+    count = observations.shape[0]
+    size = max(1, count // config.minibatches)
+    sums = {"policy": 0.0, "value": 0.0, "entropy": 0.0}
+    for _ in range(config.epochs):
+        order = torch.randperm(count, device=observations.device)
+        for start in range(0, size * config.minibatches, size):
+            rows = order[start:start + size]
+            loc, scale = head(observations[rows])
+            policy = distribution(loc, scale)
+            ratio = torch.exp(policy.log_prob(actions[rows]) - old_log_probs[rows])
+            gain = advantage[rows]
+            gain = (gain - gain.mean(0)) / (gain.std(0) + 1e-8)  # normalised per agent
+            policy_loss = -torch.min(ratio * gain, ratio.clamp(1 - config.clip_epsilon, 1 + config.clip_epsilon)
+                                     * gain).mean()
+            value_loss = torch.nn.functional.smooth_l1_loss(critic(states[rows], observations[rows]), returns[rows])
+            entropy = policy.entropy().mean()
+            loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
+            if config.bounds_loss_coef > 0.0:  # the means kept inside the action box, where the noise explores
+                loss = loss + config.bounds_loss_coef * bounds_loss(loc, config.tool_head)
+            optimiser.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(models["parameters"], config.max_grad_norm)
+            optimiser.step()
+            sums["policy"] += float(policy_loss.detach())
+            sums["value"] += float(value_loss.detach())
+            sums["entropy"] += float(entropy.detach())
+    return {key: value / (config.epochs * config.minibatches) for key, value in sums.items()}
+
+
+def validate(models, config: MappoConfig, out: Path, seed: int, steps: int, env) -> dict:
+    """Export the actors as numpy policies and score them by their mean action on the validation seeds (what a
+    user loads is what is scored)."""
+    from dvrl_marl import policies
+
+    seats = {}
+    for index, agent in enumerate(models["agents"]):
+        folder = out / "policies" / f"marl-{agent}"
+        export_actor(models["actor_net"], index, folder, name=f"marl-{agent}", agent=agent,
+                     tool_head=config.tool_head, env_id=env_name(str(config.env.get("task", "suction_debris_v8"))),
+                     metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
+                                            "steps": steps, "trainer": "device_mappo"}},
+                     log_std=models["log_std"][index],
+                     input_scaling=None if env.observation_scaling is None
+                     else env.observation_scaling.observation_affine(agent))
+        seats[agent] = policies.load(folder)
+        if config.evaluate_with_noise:  # acting as they trained (seeded)
+            seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
+    # the configured scene without its learning options (the exported policies compute their features and scaling)
+    return teams.evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
+                                       **scene_options(**config.env))
+
+
+def _models(config: MappoConfig, env, device, torch) -> dict:
+    agents = list(env.possible_agents)
+    obs_dim, state_dim = env.observation_space(agents[0]).shape[0], env.state_space.shape[0]
+    actor, critic, actor_net, norms = build_models(config, agents, obs_dim, state_dim, 4,
+                                                   feature_spec=env.feature_spec)
+    from torchrl.modules import IndependentNormal
+
+    head = actor.module[0].module  # the GaussianHead: (loc, scale) from the observations (..., A, d)
+    critic_net = critic.module
+    takes_observation = config.algorithm == "ippo" or config.critic_input == "state_and_observation"
+
+    def value(state, observations):
+        if config.algorithm == "ippo":
+            return critic_net(observations).squeeze(-1)
+        out = critic_net(state, observations) if takes_observation else critic_net(state)
+        return out.squeeze(-1)
+
+    head.to(device)
+    critic_net.to(device)
+    parameters = [p for p in list(head.parameters()) + list(critic_net.parameters()) if p.requires_grad]
+    return {"agents": agents, "head": head, "critic": value, "actor_net": actor_net, "norms": norms,
+            "log_std": head.log_std, "parameters": parameters,
+            "distribution": switch_gaussian() if config.tool_head == "switch" else IndependentNormal}
+
+
+def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backend: str | None = None,
+          total_steps: int | None = None, stop_at: float | None = None, max_seconds: float | None = None,
+          log=print) -> dict:
+    """Train ``config`` with seed ``seed`` on ``device``; writes ``progress.csv`` (steps, validation success by the
+    mean action, env-steps/s, wall clock from the call) and the exported policies in ``out_dir``; returns the last
+    row. ``stop_at``: stop once a validation reaches this success (time to target); ``max_seconds``: stop at the first
+    validation after this much wall clock."""
+    torch = require_torch()
+    for option, off in _NOT_HERE.items():
+        if getattr(config, option) != off:
+            raise ValueError(f"{config.name}: {option} = {getattr(config, option)!r} is the trainer of record's "
+                             "(python -m dvrl_marl.training.mappo); the device trainer takes none")
+    backend = backend or ("jax" if str(device).startswith("cuda") else "numpy")
+    if backend not in ("numpy", "jax"):
+        raise ValueError(f"backend must be 'numpy' or 'jax', got {backend!r}")
+    if config.torch_threads:
+        limit_threads(int(config.torch_threads))
+    began = time.perf_counter()
+    device = torch.device(device)
+    torch.manual_seed(seed)
+    out = Path(out_dir)
+    if (out / "progress.csv").exists():
+        raise ValueError(f"{out} holds a run already (progress.csv); another folder starts a new one")
+    out.mkdir(parents=True, exist_ok=True)
+    options = dict(config.env)
+    if backend == "jax":
+        env = suction_debris_v8.batched_env(num_envs=config.num_envs, device=str(device), **options)
+        host = env
+    else:
+        host = suction_debris_v8.batched_env(num_envs=config.num_envs, **options)
+        env = _TorchView(host, torch)
+    models = _models(config, host, device, torch)
+    optimiser = torch.optim.Adam(models["parameters"], lr=config.learning_rate)
+    total = int(total_steps or config.total_steps)
+    agents = models["agents"]
+    observations, _ = env.reset(seed=seed)
+    observations = _stack(observations, agents, torch).to(device, torch.float32)
+    state = env.state().to(device, torch.float32)
+    return_scale = _ReturnScale(len(agents), config.gamma, torch, device)
+    progress_file = out / "progress.csv"
+    progress_file.write_text("steps,success_rate,blood_removed_ml,contact_steps,train_success,env_steps_per_s,"
+                             "wall_seconds\n")
+    done_steps, next_validation, last = 0, config.eval_every, {}
+    successes = ended = 0
+    collect_seconds = 0.0
+    while done_steps < total:
+        progress = done_steps / total
+        level = config.level(progress)
+        if level is not None:
+            env.set_start_level(level)
+        if config.final_std:
+            with torch.no_grad():
+                models["log_std"].fill_(math.log(config.exploration_std(progress)))
+        if config.anneal_lr:
+            for group in optimiser.param_groups:
+                group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
+        start = time.perf_counter()
+        rollout, observations, state, (won, finished) = collect(env, models, observations, state,
+                                                                config.rollout_steps, torch, device)
+        collect_seconds += time.perf_counter() - start
+        successes, ended = successes + won, ended + finished
+        rollout.rewards = rollout.rewards / return_scale.update(rollout.rewards, rollout.done)
+        advantage, returns = advantages(rollout, config.gamma, config.gae_lambda, torch)
+        update(models, optimiser, rollout, advantage, returns, config, torch)
+        norms = models["norms"]  # normalisers move after the update, as in the trainer of record
+        norms["observation"].update(rollout.observations)
+        if "state" in norms:
+            norms["state"].update(rollout.states)
+        if "critic_observation" in norms:
+            norms["critic_observation"].update(rollout.observations)
+        done_steps += config.num_envs * config.rollout_steps
+        if done_steps >= next_validation or done_steps >= total:
+            next_validation += config.eval_every
+            wall = time.perf_counter() - began
+            result = validate(models, config, out, seed, done_steps, host)
+            last = {"steps": done_steps, "success_rate": result["success_rate"],
+                    "blood_removed_ml": result["mean_blood_removed_ml"], "contact_steps": result["mean_contact_steps"],
+                    "train_success": successes / max(ended, 1), "env_steps_per_s": done_steps / wall,
+                    "wall_seconds": time.perf_counter() - began}
+            with progress_file.open("a", newline="") as handle:
+                csv.writer(handle).writerow(list(last.values()))
+            log(f"{config.name} seed {seed} @ {done_steps:,d} steps: validation {result['success_rate']:.2f}, "
+                f"train {last['train_success']:.2f}, {last['env_steps_per_s']:,.0f} env-steps/s, "
+                f"{last['wall_seconds']:.0f} s")
+            successes = ended = 0
+            if (stop_at is not None and result["success_rate"] >= stop_at) or (
+                    max_seconds is not None and last["wall_seconds"] >= max_seconds):
+                break
+    (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, "device": str(device),
+                                                 "backend": backend, "collect_seconds": collect_seconds, **last},
+                                                indent=2) + "\n")
+    return last
+
+
+class _ReturnScale:
+    """Rewards divided by the running standard deviation of the discounted return, per agent (reward scaling)."""
+
+    def __init__(self, agents: int, gamma: float, torch, device):
+        self.torch, self.gamma = torch, gamma
+        self.mean = torch.zeros(agents, dtype=torch.float64, device=device)
+        self.var = torch.ones(agents, dtype=torch.float64, device=device)
+        self.count = 1e-4
+        self.discounted = None
+
+    def update(self, rewards, done):
+        torch = self.torch
+        if self.discounted is None:
+            self.discounted = torch.zeros_like(rewards[0], dtype=torch.float64)
+        returns = []
+        for t in range(rewards.shape[0]):
+            self.discounted = self.discounted * self.gamma + rewards[t].double()
+            returns.append(self.discounted)
+            self.discounted = self.discounted * (~done[t]).double()[:, None]
+        batch = torch.stack(returns).reshape(-1, rewards.shape[-1])
+        mean, var, n = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
+        delta, total = mean - self.mean, self.count + n
+        self.mean = self.mean + delta * n / total
+        self.var = (self.var * self.count + var * n + delta**2 * self.count * n / total) / total
+        self.count = total
+        return torch.sqrt(self.var + 1e-8).to(rewards.dtype)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("config", help="a MAPPO/IPPO configuration (baselines/configs/*.toml)")
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--backend", choices=("numpy", "jax"), default=None, help="default: jax on a GPU, else numpy")
+    parser.add_argument("--steps", type=int, default=None)
+    parser.add_argument("--stop-at", type=float, default=None, help="stop once validation reaches this success")
+    args = parser.parse_args()
+    train(load_config(args.config), args.seed, args.out, device=args.device, backend=args.backend,
+          total_steps=args.steps, stop_at=args.stop_at)
+
+
+if __name__ == "__main__":
+    main()
