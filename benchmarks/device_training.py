@@ -2,8 +2,11 @@
 process start to a validation success (the mean action, the exported policies), on one device.
 
 The configuration of record (``baselines/configs/suction_debris_mappo.toml``) with ``--worlds`` worlds per batch (its
-other settings unchanged: a starting point for a large batch, not a tuned one), stopped at ``--target`` validation
-success or after ``--seconds``. One JSON line per run goes to ``--json`` (the device probe reads it).
+other settings unchanged: a starting point for a large batch, not a tuned one), validated by the mean action (the
+record validates with its exploration noise), stopped at ``--target`` validation
+success or after ``--seconds`` (the clock runs from process start, imports and validations included); then the last
+policies are tested by their mean action on ``--test-episodes`` held-out seeds. One JSON line per run goes to
+``--json`` (the device probe reads it).
 
     python benchmarks/device_training.py --device cpu --worlds 256 --seconds 120
     python benchmarks/device_training.py --device cuda --worlds 16384 --seconds 200 --json out.jsonl
@@ -33,6 +36,7 @@ def main() -> None:
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--seconds", type=float, default=180.0)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--test-episodes", type=int, default=100, help="held-out test episodes of the last policies")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
@@ -41,19 +45,35 @@ def main() -> None:
 
     config = load_config(HERE / "baselines" / "configs" / "suction_debris_mappo.toml")
     batch = args.worlds * args.rollout
+    # validated by the mean action (the record's validation acts with its noise); torch takes every core
     config = replace(config, num_envs=args.worlds, rollout_steps=args.rollout, torch_threads=0,
-                     eval_every=args.eval_every or 8 * batch, total_steps=max(config.total_steps, 1000 * batch))
+                     evaluate_with_noise=False, eval_every=args.eval_every or 8 * batch,
+                     total_steps=max(config.total_steps, 1000 * batch))
     with tempfile.TemporaryDirectory() as folder:
         last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, backend=args.backend,
                                   stop_at=args.target, max_seconds=args.seconds)
+        seconds = time.perf_counter() - STARTED  # (the clock stops at the validation that ended the run)
+        test = _test(Path(folder) / "run" / "policies", config, args.test_episodes)
     row = {"what": "device_trainer", "device": args.device, "worlds": args.worlds, "rollout": args.rollout,
            "seed": args.seed, "steps": last.get("steps"), "validation_success": last.get("success_rate"),
            "env_steps_per_s": last.get("env_steps_per_s"), "reached_target": (last.get("success_rate") or 0.0)
-           >= args.target, "seconds_from_process_start": time.perf_counter() - STARTED}
+           >= args.target, "seconds_from_process_start": seconds, "test_success": test,
+           "test_episodes": args.test_episodes}
     print(json.dumps(row), flush=True)
     if args.json:
         with open(args.json, "a") as handle:
             handle.write(json.dumps(row) + "\n")
+
+
+def _test(folder: Path, config, episodes: int) -> float:
+    """The exported policies' success by their mean action on the held-out test seeds (``teams.EVAL_SEED``)."""
+    from dvrl_marl import policies
+    from dvrl_marl.envs.presets import scene_options
+    from dvrl_marl.training import teams
+
+    seats = {agent: policies.load(folder / f"marl-{agent}") for agent in ("suction", "grasper")}
+    return float(teams.evaluate_team_batched(seats, episodes, seed=teams.EVAL_SEED,
+                                             **scene_options(**config.env))["success_rate"])
 
 
 if __name__ == "__main__":
