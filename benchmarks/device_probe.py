@@ -6,7 +6,7 @@ Two steps. Here, on a machine with a package registry (once; the wheels are igno
     python benchmarks/device_probe.py prepare        # wheels for Python 3.12, manylinux x86-64, into .whl/
 
 There (the lent machine has Python 3.12 with torch and JAX's CUDA build; ``$OUT`` is where figures are kept), one
-command, at most about 6 minutes (the sections' limits: 30, 60, 90, 45 and 120 s):
+command, at most about 6 minutes (the sections' limits: 45, 90, 80, 45 and 110 s):
 
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
       && PYTHONPATH=/tmp/site:. python3 benchmarks/device_probe.py run --out "$OUT"
@@ -19,7 +19,7 @@ Sections (each a process of its own with its own time limit; one that fails or r
 3. ``speed``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a torch policy's inference, N from
    1,024 to 1,048,576, with the defaults and with the benchmark's setting, the numpy env beside it up to N = 4,096;
 4. ``trainer``: ``benchmarks/device_training.py``, the device trainer on the configuration of record with 16,384
-   worlds: env-steps/s end to end and the wall clock to 0.9 validation success (or what it reached in 90 s).
+   worlds: env-steps/s end to end and the wall clock to 0.9 validation success (or what it reached in 75 s).
 
 Figures land in ``$OUT/probe.jsonl`` (one JSON line each) and ``$OUT/probe.log``.
 """
@@ -99,20 +99,20 @@ def run(out: Path, device: str = "cuda") -> int:
                "'gpu': torch.cuda.get_device_name(0) if torch.cuda.is_available() else None, "
                "'memory_gib': round(torch.cuda.get_device_properties(0).total_memory / 2**30, 1) "
                "if torch.cuda.is_available() else None, 'jax_devices': [str(d) for d in jax.devices()]}))")
-    statuses = {"machine": _section("machine", [python, "-c", machine], 30, log, env)}
+    statuses = {"machine": _section("machine", [python, "-c", machine], 45, log, env)}
     statuses["tests"] = _section("tests", [python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x",
                                            "tests/test_device_env.py", "tests/test_backends.py",
-                                           "tests/test_streams.py"], 60, log, {**env, "DVRL_MARL_TEST_DEVICE": device})
+                                           "tests/test_streams.py"], 90, log, {**env, "DVRL_MARL_TEST_DEVICE": device})
     speed = [python, "benchmarks/device_speed.py", "--device", device, "--json", str(figures), "--repeats", "2"]
     sizes = ["1024", "16384", "262144", "1048576"] if device != "cpu" else ["64", "1024"]  # (cpu: a dry run)
-    statuses["speed"] = _section("speed", speed + ["--sizes", *sizes], 90, log, env)
+    statuses["speed"] = _section("speed", speed + ["--sizes", *sizes], 80, log, env)
     statuses["speed_benchmark"] = _section("speed_benchmark", speed + ["--preset", "benchmark", "--sizes",
                                                                        *sizes[1:3]], 45, log, env)
     trainer = ROOT / "benchmarks" / "device_training.py"
     if trainer.is_file():  # (always, since it was written; the check keeps the probe runnable on older commits)
         worlds = "16384" if device != "cpu" else "256"
         statuses["trainer"] = _section("trainer", [python, str(trainer), "--device", device, "--worlds", worlds,
-                                                   "--seconds", "90", "--json", str(figures)], 120, log, env)
+                                                   "--seconds", "75", "--json", str(figures)], 110, log, env)
     else:
         log("=== trainer: not built yet (benchmarks/device_training.py)")
     log("probe: " + json.dumps(statuses))
