@@ -66,11 +66,6 @@ def _one_hot(index, count: int, xp):
     return index[..., None] == xp.arange(count)[None, :]
 
 
-def _choose(values, index, xp):
-    """``values[row, index[row]]`` for (M, K) ``values`` and (M,) ``index``, by a one-hot sum (any array library)."""
-    return xp.sum(xp.where(_one_hot(index, values.shape[1], xp), values, xp.zeros_like(values)), axis=1)
-
-
 def place_debris(draw, cavities, count: int, xp=np):
     """Seeded pin placement for M worlds: ``count`` pins lying across the bowls, each in a slot of
     :data:`PIN_SLOTS` of a cavity drawn uniformly (the other when that one's slots are taken), turned by the cavity's
@@ -92,12 +87,12 @@ def place_debris(draw, cavities, count: int, xp=np):
     positions, yaws, indices = [], [], []
     for pin in range(count):
         cavity = chosen[:, pin]
-        full = _choose(used, cavity, xp) >= s
+        full = _pick(used, cavity, xp) >= s
         cavity = xp.where(full, xp.argmax(xp.astype(used < s, xp.int64), axis=1), cavity)
-        taken = _choose(used, cavity, xp)
-        offset = slots[_choose(slot_order, cavity * s + taken, xp)]
+        taken = _pick(used, cavity, xp)
+        offset = slots[_pick(slot_order, cavity * s + taken, xp)]
         used = used + xp.astype(_one_hot(cavity, c, xp), xp.int64)
-        yaw = _choose(cavity_yaw, cavity, xp) + turns[:, pin]
+        yaw = _pick(cavity_yaw, cavity, xp) + turns[:, pin]
         below_centre = xp.sqrt(per_cavity(radius, cavity) ** 2 - PIN_HALF_LENGTH**2 - offset**2)
         positions.append(xp.stack([per_cavity(cavities.centre_x, cavity) - offset * xp.sin(yaw),
                                    per_cavity(cavities.centre_y, cavity) + offset * xp.cos(yaw),
@@ -133,7 +128,7 @@ def _pick(values, index, xp):
         return values[np.arange(len(index)), index]
     chosen = xp.arange(values.shape[1])[None, :] == index[:, None]
     chosen = xp.reshape(chosen, chosen.shape + (1,) * (values.ndim - 2))
-    return xp.sum(xp.where(chosen, values, 0.0), axis=1)
+    return xp.sum(xp.where(chosen, values, xp.zeros_like(values)), axis=1)  # (integers stay integers)
 
 
 def _copy(x):

@@ -68,19 +68,22 @@ class ResetStreams:
         self.seed(None)
 
     def seed(self, seed) -> None:
-        if seed is None:
-            base = np.random.SeedSequence().generate_state(1, np.uint64)[0]
-            seeds = [(int(base) + i) % 2**64 for i in range(self.num_worlds)]
-        else:
-            from dvrl_marl.schemas import Seed, Seeds, validated
-
-            if isinstance(seed, (str, bytes)) or not hasattr(seed, "__iter__"):  # one seed (a string is no list)
-                seeds = [validated(Seed, seed, "reset(seed=...)") + i for i in range(self.num_worlds)]
+        if seed is None or isinstance(seed, (str, bytes)) or not hasattr(seed, "__iter__"):  # one seed (or none)
+            if seed is None:
+                first = int(np.random.SeedSequence().generate_state(1, np.uint64)[0])
             else:
-                seeds = validated(Seeds, list(seed), "reset(seed=[...]): one seed per world")
-                if len(seeds) != self.num_worlds:
-                    raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
-        keys = np.array([s % 2**64 for s in seeds], dtype=np.uint64)
+                from dvrl_marl.schemas import Seed, validated
+
+                first = validated(Seed, seed, "reset(seed=...)")
+            # world i: seed + i, modulo 2^64 (numpy's uint64 addition wraps)
+            keys = np.uint64(first % 2**64) + np.arange(self.num_worlds, dtype=np.uint64)
+        else:
+            from dvrl_marl.schemas import Seeds, validated
+
+            seeds = validated(Seeds, list(seed), "reset(seed=[...]): one seed per world")
+            if len(seeds) != self.num_worlds:
+                raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
+            keys = np.array([s % 2**64 for s in seeds], dtype=np.uint64)
         self.key_low = (keys & np.uint64(_MASK)).astype(np.int64)
         self.key_high = (keys >> np.uint64(32)).astype(np.int64)
         self.episode = np.zeros(self.num_worlds, dtype=np.int64)

@@ -117,7 +117,7 @@ def draw(streams, worlds, levels, blood_ml, debris_count: int, easy: EasyEpisode
     blood = streams.uniforms(worlds, "level_blood", count) * task_blood
     if easy.empty_cavity_probability > 0:
         blood = xp.where(streams.uniforms(worlds, "level_empty", count) < easy.empty_cavity_probability, 0.0, blood)
-    debris = 1 + xp.minimum(astype(streams.uniforms(worlds, "level_debris", 1)[:, 0] * debris_count, xp.int64, xp),
+    debris = 1 + xp.minimum(xp.astype(streams.uniforms(worlds, "level_debris", 1)[:, 0] * debris_count, xp.int64),
                             debris_count - 1)
     return StartDraws(is_easy, xp.where(is_easy[:, None], blood, task_blood),
                       xp.where(is_easy, debris, int(debris_count)),
@@ -137,18 +137,14 @@ def grasper_starts(draws, pins, pending, ordinary_tip, reach, rims, easy: EasyEp
     :meth:`OverRims.point_along` measures (``rims``). ``draws``: :func:`grasper_uniforms`' rows. Any array library's
     arrays."""
     xp = namespace(pins)
-    count = xp.sum(astype(pending, xp.int64, xp), axis=1)
+    count = xp.sum(xp.astype(pending, xp.int64), axis=1)
     has = count > 0
     # the k-th pending pin, k drawn uniformly among them
-    k = xp.minimum(astype(draws[:, 0] * count, xp.int64, xp), xp.maximum(count - 1, 0))
-    order = xp.cumsum(astype(pending, xp.int64, xp), axis=1) - 1  # each pending pin's rank among them
+    k = xp.minimum(xp.astype(draws[:, 0] * count, xp.int64), xp.maximum(count - 1, 0))
+    order = xp.cumsum(xp.astype(pending, xp.int64), axis=1) - 1  # each pending pin's rank among them
     chosen = pending & (order == k[:, None])
     pin = xp.sum(xp.where(chosen[..., None], pins, 0.0), axis=1)
     aside = -easy.aside + 2.0 * easy.aside * draws[:, 1:4]
     target = pin + xp.asarray([0.0, 0.0, easy.above_pin]) + aside * xp.asarray([1.0, 1.0, 0.25])
     moved = rims.point_along(target, ordinary_tip, reach * draws[:, 4])
     return xp.where((reach > 0.0)[:, None], moved, target), has
-
-
-def astype(x, dtype, xp):
-    return x.astype(dtype) if xp is np else xp.astype(x, dtype)

@@ -120,9 +120,8 @@ def collect(env, models, observations, state, steps: int, torch, device):
         # the value after the step: of the state it ended on (a reset world's final state, not its new one)
         ending_observations, ending_state = next_observations, next_state
         if bool(done.any()):
-            final = infos["final_observation"]
-            final = _stack(final, agents, torch).to(device, torch.float32) if isinstance(final, dict) else final
-            ending_observations = torch.where(done[:, None, None], final.to(device, torch.float32), next_observations)
+            final = _stack(infos["final_observation"], agents, torch).to(device, torch.float32)
+            ending_observations = torch.where(done[:, None, None], final, next_observations)
             ending_state = torch.where(done[:, None], infos["final_state"].to(device, torch.float32), next_state)
             successes += int((infos["is_success"].to(device) & done).sum())
             ended += int(done.sum())
