@@ -37,7 +37,7 @@ def _train(args) -> int:
     args.config = resolve_config(args.config)
     run_table = read_toml(args.config).get("run", {})
     algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
-    known = ("bc", *multi_agent.ALGORITHMS, "ppo", *goal_env.ALGORITHMS)
+    known = ("bc", *multi_agent.ALGORITHMS, *goal_env.ALGORITHMS)  # (ppo: a goal env's, or the collaborative one's)
     if algorithm is not None and algorithm not in known or (algorithm is None and "extends" not in run_table
                                                            and "env_id" in run_table):
         # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]
@@ -68,9 +68,9 @@ def _train(args) -> int:
             shutil.copytree(out / "policies", args.export, dirs_exist_ok=True)
             print(f"exported the policies to {args.export}")
         return 0
-    # Goal-env configurations name a Gymnasium env_id (or extend one that does); the collaborative SB3 PPO ones do
-    # not.
-    if algorithm == "ppo" or (algorithm is None and "env_id" not in run_table and "extends" not in run_table):
+    # Goal-env configurations name a Gymnasium env_id (or extend one that does), PPO's among them; the
+    # collaborative SB3 PPO ones do not.
+    if algorithm in ("ppo", None) and "env_id" not in run_table and "extends" not in run_table:
         from dvrl_marl.training.marl import train_ppo
 
         out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
@@ -92,8 +92,9 @@ def _train(args) -> int:
         from dvrl_marl.training.export import export_policy
         from dvrl_marl.training.runner import sb3_algorithms
 
-        model = sb3_algorithms()[config.algorithm].load(out / "final_model.zip", env=gym.make(config.env_id, **config.env))
+        model = sb3_algorithms()[config.algorithm].load(out / "final_model.zip")
         export_policy(model, args.export, name=Path(args.export).name, env_id=config.env_id,
+                      switch_dimensions=config.switch_dimensions,
                       training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
                                 "success_rate": final["success_rate"]})
         print(f"exported the policy to {args.export}")

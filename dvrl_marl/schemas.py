@@ -249,9 +249,14 @@ class PolicyFile(BaseModel):
     observation_keys: list[Text]
     action_low: list[Finite]
     action_high: list[Finite]
+    switch_dimensions: list[NonNegativeInt] = []
 
     @model_validator(mode="after")
     def _consistent(self):
+        for index in self.switch_dimensions:
+            if index >= self.layer_sizes[-1]:
+                raise ValueError(f"switch_dimensions names action dimension {index}; the policy has "
+                                 f"{self.layer_sizes[-1]}")
         if len(self.layer_sizes) != len(self.activations) + 1:
             raise ValueError(f"layer_sizes must list {len(self.activations) + 1} sizes (one per layer boundary for "
                              f"{len(self.activations)} activations), got {self.layer_sizes}")

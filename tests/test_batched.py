@@ -317,3 +317,10 @@ def test_batched_experts_act_as_the_single_experts_on_every_row():
         lifted = max(lifted, int(env.core.lifted.sum()))
         delivered = max(delivered, int(env.core.delivered.sum()))
     assert compared > 3000 and lifted > 0 and delivered > 0
+
+
+@pytest.mark.parametrize("level", [0.0, 0.4])
+def test_picks_learning_options_keep_the_vector_env_equal_to_single_envs(level):
+    """Easy starts (before and after the grasp), the switch jaw and the guided reward, across autoresets."""
+    assert_matches_single_envs("dvrl_marl/PSMPick-v1", num_envs=3, seed=11, steps=350, action_seed=2,
+                               start_level=level, jaw_command="switch", reward_type="guided")

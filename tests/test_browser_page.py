@@ -320,9 +320,9 @@ def test_the_page_says_when_the_other_instrument_blocks_a_move(browser, served):
         blocked = s["cues"]["blocked"]
         time.sleep(0.03)
     assert blocked
-    page.wait_for_function("document.querySelector('#cue').innerText.includes('Blocked by the other instrument')",
-                           timeout=5000)
-    assert "IN THE WAY" in page.inner_text("#blocked")
+    # Both from one frame's status (the keys are still held, so the next frame may slide clear again).
+    page.wait_for_function("document.querySelector('#cue').innerText.includes('Blocked by the other instrument')"
+                           " && document.querySelector('#blocked').innerText.includes('IN THE WAY')", timeout=5000)
     for key in held:
         page.keyboard.up(key)
     page.close()

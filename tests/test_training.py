@@ -14,7 +14,7 @@ import torch as th
 from dvrl_marl import policies
 from dvrl_marl.training import bc_loss, export_policy, load_config, q_filter_mask, train
 from dvrl_marl.training.demonstrations import generate_demonstrations, load_demonstrations, save_demonstrations
-from dvrl_marl.training.runner import sb3_algorithms, evaluate_policy
+from dvrl_marl.training.runner import ON_POLICY, sb3_algorithms, evaluate_policy
 
 # The goal-env configurations (the PPO ones for the collaborative env are tested in test_marl_training.py).
 CONFIGS = sorted(p for p in (Path(__file__).parents[1] / "baselines" / "configs").glob("*.toml")
@@ -80,6 +80,10 @@ def test_random_action_probability_replaces_exploration_steps_with_uniform_actio
 
 def _tiny(config):
     algorithm_kwargs = dict(config.algorithm_kwargs)
+    if config.algorithm in ON_POLICY:  # 2 worlds x 25 steps a rollout: evaluations land on 150 and 300
+        algorithm_kwargs.update(n_steps=25, batch_size=25, n_epochs=2)
+        return dataclasses.replace(config, total_timesteps=300, eval_every=150, eval_episodes=2, num_envs=2,
+                                   algorithm_kwargs=algorithm_kwargs, policy={"net_arch": [16, 16]})
     algorithm_kwargs.update(learning_starts=100, gradient_steps=2, buffer_size=2000, batch_size=32)
     if config.algorithm == "ddpg_bc":
         algorithm_kwargs.update(demo_batch_size=16)
@@ -95,8 +99,9 @@ def test_every_configuration_trains_end_to_end(config_path, tmp_path):
         pytest.skip(f"{config.algorithm} needs sb3-contrib")
     history = train(config, seed=0, out_dir=tmp_path, progress=False)
     assert [row["timesteps"] for row in history] == [150, 300]
-    for name in ("progress.csv", "checkpoint.zip", "replay_buffer.pkl", "final_model.zip", "best_model.zip",
-                 "config.toml"):
+    kept = ("vecnormalize.pkl" if config.normalize_reward else "config.toml") if config.algorithm in ON_POLICY \
+        else "replay_buffer.pkl"  # what a resume needs beside the model
+    for name in ("progress.csv", "checkpoint.zip", kept, "final_model.zip", "best_model.zip", "config.toml"):
         assert (tmp_path / name).is_file(), name
     if config.demonstrations:
         demos = load_demonstrations(tmp_path / "demonstrations.npz")
@@ -123,8 +128,9 @@ def test_tensorboard_without_the_package_is_a_clear_error(tmp_path, monkeypatch)
     assert not (tmp_path / "run").exists()  # failed before doing any work
 
 
-def test_resume_continues_from_the_checkpoint(tmp_path):
-    config = _tiny(load_config(next(p for p in CONFIGS if p.stem == "reach_lnd_ddpg_her")))
+@pytest.mark.parametrize("stem", ["reach_lnd_ddpg_her", "pick_lnd_ppo_scratch"])
+def test_resume_continues_from_the_checkpoint(tmp_path, stem):
+    config = _tiny(load_config(next(p for p in CONFIGS if p.stem == stem)))
     train(config, seed=0, out_dir=tmp_path, progress=False)
     history = train(dataclasses.replace(config, total_timesteps=500), seed=0, out_dir=tmp_path, progress=False,
                     resume=True)
@@ -144,19 +150,28 @@ def test_demonstrations_file_round_trip(tmp_path):
         load_demonstrations(tmp_path / "other.npz")
 
 
-@pytest.mark.parametrize("algorithm", ["ddpg", "sac"])
+@pytest.mark.parametrize("algorithm", ["ddpg", "sac", "ppo"])
 def test_exported_numpy_policy_matches_the_torch_policy(algorithm, tmp_path):
-    from stable_baselines3 import DDPG, SAC, HerReplayBuffer
+    from stable_baselines3 import DDPG, PPO, SAC, HerReplayBuffer
 
     env = gym.make("dvrl_marl/PSMPick-v1")
-    cls = {"ddpg": DDPG, "sac": SAC}[algorithm]
-    model = cls("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs={"net_arch": [32, 24]},
-                buffer_size=1000, seed=1)
-    export_policy(model, tmp_path / "exported", name="test", env_id="dvrl_marl/PSMPick-v1")
+    if algorithm == "ppo":  # the Gaussian's mean, clipped; its jaw learnt as a switch is sent as -1 or 1
+        model = PPO("MultiInputPolicy", env, policy_kwargs={"net_arch": [32, 24]}, seed=1)
+        switches = [3]
+    else:
+        cls = {"ddpg": DDPG, "sac": SAC}[algorithm]
+        model = cls("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+                    policy_kwargs={"net_arch": [32, 24]}, buffer_size=1000, seed=1)
+        switches = []
+    export_policy(model, tmp_path / "exported", name="test", env_id="dvrl_marl/PSMPick-v1",
+                  switch_dimensions=switches)
     policy = policies.load(tmp_path / "exported")
     rng = np.random.default_rng(0)
     batch = {k: rng.uniform(-1, 1, (64,) + s.shape) for k, s in env.observation_space.spaces.items()}
     torch_actions, _ = model.predict(batch, deterministic=True)
+    if switches:
+        assert set(np.unique(policy(batch)[:, 3])) <= {-1.0, 1.0}
+        torch_actions[:, 3] = np.where(torch_actions[:, 3] > 0, 1.0, -1.0)
     np.testing.assert_allclose(policy(batch), torch_actions, atol=1e-5)
     single = {k: v[0] for k, v in batch.items()}
     np.testing.assert_allclose(policy(single), torch_actions[0], atol=1e-5)

@@ -15,12 +15,49 @@ import numpy as np
 
 from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
 from dvrl_marl.core.reach import GoalCoreBase
+from dvrl_marl.core.tools import jaw_target
 
-__all__ = ["PickCore", "simulate_free_object", "REST_LINEAR_SPEED", "REST_ANGULAR_SPEED"]
+__all__ = ["PickCore", "simulate_free_object", "REST_LINEAR_SPEED", "REST_ANGULAR_SPEED", "GRASP_BONUS_STEPS",
+           "easy_tips", "pick_potential"]
 
 #: The object is considered at rest (and physics stops being stepped for it) below these speeds.
 REST_LINEAR_SPEED = 1e-4  # m/s
 REST_ANGULAR_SPEED = 1e-2  # rad/s
+
+
+#: The guided reward's potential gains this many steps' worth (eta each) while the object is held, so that a grasp pays
+#: at once and a drop costs as much (a value of this library: the paper learnt Pick from demonstrations instead).
+GRASP_BONUS_STEPS = 5.0
+
+
+def easy_tips(share, start, grasp_tip, goal_tip):
+    """Where an easy episode starts: a point ``share`` (in [0, 1), per world) of the way the scripted expert goes,
+    from ``start`` down to ``grasp_tip`` (the tip where the jaws hold the object) and on to ``goal_tip`` (the tip
+    where the held object is at its goal); arrays ``(N, 3)`` or ``(3,)``. Returns the tips and whether each lies on
+    the second leg, where the object is held."""
+    share = np.asarray(share, dtype=np.float64)[..., None]
+    down = grasp_tip - start
+    carry = goal_tip - grasp_tip
+    down_length = np.sqrt(np.sum(down * down, axis=-1, keepdims=True))
+    carry_length = np.sqrt(np.sum(carry * carry, axis=-1, keepdims=True))
+    along = share * (down_length + carry_length)
+    held = along >= down_length
+    first = start + down * np.where(down_length > 0.0, along / np.maximum(down_length, 1e-12), 1.0)
+    second = grasp_tip + carry * np.where(carry_length > 0.0, (along - down_length) / np.maximum(carry_length, 1e-12),
+                                          0.0)
+    return np.where(held, second, first), held[..., 0]
+
+
+def pick_potential(jaws, obj, goal, grasped, step_size: float):
+    """The guided reward's potential, in steps of ``step_size``: minus the object's way to the goal, minus the jaws'
+    way to the object while it is not held, plus :data:`GRASP_BONUS_STEPS` while it is (positions in one frame,
+    ``(..., 3)``). The guided reward adds its change over a step to the paper's sparse reward (potential-based
+    shaping, Ng et al. 1999: the optimal policies stay those of the sparse task)."""
+    reach = jaws - obj
+    carry = obj - goal
+    reach = np.sqrt(np.sum(reach * reach, axis=-1))
+    carry = np.sqrt(np.sum(carry * carry, axis=-1))
+    return np.where(grasped, GRASP_BONUS_STEPS, -reach / step_size) - carry / step_size
 
 
 def simulate_free_object(model, data, n_substeps: int, qvel_address: int) -> tuple[bool, bool]:
@@ -82,6 +119,12 @@ class PickCore(GoalCoreBase):
         self.at_rest = np.ones(n, dtype=bool)
         self.unstable = np.zeros(n, dtype=bool)
         self.object_normalised = np.zeros((n, 3))
+        # The learning options (the single env's page): start levels, the jaw's rule, the guided reward.
+        self.start_level = template.start_level
+        self.jaw_command = template.jaw_command
+        self.guided = template.reward_type == "guided"
+        self.sparse = self.sparse or self.guided  # the guided reward is the sparse one plus a potential's change
+        self.potential = np.zeros(n)
 
     def object_world(self) -> np.ndarray:
         return self.qpos[:, self._object]
@@ -98,24 +141,47 @@ class PickCore(GoalCoreBase):
             obj[:, 2] = self.object_rest_height
         else:
             obj = np.broadcast_to(options["object"], (count, 3))
+        level = self.start_level if options["level"] is None else options["level"]
+        held = np.zeros(count, dtype=bool)
+        if level < 1.0:  # (level 1 draws nothing: the default task bit for bit)
+            draws = np.array([generator.random(2) for generator in generators])
+            easy = draws[:, 0] >= level
+            drop = np.array([0.0, 0.0, self.arm.tool_point_drop])
+            tips, on_carry = easy_tips(draws[:, 1], start, obj + drop, self.goal[worlds] + drop)
+            start = np.where(easy[:, None], np.clip(tips, self.tip_low, self.tip_high), start)
+            held = easy & on_carry
         self.arm.set_tips(worlds, start)
-        self.arm.jaw[worlds] = self.initial_jaw
+        jaw = np.where(held, 0.0, self.initial_jaw)
+        self.arm.jaw[worlds] = jaw
+        obj = np.where(held[:, None], self.arm.tool_point_world()[worlds] - self.arm.base_position, obj)
         qpos = np.tile(self.model.qpos0, (count, 1))  # mj_resetData
         qpos[:, self._joints] = self.arm.q[worlds]
-        qpos[:, self._jaws] = JAW_FINGER_OPEN_ANGLE * self.initial_jaw
+        qpos[:, self._jaws] = (JAW_FINGER_OPEN_ANGLE * jaw)[:, None]
         qpos[:, self._object] = obj + self.arm.base_position
         qpos[:, self._object_quat] = (1.0, 0.0, 0.0, 0.0)
         self.qpos[worlds] = qpos
         self.qvel[worlds] = 0.0
         self.warmstart[worlds] = 0.0
-        self.grasped[worlds] = False
-        self.at_rest[worlds] = obj[:, 2] <= self.object_rest_height + 1e-9
+        self.grasped[worlds] = held
+        self.grasp_offset[worlds] = qpos[:, self._object] - self.arm.tip_world()[worlds]
+        self.at_rest[worlds] = held | (obj[:, 2] <= self.object_rest_height + 1e-9)
         self.unstable[worlds] = False
 
     def reset(self, worlds=None, *, seed=None, options=None) -> None:
         super().reset(worlds, seed=seed, options=options)
         indices = self.worlds_of(worlds)
         self.object_normalised[indices] = self.normalise(self.object_world()[indices] - self.arm.base_position)
+        if self.guided:
+            self.potential[indices] = self._potential()[indices]
+
+    def set_start_level(self, level: float) -> None:
+        """The level later resets draw at (a checked float; see the single env's ``set_start_level``)."""
+        self.start_level = level
+
+    def _potential(self) -> np.ndarray:
+        base = self.arm.base_position
+        return pick_potential(self.arm.tool_point_world() - base, self.qpos[:, self._object] - base, self.goal,
+                              self.grasped, self.step_size)
 
     def observation(self) -> dict:
         tip = self.normalise(self.arm.tip)
@@ -137,7 +203,7 @@ class PickCore(GoalCoreBase):
             low = np.broadcast_to(low, (self.num_worlds, 3)).copy()
             low[raise_floor, 2] = np.minimum(floor[raise_floor], self.tip_high[2])
         arm.move(self.step_size * action[:, :3], low, self.tip_high)
-        jaw = (action[:, 3] + 1.0) * 0.5
+        jaw = jaw_target(action[:, 3], self.jaw_command)
         arm.jaw = jaw
         self.qpos[:, self._joints] = arm.q
         self.qpos[:, self._jaws] = (JAW_FINGER_OPEN_ANGLE * jaw)[:, None]
@@ -164,6 +230,10 @@ class PickCore(GoalCoreBase):
         self.object_normalised = self.normalise(self.qpos[:, self._object] - arm.base_position)
         self.elapsed += 1
         reward, success = self.reward_and_success(self.object_normalised)
+        if self.guided:
+            potential = self._potential()
+            reward = reward + (potential - self.potential)
+            self.potential = potential
         return reward, np.zeros(self.num_worlds, dtype=bool), self.truncation() | self.unstable, success
 
     def _simulate(self, world: int) -> None:

@@ -41,6 +41,24 @@ becomes unstable the episode truncates with ``info["sim_unstable"] = True`` and 
 defaults in
 ``tasks/psm_pick.toml``.
 
+## Learning options
+Devices for training from scratch, off by default (the registered task is the paper's); a policy learnt with them
+is evaluated on the task without them (``baselines/configs/pick_lnd_ppo_scratch.toml``, the shipped
+``pick-lnd-scratch``):
+
+- ``start_level`` (0 to 1, ``"easy"`` = 0, ``"default"`` = 1; default 1), or ``reset(options={"level": x})`` for one
+  reset, or ``set_start_level(x)`` (also on the batched env) for later ones: with probability ``1 - x`` an episode
+  is easy, starting at a uniform share of the scripted expert's way: down from the start to the object with the jaw
+  open, then (the object held in the closed jaws, as the grasp rule leaves it) on to the goal. Level 1 draws nothing:
+  the default task bit for bit.
+- ``jaw_command="switch"``: the jaw opens when ``phi > 0`` and closes otherwise (a grasp is one decision); the
+  default ``"proportional"`` is the paper's ``j = (phi + 1) / 2``. A policy learnt with the switch sends -1 or 1,
+  which the proportional jaw maps to the same closed or open jaw.
+- ``reward_type="guided"``: the sparse reward plus the change over the step of a potential (in steps of eta): minus
+  the object's distance to the goal, minus the jaws' distance to the object while it is not held, plus 5 steps'
+  worth while it is held (potential-based shaping: the sparse task's optimal policies stay optimal). It is not a
+  function of the goals alone, so ``compute_reward`` (HER) refuses it.
+
 ## Batched form
 ``gym.make_vec("dvrl_marl/PSMPick-v1", num_envs=N, vectorization_mode="vector_entry_point")`` steps N worlds as
 arrays (see the batched page); world ``i`` seeded ``s`` is this environment seeded ``s + i``.
@@ -49,7 +67,8 @@ arrays (see the batched page); world ``i`` seeded ``s`` is this environment seed
 - v1: the current version: p is the dVRK's measured_cp frame (see PSM Reach); the grasp rule senses at the jaws. A
   released object lands without sinking into the table (``scenes/pick_lnd_v1.xml``: at most 0.44 mm). Policy:
   ``pick-lnd``. (v0, never released, observed the jaw control point and let the object sink up to 6.3 mm; commit
-  36a42a0 reproduces its records.)
+  36a42a0 reproduces its records.) Its learning options (start levels, the switch jaw, the guided reward) leave the
+  default task unchanged.
 """
 
 from __future__ import annotations
@@ -59,8 +78,10 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from dvrl_marl.core.pick import easy_tips, pick_potential, simulate_free_object
+from dvrl_marl.core.tools import JAW_COMMANDS, jaw_target
 from dvrl_marl.envs.single_arm import PSMGoalEnv
-from dvrl_marl.core.pick import simulate_free_object
+from dvrl_marl.envs.start_levels import DEFAULT, checked_level
 from dvrl_marl.scene import object_id
 
 __all__ = ["PSMPickEnv"]
@@ -73,12 +94,19 @@ class PSMPickEnv(PSMGoalEnv):
     """PSM Pick (see the module documentation)."""
 
     task_name = "psm_pick"
-    reset_option_keys = ("goal", "start", "object")
+    reset_option_keys = ("goal", "start", "object", "level")
+    reward_types = ("sparse", "dense", "guided")
 
-    def __init__(self, *, grasp_threshold: float | None = None, **kwargs):
+    def __init__(self, *, grasp_threshold: float | None = None, start_level=DEFAULT, jaw_command: str = "proportional",
+                 **kwargs):
         tool = kwargs.pop("tool", "lnd")
         if tool != "lnd":  # Pick needs the jaw
             raise ValueError(f"PSMPickEnv: tool must be 'lnd' (Pick needs the jaw of the Large Needle Driver), got {tool!r}")
+        if jaw_command not in JAW_COMMANDS:
+            raise ValueError(f"PSMPickEnv: jaw_command must be one of {JAW_COMMANDS}, got {jaw_command!r}")
+        #: The learning options (this page's "Learning options"); the defaults are the paper's task.
+        self.start_level = checked_level(start_level, "PSMPickEnv: start_level")
+        self.jaw_command = jaw_command
         super().__init__(tool="lnd", grasp_threshold=grasp_threshold, **kwargs)
         self.grasp_threshold = float(self.spec_task.grasp_threshold)
         self.initial_jaw = float(self.spec_task.initial_jaw if self.spec_task.initial_jaw is not None else 1.0)
@@ -115,6 +143,18 @@ class PSMPickEnv(PSMGoalEnv):
         self._grasp_offset = (0.0, 0.0, 0.0)
         self._object_at_rest = True
         self._object_normalised = (0.0, 0.0, 0.0)
+        self._potential = 0.0
+
+    def set_start_level(self, level) -> None:
+        """The start level of later resets (a curriculum's hook; ``reset(options={"level": x})`` sets one reset's)."""
+        self.start_level = checked_level(level, "PSMPickEnv.set_start_level")
+
+    def parse_reset_options(self, options) -> dict:
+        options = self._check_options(options)
+        level = options.get("level")
+        parsed = super().parse_reset_options({key: value for key, value in options.items() if key != "level"})
+        parsed["level"] = None if level is None else checked_level(level, "PSMPickEnv: reset option 'level'")
+        return parsed
 
     def _option_bounds(self, key: str) -> tuple:
         if key == "goal":
@@ -164,14 +204,33 @@ class PSMPickEnv(PSMGoalEnv):
             goal = self._sample_in_box(self.goal_low, self.goal_high, tool_point_drop=0.0)
         if obj is None:
             obj = np.array([start[0], start[1], self.object_rest_height])
+        level = self.start_level if parsed["level"] is None else parsed["level"]
+        held = False
+        if level < 1.0:  # an easy episode with probability 1 - level (level 1 draws nothing: the default task)
+            easy, share = self.np_random.random(2)
+            if easy >= level:
+                drop = np.array([0.0, 0.0, self.arm.tool_point_drop])
+                tip, on_carry = easy_tips(share, start, obj + drop, goal + drop)
+                start, held = np.clip(tip, self.tip_low, self.tip_high), bool(on_carry)
         self.arm.set_tip(*start.tolist())
-        self.arm.set_jaw(self.initial_jaw)
+        self.arm.set_jaw(0.0 if held else self.initial_jaw)
         self._set_goal(goal)
+        if held:  # in the jaws, as the grasp rule leaves it
+            obj = self.arm.to_base(self.arm.tool_point_world())
         self._place_object(obj)
-        self.grasped = False
-        self._object_at_rest = bool(obj[2] <= self.object_rest_height + 1e-9)
+        self.grasped = held
+        tip_world = self.arm.tip_world()
+        self._grasp_offset = tuple((self.arm.to_world(obj) - tip_world).tolist()) if held else (0.0, 0.0, 0.0)
+        self._object_at_rest = held or bool(obj[2] <= self.object_rest_height + 1e-9)
         self._update_object_normalised()
+        self._potential = self._current_potential()
         return self._observation(), self._info(self._reward_and_success(self._object_normalised)[1])
+
+    def _current_potential(self) -> float:
+        if self.reward_type != "guided":
+            return 0.0
+        jaws = self.arm.to_base(self.arm.tool_point_world())
+        return float(pick_potential(jaws, self.object_position(), self.goal, self.grasped, self.step_size))
 
     def step(self, action):
         dx, dy, dz, phi = self._read_action(action)
@@ -184,7 +243,7 @@ class PSMPickEnv(PSMGoalEnv):
             if floor > low[2]:
                 low = (low[0], low[1], min(floor, high[2]))
         self.arm.move(eta * dx, eta * dy, eta * dz, low, high)
-        jaw = (phi + 1.0) * 0.5
+        jaw = jaw_target(phi, self.jaw_command)
         self.arm.set_jaw(jaw)
 
         # The paper's grasp rule.
@@ -207,6 +266,9 @@ class PSMPickEnv(PSMGoalEnv):
             unstable = not self._simulate_object()
         self._update_object_normalised()
         reward, success = self._reward_and_success(self._object_normalised)
+        if self.reward_type == "guided":
+            potential = self._current_potential()
+            reward, self._potential = reward + (potential - self._potential), potential
         info = self._info(success)
         if unstable:
             info["sim_unstable"] = True

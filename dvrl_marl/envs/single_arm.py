@@ -32,6 +32,8 @@ class PSMGoalEnv(gym.Env):
     task_name: str = ""
     #: Reset options this environment accepts (positions in metres, base frame).
     reset_option_keys: tuple[str, ...] = ("goal", "start")
+    #: The rewards this environment computes (the paper's sparse one and its dense variant).
+    reward_types: tuple[str, ...] = ("sparse", "dense")
 
     def __init__(
         self,
@@ -51,8 +53,8 @@ class PSMGoalEnv(gym.Env):
         height: int = 480,
         **task_overrides,
     ):
-        if reward_type not in ("sparse", "dense"):
-            raise ValueError(f"{type(self).__name__}: reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+        if reward_type not in self.reward_types:
+            raise ValueError(f"{type(self).__name__}: reward_type must be one of {self.reward_types}, got {reward_type!r}")
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"{type(self).__name__}: render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
         # What this machine can show, and the mode asked for (Gymnasium's checker holds an env to its own mode; a
@@ -221,9 +223,9 @@ class PSMGoalEnv(gym.Env):
         # The same operations, in the same order, as compute_reward: step rewards equal it bit for bit.
         distance = self.workspace_range * math.sqrt(dx * dx + dy * dy + dz * dz)
         success = distance <= self.distance_threshold
-        if self.reward_type == "sparse":
-            return (0.0 if success else -1.0), success
-        return -self.dense_scale * distance, success
+        if self.reward_type == "dense":
+            return -self.dense_scale * distance, success
+        return (0.0 if success else -1.0), success  # (the guided reward adds its potential's change to this)
 
     # --- Gymnasium API ------------------------------------------------------------------------------------
     def compute_reward(self, achieved_goal, desired_goal, info) -> np.ndarray:
@@ -231,6 +233,10 @@ class PSMGoalEnv(gym.Env):
 
         Dense variant: minus the distance in metres. Shapes ``(..., 3)`` give rewards of shape ``(...)``.
         """
+        if self.reward_type == "guided":  # HER would relabel it wrongly: the potential reads the jaws, not the goals
+            raise ValueError(f"{type(self).__name__}: reward_type='guided' is not a function of the goals alone (its "
+                             "potential reads the jaws and the grasp), so compute_reward cannot relabel it; HER needs "
+                             "reward_type='sparse' or 'dense'")
         difference = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
         distance = self.workspace_range * np.sqrt(np.sum(difference * difference, axis=-1))
         if self.reward_type == "sparse":

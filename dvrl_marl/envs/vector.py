@@ -127,6 +127,13 @@ class GoalVectorEnv(gym.vector.VectorEnv):
             info[f"_{key}"] = self._all
         return info
 
+    def set_start_level(self, level) -> None:
+        """The start level of every world's later resets (PSM Pick's learning option; a curriculum's hook)."""
+        if not hasattr(self.core, "set_start_level"):
+            raise ValueError(f"{self.core.name} has no start levels (PSM Pick has)")
+        self.template.set_start_level(level)  # (checks it)
+        self.core.set_start_level(self.template.start_level)
+
     def compute_reward(self, achieved_goal, desired_goal, info):
         """The single environment's vectorised reward (for HER)."""
         return self.template.compute_reward(achieved_goal, desired_goal, info)

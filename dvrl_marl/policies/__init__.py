@@ -14,7 +14,8 @@ A multi-agent PPO policy also records the exploration noise it trained with (``p
 ``policy.with_noise(seed)`` acts as it did in training (its mean action plus that noise, seeded), which is the
 policy PPO optimised; some of these act better that way than by their mean (``baselines/README.md``). A policy may
 also name observation ``features`` it computes from its observation before its first layer
-(:mod:`dvrl_marl.envs.features`).
+(:mod:`dvrl_marl.envs.features`), and ``switch_dimensions``: action dimensions it learnt as a switch (a jaw made
+with ``jaw_command="switch"``), which it sends as -1 or 1 by their sign, so that a proportional jaw does the same.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ class NumpyPolicy:
         self._activations = [_ACTIVATIONS[a] for a in activations]
         self.action_low = np.asarray(spec["action_low"], dtype=np.float64)
         self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
+        self.switch_dimensions = list(spec.get("switch_dimensions", []))
         self._feature_count = 0
         if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
             from dvrl_marl.envs import features
@@ -108,6 +110,8 @@ class NumpyPolicy:
 
     def __call__(self, observation) -> np.ndarray:
         x = self._forward(observation, clip_last=True)
+        if self.switch_dimensions:  # (the switch's rule: open when positive, else closed)
+            x[..., self.switch_dimensions] = np.where(x[..., self.switch_dimensions] > 0.0, 1.0, -1.0)
         # Networks act in [-1, 1]; map to the action space (identity for the dvrl-marl envs).
         action = self.action_low + (x + 1.0) * 0.5 * (self.action_high - self.action_low)
         return action.astype(np.float32)

@@ -1,4 +1,4 @@
-"""Export an SB3 actor (DDPG/TD3 or SAC/TQC) to the torch-free format of :mod:`dvrl_marl.policies`."""
+"""Export an SB3 actor (DDPG/TD3, SAC/TQC or PPO's Gaussian mean) to the torch-free format of :mod:`dvrl_marl.policies`."""
 
 from __future__ import annotations
 
@@ -30,8 +30,13 @@ def _collect(modules, layers):
 
 def actor_layers(model) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """The deterministic actor as (weight, bias, activation) layers."""
-    actor = model.actor
     layers: list = []
+    if hasattr(model.policy, "mlp_extractor"):  # PPO: the Gaussian's mean, action_net(policy_net(x)), clipped
+        _collect(model.policy.mlp_extractor.policy_net, layers)
+        _collect([model.policy.action_net], layers)
+        layers[-1][2] = "clip"
+        return [tuple(layer) for layer in layers]
+    actor = model.actor
     if hasattr(actor, "mu") and hasattr(actor, "latent_pi"):  # SAC / TQC: tanh(mu(latent_pi(x)))
         _collect(actor.latent_pi, layers)
         _collect([actor.mu], layers)

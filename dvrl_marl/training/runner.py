@@ -5,21 +5,29 @@ rl-baselines3-zoo's hyperparameter files)::
 
     [run]
     env_id = "dvrl_marl/PSMReach-v1"
-    algorithm = "ddpg"          # ddpg | ddpg_bc | td3 | sac | tqc
+    algorithm = "ddpg"          # ddpg | ddpg_bc | td3 | sac | tqc (off-policy, HER) | ppo (on-policy, no HER)
     total_timesteps = 20000
     eval_every = 2000           # environment steps between evaluations
     eval_episodes = 50
     demonstrations = 0          # expert episodes to seed the replay buffer (and, for ddpg_bc, the BC loss)
     action_noise = 0.2          # Gaussian exploration noise (DDPG/TD3)
-    [env]                       # keyword arguments of gym.make
+    num_envs = 1                # ppo: worlds stepped together (the batched env)
+    normalize_reward = false    # ppo: SB3's VecNormalize on the rewards (observations stay as the env gives them)
+    [env]                       # keyword arguments of gym.make: the task trained and evaluated
+    [train_env]                 # keyword arguments of the training env only (the learning options: start levels,
+                                # the jaw's rule, the guided reward); evaluations run the task of [env] alone
     [her]                       # HerReplayBuffer keyword arguments
     [algorithm]                 # keyword arguments of the SB3 class
     [policy]                    # policy_kwargs
 
 A run folder holds ``config.toml`` (what ran), ``progress.csv`` (one row per evaluation: timesteps, success rate,
-mean final distance, wall time), SB3's ``train_log.csv``, ``checkpoint.zip`` + ``replay_buffer.pkl`` (``resume``
-continues from them), ``final_model.zip`` and ``best_model.zip`` (the best evaluation) and ``demonstrations.npz``
-when demonstrations were used.
+mean final distance, wall time), SB3's ``train_log.csv``, ``checkpoint.zip`` + ``replay_buffer.pkl`` (PPO:
+``vecnormalize.pkl`` when it normalises rewards; ``resume`` continues from them), ``final_model.zip`` and
+``best_model.zip`` (the best evaluation) and ``demonstrations.npz`` when demonstrations were used.
+
+A policy trained with ``jaw_command = "switch"`` in ``[train_env]`` is evaluated, and exported, sending its jaw
+command as -1 or 1 by its sign (the switch's rule), so that the registered env's proportional jaw does what the
+switch did.
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ import gymnasium as gym
 import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the environments)
-from dvrl_marl.schemas import STRICT, NonNegative, NonNegativeInt, PositiveInt, Text
+from dvrl_marl.schemas import STRICT, Flag, NonNegative, NonNegativeInt, PositiveInt, Text
 from dvrl_marl.training.demonstrations import (
     generate_demonstrations,
     observation_batch,
@@ -46,11 +54,11 @@ __all__ = ["RunConfig", "load_config", "train", "evaluate_policy", "ALGORITHMS"]
 
 
 def sb3_algorithms() -> dict:
-    from stable_baselines3 import DDPG, SAC, TD3
+    from stable_baselines3 import DDPG, PPO, SAC, TD3
 
     from dvrl_marl.training.bc import DDPGBC
 
-    table = {"ddpg": DDPG, "ddpg_bc": DDPGBC, "td3": TD3, "sac": SAC}
+    table = {"ddpg": DDPG, "ddpg_bc": DDPGBC, "td3": TD3, "sac": SAC, "ppo": PPO}
     try:
         from sb3_contrib import TQC
 
@@ -60,7 +68,9 @@ def sb3_algorithms() -> dict:
     return table
 
 
-ALGORITHMS = ("ddpg", "ddpg_bc", "td3", "sac", "tqc")
+ALGORITHMS = ("ddpg", "ddpg_bc", "td3", "sac", "tqc", "ppo")
+#: The on-policy ones: a batched training env of ``num_envs`` worlds, no replay buffer, no HER.
+ON_POLICY = ("ppo",)
 
 
 @dataclass
@@ -77,7 +87,10 @@ class RunConfig:
     eval_episodes: PositiveInt = 50
     demonstrations: NonNegativeInt = 0
     action_noise: NonNegative = 0.0
+    num_envs: PositiveInt = 1
+    normalize_reward: Flag = False
     env: dict[Text, Any] = field(default_factory=dict)  # gym.make keyword arguments (the env checks them)
+    train_env: dict[Text, Any] = field(default_factory=dict)  # the training env's only (learning options)
     her: dict[Text, Any] = field(default_factory=dict)  # HerReplayBuffer's (SB3 checks them)
     algorithm_kwargs: dict[Text, Any] = field(default_factory=dict)
     policy: dict[Text, Any] = field(default_factory=dict)
@@ -86,11 +99,28 @@ class RunConfig:
     def validate(self) -> "RunConfig":
         if self.env_id not in gym.registry:
             raise ValueError(f"config {self.name}: unknown env_id {self.env_id!r}")
+        on_policy = self.algorithm in ON_POLICY
+        if on_policy and (self.her or self.demonstrations or self.action_noise):
+            raise ValueError(f"config {self.name}: {self.algorithm} takes no [her], demonstrations or action_noise "
+                             "(an on-policy learner explores by its own Gaussian and keeps no replay buffer)")
+        if not on_policy and (self.num_envs != 1 or self.normalize_reward):
+            raise ValueError(f"config {self.name}: num_envs and normalize_reward are for ppo; {self.algorithm} "
+                             "learns from one env through HER's replay buffer")
+        overlap = sorted(set(self.env) & set(self.train_env))
+        if overlap:
+            raise ValueError(f"config {self.name}: {overlap} in both [env] and [train_env]; a key lives in one "
+                             "([env]: the task trained and evaluated; [train_env]: the training env's only)")
         return self
 
+    @property
+    def switch_dimensions(self) -> list[int]:
+        """Action dimensions learnt as a switch (the jaw, with ``jaw_command = "switch"`` in [train_env])."""
+        return [3] if self.train_env.get("jaw_command") == "switch" else []
 
-_RUN_KEYS = ("env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations", "action_noise")
-_TABLES = ("run", "env", "her", "algorithm", "policy")
+
+_RUN_KEYS = ("env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations", "action_noise",
+             "num_envs", "normalize_reward")
+_TABLES = ("run", "env", "train_env", "her", "algorithm", "policy")
 
 
 def load_config(path) -> RunConfig:
@@ -111,10 +141,10 @@ def load_config(path) -> RunConfig:
             raise ValueError(f"config {path}: extends itself")
         base = load_config(base_path)
         merged = {"run": {key: getattr(base, key) for key in _RUN_KEYS if getattr(base, key) is not None},
-                  "env": dict(base.env), "her": dict(base.her), "algorithm": dict(base.algorithm_kwargs),
-                  "policy": dict(base.policy)}
+                  "env": dict(base.env), "train_env": dict(base.train_env), "her": dict(base.her),
+                  "algorithm": dict(base.algorithm_kwargs), "policy": dict(base.policy)}
         merged["run"].update(run)
-        for key in ("env", "her", "algorithm", "policy"):
+        for key in ("env", "train_env", "her", "algorithm", "policy"):
             merged[key].update(table.get(key, {}))
         table, run, text = merged, merged["run"], base.source + "\n# --- " + path.name + " ---\n" + text
     unknown = [name for name in table if name not in _TABLES or not isinstance(table[name], dict)]
@@ -125,10 +155,11 @@ def load_config(path) -> RunConfig:
             raise ValueError(f"{path}: [run] {key}: unknown key (a typo?); known: {', '.join(_RUN_KEYS)}")
     from dvrl_marl.schemas import validated
 
-    values = {"name": path.stem, "env": table.get("env", {}), "her": table.get("her", {}),
-              "algorithm_kwargs": table.get("algorithm", {}), "policy": table.get("policy", {}), "source": text, **run}
-    tables = {**{key: "run" for key in run}, "env": "env", "her": "her", "algorithm_kwargs": "algorithm",
-              "policy": "policy"}
+    values = {"name": path.stem, "env": table.get("env", {}), "train_env": table.get("train_env", {}),
+              "her": table.get("her", {}), "algorithm_kwargs": table.get("algorithm", {}),
+              "policy": table.get("policy", {}), "source": text, **run}
+    tables = {**{key: "run" for key in run}, "env": "env", "train_env": "train_env", "her": "her",
+              "algorithm_kwargs": "algorithm", "policy": "policy"}
     return validated(RunConfig, values, str(path), tables=tables).validate()
 
 
@@ -158,9 +189,15 @@ def evaluate_policy(policy, env_id: str, episodes: int, seed: int = 1_000_000, e
             "episodes": episodes}
 
 
-def _sb3_policy(model):
+def _sb3_policy(model, switch_dimensions=()):
+    """The model's deterministic action; ``switch_dimensions`` sent as -1 or 1 by their sign (as exported)."""
+    switches = list(switch_dimensions)
+
     def act(observation):
         action, _ = model.predict(observation, deterministic=True)
+        if switches:
+            action = np.array(action)
+            action[switches] = np.where(action[switches] > 0.0, 1.0, -1.0)
         return action
 
     return act
@@ -180,6 +217,24 @@ def _seed_buffer_with_demonstrations(model, demos: dict) -> None:
         )
 
 
+def _training_env(config: RunConfig, seed: int):
+    """Off-policy: one env (SB3's Monitor around it). On-policy: ``num_envs`` worlds of the batched env, seeded
+    ``seed``, their rewards normalised on request. Both with [env] and [train_env]."""
+    if config.algorithm not in ON_POLICY:
+        from stable_baselines3.common.monitor import Monitor
+
+        return Monitor(gym.make(config.env_id, **config.env, **config.train_env))
+    from dvrl_marl.integrations.sb3 import make_sb3_vec_env
+
+    venv = make_sb3_vec_env(config.env_id, num_envs=config.num_envs, seed=seed, **config.env, **config.train_env)
+    if config.normalize_reward:
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        venv = VecNormalize(venv, norm_obs=False, norm_reward=True,
+                            gamma=float(config.algorithm_kwargs.get("gamma", 0.99)))
+    return venv
+
+
 def _build_model(config: RunConfig, env, seed: int):
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.noise import NormalActionNoise
@@ -188,6 +243,8 @@ def _build_model(config: RunConfig, env, seed: int):
     if cls is None:
         raise ValueError(f"algorithm {config.algorithm!r} needs sb3-contrib (pip install sb3-contrib)")
     kwargs = dict(config.algorithm_kwargs)
+    if config.algorithm in ON_POLICY:
+        return cls("MultiInputPolicy", env, policy_kwargs=dict(config.policy), seed=seed, verbose=0, **kwargs)
     if "train_freq" in kwargs and isinstance(kwargs["train_freq"], list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     if config.action_noise > 0:
@@ -207,25 +264,33 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
 
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.monitor import Monitor
 
     formats = log_formats(tensorboard)  # before any work: a missing package fails at once
     out_dir = Path(out_dir)
+    on_policy = config.algorithm in ON_POLICY
     checkpoint, buffer_path = out_dir / "checkpoint.zip", out_dir / "replay_buffer.pkl"
+    # What a resume needs beside the model: the replay buffer (off-policy), the reward statistics (PPO's, if kept)
+    state_path = (out_dir / "vecnormalize.pkl" if config.normalize_reward else None) if on_policy else buffer_path
     progress_csv = out_dir / "progress.csv"
-    if resume and not (checkpoint.is_file() and buffer_path.is_file()):
-        raise ValueError(f"{out_dir}: no checkpoint.zip and replay_buffer.pkl to resume from (a mistyped --out, or a "
-                         "run that never reached its first evaluation); nothing was started or overwritten")
+    if resume and not (checkpoint.is_file() and (state_path is None or state_path.is_file())):
+        raise ValueError(f"{out_dir}: no checkpoint.zip (and {state_path.name if state_path else 'nothing else'}) to "
+                         "resume from (a mistyped --out, or a run that never reached its first evaluation); nothing "
+                         "was started or overwritten")
     if not resume and (checkpoint.exists() or progress_csv.exists()):
         raise ValueError(f"{out_dir} holds a run already (checkpoint.zip / progress.csv): --resume continues it; "
                          "another --out starts a new one. Nothing was overwritten.")
     out_dir.mkdir(parents=True, exist_ok=True)
     total = int(total_timesteps or config.total_timesteps)
-    env = Monitor(gym.make(config.env_id, **config.env))
+    env = _training_env(config, seed)
     history: list[dict] = []
     if resume:
+        if on_policy and config.normalize_reward:
+            from stable_baselines3.common.vec_env import VecNormalize
+
+            env = VecNormalize.load(str(state_path), env.venv)
         model = sb3_algorithms()[config.algorithm].load(checkpoint, env=env)
-        model.load_replay_buffer(buffer_path)
+        if not on_policy:
+            model.load_replay_buffer(buffer_path)
         if progress_csv.is_file():
             with progress_csv.open() as handle:
                 history = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
@@ -262,7 +327,8 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
                    mininterval=0.5, disable=None)
 
     def evaluate_and_checkpoint():
-        result = evaluate_policy(_sb3_policy(model), config.env_id, config.eval_episodes, env_kwargs=config.env)
+        result = evaluate_policy(_sb3_policy(model, config.switch_dimensions), config.env_id, config.eval_episodes,
+                                 env_kwargs=config.env)
         row = {"timesteps": model.num_timesteps, "success_rate": result["success_rate"],
                "mean_final_distance": result["mean_final_distance"], "wall_seconds": time.perf_counter() - start}
         history.append(row)
@@ -277,18 +343,24 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
                 writer.writeheader()
             writer.writerow(row)
         model.save(checkpoint)
-        model.save_replay_buffer(buffer_path)
+        if not on_policy:
+            model.save_replay_buffer(buffer_path)
+        elif state_path is not None:
+            model.get_env().save(str(state_path))
         if result["success_rate"] >= max(r["success_rate"] for r in history):
             model.save(out_dir / "best_model.zip")  # the evaluation-selected policy (EvalCallback's convention)
         if bar is not None:
             bar.set_postfix(success=f"{result['success_rate']:.2f}")
 
+    next_evaluation = [(model.num_timesteps // config.eval_every + 1) * config.eval_every]
+
     class _Callback(BaseCallback):
         def _on_step(self) -> bool:
             if bar is not None:
-                bar.update(1)
-            if self.model.num_timesteps % config.eval_every == 0:
+                bar.update(self.model.num_timesteps - bar.n)
+            if self.model.num_timesteps >= next_evaluation[0]:  # (a batched env passes it num_envs steps at a time)
                 evaluate_and_checkpoint()
+                next_evaluation[0] = (self.model.num_timesteps // config.eval_every + 1) * config.eval_every
             return True
 
     remaining = total - model.num_timesteps
