@@ -65,7 +65,7 @@ def export_run(name: str, seed: int, target: Path) -> Path:
     unwrapped = gym.make(config.env_id, **config.env).unwrapped
     # The frame the policy was trained in: pipelines re-centre it but keep its range and step.
     return export_policy(model, target, name=name, env_id=config.env_id, workspace_range=unwrapped.workspace_range,
-                         step_size=unwrapped.step_size, switch_dimensions=config.switch_dimensions, **eval_kwargs)
+                         step_size=unwrapped.step_size, **config.export_metadata(), **eval_kwargs)
 
 
 def ship(name: str, seed: int, episodes: int = 50) -> dict:

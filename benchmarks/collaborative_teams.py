@@ -17,7 +17,7 @@ from pathlib import Path
 from dvrl_marl import policies
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.pipeline import ArmPipeline
+from dvrl_marl.pipeline import ArmPipeline, pipeline_policies
 from dvrl_marl.training.marl import TeamPolicy, evaluate_team
 
 
@@ -30,7 +30,7 @@ def main() -> None:
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
     names = ["scripted_team"]
-    if {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()):
+    if pipeline_policies("learned_team") <= set(policies.available()):
         names.append("learned_team")
     results = {}
     for label, act in teams.items():

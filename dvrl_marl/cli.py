@@ -94,7 +94,7 @@ def _train(args) -> int:
 
         model = sb3_algorithms()[config.algorithm].load(out / "final_model.zip")
         export_policy(model, args.export, name=Path(args.export).name, env_id=config.env_id,
-                      switch_dimensions=config.switch_dimensions,
+                      **config.export_metadata(),
                       training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
                                 "success_rate": final["success_rate"]})
         print(f"exported the policy to {args.export}")

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from dvrl_marl import policies
 from dvrl_marl.envs import suction_debris_v8 as scene_env
-from dvrl_marl.pipeline import ArmPipeline, load_pipeline
+from dvrl_marl.pipeline import ArmPipeline, load_pipeline, pipeline_policies
 
 __all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
@@ -37,12 +37,9 @@ ENV_NAME = "suction_debris_v8"
 #: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.
 KEYBOARD_MAX_CYCLES = 6000
 TEAMS = ("pipeline", "marl")
-_LEARNED_POLICIES = ("reach-lnd", "reach-suction-irrigation", "pick-lnd")  # learned_team.toml's
-
-
 def _pipeline_name() -> str:
     """The learned pipeline when the shipped policies are there, else the scripted one."""
-    return "learned_team" if all(name in policies.available() for name in _LEARNED_POLICIES) else "scripted_team"
+    return "learned_team" if pipeline_policies("learned_team") <= set(policies.available()) else "scripted_team"
 
 
 #: The learned seats of team="marl": deployable by their default call (benchmarks/partner_zoo.py measures them).

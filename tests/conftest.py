@@ -63,7 +63,16 @@ TOOL_POINT = {"dvrl_marl/PSMReach-v1": {"tip_frame": "tool_point"},
 REAL_TIME_FILES = {"test_browser_page.py", "test_browser_seat.py", "test_keyboard_seat.py"}
 
 
+#: The longest tests (tens of seconds: Ray clusters, a benchmark row's run, compiled device envs), run first: the
+#: README's two workers then share out the short ones around them (xdist's work stealing) instead of one worker
+#: ending the run alone on a long test it picked up last.
+LONG_FIRST = ("test_marl_benchmark.py::test_a_tiny_run_writes_its_record", "test_ray.py::test_training_on_two_nodes",
+              "test_device_env.py::", "test_rllib.py::", "test_person_like_partners.py::", "test_use_with.py::")
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.path.name in REAL_TIME_FILES:
             item.add_marker(pytest.mark.realtime)
+    # (a stable sort: within each group, the collection's order)
+    items.sort(key=lambda item: not f"{item.path.name}::{item.name}".startswith(LONG_FIRST))

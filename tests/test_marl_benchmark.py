@@ -137,7 +137,7 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
         pytest.importorskip("yaml")
     flags = {"benchmarl": ["--frames", "1200", "--worlds", "4", "--batch-frames", "600", "--eval-every", "600"],
              "dvrl-marl": ["--frames", "2048", "--eval-every", "8192", "--eval-episodes", "2"],
-             "rllib": ["--frames", "2048", "--batch-frames", "1024", "--eval-every", "2048", "--eval-episodes",
+             "rllib": ["--frames", "1024", "--batch-frames", "1024", "--eval-every", "1024", "--eval-episodes",
                        "1"]}[library]
     test_episodes = 1 if library == "rllib" else 3  # (RLlib's test episodes are its slowest part: an action a call)
     algorithm = "ippo" if library == "rllib" else "mappo"
@@ -163,13 +163,13 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
         assert record["rllib_settings"]["ppo"]["vf_clip_param"] == "inf"  # JSON-safe
         label = marl_benchmark._settings_label(record["rllib_settings"])
         assert records[0].name == f"rllib_ippo_{_shipped_task()}_easy_{label}_seed0.json"
-        assert [point["frames"] for point in record["curve"]] == [2048]  # validated every --eval-every
+        assert [point["frames"] for point in record["curve"]] == [1024]  # validated every --eval-every
         assert (tmp_path / "runs" / records[0].stem / "checkpoint").is_dir()
     else:
         assert records[0].name == f"dvrl-marl_mappo_{_shipped_task()}_easy_seed0.json"
     assert record["final"]["episodes"] == test_episodes and 0.0 <= record["final"]["success_rate"] <= 1.0
     assert 0.0 <= record["final"]["success_rate_sampled"] <= 1.0
-    assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1200
+    assert record["env_options"]["start_level"] == "easy" and record["frames"] >= 1024
     assert record["command"].startswith("python benchmarks/marl_benchmark.py run")
     if library == "rllib":
         return  # (mean_action_failures.py reads a BenchMARL run's folder)

@@ -141,3 +141,46 @@ def test_a_curriculum_sets_the_level_of_every_worlds_later_resets():
     observations, infos = envs.reset(seed=0)
     assert np.all(np.any(observations["observation"][:, :3] != centre, axis=1))  # every world easy
     assert 0 < infos["grasped"].sum() < 64
+
+
+def test_the_pick_magnifier_reads_the_jaws_and_goal_offsets_alike_in_numpy_and_torch():
+    torch = pytest.importorskip("torch")
+    from dvrl_marl.envs import features
+
+    env = gym.make(PICK)
+    spec = features.pick_spec(env)
+    observation, _ = env.reset(seed=3)
+    flat = np.concatenate([observation[key] for key in ("achieved_goal", "desired_goal", "observation")])
+    out = features.apply(spec, flat)
+    assert out.shape == (13 + 6,) and np.array_equal(out[:13], flat)
+    unwrapped = env.unwrapped
+    jaws = unwrapped.normalise(_jaws(env))
+    obj, goal = observation["achieved_goal"], observation["desired_goal"]
+    np.testing.assert_allclose(out[13:16], np.tanh((obj - jaws) / spec["zoom"]), atol=1e-12)
+    np.testing.assert_allclose(out[16:19], np.tanh((goal - obj) / spec["zoom"]), atol=1e-12)
+    assert spec["zoom"] * unwrapped.workspace_range == pytest.approx(0.005)  # 5 mm through the magnifier
+    batch = np.random.default_rng(0).uniform(-1, 1, (32, 13))
+    np.testing.assert_allclose(features.apply(spec, torch.as_tensor(batch)).numpy(), features.apply(spec, batch),
+                               atol=1e-12)
+
+
+def test_run_configurations_refuse_what_their_algorithm_cannot_use(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from dvrl_marl.training.runner import load_config
+
+    base = ('[run]\nenv_id = "dvrl_marl/PSMPick-v1"\nalgorithm = "{algorithm}"\ntotal_timesteps = 1000\n{run}\n'
+            '[train_env]\nstart_level = 0.5\n{tables}')
+    cases = {"ppo": [("demonstrations = 5", "", "demonstrations"), ("", "[her]\nn_sampled_goal = 4\n", "her"),
+                     ("", "[env]\nstart_level = 0.5\n", "both"),
+                     ('observation_features = "zoom"', "", "observation_features")],
+             "ddpg": [("num_envs = 8", "", "num_envs"), ("normalize_reward = true", "", "normalize_reward")]}
+    for algorithm, rows in cases.items():
+        for run, tables, named in rows:
+            path = tmp_path / "config.toml"
+            path.write_text(base.format(algorithm=algorithm, run=run, tables=tables))
+            with pytest.raises(ValueError, match=named):
+                load_config(path)
+    path.write_text(base.format(algorithm="ppo", run='observation_features = "psm_pick_zoom"', tables="")
+                    .replace("PSMPick", "PSMReach"))
+    with pytest.raises(ValueError, match="not a Pick env"):
+        load_config(path)

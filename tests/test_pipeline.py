@@ -11,7 +11,8 @@ from dvrl_marl import policies
 from dvrl_marl.agents import ReachExpert
 from dvrl_marl.cli import main as cli_main
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.pipeline import ArmPipeline, RecentredFrame, StageSpec, available_pipelines, load_pipeline
+from dvrl_marl.pipeline import (ArmPipeline, RecentredFrame, StageSpec, available_pipelines, load_pipeline,
+                                pipeline_policies)
 from dvrl_marl.pipeline.core import ArmPlan
 
 
@@ -126,7 +127,7 @@ def test_a_pipeline_fills_the_surgeon_seat():
     assert infos["suction"]["is_success"]
 
 
-@pytest.mark.skipif(not {"reach-lnd", "reach-suction-irrigation", "pick-lnd"} <= set(policies.available()),
+@pytest.mark.skipif(not pipeline_policies("learned_team") <= set(policies.available()),
                     reason="the learned policies are not shipped")
 def test_learned_pipeline_team_completes_the_task():
     results = [run_team("learned_team", seed)[0]["is_success"] for seed in range(3)]

@@ -81,12 +81,24 @@ def test_two_collectors_return_what_one_collector_of_all_the_worlds_returns(tmp_
         np.testing.assert_allclose(whole[key], parts[key], atol=1e-5, err_msg=key)
 
 
-def test_training_on_two_nodes_checkpoints_resumes_and_exports(cluster, tmp_path):
-    run, messages = tmp_path / "run", []
+def test_training_on_two_nodes_survives_a_killed_collector_checkpoints_resumes_and_exports(cluster, tmp_path):
+    # (one run for all of it: each run starts collectors on both nodes, the slowest part here)
+    run, messages, seen = tmp_path / "run", [], {}
+
+    def kill_one(iteration, collectors):  # (the run's two iterations are numbered 1 and 2)
+        if iteration == 1:
+            seen["before"] = collectors.where()
+            ray.kill(collectors.actors[0], no_restart=False)  # as a crashed worker process would
+        elif iteration == 2:
+            seen["after"] = collectors.where()
+
     final = mappo.train(tiny(tmp_path, 512), 0, run, progress=False, log=messages.append, ray_address="auto",
-                        num_collectors=2)
+                        num_collectors=2, on_iteration=kill_one)
     assert final["steps"] == 512
     assert any("2 collectors on 2 node(s)" in m for m in messages), messages
+    before, after = seen["before"], seen["after"]
+    assert after[0]["pid"] != before[0]["pid"], "the killed collector came back as a new process"
+    assert after[1]["pid"] == before[1]["pid"], "the other collector was left alone"
     assert (run / "checkpoint.pt").is_file()
     saved = models.require_torch().load(run / "checkpoint.pt", weights_only=False)
     assert len(saved["collector_rng"]) == 2
@@ -101,21 +113,3 @@ def test_training_on_two_nodes_checkpoints_resumes_and_exports(cluster, tmp_path
         policy = policies.load(run / "policies" / f"marl-{agent}")
         assert policy(np.zeros(policy.weights[0][0].shape[1])).shape == (4,)
     assert json.loads((run / "result.json").read_text())["steps"] == 1024
-
-
-def test_a_collector_killed_mid_run_is_restarted_and_training_goes_on(cluster, tmp_path):
-    seen = {}
-
-    def kill_one(iteration, collectors):
-        if iteration == 1:
-            seen["before"] = collectors.where()
-            ray.kill(collectors.actors[0], no_restart=False)  # as a crashed worker process would
-        elif iteration == 3:
-            seen["after"] = collectors.where()
-
-    final = mappo.train(tiny(tmp_path, 1024), 1, tmp_path / "run", progress=False, log=lambda *_: None,
-                        ray_address="auto", num_collectors=2, on_iteration=kill_one)
-    assert final["steps"] == 1024
-    before, after = seen["before"], seen["after"]
-    assert after[0]["pid"] != before[0]["pid"], "the killed collector came back as a new process"
-    assert after[1]["pid"] == before[1]["pid"], "the other collector was left alone"

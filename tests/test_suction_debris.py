@@ -12,6 +12,7 @@ from pettingzoo.test.state_test import test_state_space as pz_state_space_test
 
 import dvrl_marl  # noqa: F401  (PettingZoo registration)
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.training import teams
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.teleop import KeyboardDevice, Recorder, ReplayDevice, load_demonstration
 
@@ -104,11 +105,11 @@ def test_same_seed_and_actions_give_identical_runs_for_500_steps():
 
 
 def test_scripted_team_completes_at_least_95_percent_within_max_cycles():
-    env = suction_debris_v8.parallel_env()
-    outcomes = [scripted_episode(env, seed) for seed in range(20)]
-    successes = sum(info["is_success"] for _, info in outcomes)
-    assert successes >= 19, outcomes
-    assert all(steps <= env.params.max_cycles for steps, _ in outcomes)
+    # (20 episodes at once: the parallel env is the same core with one world, held to it by the golden steps)
+    team = {agent: teams.seat("scripted", agent) for agent in ("suction", "grasper")}
+    result = teams.evaluate_team_batched(team, 20, seed=0)
+    assert sum(result["success"]) >= 19, result
+    assert max(result["steps"]) <= suction_debris_v8.parallel_env().params.max_cycles
 
 
 def test_blood_is_conserved_and_never_negative():
@@ -323,7 +324,7 @@ def test_tips_never_enter_the_phantom_and_instruments_never_pass_through_each_ot
     rng = np.random.default_rng(7)
     env.reset(seed=7)
     contacts = 0
-    for step in range(3000):
+    for step in range(2000):
         if not env.agents:
             env.reset()
         # Each tip chases the other (with noise), to provoke contacts, and dips to provoke floor hits.

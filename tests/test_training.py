@@ -206,7 +206,7 @@ def test_load_rejects_unknown_names():
         policies.load("does-not-exist")
 
 
-@pytest.mark.parametrize("name", ["reach-lnd", "reach-suction-irrigation", "pick-lnd"])
+@pytest.mark.parametrize("name", ["reach-lnd", "reach-suction-irrigation", "pick-lnd", "pick-lnd-scratch"])
 def test_shipped_policies_reach_their_stated_success_rate(name):
     assert name in policies.available()
     policy = policies.load(name)

@@ -18,6 +18,7 @@ from dvrl_marl.pipeline.core import (
     StageSpec,
     available_pipelines,
     load_pipeline,
+    pipeline_policies,
 )
 
-__all__ = ["ArmPipeline", "RecentredFrame", "StageSpec", "load_pipeline", "available_pipelines"]
+__all__ = ["ArmPipeline", "RecentredFrame", "StageSpec", "load_pipeline", "available_pipelines", "pipeline_policies"]

@@ -6,7 +6,7 @@ A pipeline file (TOML) has one table per arm::
     for_each = "debris"                # "cavity", "debris" or "none": the items the stages repeat for
     stages = [                         # run in order for each item
       { type = "reach", policy = "reach-lnd", target = "above_debris", height = 0.0204 },
-      { type = "pick", policy = "pick-lnd", lift = 0.015 },
+      { type = "pick", policy = "pick-lnd-scratch", lift = 0.015 },
       { type = "reach", policy = "reach-lnd", target = "handoff", carry = true },
       { type = "release" },
     ]
@@ -157,6 +157,12 @@ def load_pipeline(name_or_path) -> dict[str, ArmPlan]:
                   for key in ("stages", "idle", "finally")}
         plans[arm] = ArmPlan(for_each=for_each, stages=stages["stages"], idle=stages["idle"], final=stages["finally"])
     return plans
+
+
+def pipeline_policies(name_or_path) -> set[str]:
+    """The shipped (or exported) policies a pipeline's stages name: what must be there for it to run learned."""
+    return {stage.policy for plan in load_pipeline(name_or_path).values()
+            for stage in (*plan.stages, *plan.idle, *plan.final) if stage.policy != "scripted"}
 
 
 class _StagePolicy:

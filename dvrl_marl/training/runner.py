@@ -13,6 +13,7 @@ rl-baselines3-zoo's hyperparameter files)::
     action_noise = 0.2          # Gaussian exploration noise (DDPG/TD3)
     num_envs = 1                # ppo: worlds stepped together (the batched env)
     normalize_reward = false    # ppo: SB3's VecNormalize on the rewards (observations stay as the env gives them)
+    observation_features = ""   # features the policy computes from its observation ("psm_pick_zoom" for Pick)
     [env]                       # keyword arguments of gym.make: the task trained and evaluated
     [train_env]                 # keyword arguments of the training env only (the learning options: start levels,
                                 # the jaw's rule, the guided reward); evaluations run the task of [env] alone
@@ -89,6 +90,7 @@ class RunConfig:
     action_noise: NonNegative = 0.0
     num_envs: PositiveInt = 1
     normalize_reward: Flag = False
+    observation_features: Literal["", "psm_pick_zoom"] = ""
     env: dict[Text, Any] = field(default_factory=dict)  # gym.make keyword arguments (the env checks them)
     train_env: dict[Text, Any] = field(default_factory=dict)  # the training env's only (learning options)
     her: dict[Text, Any] = field(default_factory=dict)  # HerReplayBuffer's (SB3 checks them)
@@ -106,20 +108,47 @@ class RunConfig:
         if not on_policy and (self.num_envs != 1 or self.normalize_reward):
             raise ValueError(f"config {self.name}: num_envs and normalize_reward are for ppo; {self.algorithm} "
                              "learns from one env through HER's replay buffer")
+        if self.observation_features == "psm_pick_zoom" and "Pick" not in self.env_id:
+            raise ValueError(f"config {self.name}: observation_features 'psm_pick_zoom' reads PSM Pick's observation; "
+                             f"{self.env_id} is not a Pick env")
         overlap = sorted(set(self.env) & set(self.train_env))
         if overlap:
             raise ValueError(f"config {self.name}: {overlap} in both [env] and [train_env]; a key lives in one "
                              "([env]: the task trained and evaluated; [train_env]: the training env's only)")
         return self
 
+    def feature_spec(self) -> dict | None:
+        """The spec of the features the policy computes (what its ``policy.json`` records), or None."""
+        if not self.observation_features:
+            return None
+        from dvrl_marl.envs import features
+
+        return features.pick_spec(gym.make(self.env_id, **self.env))
+
+    def policy_kwargs(self) -> dict:
+        """[policy], with the features extractor that appends ``observation_features`` when one is named."""
+        spec = self.feature_spec()
+        if spec is None:
+            return dict(self.policy)
+        from dvrl_marl.training.sb3_features import ObservationFeatures
+
+        return {**self.policy, "features_extractor_class": ObservationFeatures,
+                "features_extractor_kwargs": {"spec": spec}}
+
     @property
     def switch_dimensions(self) -> list[int]:
         """Action dimensions learnt as a switch (the jaw, with ``jaw_command = "switch"`` in [train_env])."""
         return [3] if self.train_env.get("jaw_command") == "switch" else []
 
+    def export_metadata(self) -> dict:
+        """What an exported policy of this run records so that it acts as evaluated: its switch dimensions and the
+        features it computes (each only when there are any)."""
+        out = {"switch_dimensions": self.switch_dimensions, "features": self.feature_spec()}
+        return {key: value for key, value in out.items() if value}
+
 
 _RUN_KEYS = ("env_id", "algorithm", "total_timesteps", "eval_every", "eval_episodes", "demonstrations", "action_noise",
-             "num_envs", "normalize_reward")
+             "num_envs", "normalize_reward", "observation_features")
 _TABLES = ("run", "env", "train_env", "her", "algorithm", "policy")
 
 
@@ -244,7 +273,7 @@ def _build_model(config: RunConfig, env, seed: int):
         raise ValueError(f"algorithm {config.algorithm!r} needs sb3-contrib (pip install sb3-contrib)")
     kwargs = dict(config.algorithm_kwargs)
     if config.algorithm in ON_POLICY:
-        return cls("MultiInputPolicy", env, policy_kwargs=dict(config.policy), seed=seed, verbose=0, **kwargs)
+        return cls("MultiInputPolicy", env, policy_kwargs=config.policy_kwargs(), seed=seed, verbose=0, **kwargs)
     if "train_freq" in kwargs and isinstance(kwargs["train_freq"], list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     if config.action_noise > 0:
@@ -252,7 +281,7 @@ def _build_model(config: RunConfig, env, seed: int):
         kwargs["action_noise"] = NormalActionNoise(np.zeros(dim), config.action_noise * np.ones(dim))
     return cls(
         "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, replay_buffer_kwargs=dict(config.her),
-        policy_kwargs=dict(config.policy), seed=seed, verbose=0,
+        policy_kwargs=config.policy_kwargs(), seed=seed, verbose=0,
         **kwargs,
     )
 
