@@ -433,7 +433,7 @@ def test_shipped_observation_scales_are_what_measure_gives():
     shipped = json.loads(observation_scaling.SCALES_FILE.read_text())
     name = OPTIONS["observation_features"]
     assert shipped["feature_sets"][name] == observation_measure.measure(name)
-    assert set(shipped["feature_sets"]) == {"", *features.FEATURES}
+    assert set(shipped["feature_sets"]) == {"", *features.SCENE_FEATURE_SETS}
 
 
 def test_normalize_observations_passes_the_pettingzoo_and_torchrl_checks():

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["spec", "suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
-           "suction_debris_cleared_pins_zoom", "psm_pick_zoom", "pick_spec", "routes_geometry", "feature_count", "apply", "FEATURES"]
+           "suction_debris_cleared_pins_zoom", "psm_pick_zoom", "pick_spec", "SCENE_FEATURE_SETS", "routes_geometry", "feature_count", "apply", "FEATURES"]
 
 #: A distance no pin in the normalised workspace reaches (masked slots).
 _FAR = 1e6
@@ -134,6 +134,9 @@ def spec(name: str, layout, debris: int) -> dict:
     sets that need it, the scene's fixed geometry (``layout``: an env's ``layout()``). What :func:`apply` takes, what
     an exported policy records, and what the env's ``observation_features`` option computes."""
     feature_count(name)
+    if name not in SCENE_FEATURE_SETS:
+        raise ValueError(f"observation features {name!r} are not the collaborative scene's (its sets: "
+                         f"{list(SCENE_FEATURE_SETS)})")
     out = {"name": name, "cavities": len(layout.cavity_centres), "debris": int(debris)}
     if name in NEEDS_GEOMETRY:
         out.update(routes_geometry(layout))
@@ -297,6 +300,9 @@ _PARTS = {"suction_debris_targets": _targets_parts, "suction_debris_routes": _ro
           "psm_pick_zoom": _pick_zoom_parts}
 _SCENE_ARGUMENTS = ("cavities", "debris", "cavity_centres", "cavity_mouth_radius", "cavity_targets_z", "rim_z",
                     "blood_threshold_fraction")
+#: The collaborative scene's feature sets (its ``observation_features`` option); the others are single-arm policies'.
+SCENE_FEATURE_SETS = ("suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
+                      "suction_debris_cleared_pins_zoom")
 #: The arguments each feature set takes, in the order its parts function takes them.
 _ARGUMENTS = {"suction_debris_targets": _SCENE_ARGUMENTS[:2],
               **{name: _SCENE_ARGUMENTS for name in ("suction_debris_routes", "suction_debris_cleared_pins",

@@ -49,11 +49,11 @@ def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_
 
 def write(path: Path = SCALES_FILE) -> dict:
     """Measure every feature set (and none) and write the file the option reads."""
-    from dvrl_marl.envs.features import FEATURES
+    from dvrl_marl.envs.features import SCENE_FEATURE_SETS
 
     content = {"source": "dvrl_marl.envs.observation_measure.measure", "task": MEASURE_TASK,
                "worlds": MEASURE_WORLDS, "seed": MEASURE_SEED, "min_spread": MIN_SPREAD,
-               "feature_sets": {name: measure(name) for name in ["", *sorted(FEATURES)]}}
+               "feature_sets": {name: measure(name) for name in ["", *sorted(SCENE_FEATURE_SETS)]}}
     path.write_text(json.dumps(content, indent=1) + "\n")
     return content
 

@@ -136,7 +136,7 @@ real time at 50 Hz), ``max_cycles``,
 ``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
 ``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris_v8.toml``.
 Options that help learning (off by default; ``preset="benchmark"`` sets them): ``reward_type="guided"`` and ``guidance``,
-``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.envs.features.FEATURES`): each
+``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.envs.features.SCENE_FEATURE_SETS`): each
 agent's observation gets those features appended (relative targets computed from the observation alone: the pin
 to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
 ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
