@@ -72,6 +72,18 @@ class SceneMirror:
             self.data.qpos[address + 3:address + 7] = (c * math.cos(half_yaw), -c * math.sin(half_yaw),
                                                        c * math.cos(half_yaw), c * math.sin(half_yaw))
 
+    @property
+    def blood_geoms(self) -> list[int]:
+        """The geoms that draw each cavity's blood surface."""
+        return list(self._blood_geoms)
+
+    def make_blood_opaque(self) -> None:
+        """Draw the blood opaque (the learning view's; the human view lets the cavity floor show through)."""
+        for geom in self._blood_geoms:  # (its colour is its material's)
+            material = self.model.geom_matid[geom]
+            if material >= 0:
+                self.model.mat_rgba[material][3] = 1.0
+
     def _show_blood(self, index: int, cavity: Cavity, volume_ml: float) -> None:
         geom = self._blood_geoms[index]
         depth = cavity.fill_depth(volume_ml)

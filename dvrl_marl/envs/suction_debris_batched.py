@@ -101,8 +101,8 @@ class SuctionDebrisBatchedEnv:
                  render_world: int = 0, task: str = TASK, guidance: dict | None = None, observation_features: str = "",
                  start_level: float | str = 1.0,
                  easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
-                 state_observations: bool = False, normalize_observations: bool = False, width: int = 640,
-                 height: int = 480, **params):
+                 state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
+                 image_depth: bool = False, width: int = 640, height: int = 480, **params):
         from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
 
         if not isinstance(task, (str, Path)):
@@ -144,6 +144,7 @@ class SuctionDebrisBatchedEnv:
         self._mirror = None  # the MuJoCo scene that shows a world (made on the first render)
         self._spaces(observation_features, validated(Flag, state_observations, f"{self.name}: state_observations"),
                      validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
+        self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"))
         # Options that help learning: start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
         if easy_episode_steps is not None:  # 0 says what None does where there is no null (a TOML configuration)
@@ -219,6 +220,41 @@ class SuctionDebrisBatchedEnv:
             self.state_space = spaces.Box(*scaling.state_bounds(self.state_space.low, self.state_space.high),
                                           dtype=np.float64)
             self.observation_scaling = scaling
+
+    def _image_spaces(self, size, depth: bool) -> None:
+        """``image_size``: every agent's observation becomes ``{"state": the observation above, "image": the
+        endoscope's view (S, S, 3) uint8}`` (and ``"depth"``, (S, S) float32 metres, with ``image_depth``), drawn by
+        :class:`dvrl_marl.envs.endoscope.EndoscopeRenderer` (the first time an observation is made)."""
+        from dvrl_marl.envs.endoscope import IMAGE_SIZES
+        from dvrl_marl.schemas import NonNegativeInt, validated
+
+        size = validated(NonNegativeInt, size, f"{self.name}: image_size")
+        if size and not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
+            raise ValueError(f"{self.name}: image_size must be 0 (no images) or {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} "
+                             f"px, got {size}")
+        if depth and not size:
+            raise ValueError(f"{self.name}: image_depth needs image_size (the depth is the image's)")
+        #: the image observations' size (0: none) and whether they carry depth
+        self.image_size, self.image_depth = size, depth
+        self._endoscope = None
+        if not size:
+            return
+        parts = {"image": spaces.Box(0, 255, shape=(size, size, 3), dtype=np.uint8)}
+        if depth:
+            parts["depth"] = spaces.Box(0.0, np.inf, shape=(size, size), dtype=np.float32)
+        self._observation_spaces = {agent: spaces.Dict({"state": space, **parts})
+                                    for agent, space in self._observation_spaces.items()}
+
+    def images(self) -> dict:
+        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "depth": (N, S, S)]}``."""
+        if not self.image_size:
+            raise ValueError(f"{self.name}: images need image_size (made with image_size=84, say)")
+        if self._endoscope is None:
+            from dvrl_marl.envs.endoscope import EndoscopeRenderer
+
+            self._endoscope = EndoscopeRenderer(self.params, self.image_size, depth=self.image_depth)
+        drawn = self._endoscope.render([self.core.world_state(world) for world in range(self.num_envs)])
+        return {"image": drawn["rgb"], **({"depth": drawn["depth"]} if self.image_depth else {})}
 
     def _check_scene_fits(self) -> None:
         """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
@@ -490,6 +526,9 @@ class SuctionDebrisBatchedEnv:
         if self.observation_scaling is not None:
             observations = {agent: self.observation_scaling.observation(agent, value)
                             for agent, value in observations.items()}
+        if self.image_size:  # one endoscope: every agent sees the same view
+            images = self.images()
+            observations = {agent: {"state": value, **images} for agent, value in observations.items()}
         return observations
 
     def _with_features(self, observations: dict) -> dict:
@@ -538,6 +577,9 @@ class SuctionDebrisBatchedEnv:
     def close(self) -> None:
         if self._mirror is not None:
             self._mirror.close()
+        if self._endoscope is not None:
+            self._endoscope.close()
+            self._endoscope = None
 
 
 def takes_worlds(reset) -> bool:

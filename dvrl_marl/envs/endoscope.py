@@ -1,0 +1,145 @@
+"""The endoscope's view of many worlds, drawn for learning: what an image observation is made of.
+
+The human view (``render()``, the seats' windows and pages) draws the whole scene every frame with shadows,
+reflections and multisampling. Most of that work is the phantom: a heightfield of about 40,000 triangles that never
+moves. This renderer draws it once, with its depth, and then per world only what moves (the instruments, the pins,
+the blood), into tiles of one framebuffer read back once per batch; a pixel is the moving layer's where that is
+nearer than the phantom's, else the phantom's. With opaque geometry this is what one drawing of the whole scene gives
+(``tests/test_endoscope.py`` holds them equal), at a fraction of the cost (``benchmarks/endoscope_speed.py``).
+
+What the learning view leaves out, or draws otherwise, than the human view: no shadows, reflections, multisampling
+or marks (drop lines, cues), and the blood opaque (the human view's blood lets the cavity floor show through). The
+camera is the scene's ``endoscope`` (``scenes/collaborative.xml``), fixed.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from dvrl_marl.envs.scene_mirror import SceneMirror
+
+__all__ = ["EndoscopeRenderer", "IMAGE_SIZES"]
+
+#: Image sizes (square, pixels) an image observation may have.
+IMAGE_SIZES = (32, 256)
+#: MuJoCo geom groups of this renderer's own model copy: what never moves, and what a world's state moves.
+_STILL, _MOVING = 0, 1
+
+
+class EndoscopeRenderer:
+    """Draws the endoscope's view of many worlds of one scene (``params``: the env's :class:`SuctionDebrisParams`).
+
+    ``render(states)`` takes the core's :meth:`world_state` of each world and returns ``{"rgb": (N, S, S, 3) uint8}``
+    and, with ``depth=True``, ``"depth": (N, S, S) float32`` (metres along the camera's axis), rows top to bottom.
+    ``tiles`` worlds are drawn per framebuffer read (the default fills a framebuffer of at most 1024 px a side).
+    """
+
+    def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None):
+        from dvrl_marl.schemas import PositiveInt, validated
+
+        size = validated(PositiveInt, size, "image size")
+        if not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
+            raise ValueError(f"image size must be {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} px, got {size}")
+        self.size, self.depth = size, bool(depth)
+        self.mirror = SceneMirror(params)
+        self.mirror.make_blood_opaque()  # the composite is exact for opaque geometry
+        model, data = self.mirror.model, self.mirror.data
+        blood = set(self.mirror.blood_geoms)
+        still = np.array([model.geom_bodyid[g] == 0 and g not in blood for g in range(model.ngeom)])
+        model.geom_group[:] = np.where(still, _STILL, _MOVING)
+        per_side = max(1, min(1024 // size, 16))
+        self.columns = per_side
+        self.rows = per_side if tiles is None else max(1, -(-validated(PositiveInt, tiles, "tiles") // per_side))
+        self.tiles = self.columns * self.rows if tiles is None else int(tiles)
+        width, height = size * self.columns, size * self.rows
+        model.vis.quality.offsamples = 0
+        model.vis.global_.offwidth, model.vis.global_.offheight = width, height
+        self._gl = mujoco.GLContext(width, height)
+        self._gl.make_current()
+        self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        self._scene = mujoco.MjvScene(model, maxgeom=1000)
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._camera.fixedcamid = model.camera("endoscope").id
+        self._perturb = mujoco.MjvPerturb()
+        self._options = {}
+        for group in (_STILL, _MOVING):
+            option = mujoco.MjvOption()
+            option.geomgroup[:] = 0
+            option.geomgroup[group] = 1
+            self._options[group] = option
+        mujoco.mj_forward(model, data)  # the camera and lights are fixed: placed once
+        extent = model.stat.extent
+        self._near, self._far = model.vis.map.znear * extent, model.vis.map.zfar * extent
+        self._frame_rgb = np.empty((size * self.rows, size * self.columns, 3), np.uint8)
+        self._frame_depth = np.empty((size * self.rows, size * self.columns), np.float32)
+        self._still_rgb, self._still_depth = self._draw_still()
+
+    # --- drawing -------------------------------------------------------------------------------------------
+    def _draw(self, group: int, tile: int) -> None:
+        model, data = self.mirror.model, self.mirror.data
+        scene, context = self._scene, self._context
+        mujoco.mjv_updateScene(model, data, self._options[group], self._perturb, self._camera,
+                               mujoco.mjtCatBit.mjCAT_ALL, scene)
+        s = self.size
+        mujoco.mjr_render(mujoco.MjrRect((tile % self.columns) * s, (tile // self.columns) * s, s, s), scene, context)
+
+    def _read(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth, rows bottom to top."""
+        context = self._context
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
+        height, width = self._frame_depth.shape
+        mujoco.mjr_readPixels(self._frame_rgb, self._frame_depth, mujoco.MjrRect(0, 0, width, height), context)
+        s, rows, columns = self.size, self.rows, self.columns
+        rgb = self._frame_rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)
+        depth = self._frame_depth.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)
+        return rgb[:count], depth[:count]
+
+    def _draw_still(self) -> tuple[np.ndarray, np.ndarray]:
+        self._gl.make_current()
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+        self._draw(_STILL, 0)
+        rgb, depth = self._read(1)
+        # Which way the depth buffer runs (MuJoCo 3.x reverses it: 1 near, an empty pixel 0; else an empty pixel is 1).
+        self._reversed = float(depth[0].max()) < 0.5
+        return rgb[0].copy(), depth[0].copy()
+
+    def render(self, states: list[dict]) -> dict:
+        """The view of each world in ``states`` (the core's ``world_state`` dicts)."""
+        count = len(states)
+        s = self.size
+        rgb = np.empty((count, s, s, 3), np.uint8)
+        depth = np.empty((count, s, s), np.float32) if self.depth else None
+        model, data = self.mirror.model, self.mirror.data
+        for start in range(0, count, self.tiles):
+            batch = states[start:start + self.tiles]
+            self._gl.make_current()
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+            for tile, state in enumerate(batch):
+                self.mirror.show(state)
+                mujoco.mj_kinematics(model, data)
+                self._draw(_MOVING, tile)
+            moving_rgb, moving_depth = self._read(len(batch))
+            nearer = moving_depth > self._still_depth if self._reversed else moving_depth < self._still_depth
+            rgb[start:start + len(batch)] = np.where(nearer[..., None], moving_rgb, self._still_rgb)[:, ::-1]
+            if depth is not None:
+                raw = np.where(nearer, moving_depth, self._still_depth)[:, ::-1]
+                depth[start:start + len(batch)] = self._metres(raw)
+        return {"rgb": rgb} if depth is None else {"rgb": rgb, "depth": depth}
+
+    def _metres(self, raw: np.ndarray) -> np.ndarray:
+        """OpenGL's perspective depth in metres along the camera's axis (either way the buffer runs)."""
+        near, far = self._near, self._far
+        z = raw.astype(np.float64)
+        if self._reversed:  # 1 at the near plane, 0 at the far one
+            return (near * far / ((far - near) * z + near)).astype(np.float32)
+        return (near * far / (far - z * (far - near))).astype(np.float32)
+
+    def close(self) -> None:
+        if self._gl is not None:
+            self._context.free()
+            self._gl.free()
+            self._gl = None

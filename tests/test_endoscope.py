@@ -1,0 +1,99 @@
+"""Image observations: the endoscope's view drawn for learning (dvrl_marl.envs.endoscope) is exactly what one drawing
+of the whole scene gives, in every world of a batch; the option's spaces, checks, determinism and bad input."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs.endoscope import EndoscopeRenderer
+
+
+def _stepped(num_envs, steps, seed=0, **options):
+    env = suction_debris_v8.batched_env(num_envs=num_envs, **options)
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(steps):
+        env.step({agent: rng.uniform(-1, 1, (num_envs, 4)) for agent in env.possible_agents})
+    return env
+
+
+def test_the_composite_is_the_whole_scene_drawn_at_once():
+    env = _stepped(12, 80)
+    states = [env.core.world_state(world) for world in range(env.num_envs)]
+    renderer = EndoscopeRenderer(env.params, 64, depth=True, tiles=5)  # three framebuffers' worth, the last partial
+    drawn = renderer.render(states)
+    model, data = renderer.mirror.model, renderer.mirror.data
+    whole = mujoco.Renderer(model, 64, 64)  # the same model: every geom group, no shadows or reflections
+    whole.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+    whole.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+    everything = mujoco.MjvOption()
+    everything.geomgroup[:] = 1
+    for world in range(env.num_envs):
+        renderer.mirror.show(states[world])
+        mujoco.mj_forward(model, data)
+        whole.update_scene(data, camera="endoscope", scene_option=everything)
+        np.testing.assert_array_equal(drawn["rgb"][world], whole.render(), err_msg=f"world {world}")
+        whole.enable_depth_rendering()
+        whole.update_scene(data, camera="endoscope", scene_option=everything)
+        np.testing.assert_allclose(drawn["depth"][world], whole.render(), rtol=0, atol=1e-4)
+        whole.disable_depth_rendering()
+    # the worlds differ (the instruments move), and the blood is drawn
+    assert len({drawn["rgb"][world].tobytes() for world in range(env.num_envs)}) == env.num_envs
+    red = (drawn["rgb"][..., 0] > 100) & (drawn["rgb"][..., 1] < 40)
+    assert red.mean() > 0.01
+    whole.close()
+    renderer.close()
+
+
+def test_image_observations_in_the_parallel_and_batched_env():
+    from pettingzoo.test import parallel_api_test
+
+    parallel_api_test(suction_debris_v8.parallel_env(image_size=32, max_cycles=30), num_cycles=40)
+    env = suction_debris_v8.parallel_env(image_size=48, image_depth=True)
+    observations, _ = env.reset(seed=3)
+    for agent in env.agents:
+        space = env.observation_space(agent)
+        assert set(space.spaces) == {"state", "image", "depth"} and space.contains(observations[agent])
+        assert observations[agent]["image"].shape == (48, 48, 3)
+    np.testing.assert_array_equal(observations["suction"]["image"], observations["grasper"]["image"])  # one camera
+    # world i of a batch sees what the single env seeded s + i sees
+    batch = suction_debris_v8.batched_env(num_envs=3, image_size=48, image_depth=True)
+    batched, _ = batch.reset(seed=1)
+    for world in range(3):
+        single, _ = suction_debris_v8.parallel_env(image_size=48, image_depth=True).reset(seed=1 + world)
+        np.testing.assert_array_equal(batched["grasper"]["image"][world], single["grasper"]["image"])
+        np.testing.assert_array_equal(batched["grasper"]["state"][world], single["grasper"]["state"])
+
+
+def test_an_episode_end_hands_back_the_final_image_and_the_next_episodes_first():
+    env = suction_debris_v8.batched_env(num_envs=2, image_size=32, max_cycles=5)
+    env.reset(seed=0)
+    zero = {agent: np.zeros((2, 4)) for agent in env.possible_agents}
+    for _ in range(4):
+        env.step(zero)
+    before = env.images()["image"]
+    observations, _, _, truncations, infos = env.step(zero)
+    assert truncations["suction"].all()
+    final = infos["suction"]["final_observation"]
+    assert final["image"].shape == (2, 32, 32, 3) and not np.array_equal(final["image"], observations["suction"]["image"])
+    np.testing.assert_array_equal(before.shape, final["image"].shape)
+
+
+def test_images_are_deterministic_per_seed():
+    first = _stepped(3, 20, seed=4, image_size=32).observations()["suction"]["image"]
+    second = _stepped(3, 20, seed=4, image_size=32).observations()["suction"]["image"]
+    np.testing.assert_array_equal(first, second)
+
+
+@pytest.mark.parametrize("options, named", [({"image_size": 16}, "image_size"), ({"image_size": 300}, "image_size"),
+                                            ({"image_size": "84"}, "image_size"), ({"image_depth": True}, "image_depth"),
+                                            ({"image_size": 84, "image_depth": 1}, "image_depth")])
+def test_bad_image_options_are_refused_by_name(options, named):
+    with pytest.raises(ValueError, match=named):
+        suction_debris_v8.parallel_env(**options)
+
+
+def test_images_without_the_option_say_how_to_ask_for_them():
+    with pytest.raises(ValueError, match="image_size"):
+        suction_debris_v8.batched_env(num_envs=1).images()
