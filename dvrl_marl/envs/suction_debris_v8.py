@@ -85,6 +85,16 @@ default) every arm's observation, its features included, follows (``state_layout
 ``["grasper_observation"]``): a critic per arm then reads what its actor reads beside the state (the agent-specific
 global state of Yu et al. 2022), as this project's trainer's MAPPO critic does.
 
+**Image observations** (``image_size=S``, 32 to 256; off by default): each agent's observation becomes a ``Dict``:
+``"state"`` (the Box above, the arm's own proprioception among it), ``"image"`` (``Box(0, 255, (S, S, 3), uint8)``,
+the ``endoscope`` camera's view, rows top to bottom; one camera, so both agents see the same image) and, with
+``image_depth=True``, ``"depth"`` (``Box(0, inf, (S, S), float32)``, metres along the camera's axis). They are drawn
+for learning (:mod:`dvrl_marl.envs.endoscope`): the still phantom once, then only what moves, exactly what one
+drawing of the scene gives without shadows, reflections, multisampling or marks, the blood opaque; about 1,000
+frames/s at 84 x 84 with 64 worlds or more on a 2-core CPU, 7x a bare ``mujoco.Renderer``
+(``benchmarks/endoscope_speed.py``). In the parallel and batched env (AEC through PettingZoo's conversion); not yet
+in the seat env, TorchRL's adapter or the device env.
+
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
 ``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and
