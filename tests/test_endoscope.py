@@ -103,3 +103,28 @@ def test_bad_image_options_are_refused_by_name(options, named):
 def test_images_without_the_option_say_how_to_ask_for_them():
     with pytest.raises(ValueError, match="image_size"):
         suction_debris_v8.batched_env(num_envs=1).images()
+
+
+def test_the_segmentation_is_mujocos_own_of_the_whole_scene_in_classes():
+    from dvrl_marl.envs.endoscope import SEGMENT_CLASSES
+
+    env = _stepped(5, 60, image_size=64, image_segmentation=True)
+    observed = env.observations()["grasper"]["segmentation"]
+    states = [env.core.world_state(world) for world in range(env.num_envs)]
+    renderer = env._endoscope
+    model, data = renderer.mirror.model, renderer.mirror.data
+    whole = mujoco.Renderer(model, 64, 64)
+    whole.enable_segmentation_rendering()
+    everything = mujoco.MjvOption()
+    everything.geomgroup[:] = 1
+    for world in range(env.num_envs):
+        renderer.mirror.show(states[world])
+        mujoco.mj_forward(model, data)
+        whole.update_scene(data, camera="endoscope", scene_option=everything)
+        ids = whole.render()  # (objid, objtype) per pixel
+        geoms = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids[..., 0] >= 0)
+        expected = np.where(geoms, renderer._geom_class[np.maximum(ids[..., 0], 0)], 0)
+        np.testing.assert_array_equal(observed[world], expected, err_msg=f"world {world}")
+    present = set(np.unique(observed).tolist())
+    assert {SEGMENT_CLASSES.index(name) for name in ("tissue", "blood", "instrument")} <= present
+    whole.close()

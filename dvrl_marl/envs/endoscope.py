@@ -19,7 +19,11 @@ import numpy as np
 
 from dvrl_marl.envs.scene_mirror import SceneMirror
 
-__all__ = ["EndoscopeRenderer", "IMAGE_SIZES"]
+__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "SEGMENT_CLASSES"]
+
+#: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
+#: tissue, blood, a debris pin, an instrument (the arms' and the assistant's).
+SEGMENT_CLASSES = ("background", "tissue", "blood", "pin", "instrument")
 
 #: Image sizes (square, pixels) an image observation may have.
 IMAGE_SIZES = (32, 256)
@@ -31,23 +35,27 @@ class EndoscopeRenderer:
     """Draws the endoscope's view of many worlds of one scene (``params``: the env's :class:`SuctionDebrisParams`).
 
     ``render(states)`` takes the core's :meth:`world_state` of each world and returns ``{"rgb": (N, S, S, 3) uint8}``
-    and, with ``depth=True``, ``"depth": (N, S, S) float32`` (metres along the camera's axis), rows top to bottom.
-    ``tiles`` worlds are drawn per framebuffer read (the default fills a framebuffer of at most 1024 px a side).
+    and, with ``depth=True``, ``"depth": (N, S, S) float32`` (metres along the camera's axis), with
+    ``segmentation=True``, ``"segmentation": (N, S, S) uint8`` (indices of :data:`SEGMENT_CLASSES`; a second drawing
+    of what moves), rows top to bottom. ``tiles`` worlds are drawn per framebuffer read (the default fills a
+    framebuffer of at most 1024 px a side).
     """
 
-    def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None):
+    def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
+                 segmentation: bool = False):
         from dvrl_marl.schemas import PositiveInt, validated
 
         size = validated(PositiveInt, size, "image size")
         if not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
             raise ValueError(f"image size must be {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} px, got {size}")
-        self.size, self.depth = size, bool(depth)
+        self.size, self.depth, self.segmentation = size, bool(depth), bool(segmentation)
         self.mirror = SceneMirror(params)
         self.mirror.make_blood_opaque()  # the composite is exact for opaque geometry
         model, data = self.mirror.model, self.mirror.data
         blood = set(self.mirror.blood_geoms)
         still = np.array([model.geom_bodyid[g] == 0 and g not in blood for g in range(model.ngeom)])
         model.geom_group[:] = np.where(still, _STILL, _MOVING)
+        self._geom_class = np.array([_segment_class(model, geom, blood) for geom in range(model.ngeom)], np.uint8)
         per_side = max(1, min(1024 // size, 16))
         self.columns = per_side
         self.rows = per_side if tiles is None else max(1, -(-validated(PositiveInt, tiles, "tiles") // per_side))
@@ -77,6 +85,11 @@ class EndoscopeRenderer:
         self._frame_rgb = np.empty((size * self.rows, size * self.columns, 3), np.uint8)
         self._frame_depth = np.empty((size * self.rows, size * self.columns), np.float32)
         self._still_rgb, self._still_depth = self._draw_still()
+        if self.segmentation:
+            self._set_segmenting(True)
+            self._draw(_STILL, 0)
+            self._still_segments = self._classes(self._read(1)[0], [self._scene_classes()])[0]
+            self._set_segmenting(False)
 
     # --- drawing -------------------------------------------------------------------------------------------
     def _draw(self, group: int, tile: int) -> None:
@@ -107,12 +120,33 @@ class EndoscopeRenderer:
         self._reversed = float(depth[0].max()) < 0.5
         return rgb[0].copy(), depth[0].copy()
 
+    def _set_segmenting(self, on: bool) -> None:
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = on
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = on
+
+    def _scene_classes(self) -> np.ndarray:
+        """Class of each of the present scene's drawn geoms, offset by one (0: nothing drawn), as the colour ids
+        of a segmenting drawing index them."""
+        lookup = np.zeros(self._scene.ngeom + 1, np.uint8)
+        for index in range(self._scene.ngeom):
+            geom = self._scene.geoms[index]
+            if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                lookup[index + 1] = self._geom_class[geom.objid]
+        return lookup
+
+    @staticmethod
+    def _classes(rgb: np.ndarray, lookups: list[np.ndarray]) -> np.ndarray:
+        """Segmenting drawings' colours (ids of the scene's geoms + 1) to classes, a lookup per tile."""
+        ids = rgb[..., 0].astype(np.int64) | (rgb[..., 1].astype(np.int64) << 8) | (rgb[..., 2].astype(np.int64) << 16)
+        return np.stack([lookup[np.minimum(tile_ids, len(lookup) - 1)] for tile_ids, lookup in zip(ids, lookups)])
+
     def render(self, states: list[dict]) -> dict:
         """The view of each world in ``states`` (the core's ``world_state`` dicts)."""
         count = len(states)
         s = self.size
         rgb = np.empty((count, s, s, 3), np.uint8)
         depth = np.empty((count, s, s), np.float32) if self.depth else None
+        segments = np.empty((count, s, s), np.uint8) if self.segmentation else None
         model, data = self.mirror.model, self.mirror.data
         for start in range(0, count, self.tiles):
             batch = states[start:start + self.tiles]
@@ -124,11 +158,27 @@ class EndoscopeRenderer:
                 self._draw(_MOVING, tile)
             moving_rgb, moving_depth = self._read(len(batch))
             nearer = moving_depth > self._still_depth if self._reversed else moving_depth < self._still_depth
-            rgb[start:start + len(batch)] = np.where(nearer[..., None], moving_rgb, self._still_rgb)[:, ::-1]
+            rows = slice(start, start + len(batch))
+            rgb[rows] = np.where(nearer[..., None], moving_rgb, self._still_rgb)[:, ::-1]
             if depth is not None:
-                raw = np.where(nearer, moving_depth, self._still_depth)[:, ::-1]
-                depth[start:start + len(batch)] = self._metres(raw)
-        return {"rgb": rgb} if depth is None else {"rgb": rgb, "depth": depth}
+                depth[rows] = self._metres(np.where(nearer, moving_depth, self._still_depth)[:, ::-1])
+            if segments is not None:  # what moves drawn again, each geom in its id's colour
+                self._set_segmenting(True)
+                lookups = []
+                for tile, state in enumerate(batch):
+                    self.mirror.show(state)
+                    mujoco.mj_kinematics(model, data)
+                    self._draw(_MOVING, tile)
+                    lookups.append(self._scene_classes())
+                self._set_segmenting(False)
+                moving = self._classes(self._read(len(batch))[0], lookups)
+                segments[rows] = np.where(nearer, moving, self._still_segments)[:, ::-1]
+        out = {"rgb": rgb}
+        if depth is not None:
+            out["depth"] = depth
+        if segments is not None:
+            out["segmentation"] = segments
+        return out
 
     def _metres(self, raw: np.ndarray) -> np.ndarray:
         """OpenGL's perspective depth in metres along the camera's axis (either way the buffer runs)."""
@@ -143,3 +193,16 @@ class EndoscopeRenderer:
             self._context.free()
             self._gl.free()
             self._gl = None
+
+
+def _segment_class(model, geom: int, blood: set) -> int:
+    name = model.geom(geom).name
+    if geom in blood:
+        return SEGMENT_CLASSES.index("blood")
+    if name == "phantom":
+        return SEGMENT_CLASSES.index("tissue")
+    if name.startswith("debris_"):
+        return SEGMENT_CLASSES.index("pin")
+    if model.geom_bodyid[geom] != 0 or name.endswith("shaft"):  # the arms' links, the assistant's instrument
+        return SEGMENT_CLASSES.index("instrument")
+    return SEGMENT_CLASSES.index("background")

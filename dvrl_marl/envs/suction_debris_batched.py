@@ -102,7 +102,8 @@ class SuctionDebrisBatchedEnv:
                  start_level: float | str = 1.0,
                  easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
                  state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
-                 image_depth: bool = False, width: int = 640, height: int = 480, **params):
+                 image_depth: bool = False, image_segmentation: bool = False, width: int = 640, height: int = 480,
+                 **params):
         from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
 
         if not isinstance(task, (str, Path)):
@@ -144,7 +145,8 @@ class SuctionDebrisBatchedEnv:
         self._mirror = None  # the MuJoCo scene that shows a world (made on the first render)
         self._spaces(observation_features, validated(Flag, state_observations, f"{self.name}: state_observations"),
                      validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
-        self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"))
+        self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"),
+                           validated(Flag, image_segmentation, f"{self.name}: image_segmentation"))
         # Options that help learning: start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
         if easy_episode_steps is not None:  # 0 says what None does where there is no null (a TOML configuration)
@@ -221,40 +223,46 @@ class SuctionDebrisBatchedEnv:
                                           dtype=np.float64)
             self.observation_scaling = scaling
 
-    def _image_spaces(self, size, depth: bool) -> None:
+    def _image_spaces(self, size, depth: bool, segmentation: bool) -> None:
         """``image_size``: every agent's observation becomes ``{"state": the observation above, "image": the
-        endoscope's view (S, S, 3) uint8}`` (and ``"depth"``, (S, S) float32 metres, with ``image_depth``), drawn by
-        :class:`dvrl_marl.envs.endoscope.EndoscopeRenderer` (the first time an observation is made)."""
-        from dvrl_marl.envs.endoscope import IMAGE_SIZES
+        endoscope's view (S, S, 3) uint8}`` (and ``"depth"``, (S, S) float32 metres, with ``image_depth``;
+        ``"segmentation"``, (S, S) uint8 indices of :data:`~dvrl_marl.envs.endoscope.SEGMENT_CLASSES`, with
+        ``image_segmentation``), drawn by :class:`dvrl_marl.envs.endoscope.EndoscopeRenderer` (the first time an
+        observation is made)."""
+        from dvrl_marl.envs.endoscope import IMAGE_SIZES, SEGMENT_CLASSES
         from dvrl_marl.schemas import NonNegativeInt, validated
 
         size = validated(NonNegativeInt, size, f"{self.name}: image_size")
         if size and not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
             raise ValueError(f"{self.name}: image_size must be 0 (no images) or {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} "
                              f"px, got {size}")
-        if depth and not size:
-            raise ValueError(f"{self.name}: image_depth needs image_size (the depth is the image's)")
-        #: the image observations' size (0: none) and whether they carry depth
-        self.image_size, self.image_depth = size, depth
+        for flag, on in (("image_depth", depth), ("image_segmentation", segmentation)):
+            if on and not size:
+                raise ValueError(f"{self.name}: {flag} needs image_size (it is the image's)")
+        #: the image observations' size (0: none) and whether they carry depth and a segmentation mask
+        self.image_size, self.image_depth, self.image_segmentation = size, depth, segmentation
         self._endoscope = None
         if not size:
             return
         parts = {"image": spaces.Box(0, 255, shape=(size, size, 3), dtype=np.uint8)}
         if depth:
             parts["depth"] = spaces.Box(0.0, np.inf, shape=(size, size), dtype=np.float32)
+        if segmentation:
+            parts["segmentation"] = spaces.Box(0, len(SEGMENT_CLASSES) - 1, shape=(size, size), dtype=np.uint8)
         self._observation_spaces = {agent: spaces.Dict({"state": space, **parts})
                                     for agent, space in self._observation_spaces.items()}
 
     def images(self) -> dict:
-        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "depth": (N, S, S)]}``."""
+        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "depth", "segmentation"]}``."""
         if not self.image_size:
             raise ValueError(f"{self.name}: images need image_size (made with image_size=84, say)")
         if self._endoscope is None:
             from dvrl_marl.envs.endoscope import EndoscopeRenderer
 
-            self._endoscope = EndoscopeRenderer(self.params, self.image_size, depth=self.image_depth)
+            self._endoscope = EndoscopeRenderer(self.params, self.image_size, depth=self.image_depth,
+                                                segmentation=self.image_segmentation)
         drawn = self._endoscope.render([self.core.world_state(world) for world in range(self.num_envs)])
-        return {"image": drawn["rgb"], **({"depth": drawn["depth"]} if self.image_depth else {})}
+        return {"image" if key == "rgb" else key: value for key, value in drawn.items()}
 
     def _check_scene_fits(self) -> None:
         """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
