@@ -128,3 +128,50 @@ def test_the_segmentation_is_mujocos_own_of_the_whole_scene_in_classes():
     present = set(np.unique(observed).tolist())
     assert {SEGMENT_CLASSES.index(name) for name in ("tissue", "blood", "instrument")} <= present
     whole.close()
+
+
+def test_appearance_draws_lie_in_their_ranges_and_the_held_out_range_outside_the_training_one():
+    from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
+
+    train, held_out = APPEARANCES["train"], APPEARANCES["held_out"]
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        u = rng.random(Appearance.UNIFORMS)
+        seen, unseen = train.draw(u), held_out.draw(u)
+        assert np.all(np.abs(seen["tissue"] - 1.0) <= train.colour) and np.all(np.abs(seen["blood"] - 1.0) <= train.colour)
+        assert np.all(np.abs(unseen["tissue"] - 1.0) >= train.colour)
+        assert np.all(np.abs(unseen["tissue"] - 1.0) <= held_out.colour)
+        assert np.all(np.abs(seen["camera_shift"]) <= train.camera_mm * 1e-3 + 1e-15)
+        assert np.all(np.abs(unseen["camera_shift"]) >= train.camera_mm * 1e-3 - 1e-15)
+        assert np.all(np.abs(np.degrees(unseen["camera_turn"])) >= train.camera_degrees - 1e-9)
+        assert 0.0 <= seen["noise"] <= train.noise <= unseen["noise"] <= held_out.noise
+
+
+def test_each_world_wears_its_own_look_for_its_episode_seeded_like_everything_else():
+    options = dict(image_size=48, image_appearance="train")
+    first, _ = suction_debris_v8.batched_env(num_envs=4, **options).reset(seed=7)
+    again, _ = suction_debris_v8.batched_env(num_envs=4, **options).reset(seed=7)
+    np.testing.assert_array_equal(first["suction"]["image"], again["suction"]["image"])
+    # world i of a batch looks as a single world seeded s + i
+    single, _ = suction_debris_v8.parallel_env(**options).reset(seed=9)
+    np.testing.assert_array_equal(first["grasper"]["image"][2], single["grasper"]["image"])
+    plain, _ = suction_debris_v8.batched_env(num_envs=4, image_size=48).reset(seed=7)
+    looks = first["suction"]["image"].astype(int)
+    assert all(np.abs(looks[w] - plain["suction"]["image"][w]).mean() > 2.0 for w in range(4))
+    # within an episode the look holds (only the noise moves); the next episode wears another
+    env = suction_debris_v8.batched_env(num_envs=2, max_cycles=3, **options)
+    observations, _ = env.reset(seed=1)
+    still = {agent: np.zeros((2, 4)) for agent in env.possible_agents}
+    following = env.step(still)[0]["suction"]["image"].astype(int)
+    assert np.abs(following - observations["suction"]["image"]).mean() < 6.0
+    env.step(still)
+    observations, _, _, truncations, _ = env.step(still)
+    assert truncations["suction"].all()
+    assert np.abs(observations["suction"]["image"].astype(int) - following).mean() > 4.0
+
+
+def test_bad_appearance_options_are_refused_by_name():
+    with pytest.raises(ValueError, match="image_appearance"):
+        suction_debris_v8.batched_env(num_envs=1, image_size=32, image_appearance="bright")
+    with pytest.raises(ValueError, match="image_appearance needs image_size"):
+        suction_debris_v8.batched_env(num_envs=1, image_appearance="train")

@@ -24,7 +24,7 @@ __all__ = ["STREAMS", "ResetStreams", "uniforms"]
 #: One stream per quantity a reset draws (changing a number changes what every seed draws).
 STREAMS = {"tips": 1, "pin_slots": 2, "pin_yaws": 3, "pin_cavities": 4, "pin_turns": 5, "bleeding": 6,
            "level": 7, "level_blood": 8, "level_empty": 9, "level_debris": 10, "level_pin": 11, "level_aside": 12,
-           "level_reach": 13}
+           "level_reach": 13, "appearance": 14}
 
 _MASK = 0xFFFFFFFF
 

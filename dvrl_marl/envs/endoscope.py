@@ -14,12 +14,14 @@ camera is the scene's ``endoscope`` (``scenes/collaborative.xml``), fixed.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import mujoco
 import numpy as np
 
 from dvrl_marl.envs.scene_mirror import SceneMirror
 
-__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "SEGMENT_CLASSES"]
+__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "SEGMENT_CLASSES", "Appearance", "APPEARANCES"]
 
 #: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
 #: tissue, blood, a debris pin, an instrument (the arms' and the assistant's).
@@ -29,6 +31,53 @@ SEGMENT_CLASSES = ("background", "tissue", "blood", "pin", "instrument")
 IMAGE_SIZES = (32, 256)
 #: MuJoCo geom groups of this renderer's own model copy: what never moves, and what a world's state moves.
 _STILL, _MOVING = 0, 1
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """How far a world's look strays from the scene's, drawn per world and episode (domain randomisation): the most
+    each quantity strays, and ``low`` the least (none for a training range; a held-out range starts where the
+    training range ends, so that it lies outside it). Colour gains of the tissue and the blood (each channel times
+    1 +/- the value) and of the instruments (one gain), the light's brightness (times 1 +/- the value) and direction
+    (degrees about two axes), the endoscope's position (mm along each axis) and direction (degrees about two axes),
+    and the image noise's standard deviation (of 255)."""
+
+    colour: float
+    light: float
+    light_degrees: float
+    camera_mm: float
+    camera_degrees: float
+    noise: float
+    low: "Appearance | None" = None
+
+    #: uniforms one world's look takes
+    UNIFORMS = 32
+
+    def draw(self, u: np.ndarray) -> dict:
+        """One world's look from :attr:`UNIFORMS` uniforms in [0, 1): each magnitude uniform in [low, high], its
+        sign another draw."""
+        low = self.low or Appearance(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        at = iter(range(self.UNIFORMS))
+
+        def signed(name, count=1):
+            lo, hi = getattr(low, name), getattr(self, name)
+            out = []
+            for _ in range(count):
+                magnitude, sign = lo + (hi - lo) * u[next(at)], u[next(at)]
+                out.append(magnitude if sign >= 0.5 else -magnitude)
+            return np.array(out)
+
+        return {"tissue": 1.0 + signed("colour", 3), "blood": 1.0 + signed("colour", 3),
+                "instrument": 1.0 + signed("colour")[0], "light": 1.0 + signed("light")[0],
+                "light_turn": np.radians(signed("light_degrees", 2)), "camera_shift": signed("camera_mm", 3) * 1e-3,
+                "camera_turn": np.radians(signed("camera_degrees", 2)),
+                "noise": low.noise + (self.noise - low.noise) * u[next(at)]}
+
+
+#: The named ranges of ``image_appearance``: "train" (what a seat learns beside), "held_out" (outside it, to test on).
+APPEARANCES = {"train": Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0),
+               "held_out": Appearance(0.3, 0.4, 30.0, 6.0, 4.0, 8.0,
+                                      low=Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0))}
 
 
 class EndoscopeRenderer:
@@ -56,6 +105,16 @@ class EndoscopeRenderer:
         still = np.array([model.geom_bodyid[g] == 0 and g not in blood for g in range(model.ngeom)])
         model.geom_group[:] = np.where(still, _STILL, _MOVING)
         self._geom_class = np.array([_segment_class(model, geom, blood) for geom in range(model.ngeom)], np.uint8)
+        # What a look changes, and the scene's own values to change from (and back to).
+        self._tissue_materials = sorted({int(model.geom_matid[g]) for g in range(model.ngeom)
+                                         if self._geom_class[g] == SEGMENT_CLASSES.index("tissue")} - {-1})
+        self._blood_materials = sorted({int(model.geom_matid[g]) for g in blood} - {-1})
+        self._instrument_geoms = [g for g in range(model.ngeom)
+                                  if self._geom_class[g] == SEGMENT_CLASSES.index("instrument")]
+        self._instrument_materials = sorted({int(model.geom_matid[g]) for g in self._instrument_geoms} - {-1})
+        self._base = {"mat_rgba": model.mat_rgba.copy(), "geom_rgba": model.geom_rgba.copy(),
+                      "light_diffuse": model.light_diffuse.copy(), "light_specular": model.light_specular.copy()}
+        self._still_looks: dict[int, tuple] = {}  # world -> (its look's key, still rgb, depth, segments)
         per_side = max(1, min(1024 // size, 16))
         self.columns = per_side
         self.rows = per_side if tiles is None else max(1, -(-validated(PositiveInt, tiles, "tiles") // per_side))
@@ -80,6 +139,8 @@ class EndoscopeRenderer:
             option.geomgroup[group] = 1
             self._options[group] = option
         mujoco.mj_forward(model, data)  # the camera and lights are fixed: placed once
+        self._base.update(cam_xpos=data.cam_xpos.copy(), cam_xmat=data.cam_xmat.copy(),
+                          light_xdir=data.light_xdir.copy(), light_xpos=data.light_xpos.copy())
         extent = model.stat.extent
         self._near, self._far = model.vis.map.znear * extent, model.vis.map.zfar * extent
         self._frame_rgb = np.empty((size * self.rows, size * self.columns, 3), np.uint8)
@@ -140,8 +201,41 @@ class EndoscopeRenderer:
         ids = rgb[..., 0].astype(np.int64) | (rgb[..., 1].astype(np.int64) << 8) | (rgb[..., 2].astype(np.int64) << 16)
         return np.stack([lookup[np.minimum(tile_ids, len(lookup) - 1)] for tile_ids, lookup in zip(ids, lookups)])
 
-    def render(self, states: list[dict]) -> dict:
-        """The view of each world in ``states`` (the core's ``world_state`` dicts)."""
+    def _wear(self, look: dict | None) -> None:
+        """Dress the model and the camera in ``look`` (:meth:`Appearance.draw`'s), or in the scene's own (None)."""
+        model, data, base = self.mirror.model, self.mirror.data, self._base
+        model.mat_rgba[:] = base["mat_rgba"]
+        model.geom_rgba[:] = base["geom_rgba"]
+        model.light_diffuse[:] = base["light_diffuse"]
+        model.light_specular[:] = base["light_specular"]
+        for name in ("cam_xpos", "cam_xmat", "light_xdir", "light_xpos"):
+            getattr(data, name)[:] = base[name]
+        if look is None:
+            return
+        for material in self._tissue_materials:
+            model.mat_rgba[material, :3] = np.clip(base["mat_rgba"][material, :3] * look["tissue"], 0.0, 1.0)
+        for material in self._blood_materials:
+            model.mat_rgba[material, :3] = np.clip(base["mat_rgba"][material, :3] * look["blood"], 0.0, 1.0)
+        for material in self._instrument_materials:
+            model.mat_rgba[material, :3] = np.clip(base["mat_rgba"][material, :3] * look["instrument"], 0.0, 1.0)
+        for geom in self._instrument_geoms:  # (those without a material: their own colour)
+            model.geom_rgba[geom, :3] = np.clip(base["geom_rgba"][geom, :3] * look["instrument"], 0.0, 1.0)
+        model.light_diffuse[:] = np.clip(base["light_diffuse"] * look["light"], 0.0, 1.0)
+        model.light_specular[:] = np.clip(base["light_specular"] * look["light"], 0.0, 1.0)
+        turn = _turn(*look["light_turn"])
+        data.light_xdir[:] = base["light_xdir"] @ turn.T
+        camera = self._camera.fixedcamid
+        data.cam_xpos[camera] = base["cam_xpos"][camera] + look["camera_shift"]
+        data.cam_xmat[camera] = (_turn(*look["camera_turn"]) @ base["cam_xmat"][camera].reshape(3, 3)).ravel()
+
+    def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
+               frames=None) -> dict:
+        """The view of each world in ``states`` (the core's ``world_state`` dicts); with ``looks`` (one
+        :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
+        world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
+        (each world's step in its episode) seed its image noise."""
+        if looks is not None:
+            return self._render_looks(states, looks, keys, frames)
         count = len(states)
         s = self.size
         rgb = np.empty((count, s, s, 3), np.uint8)
@@ -180,6 +274,73 @@ class EndoscopeRenderer:
             out["segmentation"] = segments
         return out
 
+    def _render_looks(self, states, looks, keys, frames) -> dict:
+        """:meth:`render` with a look per world: its still layer (drawn when its look's key changes) and its
+        moving layer in its look, then its image noise."""
+        count, s = len(states), self.size
+        if keys is None or len(keys) != count or len(looks) != count:
+            raise ValueError("render: one look and one key per world")
+        frames = np.zeros(count, np.int64) if frames is None else np.asarray(frames, np.int64)
+        model, data = self.mirror.model, self.mirror.data
+        for world, (look, key) in enumerate(zip(looks, keys)):
+            if self._still_looks.get(world, (None,))[0] != key:
+                self._wear(look)
+                self._gl.make_current()
+                mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+                self._draw(_STILL, 0)
+                rgb, depth = self._read(1)
+                segments = None
+                if self.segmentation:
+                    self._set_segmenting(True)
+                    self._draw(_STILL, 0)
+                    segments = self._classes(self._read(1)[0], [self._scene_classes()])[0]
+                    self._set_segmenting(False)
+                self._still_looks[world] = (key, rgb[0].copy(), depth[0].copy(), segments)
+        out = {"rgb": np.empty((count, s, s, 3), np.uint8)}
+        if self.depth:
+            out["depth"] = np.empty((count, s, s), np.float32)
+        if self.segmentation:
+            out["segmentation"] = np.empty((count, s, s), np.uint8)
+        for start in range(0, count, self.tiles):
+            worlds = range(start, min(count, start + self.tiles))
+            passes = [False, True] if self.segmentation else [False]
+            drawn = {}
+            for segmenting in passes:
+                self._gl.make_current()
+                mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+                self._set_segmenting(segmenting)
+                lookups = []
+                for tile, world in enumerate(worlds):
+                    self._wear(looks[world])
+                    self.mirror.show(states[world])
+                    mujoco.mj_kinematics(model, data)
+                    self._draw(_MOVING, tile)
+                    lookups.append(self._scene_classes())
+                drawn[segmenting] = (self._read(len(worlds)), lookups)
+            self._set_segmenting(False)
+            (moving_rgb, moving_depth), _ = drawn[False]
+            still = [self._still_looks[world] for world in worlds]
+            still_rgb = np.stack([entry[1] for entry in still])
+            still_depth = np.stack([entry[2] for entry in still])
+            nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth
+            rows = slice(worlds.start, worlds.stop)
+            image = np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1].astype(np.float32)
+            for index, world in enumerate(worlds):  # the image noise: seeded by the world's look and its frame
+                noise = looks[world]["noise"]
+                if noise > 0.0:
+                    rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
+                    image[index] += rng.normal(0.0, noise, image[index].shape).astype(np.float32)
+            out["rgb"][rows] = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+            if self.depth:
+                out["depth"][rows] = self._metres(np.where(nearer, moving_depth, still_depth)[:, ::-1])
+            if self.segmentation:
+                (segment_rgb, _), lookups = drawn[True]
+                moving = self._classes(segment_rgb, lookups)
+                still_segments = np.stack([entry[3] for entry in still])
+                out["segmentation"][rows] = np.where(nearer, moving, still_segments)[:, ::-1]
+        self._wear(None)
+        return out
+
     def _metres(self, raw: np.ndarray) -> np.ndarray:
         """OpenGL's perspective depth in metres along the camera's axis (either way the buffer runs)."""
         near, far = self._near, self._far
@@ -206,3 +367,10 @@ def _segment_class(model, geom: int, blood: set) -> int:
     if model.geom_bodyid[geom] != 0 or name.endswith("shaft"):  # the arms' links, the assistant's instrument
         return SEGMENT_CLASSES.index("instrument")
     return SEGMENT_CLASSES.index("background")
+
+
+def _turn(about_x: float, about_y: float) -> np.ndarray:
+    """A small rotation: ``about_x`` then ``about_y`` radians."""
+    cx, sx, cy, sy = np.cos(about_x), np.sin(about_x), np.cos(about_y), np.sin(about_y)
+    return np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]]) @ np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx],
+                                                                                   [0.0, sx, cx]])

@@ -102,8 +102,8 @@ class SuctionDebrisBatchedEnv:
                  start_level: float | str = 1.0,
                  easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
                  state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
-                 image_depth: bool = False, image_segmentation: bool = False, width: int = 640, height: int = 480,
-                 **params):
+                 image_depth: bool = False, image_segmentation: bool = False, image_appearance: str | None = None,
+                 width: int = 640, height: int = 480, **params):
         from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
 
         if not isinstance(task, (str, Path)):
@@ -147,6 +147,15 @@ class SuctionDebrisBatchedEnv:
                      validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
         self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"),
                            validated(Flag, image_segmentation, f"{self.name}: image_segmentation"))
+        from dvrl_marl.envs.endoscope import APPEARANCES
+
+        if image_appearance is not None and image_appearance not in APPEARANCES:
+            raise ValueError(f"{self.name}: image_appearance must be None (the scene's own look) or one of "
+                             f"{sorted(APPEARANCES)}, got {image_appearance!r}")
+        if image_appearance is not None and not self.image_size:
+            raise ValueError(f"{self.name}: image_appearance needs image_size (it is the image's)")
+        #: the range each world's look is drawn from per episode (None: the scene's own look)
+        self.image_appearance = image_appearance
         # Options that help learning: start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
         if easy_episode_steps is not None:  # 0 says what None does where there is no null (a TOML configuration)
@@ -261,7 +270,21 @@ class SuctionDebrisBatchedEnv:
 
             self._endoscope = EndoscopeRenderer(self.params, self.image_size, depth=self.image_depth,
                                                 segmentation=self.image_segmentation)
-        drawn = self._endoscope.render([self.core.world_state(world) for world in range(self.num_envs)])
+        states = [self.core.world_state(world) for world in range(self.num_envs)]
+        if self.image_appearance is None:
+            drawn = self._endoscope.render(states)
+        else:  # each world's look for its episode, from its own stream (a function of its seed and episode)
+            from dvrl_marl.core.streams import STREAMS, uniforms
+            from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
+
+            streams = self.core.random
+            episode = np.maximum(np.asarray(streams.episode) - 1, 0)  # (the episode under way)
+            draws = uniforms(streams.key_low, streams.key_high, episode, STREAMS["appearance"], Appearance.UNIFORMS)
+            appearance = APPEARANCES[self.image_appearance]
+            keys = list(zip(np.asarray(streams.key_low).tolist(), np.asarray(streams.key_high).tolist(),
+                            episode.tolist()))
+            drawn = self._endoscope.render(states, [appearance.draw(row) for row in np.asarray(draws)], keys,
+                                           np.asarray(self.core.elapsed))
         return {"image" if key == "rgb" else key: value for key, value in drawn.items()}
 
     def _check_scene_fits(self) -> None:

@@ -92,8 +92,22 @@ the ``endoscope`` camera's view, rows top to bottom; one camera, so both agents 
 for learning (:mod:`dvrl_marl.envs.endoscope`): the still phantom once, then only what moves, exactly what one
 drawing of the scene gives without shadows, reflections, multisampling or marks, the blood opaque; about 1,000
 frames/s at 84 x 84 with 64 worlds or more on a 2-core CPU, 7x a bare ``mujoco.Renderer``
-(``benchmarks/endoscope_speed.py``). In the parallel and batched env (AEC through PettingZoo's conversion); not yet
-in the seat env, TorchRL's adapter or the device env.
+(``benchmarks/endoscope_speed.py``). ``image_segmentation=True`` adds ``"segmentation"`` (``(S, S) uint8``: 0
+background, 1 tissue, 2 blood, 3 pin, 4 instrument). ``image_appearance`` randomises each world's look per episode
+(domain randomisation, from the world's own stream: a function of its seed and episode, like every reset draw):
+``"train"`` draws within the training range below, ``"held_out"`` outside it (up to the second column), to test a
+pixel policy on looks it never met:
+
+| quantity | ``"train"``: at most | ``"held_out"``: between |
+|---|---|---|
+| tissue and blood colour, per channel (gain) | 1 +/- 0.15 | 0.15 and 0.3 off 1 |
+| instruments' colour (gain) | 1 +/- 0.15 | 0.15 and 0.3 off 1 |
+| light brightness (gain) / direction | 1 +/- 0.2 / 15 degrees | 0.2-0.4 off 1 / 15-30 degrees |
+| endoscope position, per axis / direction | 3 mm / 2 degrees | 3-6 mm / 2-4 degrees |
+| image noise (standard deviation, of 255) | 0-4 | 4-8 |
+
+In the parallel and batched env (AEC through PettingZoo's conversion); not yet in the seat env, TorchRL's adapter or
+the device env.
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
