@@ -175,3 +175,17 @@ def test_bad_appearance_options_are_refused_by_name():
         suction_debris_v8.batched_env(num_envs=1, image_size=32, image_appearance="bright")
     with pytest.raises(ValueError, match="image_appearance needs image_size"):
         suction_debris_v8.batched_env(num_envs=1, image_appearance="train")
+
+
+def test_the_seat_env_takes_image_observations_and_passes_gymnasiums_checker():
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make("dvrl_marl/SurgeonSeat-v8", seat="suction", partner="scripted", image_size=32,
+                   image_appearance="train", max_cycles=40)
+    check_env(env.unwrapped, skip_render_check=True)
+    observation, _ = env.reset(seed=0)
+    assert env.observation_space.contains(observation) and observation["image"].shape == (32, 32, 3)
+    for _ in range(5):
+        observation, *_ = env.step(env.action_space.sample())
+    assert env.observation_space.contains(observation)

@@ -106,8 +106,8 @@ pixel policy on looks it never met:
 | endoscope position, per axis / direction | 3 mm / 2 degrees | 3-6 mm / 2-4 degrees |
 | image noise (standard deviation, of 255) | 0-4 | 4-8 |
 
-In the parallel and batched env (AEC through PettingZoo's conversion); not yet in the seat env, TorchRL's adapter or
-the device env.
+In the parallel, AEC and batched env and the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the state);
+not yet in TorchRL's adapter or the device env.
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.

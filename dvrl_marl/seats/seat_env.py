@@ -87,7 +87,10 @@ class SeatEnv(gym.Env):
         learner's): the returned one's plain part, or, when the scene normalised it, the scene's own plain view."""
         if self.scene.observation_scaling is not None:
             return self.scene.seat_observation(self.partner_seat)
-        return observations[self.partner_seat][: self.scene.observation_layout["handoff"].stop]
+        own = observations[self.partner_seat]
+        if isinstance(own, dict):  # image observations: the partner reads the state beside them
+            own = own["state"]
+        return own[: self.scene.observation_layout["handoff"].stop]
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
