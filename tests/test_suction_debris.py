@@ -324,7 +324,7 @@ def test_tips_never_enter_the_phantom_and_instruments_never_pass_through_each_ot
     rng = np.random.default_rng(7)
     env.reset(seed=7)
     contacts = 0
-    for step in range(2000):
+    for step in range(1200):
         if not env.agents:
             env.reset()
         # Each tip chases the other (with noise), to provoke contacts, and dips to provoke floor hits.
