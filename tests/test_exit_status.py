@@ -23,3 +23,4 @@ def test_the_exit_status_is_pytests_own(probe, status):
                             env={**os.environ, "DVRL_MARL_EXIT_PROBE": probe}, cwd=Path(__file__).parents[1])
     assert result.returncode == status, result.stdout[-2000:]
     assert ("1 passed" if status == 0 else "1 failed") in result.stdout  # the report came before the exit
+
