@@ -57,7 +57,7 @@ def test_image_observations_in_the_parallel_and_batched_env():
     observations, _ = env.reset(seed=3)
     for agent in env.agents:
         space = env.observation_space(agent)
-        assert set(space.spaces) == {"state", "image", "depth"} and space.contains(observations[agent])
+        assert set(space.spaces) == {"observation", "image", "depth"} and space.contains(observations[agent])
         assert observations[agent]["image"].shape == (48, 48, 3)
     np.testing.assert_array_equal(observations["suction"]["image"], observations["grasper"]["image"])  # one camera
     # world i of a batch sees what the single env seeded s + i sees
@@ -66,7 +66,7 @@ def test_image_observations_in_the_parallel_and_batched_env():
     for world in range(3):
         single, _ = suction_debris_v8.parallel_env(image_size=48, image_depth=True).reset(seed=1 + world)
         np.testing.assert_array_equal(batched["grasper"]["image"][world], single["grasper"]["image"])
-        np.testing.assert_array_equal(batched["grasper"]["state"][world], single["grasper"]["state"])
+        np.testing.assert_array_equal(batched["grasper"]["observation"][world], single["grasper"]["observation"])
 
 
 def test_an_episode_end_hands_back_the_final_image_and_the_next_episodes_first():

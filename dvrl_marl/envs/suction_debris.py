@@ -233,7 +233,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     def _observations(self) -> dict:
         observations = self.world.observations()
-        if self.world.image_size:  # {"state", "image"[, "depth"]} per agent
+        if self.world.image_size:  # {"observation", "image"[, "depth", "segmentation"]} per agent
             return {agent: {key: value[0] for key, value in observations[agent].items()} for agent in self.agents}
         return {agent: observations[agent][0] for agent in self.agents}
 

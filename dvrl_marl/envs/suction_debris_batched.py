@@ -233,7 +233,7 @@ class SuctionDebrisBatchedEnv:
             self.observation_scaling = scaling
 
     def _image_spaces(self, size, depth: bool, segmentation: bool) -> None:
-        """``image_size``: every agent's observation becomes ``{"state": the observation above, "image": the
+        """``image_size``: every agent's observation becomes ``{"observation": the observation above, "image": the
         endoscope's view (S, S, 3) uint8}`` (and ``"depth"``, (S, S) float32 metres, with ``image_depth``;
         ``"segmentation"``, (S, S) uint8 indices of :data:`~dvrl_marl.envs.endoscope.SEGMENT_CLASSES`, with
         ``image_segmentation``), drawn by :class:`dvrl_marl.envs.endoscope.EndoscopeRenderer` (the first time an
@@ -258,7 +258,7 @@ class SuctionDebrisBatchedEnv:
             parts["depth"] = spaces.Box(0.0, np.inf, shape=(size, size), dtype=np.float32)
         if segmentation:
             parts["segmentation"] = spaces.Box(0, len(SEGMENT_CLASSES) - 1, shape=(size, size), dtype=np.uint8)
-        self._observation_spaces = {agent: spaces.Dict({"state": space, **parts})
+        self._observation_spaces = {agent: spaces.Dict({"observation": space, **parts})
                                     for agent, space in self._observation_spaces.items()}
 
     def images(self) -> dict:
@@ -559,7 +559,7 @@ class SuctionDebrisBatchedEnv:
                             for agent, value in observations.items()}
         if self.image_size:  # one endoscope: every agent sees the same view
             images = self.images()
-            observations = {agent: {"state": value, **images} for agent, value in observations.items()}
+            observations = {agent: {"observation": value, **images} for agent, value in observations.items()}
         return observations
 
     def _with_features(self, observations: dict) -> dict:

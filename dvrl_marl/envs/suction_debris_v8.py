@@ -86,7 +86,7 @@ default) every arm's observation, its features included, follows (``state_layout
 global state of Yu et al. 2022), as this project's trainer's MAPPO critic does.
 
 **Image observations** (``image_size=S``, 32 to 256; off by default): each agent's observation becomes a ``Dict``:
-``"state"`` (the Box above, the arm's own proprioception among it), ``"image"`` (``Box(0, 255, (S, S, 3), uint8)``,
+``"observation"`` (the Box above, the arm's own proprioception among it), ``"image"`` (``Box(0, 255, (S, S, 3), uint8)``,
 the ``endoscope`` camera's view, rows top to bottom; one camera, so both agents see the same image) and, with
 ``image_depth=True``, ``"depth"`` (``Box(0, inf, (S, S), float32)``, metres along the camera's axis). They are drawn
 for learning (:mod:`dvrl_marl.envs.endoscope`): the still phantom once, then only what moves, exactly what one
@@ -106,7 +106,7 @@ pixel policy on looks it never met:
 | endoscope position, per axis / direction | 3 mm / 2 degrees | 3-6 mm / 2-4 degrees |
 | image noise (standard deviation, of 255) | 0-4 | 4-8 |
 
-In the parallel, AEC and batched env and the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the state);
+In the parallel, AEC and batched env and the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the ``"observation"``);
 not yet in TorchRL's adapter or the device env.
 
 ## Rewards

@@ -88,8 +88,8 @@ class SeatEnv(gym.Env):
         if self.scene.observation_scaling is not None:
             return self.scene.seat_observation(self.partner_seat)
         own = observations[self.partner_seat]
-        if isinstance(own, dict):  # image observations: the partner reads the state beside them
-            own = own["state"]
+        if isinstance(own, dict):  # image observations: the partner reads the observation beside them
+            own = own["observation"]
         return own[: self.scene.observation_layout["handoff"].stop]
 
     def reset(self, *, seed=None, options=None):
