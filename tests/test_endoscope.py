@@ -189,3 +189,22 @@ def test_the_seat_env_takes_image_observations_and_passes_gymnasiums_checker():
     for _ in range(5):
         observation, *_ = env.step(env.action_space.sample())
     assert env.observation_space.contains(observation)
+
+
+def test_torchrls_adapter_hands_the_images_over_as_pixels():
+    pytest.importorskip("torchrl")
+    import torch
+    from torchrl.envs.utils import check_env_specs
+
+    from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
+
+    env = SuctionDebrisTorchRLEnv(num_envs=3, seed=2, image_size=32, image_depth=True, image_segmentation=True,
+                                  max_cycles=20)
+    check_env_specs(env)
+    rollout = env.rollout(25, break_when_any_done=False)
+    assert rollout["pixels"].shape == (3, 25, 32, 32, 3) and rollout["pixels"].dtype == torch.uint8  # worlds, steps
+    assert rollout["depth"].shape == (3, 25, 32, 32) and rollout["segmentation"].dtype == torch.uint8
+    assert rollout["agents", "observation"].shape[:3] == (3, 25, 2)
+    with pytest.raises(ValueError, match="image_size"):
+        pytest.importorskip("jax")
+        SuctionDebrisTorchRLEnv(num_envs=1, backend="jax", image_size=32)

@@ -38,7 +38,8 @@ from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 __all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
 
 #: Options the device env refuses (the numpy env's), with why.
-_HOST_ONLY = {"surgeon": "a seat's filler runs on the host", "render_mode": "rendering mirrors one world on the host"}
+_HOST_ONLY = {"surgeon": "a seat's filler runs on the host", "render_mode": "rendering mirrors one world on the host",
+              "image_size": "image observations are drawn by OpenGL on the host"}
 
 
 def jax_device(device):
@@ -74,7 +75,7 @@ class SuctionDebrisDeviceEnv:
         except ImportError:
             raise ImportError('the device env needs JAX: pip install "dvrl-marl[jax]"') from None
         for option, why in _HOST_ONLY.items():
-            if kwargs.get(option) is not None:
+            if kwargs.get(option):  # (None, and image_size 0, ask for nothing of the host)
                 raise ValueError(f"suction_debris_v8: {option}= is not taken on a device ({why}); use the numpy env")
         if autoreset_mode not in ("same_step", "disabled"):
             raise ValueError(f"suction_debris_v8: autoreset_mode must be 'same_step' or 'disabled', got {autoreset_mode!r}")

@@ -106,8 +106,9 @@ pixel policy on looks it never met:
 | endoscope position, per axis / direction | 3 mm / 2 degrees | 3-6 mm / 2-4 degrees |
 | image noise (standard deviation, of 255) | 0-4 | 4-8 |
 
-In the parallel, AEC and batched env and the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the ``"observation"``);
-not yet in TorchRL's adapter or the device env.
+In the parallel, AEC and batched env, the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the
+``"observation"``) and TorchRL's adapter (``"pixels"``, ``"depth"``, ``"segmentation"`` at the root, one camera for
+both agents); the device env refuses them (they are drawn by OpenGL on the host).
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.

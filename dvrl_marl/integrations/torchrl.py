@@ -73,7 +73,11 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([self.batched.num_envs]))
         self.agent_names = list(self.batched.possible_agents)
         n, agents = self.batched.num_envs, len(self.agent_names)
-        obs_dim = self.batched.observation_space(self.agent_names[0]).shape[0]
+        space = self.batched.observation_space(self.agent_names[0])
+        #: image observations (the env's ``image_size``): the endoscope's view at the root, as TorchRL's ``"pixels"``
+        #: (one camera: every agent's), with ``"depth"`` and ``"segmentation"`` when the env draws them
+        self.images = bool(getattr(self.batched, "image_size", 0))
+        obs_dim = (space["observation"] if self.images else space).shape[0]
         state_dim = self.batched.state_space.shape[0]
         self.observation_spec = Composite(
             agents=Composite(observation=Unbounded(shape=(n, agents, obs_dim), dtype=torch.float32, device=device),
@@ -81,6 +85,16 @@ class SuctionDebrisTorchRLEnv(EnvBase):
             state=Unbounded(shape=(n, state_dim), dtype=torch.float32, device=device),
             shape=(n,),
         )
+        if self.images:
+            size = self.batched.image_size
+            self.observation_spec["pixels"] = Bounded(0, 255, shape=(n, size, size, 3), dtype=torch.uint8,
+                                                      device=device)
+            if self.batched.image_depth:
+                self.observation_spec["depth"] = Unbounded(shape=(n, size, size), dtype=torch.float32, device=device)
+            if self.batched.image_segmentation:
+                top = int(space["segmentation"].high.max())
+                self.observation_spec["segmentation"] = Bounded(0, top, shape=(n, size, size), dtype=torch.uint8,
+                                                                device=device)
         self.action_spec = Composite(
             agents=Composite(action=Bounded(-1.0, 1.0, shape=(n, agents, 4), dtype=torch.float32, device=device),
                              shape=(n, agents)),
@@ -112,9 +126,15 @@ class SuctionDebrisTorchRLEnv(EnvBase):
 
     def _observation(self, observations=None) -> dict:
         observations = self.batched.observations() if observations is None else observations
+        extra = {}
+        if self.images:
+            first = observations[self.agent_names[0]]
+            extra = {"pixels" if key == "image" else key: torch.as_tensor(value, device=self.device)
+                     for key, value in first.items() if key != "observation"}
+            observations = {agent: observations[agent]["observation"] for agent in self.agent_names}
         stacked = self._tensor(_stack([observations[agent] for agent in self.agent_names], axis=1))
         agents = TensorDict({"observation": stacked}, batch_size=stacked.shape[:2], device=self.device)
-        return {"agents": agents, "state": self._tensor(self.batched.state())}
+        return {"agents": agents, "state": self._tensor(self.batched.state()), **extra}
 
     def _reset(self, tensordict=None, **kwargs):
         mask = None
