@@ -205,6 +205,9 @@ def test_torchrls_adapter_hands_the_images_over_as_pixels():
     assert rollout["pixels"].shape == (3, 25, 32, 32, 3) and rollout["pixels"].dtype == torch.uint8  # worlds, steps
     assert rollout["depth"].shape == (3, 25, 32, 32) and rollout["segmentation"].dtype == torch.uint8
     assert rollout["agents", "observation"].shape[:3] == (3, 25, 2)
+
+
+def test_the_device_env_refuses_images_by_name():
+    pytest.importorskip("jax")
     with pytest.raises(ValueError, match="image_size"):
-        pytest.importorskip("jax")
-        SuctionDebrisTorchRLEnv(num_envs=1, backend="jax", image_size=32)
+        suction_debris_v8.batched_env(num_envs=1, device="cpu", image_size=32)
