@@ -18,25 +18,35 @@ def _stepped(num_envs, steps, seed=0, **options):
     return env
 
 
+def _whole_scene(renderer, size):
+    """MuJoCo's own drawing of the renderer's model: every geom group at once, no shadows or reflections; and a
+    function that shows a world's state in it and draws it."""
+    model, data = renderer.mirror.model, renderer.mirror.data
+    whole = mujoco.Renderer(model, size, size)
+    whole.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+    whole.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+    everything = mujoco.MjvOption()
+    everything.geomgroup[:] = 1
+
+    def draw(state):
+        renderer.mirror.show(state)
+        mujoco.mj_forward(model, data)
+        whole.update_scene(data, camera="endoscope", scene_option=everything)
+        return whole.render()
+
+    return whole, draw
+
+
 def test_the_composite_is_the_whole_scene_drawn_at_once():
     env = _stepped(12, 80)
     states = [env.core.world_state(world) for world in range(env.num_envs)]
     renderer = EndoscopeRenderer(env.params, 64, depth=True, tiles=5)  # three framebuffers' worth, the last partial
     drawn = renderer.render(states)
-    model, data = renderer.mirror.model, renderer.mirror.data
-    whole = mujoco.Renderer(model, 64, 64)  # the same model: every geom group, no shadows or reflections
-    whole.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-    whole.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-    everything = mujoco.MjvOption()
-    everything.geomgroup[:] = 1
+    whole, draw = _whole_scene(renderer, 64)
     for world in range(env.num_envs):
-        renderer.mirror.show(states[world])
-        mujoco.mj_forward(model, data)
-        whole.update_scene(data, camera="endoscope", scene_option=everything)
-        np.testing.assert_array_equal(drawn["rgb"][world], whole.render(), err_msg=f"world {world}")
+        np.testing.assert_array_equal(drawn["rgb"][world], draw(states[world]), err_msg=f"world {world}")
         whole.enable_depth_rendering()
-        whole.update_scene(data, camera="endoscope", scene_option=everything)
-        np.testing.assert_allclose(drawn["depth"][world], whole.render(), rtol=0, atol=1e-4)
+        np.testing.assert_allclose(drawn["depth"][world], draw(states[world]), rtol=0, atol=1e-4)
         whole.disable_depth_rendering()
     # the worlds differ (the instruments move), and the blood is drawn
     assert len({drawn["rgb"][world].tobytes() for world in range(env.num_envs)}) == env.num_envs
@@ -112,16 +122,10 @@ def test_the_segmentation_is_mujocos_own_of_the_whole_scene_in_classes():
     observed = env.observations()["grasper"]["segmentation"]
     states = [env.core.world_state(world) for world in range(env.num_envs)]
     renderer = env._endoscope
-    model, data = renderer.mirror.model, renderer.mirror.data
-    whole = mujoco.Renderer(model, 64, 64)
+    whole, draw = _whole_scene(renderer, 64)
     whole.enable_segmentation_rendering()
-    everything = mujoco.MjvOption()
-    everything.geomgroup[:] = 1
     for world in range(env.num_envs):
-        renderer.mirror.show(states[world])
-        mujoco.mj_forward(model, data)
-        whole.update_scene(data, camera="endoscope", scene_option=everything)
-        ids = whole.render()  # (objid, objtype) per pixel
+        ids = draw(states[world])  # (objid, objtype) per pixel
         geoms = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids[..., 0] >= 0)
         expected = np.where(geoms, renderer._geom_class[np.maximum(ids[..., 0], 0)], 0)
         np.testing.assert_array_equal(observed[world], expected, err_msg=f"world {world}")
@@ -164,6 +168,16 @@ def test_each_world_wears_its_own_look_for_its_episode_seeded_like_everything_el
     still = {agent: np.zeros((2, 4)) for agent in env.possible_agents}
     following = env.step(still)[0]["suction"]["image"].astype(int)
     assert np.abs(following - observations["suction"]["image"]).mean() < 6.0
+    # the image noise: a function of the world's look and its frame, another at the next frame
+    from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
+
+    renderer = EndoscopeRenderer(env.params, 32)
+    state = [env.core.world_state(0)]
+    look = [APPEARANCES["train"].draw(np.full(Appearance.UNIFORMS, 0.9))]  # (noise 3.6 of 255)
+    frame = [renderer.render(state, look, [(1, 2, 3)], frames=[step])["rgb"].astype(int) for step in (4, 4, 5)]
+    np.testing.assert_array_equal(frame[0], frame[1])
+    assert 1.0 < np.abs(frame[2] - frame[0]).mean() < 6.0
+    renderer.close()
     env.step(still)
     observations, _, _, truncations, _ = env.step(still)
     assert truncations["suction"].all()

@@ -153,7 +153,8 @@ class PickCore(GoalCoreBase):
         self.arm.set_tips(worlds, start)
         jaw = np.where(held, 0.0, self.initial_jaw)
         self.arm.jaw[worlds] = jaw
-        obj = np.where(held[:, None], self.arm.tool_point_world()[worlds] - self.arm.base_position, obj)
+        if held.any():  # in the jaws, as the grasp rule leaves it
+            obj = np.where(held[:, None], self.arm.tool_point_world()[worlds] - self.arm.base_position, obj)
         qpos = np.tile(self.model.qpos0, (count, 1))  # mj_resetData
         qpos[:, self._joints] = self.arm.q[worlds]
         qpos[:, self._jaws] = (JAW_FINGER_OPEN_ANGLE * jaw)[:, None]
@@ -163,7 +164,8 @@ class PickCore(GoalCoreBase):
         self.qvel[worlds] = 0.0
         self.warmstart[worlds] = 0.0
         self.grasped[worlds] = held
-        self.grasp_offset[worlds] = qpos[:, self._object] - self.arm.tip_world()[worlds]
+        if held.any():
+            self.grasp_offset[worlds[held]] = qpos[held][:, self._object] - self.arm.tip_world()[worlds[held]]
         self.at_rest[worlds] = held | (obj[:, 2] <= self.object_rest_height + 1e-9)
         self.unstable[worlds] = False
 

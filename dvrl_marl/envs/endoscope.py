@@ -145,12 +145,10 @@ class EndoscopeRenderer:
         self._near, self._far = model.vis.map.znear * extent, model.vis.map.zfar * extent
         self._frame_rgb = np.empty((size * self.rows, size * self.columns, 3), np.uint8)
         self._frame_depth = np.empty((size * self.rows, size * self.columns), np.float32)
-        self._still_rgb, self._still_depth = self._draw_still()
-        if self.segmentation:
-            self._set_segmenting(True)
-            self._draw(_STILL, 0)
-            self._still_segments = self._classes(self._read(1)[0], [self._scene_classes()])[0]
-            self._set_segmenting(False)
+        #: the scene's own still layer (rgb, raw depth, segments or None), drawn once
+        self._still = self._draw_still()
+        # Which way the depth buffer runs (MuJoCo 3.x reverses it: 1 near, an empty pixel 0; else an empty pixel is 1).
+        self._reversed = float(self._still[1].max()) < 0.5
 
     # --- drawing -------------------------------------------------------------------------------------------
     def _draw(self, group: int, tile: int) -> None:
@@ -164,7 +162,6 @@ class EndoscopeRenderer:
     def _read(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth, rows bottom to top."""
         context = self._context
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
         height, width = self._frame_depth.shape
         mujoco.mjr_readPixels(self._frame_rgb, self._frame_depth, mujoco.MjrRect(0, 0, width, height), context)
         s, rows, columns = self.size, self.rows, self.columns
@@ -172,14 +169,22 @@ class EndoscopeRenderer:
         depth = self._frame_depth.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)
         return rgb[:count], depth[:count]
 
-    def _draw_still(self) -> tuple[np.ndarray, np.ndarray]:
+    def _bind(self) -> None:
         self._gl.make_current()
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+
+    def _draw_still(self) -> tuple:
+        """The still layer in the look worn now: rgb, raw depth and (with segmentation) classes, rows bottom up."""
+        self._bind()
         self._draw(_STILL, 0)
         rgb, depth = self._read(1)
-        # Which way the depth buffer runs (MuJoCo 3.x reverses it: 1 near, an empty pixel 0; else an empty pixel is 1).
-        self._reversed = float(depth[0].max()) < 0.5
-        return rgb[0].copy(), depth[0].copy()
+        segments = None
+        if self.segmentation:
+            self._set_segmenting(True)
+            self._draw(_STILL, 0)
+            segments = self._classes(self._read(1)[0], [self._scene_classes()])[0]
+            self._set_segmenting(False)
+        return rgb[0].copy(), depth[0].copy(), segments
 
     def _set_segmenting(self, on: bool) -> None:
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = on
@@ -234,111 +239,61 @@ class EndoscopeRenderer:
         :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
         world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
         (each world's step in its episode) seed its image noise."""
-        if looks is not None:
-            return self._render_looks(states, looks, keys, frames)
-        count = len(states)
-        s = self.size
-        rgb = np.empty((count, s, s, 3), np.uint8)
-        depth = np.empty((count, s, s), np.float32) if self.depth else None
-        segments = np.empty((count, s, s), np.uint8) if self.segmentation else None
-        model, data = self.mirror.model, self.mirror.data
-        for start in range(0, count, self.tiles):
-            batch = states[start:start + self.tiles]
-            self._gl.make_current()
-            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-            for tile, state in enumerate(batch):
-                self.mirror.show(state)
-                mujoco.mj_kinematics(model, data)
-                self._draw(_MOVING, tile)
-            moving_rgb, moving_depth = self._read(len(batch))
-            nearer = moving_depth > self._still_depth if self._reversed else moving_depth < self._still_depth
-            rows = slice(start, start + len(batch))
-            rgb[rows] = np.where(nearer[..., None], moving_rgb, self._still_rgb)[:, ::-1]
-            if depth is not None:
-                depth[rows] = self._metres(np.where(nearer, moving_depth, self._still_depth)[:, ::-1])
-            if segments is not None:  # what moves drawn again, each geom in its id's colour
-                self._set_segmenting(True)
-                lookups = []
-                for tile, state in enumerate(batch):
-                    self.mirror.show(state)
-                    mujoco.mj_kinematics(model, data)
-                    self._draw(_MOVING, tile)
-                    lookups.append(self._scene_classes())
-                self._set_segmenting(False)
-                moving = self._classes(self._read(len(batch))[0], lookups)
-                segments[rows] = np.where(nearer, moving, self._still_segments)[:, ::-1]
-        out = {"rgb": rgb}
-        if depth is not None:
-            out["depth"] = depth
-        if segments is not None:
-            out["segmentation"] = segments
-        return out
-
-    def _render_looks(self, states, looks, keys, frames) -> dict:
-        """:meth:`render` with a look per world: its still layer (drawn when its look's key changes) and its
-        moving layer in its look, then its image noise."""
         count, s = len(states), self.size
-        if keys is None or len(keys) != count or len(looks) != count:
-            raise ValueError("render: one look and one key per world")
-        frames = np.zeros(count, np.int64) if frames is None else np.asarray(frames, np.int64)
-        model, data = self.mirror.model, self.mirror.data
-        for world, (look, key) in enumerate(zip(looks, keys)):
-            if self._still_looks.get(world, (None,))[0] != key:
-                self._wear(look)
-                self._gl.make_current()
-                mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-                self._draw(_STILL, 0)
-                rgb, depth = self._read(1)
-                segments = None
-                if self.segmentation:
-                    self._set_segmenting(True)
-                    self._draw(_STILL, 0)
-                    segments = self._classes(self._read(1)[0], [self._scene_classes()])[0]
-                    self._set_segmenting(False)
-                self._still_looks[world] = (key, rgb[0].copy(), depth[0].copy(), segments)
+        if looks is not None:
+            if keys is None or len(keys) != count or len(looks) != count:
+                raise ValueError("render: one look and one key per world")
+            frames = np.zeros(count, np.int64) if frames is None else np.asarray(frames, np.int64)
+            for world, (look, key) in enumerate(zip(looks, keys)):
+                if self._still_looks.get(world, (None,))[0] != key:
+                    self._wear(look)
+                    self._still_looks[world] = (key, *self._draw_still())
         out = {"rgb": np.empty((count, s, s, 3), np.uint8)}
         if self.depth:
             out["depth"] = np.empty((count, s, s), np.float32)
         if self.segmentation:
             out["segmentation"] = np.empty((count, s, s), np.uint8)
+        model, data = self.mirror.model, self.mirror.data
         for start in range(0, count, self.tiles):
             worlds = range(start, min(count, start + self.tiles))
-            passes = [False, True] if self.segmentation else [False]
             drawn = {}
-            for segmenting in passes:
-                self._gl.make_current()
-                mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+            for segmenting in ((False, True) if self.segmentation else (False,)):  # (segments: what moves, again)
+                self._bind()
                 self._set_segmenting(segmenting)
                 lookups = []
                 for tile, world in enumerate(worlds):
-                    self._wear(looks[world])
+                    if looks is not None:
+                        self._wear(looks[world])
                     self.mirror.show(states[world])
                     mujoco.mj_kinematics(model, data)
                     self._draw(_MOVING, tile)
-                    lookups.append(self._scene_classes())
-                drawn[segmenting] = (self._read(len(worlds)), lookups)
+                    if segmenting:
+                        lookups.append(self._scene_classes())
+                drawn[segmenting] = (*self._read(len(worlds)), lookups)
             self._set_segmenting(False)
-            (moving_rgb, moving_depth), _ = drawn[False]
-            still = [self._still_looks[world] for world in worlds]
-            still_rgb = np.stack([entry[1] for entry in still])
-            still_depth = np.stack([entry[2] for entry in still])
+            # the still layers: the scene's own one, or each world's in its look
+            still = [self._still] if looks is None else [self._still_looks[world][1:] for world in worlds]
+            still_rgb, still_depth = np.stack([entry[0] for entry in still]), np.stack([entry[1] for entry in still])
+            moving_rgb, moving_depth, _ = drawn[False]
             nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth
             rows = slice(worlds.start, worlds.stop)
-            image = np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1].astype(np.float32)
-            for index, world in enumerate(worlds):  # the image noise: seeded by the world's look and its frame
-                noise = looks[world]["noise"]
-                if noise > 0.0:
-                    rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
-                    image[index] += rng.normal(0.0, noise, image[index].shape).astype(np.float32)
-            out["rgb"][rows] = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+            image = np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1]
+            if looks is not None:  # the image noise: seeded by the world's look and its frame
+                image = image.astype(np.float32)
+                for index, world in enumerate(worlds):
+                    if looks[world]["noise"] > 0.0:
+                        rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
+                        image[index] += rng.normal(0.0, looks[world]["noise"], image[index].shape).astype(np.float32)
+                image = np.clip(np.rint(image), 0, 255)
+            out["rgb"][rows] = image
             if self.depth:
                 out["depth"][rows] = self._metres(np.where(nearer, moving_depth, still_depth)[:, ::-1])
             if self.segmentation:
-                (segment_rgb, _), lookups = drawn[True]
-                moving = self._classes(segment_rgb, lookups)
-                still_segments = np.stack([entry[3] for entry in still])
-                out["segmentation"][rows] = np.where(nearer, moving, still_segments)[:, ::-1]
-        self._wear(None)
+                segment_rgb, _, lookups = drawn[True]
+                still_segments = np.stack([entry[2] for entry in still])
+                out["segmentation"][rows] = np.where(nearer, self._classes(segment_rgb, lookups), still_segments)[:, ::-1]
+        if looks is not None:
+            self._wear(None)
         return out
 
     def _metres(self, raw: np.ndarray) -> np.ndarray:

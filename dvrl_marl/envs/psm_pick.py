@@ -219,8 +219,7 @@ class PSMPickEnv(PSMGoalEnv):
             obj = self.arm.to_base(self.arm.tool_point_world())
         self._place_object(obj)
         self.grasped = held
-        tip_world = self.arm.tip_world()
-        self._grasp_offset = tuple((self.arm.to_world(obj) - tip_world).tolist()) if held else (0.0, 0.0, 0.0)
+        self._grasp_offset = tuple((self.arm.to_world(obj) - self.arm.tip_world()).tolist()) if held else (0.0, 0.0, 0.0)
         self._object_at_rest = held or bool(obj[2] <= self.object_rest_height + 1e-9)
         self._update_object_normalised()
         self._potential = self._current_potential()

@@ -112,8 +112,9 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     of its action between steps (how smoothly it moved; a real PSM is servoed through IK at 50 Hz), with the
     per-episode outcomes.
     """
-    # No reward is read here: the sparse one costs nothing, where a preset's guided one computes its potentials.
-    env_kwargs = {**env_kwargs, "reward_type": "sparse"}
+    # No reward is read here: the sparse one costs nothing, where a preset's guided one computes its potentials (and
+    # the guided terms' settings go with it).
+    env_kwargs = {**{k: v for k, v in env_kwargs.items() if k != "guidance"}, "reward_type": "sparse"}
     env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
     missing = set(env.possible_agents) - set(team)
     if missing:
