@@ -6,7 +6,7 @@ const MOVE_KEYS = new Set(["KeyA", "KeyD", "KeyS", "KeyW", "KeyF", "KeyR"]);
 const SEAT_KEYS = new Set([...MOVE_KEYS, "Space", "ShiftLeft", "ShiftRight"]);
 const DEAD_ZONE = 0.15;
 const dvrl = window.dvrl = { frames: 0, latencies: [], status: null, role: null, connected: false, reconnect: true,
-                             framesDrawnAt: [] };
+                             framesDrawnAt: [], sent: 0 };
 const canvas = document.getElementById("screen");
 const context = canvas.getContext("2d");
 const $ = (id) => document.getElementById(id);
@@ -45,7 +45,7 @@ function connect() {
 // Sends one message; returns its sequence number (the server tells which one the last step used).
 function send(message) {
   if (!socket || socket.readyState !== WebSocket.OPEN) return null;
-  message.seq = ++seq;
+  message.seq = dvrl.sent = ++seq;
   socket.send(JSON.stringify(message));
   return seq;
 }
