@@ -37,7 +37,7 @@ def _train(args) -> int:
     args.config = resolve_config(args.config)
     run_table = read_toml(args.config).get("run", {})
     algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
-    known = ("bc", *multi_agent.ALGORITHMS, *goal_env.ALGORITHMS)  # (ppo: a goal env's, or the collaborative one's)
+    known = ("bc", "pixel-dagger", *multi_agent.ALGORITHMS, *goal_env.ALGORITHMS)  # (ppo: a goal env's or the team's)
     if algorithm is not None and algorithm not in known or (algorithm is None and "extends" not in run_table
                                                            and "env_id" in run_table):
         # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]
@@ -51,6 +51,21 @@ def _train(args) -> int:
         print(f"{config.name} seed {args.seed}: the clone succeeds in {result['success_rate']:.0%} of "
               f"{result['episodes']} held-out episodes beside the {result['partner']} partner; policy in "
               f"{result['policy']}; run folder {out}")
+        return 0
+    if algorithm == "pixel-dagger":  # a seat that sees the endoscope, distilled from a privileged seat
+        from dvrl_marl.training import pixel_seat
+
+        name, config = pixel_seat.load_config(args.config)
+        out = Path(args.out or Path("runs") / f"{name}-seed{args.seed}")
+        result = pixel_seat.train(name, config, args.seed, out, progress=not args.no_progress)
+        chosen = result["rounds"][result["selected_round"]]["validation"]
+        print(f"{name} seed {args.seed}: validation success {chosen['success_rate']:.0%} (round "
+              f"{result['selected_round']}) in {result['wall_seconds']:.0f} s; policy in {result['policy']}")
+        if args.export:
+            import shutil
+
+            shutil.copytree(result["policy"], args.export, dirs_exist_ok=True)
+            print(f"exported the policy to {args.export}")
         return 0
     if run_table.get("algorithm") in ("mappo", "ippo"):  # multi-agent PPO on TorchRL, fed by the batched env
         from dvrl_marl.training import mappo

@@ -19,7 +19,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
 
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
-           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "cli_number", "Seed", "Seeds",
+           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "cli_number", "Seed", "Seeds",
            "Text", "Flag", "UnitInterval"]
 
 #: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
@@ -237,6 +237,33 @@ class CloneEvaluate(BaseModel):
 
 
 # --- policy files --------------------------------------------------------------------------------
+class PolicyImage(BaseModel):
+    """A pixel policy's image table (:mod:`dvrl_marl.policies.image_encoder`)."""
+
+    model_config = STRICT
+    key: Text
+    size: Annotated[int, _NUMBER, Strict(), Field(ge=32, le=256)]
+    proprioception: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]
+    convolutions: Annotated[list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        start, stop = self.proprioception
+        if not start < stop:
+            raise ValueError(f"proprioception must be [start, stop) with start < stop, got {self.proprioception}")
+        self.encoded_size()
+        return self
+
+    def encoded_size(self) -> int:
+        """Length of the convolutions' flattened output (no padding)."""
+        size = self.size
+        for _, kernel, stride in self.convolutions:
+            size = (size - kernel) // stride + 1
+            if size < 1:
+                raise ValueError(f"the convolutions {self.convolutions} leave nothing of a {self.size} px image")
+        return self.convolutions[-1][0] * size * size
+
+
 class PolicyFile(BaseModel):
     """What ``policy.json`` must hold (:mod:`dvrl_marl.policies`; its other keys record how it was trained): the
     layer sizes, one activation per layer, the observation's keys and finite action bounds, each low below its
@@ -250,9 +277,16 @@ class PolicyFile(BaseModel):
     action_low: list[Finite]
     action_high: list[Finite]
     switch_dimensions: list[NonNegativeInt] = []
+    image: PolicyImage | None = None
 
     @model_validator(mode="after")
     def _consistent(self):
+        if self.image is not None:
+            start, stop = self.image.proprioception
+            expected = self.image.encoded_size() + stop - start
+            if self.layer_sizes[0] != expected:
+                raise ValueError(f"layer_sizes[0] must be {expected} (the image's convolutions then "
+                                 f"{stop - start} proprioception values), got {self.layer_sizes[0]}")
         for index in self.switch_dimensions:
             if index >= self.layer_sizes[-1]:
                 raise ValueError(f"switch_dimensions names action dimension {index}; the policy has "

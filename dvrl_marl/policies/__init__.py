@@ -16,6 +16,10 @@ policy PPO optimised; some of these act better that way than by their mean (``ba
 also name observation ``features`` it computes from its observation before its first layer
 (:mod:`dvrl_marl.envs.features`), and ``switch_dimensions``: action dimensions it learnt as a switch (a jaw made
 with ``jaw_command="switch"``), which it sends as -1 or 1 by their sign, so that a proportional jaw does the same.
+
+A **pixel policy** (``policy.json``'s ``"image"``: :mod:`dvrl_marl.policies.image_encoder`) reads the endoscope's
+image and the arm's own proprioception, nothing privileged: it is called on the observation of an env made with
+``image_size`` (``policy.image_options`` says which), ``{"observation": ..., "image": ...}``.
 """
 
 from __future__ import annotations
@@ -47,7 +51,8 @@ def shipped_dir() -> Path:
 class NumpyPolicy:
     """A multilayer perceptron actor evaluated with numpy: ``policy(observation) -> action``."""
 
-    def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]], spec: dict):
+    def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]], spec: dict,
+                 kernels: list[tuple[np.ndarray, np.ndarray]] | None = None):
         if spec.get("format") != POLICY_FORMAT:
             raise ValueError(f"not a {POLICY_FORMAT} policy (format {spec.get('format')!r})")
         activations = spec["activations"]
@@ -63,6 +68,11 @@ class NumpyPolicy:
         self.action_low = np.asarray(spec["action_low"], dtype=np.float64)
         self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
         self.switch_dimensions = list(spec.get("switch_dimensions", []))
+        self.encoder = None
+        if spec.get("image") is not None:
+            from dvrl_marl.policies.image_encoder import ImageEncoder
+
+            self.encoder = ImageEncoder(spec["image"], kernels or [])
         self._feature_count = 0
         if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
             from dvrl_marl.envs import features
@@ -73,7 +83,23 @@ class NumpyPolicy:
     def name(self) -> str:
         return self.spec.get("name", "policy")
 
+    @property
+    def image_options(self) -> dict | None:
+        """The env options this policy's observation needs (``{"image_size": S}`` for a pixel policy), else None."""
+        return None if self.encoder is None else {"image_size": self.encoder.size}
+
+    def _seen(self, observation) -> np.ndarray:
+        """A pixel policy's input: the image encoded, then the arm's own proprioception."""
+        if not isinstance(observation, dict) or self.encoder.key not in observation or "observation" not in observation:
+            got = sorted(observation) if isinstance(observation, dict) else f"an array {np.shape(observation)}"
+            raise ValueError(f"policy {self.name!r} sees the endoscope: it reads {{'observation', "
+                             f"{self.encoder.key!r}}} from an env made with image_size={self.encoder.size}, got {got}")
+        own = np.asarray(observation["observation"], dtype=np.float32)[..., self.encoder.proprioception]
+        return np.concatenate([self.encoder(observation[self.encoder.key]), own], axis=-1).astype(np.float64)
+
     def features(self, observation) -> np.ndarray:
+        if self.encoder is not None:
+            return self._seen(observation)
         if isinstance(observation, dict):
             missing = [key for key in self.observation_keys if key not in observation]
             if missing:
@@ -170,8 +196,8 @@ def load(name_or_path) -> NumpyPolicy:
             path = shipped_dir() / str(name_or_path)
         else:
             raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
-    spec, weights = _read_policy_folder(path)
-    return NumpyPolicy(weights, spec)
+    spec, weights, kernels = _read_policy_folder(path)
+    return NumpyPolicy(weights, spec, kernels)
 
 
 def load_seat(name_or_path, agent: str, who: str = "partner") -> NumpyPolicy:
@@ -217,4 +243,21 @@ def _read_policy_folder(path: Path):
                 raise ValueError(f"{npz_path}: array {name!r} must hold finite floats")
             layer.append(array)
         weights.append(tuple(layer))
-    return spec, weights
+    kernels = []
+    if checked.image is not None:  # a pixel policy's convolutions (the schema checked their sizes chain)
+        channels = 3
+        for index, (out, kernel, _) in enumerate(checked.image.convolutions):
+            layer = []
+            for name, shape in ((f"K{index}", (out, channels, kernel, kernel)), (f"k{index}", (out,))):
+                if name not in arrays:
+                    raise ValueError(f"{npz_path}: missing array {name!r} (policy.json's image declares "
+                                     f"{len(checked.image.convolutions)} convolutions)")
+                array = arrays[name]
+                if array.shape != shape or not np.issubdtype(array.dtype, np.floating) \
+                        or not np.all(np.isfinite(array)):
+                    raise ValueError(f"{npz_path}: array {name!r} must hold finite floats of shape {shape}, got "
+                                     f"{array.dtype} {array.shape}")
+                layer.append(array)
+            kernels.append(tuple(layer))
+            channels = out
+    return spec, weights, kernels

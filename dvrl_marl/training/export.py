@@ -60,13 +60,16 @@ def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Pa
 
 
 def write_policy(directory, layers, *, name: str, env_id: str, algorithm: str, observation_keys, action_low,
-                 action_high, **metadata) -> Path:
-    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``."""
+                 action_high, kernels=(), **metadata) -> Path:
+    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``; ``kernels``:
+    a pixel policy's convolutions (weight, bias), whose ``image`` table goes in ``metadata``."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     arrays = {}
     for index, (weight, bias, _) in enumerate(layers):
         arrays[f"W{index}"], arrays[f"b{index}"] = weight, bias
+    for index, (weight, bias) in enumerate(kernels):
+        arrays[f"K{index}"], arrays[f"k{index}"] = weight, bias
     with (directory / "policy.npz").open("wb") as handle:
         np.savez(handle, **arrays)
     spec = {

@@ -107,6 +107,9 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     """Play ``episodes`` episodes at once (world j seeded ``seed + j``) with ``team[agent]`` callables on
     observations ``(N, obs_dim)`` returning ``(N, 4)``.
 
+    A seat with ``image_options`` (a pixel policy) gets its observation dict, images included, from an env made with
+    those options (``image_appearance`` among ``env_kwargs`` sets their look); the other seats get the vector.
+
     Returns success rate, blood removed, debris delivered, median steps to completion (over successes),
     instrument-contact steps per episode and, per seat, the tip's path (mm per episode) and the mean absolute change
     of its action between steps (how smoothly it moved; a real PSM is servoed through IK at 50 Hz), with the
@@ -115,6 +118,16 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     # No reward is read here: the sparse one costs nothing, where a preset's guided one computes its potentials (and
     # the guided terms' settings go with it).
     env_kwargs = {**{k: v for k, v in env_kwargs.items() if k != "guidance"}, "reward_type": "sparse"}
+    # A seat that sees the endoscope (a pixel policy) names the image options it needs; the others read the vector.
+    seeing = {agent: getattr(policy, "image_options", None) for agent, policy in team.items()}
+    seeing = {agent: options for agent, options in seeing.items() if options}
+    for options in seeing.values():
+        clash = {k: (env_kwargs[k], v) for k, v in options.items() if k in env_kwargs and env_kwargs[k] != v}
+        if clash:
+            raise ValueError(f"evaluate_team_batched: a pixel seat needs {options}, the evaluation asks {clash}")
+        env_kwargs.update(options)
+    if not seeing and "image_appearance" in env_kwargs:
+        raise ValueError("evaluate_team_batched: image_appearance given, but no seat sees the endoscope")
     env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
     missing = set(env.possible_agents) - set(team)
     if missing:
@@ -132,13 +145,18 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     scaling = env.observation_scaling  # normalize_observations: the team reads it, the paths are the scene's
 
     def tip_of(agent, observation):
+        observation = observation["observation"] if isinstance(observation, dict) else observation
         return (observation if scaling is None else scaling.plain_observation(agent, observation))[:, tip]
+
+    def seen_by(agent, observation):
+        return observation if agent in seeing or not isinstance(observation, dict) else observation["observation"]
 
     path = {agent: np.zeros(episodes) for agent in env.agents}
     change = {agent: np.zeros(episodes) for agent in env.agents}
     last = {}
     while not done.all():
-        actions = {agent: np.asarray(team[agent](observations[agent]), dtype=np.float64) for agent in env.agents}
+        actions = {agent: np.asarray(team[agent](seen_by(agent, observations[agent])), dtype=np.float64)
+                   for agent in env.agents}
         before = {agent: tip_of(agent, observations[agent]) for agent in env.agents}
         observations, _, terminations, truncations, infos = env.step(actions)
         info = infos[first]

@@ -1,0 +1,44 @@
+"""The convolutional encoder of a policy that sees the endoscope: numpy inference, no torch.
+
+A pixel policy's ``policy.json`` has an ``"image"`` table: the observation key of the image and its size, the
+slice of the ``"observation"`` vector it reads as proprioception (the arm's own tip and tool: what the robot's
+joints tell it), and its convolutions ``[channels, kernel, stride]`` (no padding, ReLU after each). ``policy.npz``
+holds their kernels ``K0, k0, K1, k1, ...`` in torch's layout ``(out, in, kernel, kernel)``. The encoder's output
+(channels first, as torch flattens it) followed by the proprioception is what the policy's first layer reads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from dvrl_marl.schemas import PolicyImage, validated
+
+__all__ = ["ImageEncoder"]
+
+
+class ImageEncoder:
+    """``encoder(images)``: uint8 images ``(..., S, S, 3)`` -> float32 features ``(..., encoded_size)``."""
+
+    def __init__(self, image: dict, kernels: list[tuple[np.ndarray, np.ndarray]]):
+        checked = validated(PolicyImage, image, "policy.json's image")
+        self.key = image["key"]
+        self.size = int(image["size"])
+        self.convolutions = [tuple(int(v) for v in layer) for layer in image["convolutions"]]
+        self.proprioception = slice(*image["proprioception"])
+        self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
+        self.output_size = checked.encoded_size()
+
+    def __call__(self, images) -> np.ndarray:
+        images = np.asarray(images)
+        if images.shape[-3:] != (self.size, self.size, 3):
+            raise ValueError(f"the policy sees {self.size} x {self.size} RGB images (make the env with "
+                             f"image_size={self.size}), got an image of shape {images.shape[-3:]}")
+        lead = images.shape[:-3]
+        # pixels in [-0.5, 0.5], as the trainer fed them
+        x = images.reshape((-1,) + images.shape[-3:]).astype(np.float32) / 255.0 - 0.5
+        for (weight, bias), (_, kernel, stride) in zip(self.kernels, self.convolutions):
+            windows = sliding_window_view(x, (kernel, kernel), axis=(1, 2))[:, ::stride, ::stride]
+            # windows: (N, H', W', in, k, k) against torch's (out, in, k, k)
+            x = np.maximum(np.tensordot(windows, weight, axes=([3, 4, 5], [1, 2, 3])) + bias, 0.0)
+        return x.transpose(0, 3, 1, 2).reshape(lead + (-1,))

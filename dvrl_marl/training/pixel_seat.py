@@ -1,0 +1,293 @@
+"""A seat that works from the endoscope: distil a privileged seat into a policy that sees images (DAgger).
+
+``dvrl-marl train baselines/configs/suction_pixels_dagger.toml`` trains the suction seat from what a robot has: the
+endoscope's image (``image_size``, each world's look randomised, :mod:`dvrl_marl.envs.endoscope`) and the arm's own
+proprioception (its tip and valve), never the blood volumes, pin positions or the other arm's tip that the
+privileged seat (the teacher) reads.
+
+1. **Collect** (:func:`collect`): worlds of the batched env beside the training partners; the teacher drives in
+   round 0 (with DART noise on its motion, Laskey et al. 2017: it shows how to recover), the student in later
+   rounds (DAgger, Ross, Gordon and Bagnell 2011); every ``record_every``-th step of each live world, the image,
+   the proprioception and the teacher's action for that state join the data.
+2. **Fit** (:func:`fit`): a small convolutional network, then a perceptron (:class:`PixelActor`), by the squared
+   error of the motion and the logistic loss of the valve (a switch: open when its output is positive), on images
+   shifted by a few pixels at random (the endoscope's pose varies).
+3. **Validate** (:func:`validate`): the exported numpy policy, by its default call, beside the training partners on
+   validation seeds (``teams.VALIDATION_SEED``); the best round is kept.
+
+The policy is exported numpy-only (:mod:`dvrl_marl.policies`, its ``image`` table) to ``<out>/policies/<name>``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from dvrl_marl.schemas import STRICT, NonNegative, Positive, PositiveInt, Text, validated
+
+__all__ = ["PixelSeatConfig", "load_config", "PixelActor", "collect", "fit", "validate", "export", "train",
+           "PIXEL_SEED"]
+
+#: The worlds DAgger collects on are seeded from here: apart from every other trainer's and from the validation and
+#: held-out ranges (teams.VALIDATION_SEED, teams.EVAL_SEED).
+PIXEL_SEED = 200_000_000
+
+
+class PixelSeatConfig(BaseModel):
+    """``[run]`` of a pixel seat's configuration (every key optional but ``algorithm``)."""
+
+    model_config = STRICT
+    algorithm: Literal["pixel-dagger"]
+    agent: Literal["suction", "grasper"] = "suction"
+    teacher: Text = "marl-suction"
+    partners: Annotated[list[Text], Field(min_length=1)] = ["scripted", "marl-grasper", "person-like"]
+    image_size: Annotated[int, Field(ge=32, le=256)] = 64
+    image_appearance: Literal["train", "none"] = "train"
+    proprioception: Annotated[list[int], Field(min_length=2, max_length=2)] = [0, 4]
+    convolutions: list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]] = [[16, 5, 2], [32, 3, 2],
+                                                                                            [32, 3, 2]]
+    hidden: list[PositiveInt] = [256, 256]
+    rounds: PositiveInt = 4
+    worlds: PositiveInt = 64
+    record_every: PositiveInt = 2
+    action_noise: NonNegative = 0.3
+    epochs: PositiveInt = 4
+    batch_size: PositiveInt = 256
+    learning_rate: Positive = 3e-4
+    shift_px: Annotated[int, Field(ge=0, le=16)] = 3
+    valve_weight: Positive = 1.0
+    validation_episodes: PositiveInt = 48
+    max_cycles: PositiveInt | None = None
+    threads: PositiveInt | None = None
+
+
+def load_config(path) -> tuple[str, PixelSeatConfig]:
+    """``(name, config)`` of a TOML file whose ``[run]`` table is a :class:`PixelSeatConfig`."""
+    from dvrl_marl.files import read_toml
+
+    path = Path(path)
+    table = read_toml(path)
+    unknown = set(table) - {"run"}
+    if unknown:
+        raise ValueError(f"{path}: unknown table(s) {sorted(unknown)}: a pixel seat's settings are all in [run]")
+    return path.stem, validated(PixelSeatConfig, table.get("run", {}), str(path), table="run")
+
+
+def _torch():
+    import torch
+
+    return torch
+
+
+def PixelActor(config: PixelSeatConfig, proprioception: int):
+    """The student: convolutions (ReLU) over the image in [-0.5, 0.5], flattened, the proprioception after them,
+    ReLU layers, then 4 outputs (the motion, and the valve's logit)."""
+    torch = _torch()
+    nn = torch.nn
+
+    class Actor(nn.Module):
+        def __init__(self):
+            super().__init__()
+            layers, channels = [], 3
+            for out, kernel, stride in config.convolutions:
+                layers += [nn.Conv2d(channels, out, kernel, stride), nn.ReLU()]
+                channels = out
+            self.encoder = nn.Sequential(*layers, nn.Flatten())
+            with torch.no_grad():
+                size = self.encoder(torch.zeros(1, 3, config.image_size, config.image_size)).shape[1]
+            sizes = [size + proprioception, *config.hidden, 4]
+            head = []
+            for index in range(len(sizes) - 1):
+                head.append(nn.Linear(sizes[index], sizes[index + 1]))
+                if index < len(sizes) - 2:
+                    head.append(nn.ReLU())
+            self.head = nn.Sequential(*head)
+
+        def forward(self, images, own):  # images: (B, S, S, 3) uint8
+            x = images.permute(0, 3, 1, 2).float() / 255.0 - 0.5
+            return self.head(torch.cat([self.encoder(x), own], dim=1))
+
+    return Actor()
+
+
+def _env(config: PixelSeatConfig, worlds: int):
+    from dvrl_marl.envs import suction_debris_v8
+
+    options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
+    return suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", image_size=config.image_size,
+                                         image_appearance=None if config.image_appearance == "none"
+                                         else config.image_appearance, **options)
+
+
+def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dict:
+    """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
+    (the teacher with DART noise when ``student`` is None), the teacher labels. Returns the recorded images
+    ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)`` and the episodes' success rate."""
+    from dvrl_marl.training import teams
+
+    agent = config.agent
+    other = "grasper" if agent == "suction" else "suction"
+    env = _env(config, config.worlds)
+    teacher = teams.seat(config.teacher, agent)
+    partner = teams.partner(config.partners if len(config.partners) > 1 else config.partners[0], other,
+                            noise_from=seed)
+    rng = np.random.default_rng(noise_seed)
+    own = slice(*config.proprioception)
+    observations, _ = env.reset(seed=seed)
+    done = np.zeros(config.worlds, dtype=bool)
+    success = np.zeros(config.worlds, dtype=bool)
+    images, proprioception, labels = [], [], []
+    step = 0
+    while not done.all():
+        seen = observations[agent]
+        label = np.asarray(teacher(seen["observation"]), dtype=np.float32)
+        if student is None:
+            action = label.copy()
+            action[:, :3] = np.clip(action[:, :3] + config.action_noise * rng.standard_normal((len(action), 3)),
+                                    -1.0, 1.0)
+        else:
+            action = np.asarray(student(seen), dtype=np.float32)
+        if step % config.record_every == 0:
+            live = ~done
+            images.append(seen["image"][live].copy())
+            proprioception.append(seen["observation"][live, own].astype(np.float32))
+            labels.append(label[live])
+        observations, _, terminations, truncations, infos = env.step(
+            {agent: action, other: np.asarray(partner(observations[other]["observation"]))})
+        success |= ~done & infos[agent]["is_success"]
+        done |= terminations[agent] | truncations[agent]
+        step += 1
+    env.close()
+    return {"images": np.concatenate(images), "proprioception": np.concatenate(proprioception),
+            "labels": np.concatenate(labels), "success_rate": float(success.mean()), "steps": step}
+
+
+def _shifted(torch, images, shift: int, generator):
+    """Each image moved by up to ``shift`` px along each axis (edges repeated): the endoscope's pose varies."""
+    if shift == 0:
+        return images
+    count, size = images.shape[0], images.shape[1]
+    padded = torch.nn.functional.pad(images.permute(0, 3, 1, 2).float(), (shift,) * 4, mode="replicate")
+    offsets = torch.randint(0, 2 * shift + 1, (count, 2), generator=generator)
+    rows = offsets[:, :1] + torch.arange(size)
+    columns = offsets[:, 1:] + torch.arange(size)
+    # (count, size, size, channels): picked pixel by pixel from each padded image
+    return padded[torch.arange(count)[:, None, None], :, rows[:, :, None], columns[:, None, :]]
+
+
+def fit(model, data: dict, config: PixelSeatConfig, seed: int) -> float:
+    """``config.epochs`` passes over ``data`` (images, proprioception, labels); returns the last epoch's mean loss."""
+    torch = _torch()
+    generator = torch.Generator().manual_seed(seed)
+    optimiser = getattr(model, "_optimiser", None)
+    if optimiser is None:  # one optimiser across rounds: its moments carry on as the data grows
+        optimiser = model._optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    images = torch.from_numpy(data["images"])
+    own = torch.from_numpy(data["proprioception"])
+    labels = torch.from_numpy(data["labels"])
+    opened = (labels[:, 3] > 0).float()
+    count = len(labels)
+    model.train()
+    for _ in range(config.epochs):
+        order = torch.randperm(count, generator=generator)
+        total = 0.0
+        for start in range(0, count, config.batch_size):
+            batch = order[start:start + config.batch_size]
+            output = model(_shifted(torch, images[batch], config.shift_px, generator), own[batch])
+            loss = (torch.nn.functional.mse_loss(output[:, :3], labels[batch, :3])
+                    + config.valve_weight * torch.nn.functional.binary_cross_entropy_with_logits(
+                        output[:, 3], opened[batch]))
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            total += loss.item() * len(batch)
+    model.eval()
+    return total / count
+
+
+def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict) -> Path:
+    """The student as a numpy policy folder (:mod:`dvrl_marl.policies`, with its ``image`` table)."""
+    from dvrl_marl.training.export import write_policy
+
+    kernels = [(layer.weight.detach().numpy().astype(np.float32), layer.bias.detach().numpy().astype(np.float32))
+               for layer in model.encoder if hasattr(layer, "weight")]
+    linear = [layer for layer in model.head if hasattr(layer, "weight")]
+    layers = [(layer.weight.detach().numpy().astype(np.float32), layer.bias.detach().numpy().astype(np.float32),
+               "clip" if index == len(linear) - 1 else "relu") for index, layer in enumerate(linear)]
+    image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
+             "convolutions": [list(layer) for layer in config.convolutions]}
+    return write_policy(directory, layers, name=name, env_id="suction_debris_v8", algorithm="DAgger (pixels)",
+                        observation_keys=["observation", "image"], action_low=[-1.0] * 4, action_high=[1.0] * 4,
+                        kernels=kernels, image=image, agent=config.agent, switch_dimensions=[3], **metadata)
+
+
+def validate(policy, config: PixelSeatConfig) -> dict:
+    """The policy by its default call beside the training partners, on validation seeds."""
+    from dvrl_marl.training import teams
+
+    other = "grasper" if config.agent == "suction" else "suction"
+    partner = teams.partner(config.partners if len(config.partners) > 1 else config.partners[0], other)
+    options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
+    if config.image_appearance != "none":
+        options["image_appearance"] = config.image_appearance
+    result = teams.evaluate_team_batched({config.agent: policy, other: partner}, config.validation_episodes,
+                                         seed=teams.VALIDATION_SEED, **options)
+    return {k: result[k] for k in ("success_rate", "mean_contact_steps", "median_steps_to_completion")}
+
+
+def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = True) -> dict:
+    """Collect, fit, validate for ``config.rounds`` rounds; the best validated round is the policy
+    (``<out>/policies/<name>``); ``<out>/result.json`` records every round."""
+    import shutil
+
+    from dvrl_marl import policies
+
+    torch = _torch()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    torch.manual_seed(seed)
+    out = Path(out)
+    began = time.perf_counter()
+    model = PixelActor(config, config.proprioception[1] - config.proprioception[0])
+    data: dict | None = None
+    rounds, best = [], None
+    student = None
+    for index in range(config.rounds):
+        world_seed = PIXEL_SEED + 1_000_000 * seed + index * config.worlds
+        batch = collect(config, student, world_seed, noise_seed=world_seed)
+        driven = batch.pop("success_rate")
+        batch.pop("steps")
+        data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
+        loss = fit(model, data, config, seed * 1000 + index)
+        candidate = export(model, config, out / "rounds" / f"round{index}", name,
+                           {"teacher": config.teacher, "training": {"rounds": index + 1, "seed": seed,
+                                                                    "frames": int(len(data["labels"]))}})
+        student = policies.load(candidate)
+        validation = validate(student, config)
+        row = {"round": index, "driver": "teacher" if index == 0 else "student", "driver_success": driven,
+               "frames": int(len(data["labels"])), "loss": round(loss, 5), "validation": validation,
+               "wall_seconds": round(time.perf_counter() - began, 1)}
+        rounds.append(row)
+        if progress:
+            print(f"round {index}: {row['driver']} drove ({driven:.0%}), {row['frames']:,d} frames, loss "
+                  f"{row['loss']:.4f}, validation {validation['success_rate']:.0%} "
+                  f"({validation['mean_contact_steps']:.1f} contacts), {row['wall_seconds']:.0f} s", flush=True)
+        key = (validation["success_rate"], -validation["mean_contact_steps"])
+        if best is None or key > best[0]:
+            best = (key, index, candidate)
+    folder = out / "policies" / name
+    shutil.rmtree(folder, ignore_errors=True)
+    shutil.copytree(best[2], folder)
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["training"]["selected_by"] = (f"validation success by the default call, best of {config.rounds} DAgger "
+                                       f"rounds: round {best[1]}")
+    (folder / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
+    summary = {"name": name, "seed": seed, "config": config.model_dump(), "rounds": rounds, "selected_round": best[1],
+               "policy": str(folder), "wall_seconds": round(time.perf_counter() - began, 1)}
+    (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary

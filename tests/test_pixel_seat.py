@@ -1,0 +1,151 @@
+"""The seat that sees the endoscope: its numpy policy equals the network it was trained as, it refuses what it
+cannot read, the trainer's pieces do what they say, and the shipped pixel seat works the suction by its default call."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from dvrl_marl import policies
+from dvrl_marl.training import teams
+
+torch = pytest.importorskip("torch")
+from dvrl_marl.training import pixel_seat  # noqa: E402  (needs torch)
+
+SHIPPED = "pixel-suction"
+
+
+def _config(**overrides):
+    return pixel_seat.PixelSeatConfig(**{"algorithm": "pixel-dagger", **overrides})
+
+
+def _exported(tmp_path, **overrides):
+    config = _config(**overrides)
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    return model, config, pixel_seat.export(model, config, tmp_path / "policy", "test-pixels", {})
+
+
+def _observation(count, size=64, seed=0):
+    rng = np.random.default_rng(seed)
+    return {"observation": rng.uniform(-1, 1, (count, 30)),
+            "image": rng.integers(0, 256, (count, size, size, 3), dtype=np.uint8)}
+
+
+def test_the_numpy_policy_is_the_network_it_was_trained_as(tmp_path):
+    model, config, folder = _exported(tmp_path, image_size=48, convolutions=[[8, 4, 2], [8, 3, 1]], hidden=[32])
+    policy = policies.load(folder)
+    observation = _observation(7, size=48)
+    with torch.no_grad():
+        expected = model(torch.from_numpy(observation["image"]),
+                         torch.from_numpy(observation["observation"][:, :4].astype(np.float32))).numpy()
+    np.testing.assert_allclose(policy._forward(observation, clip_last=False), expected, rtol=0, atol=1e-5)
+    action = policy(observation)
+    assert action.shape == (7, 4) and set(np.unique(action[:, 3])) <= {-1.0, 1.0}  # the valve is a switch
+    np.testing.assert_allclose(action[:, :3], np.clip(expected[:, :3], -1, 1), atol=1e-5)
+    single = policy({key: value[0] for key, value in observation.items()})  # one world, unbatched
+    np.testing.assert_allclose(single, action[0], atol=1e-6)
+    assert policy.image_options == {"image_size": 48}
+    # the policy reads only the image and its own tip and valve: the privileged rest changes nothing
+    private = {**observation, "observation": observation["observation"].copy()}
+    private["observation"][:, 4:] = 0.0
+    np.testing.assert_array_equal(policy(private), action)
+
+
+def test_a_pixel_policy_refuses_what_it_cannot_read(tmp_path):
+    _, _, folder = _exported(tmp_path)
+    policy = policies.load(folder)
+    with pytest.raises(ValueError, match="image_size=64"):
+        policy(np.zeros((2, 30)))  # a vector: the env was made without images
+    with pytest.raises(ValueError, match="64 x 64"):
+        policy(_observation(2, size=84))
+    spec = json.loads((folder / "policy.json").read_text())
+    broken = tmp_path / "broken"
+    shutil.copytree(folder, broken)
+    (broken / "policy.json").write_text(json.dumps({**spec, "layer_sizes": [100, *spec["layer_sizes"][1:]]}))
+    with pytest.raises(ValueError, match="layer_sizes"):
+        policies.load(broken)
+    (broken / "policy.json").write_text(json.dumps({**spec, "image": {**spec["image"], "size": 8}}))
+    with pytest.raises(ValueError, match="size"):
+        policies.load(broken)
+    (broken / "policy.json").write_text(json.dumps(spec))
+    arrays = dict(np.load(folder / "policy.npz"))
+    del arrays["K1"]
+    np.savez(broken / "policy.npz", **arrays)
+    with pytest.raises(ValueError, match="K1"):
+        policies.load(broken)
+
+
+def test_the_trainers_shift_moves_whole_images():
+    images = torch.from_numpy(np.random.default_rng(0).integers(0, 256, (16, 20, 20, 3), dtype=np.uint8))
+    assert pixel_seat._shifted(torch, images, 0, None) is images
+    shifted = pixel_seat._shifted(torch, images, 2, torch.Generator().manual_seed(0)).numpy()
+    original = images.numpy().astype(np.float32)
+    for index in range(16):  # each is the original moved by at most 2 px (its interior matches somewhere)
+        interior = shifted[index, 2:-2, 2:-2]
+        assert any(np.array_equal(interior, original[index, 2 + dy:18 + dy, 2 + dx:18 + dx])
+                   for dy in range(-2, 3) for dx in range(-2, 3))
+
+
+def test_collect_labels_every_recorded_state_with_the_teachers_action():
+    config = _config(worlds=3, max_cycles=12, record_every=3, action_noise=0.0, partners=["scripted"])
+    batch = pixel_seat.collect(config, None, seed=5, noise_seed=5)
+    assert batch["images"].shape == (12, 64, 64, 3) and batch["images"].dtype == np.uint8  # steps 0, 3, 6, 9
+    assert batch["proprioception"].shape == (12, 4) and batch["labels"].shape == (12, 4)
+    again = pixel_seat.collect(config, None, seed=5, noise_seed=5)  # worlds, looks and labels are seeded
+    for key in ("images", "proprioception", "labels"):
+        np.testing.assert_array_equal(batch[key], again[key])
+    # the labels are the teacher's actions for the states recorded
+    from dvrl_marl.envs import suction_debris_v8
+
+    env = suction_debris_v8.batched_env(num_envs=3, autoreset_mode="disabled", max_cycles=12)
+    observations, _ = env.reset(seed=5)
+    teacher, partner = teams.seat("marl-suction", "suction"), teams.seat("scripted", "grasper")
+    np.testing.assert_allclose(batch["labels"][:3], teacher(observations["suction"]), atol=1e-6)
+    np.testing.assert_allclose(batch["proprioception"][:3], observations["suction"][:, :4], atol=1e-6)
+    env.step({"suction": teacher(observations["suction"]), "grasper": partner(observations["grasper"])})
+
+
+def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
+    config = _config(worlds=4, rounds=2, max_cycles=30, epochs=1, validation_episodes=2,
+                     convolutions=[[8, 8, 4]], hidden=[16], partners=["scripted"])
+    result = pixel_seat.train("tiny-pixels", config, 0, tmp_path)
+    assert [row["driver"] for row in result["rounds"]] == ["teacher", "student"]
+    assert result["rounds"][1]["frames"] > result["rounds"][0]["frames"] > 0  # DAgger aggregates
+    policy = policies.load(result["policy"])
+    assert policy.image_options == {"image_size": 64} and policy.spec["agent"] == "suction"
+    assert "round" in policy.spec["training"]["selected_by"]
+    assert json.loads((tmp_path / "result.json").read_text())["selected_round"] == result["selected_round"]
+
+
+def test_a_bad_configuration_names_the_field(tmp_path):
+    path = tmp_path / "pixels.toml"
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\nimage_size = 20\n')
+    with pytest.raises(ValueError, match="image_size"):
+        pixel_seat.load_config(path)
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\n[model]\nhidden = [8]\n')
+    with pytest.raises(ValueError, match="model"):
+        pixel_seat.load_config(path)
+
+
+def test_an_evaluation_gives_images_only_to_the_seat_that_sees(tmp_path):
+    _, _, folder = _exported(tmp_path)
+    seeing = policies.load(folder)
+    with pytest.raises(ValueError, match="image_appearance"):
+        teams.evaluate_team_batched(teams.seats("scripted", "scripted"), 2, image_appearance="train")
+    with pytest.raises(ValueError, match="image_size"):
+        teams.evaluate_team_batched({"suction": seeing, "grasper": teams.seat("scripted", "grasper")}, 2,
+                                    image_size=84)
+    result = teams.evaluate_team_batched({"suction": seeing, "grasper": teams.seat("scripted", "grasper")}, 2,
+                                         max_cycles=20, image_appearance="held_out")
+    assert result["episodes"] == 2 and result["success_rate"] == 0.0  # an untrained net in 20 steps
+
+
+@pytest.mark.skipif(SHIPPED not in policies.available(), reason="the pixel seat is not shipped")
+def test_the_shipped_pixel_seat_works_the_suction_by_its_default_call():
+    seat = teams.seat(SHIPPED, "suction")
+    assert seat.image_options == {"image_size": 64}
+    result = teams.evaluate_team_batched({"suction": seat, "grasper": teams.seat("scripted", "grasper")}, 6,
+                                         image_appearance="held_out")
+    assert result["success_rate"] >= 5 / 6 and result["mean_contact_steps"] <= 5.0
