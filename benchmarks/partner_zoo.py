@@ -27,14 +27,16 @@ from dvrl_marl.training import teams
 PARTNERS = ("scripted", "pipeline", "person", *sorted(HELD_OUT))
 
 
-def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool) -> dict:
+def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, **env_kwargs) -> dict:
+    """One row: ``player`` in ``seat`` beside ``partner`` (``env_kwargs``: the evaluation env's options, such as
+    ``image_appearance`` for a seat that sees the endoscope)."""
     other = "grasper" if seat == "suction" else "suction"
     env = suction_debris_v8.parallel_env()
     filler = (zoo_partner(partner, other, env) if partner not in ("scripted", "pipeline")
               else teams.seat(partner, other))
     team = {seat: teams.seat(player, seat, noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
             other: filler}
-    result = teams.evaluate_team_batched(team, episodes, max_cycles=6000)
+    result = teams.evaluate_team_batched(team, episodes, max_cycles=6000, **env_kwargs)
     return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
             "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
             "mean_contact_steps": result["mean_contact_steps"], "tip_path_mm": result["mean_tip_path_mm"][seat],

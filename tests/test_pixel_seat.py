@@ -93,8 +93,9 @@ def test_collect_labels_every_recorded_state_with_the_teachers_action():
     batch = pixel_seat.collect(config, None, seed=5, noise_seed=5)
     assert batch["images"].shape == (12, 64, 64, 3) and batch["images"].dtype == np.uint8  # steps 0, 3, 6, 9
     assert batch["proprioception"].shape == (12, 4) and batch["labels"].shape == (12, 4)
+    assert batch["targets"].shape == (12, 5) and batch["cleared"].shape == (12, 2)  # auxiliary targets
     again = pixel_seat.collect(config, None, seed=5, noise_seed=5)  # worlds, looks and labels are seeded
-    for key in ("images", "proprioception", "labels"):
+    for key in ("images", "proprioception", "labels", "targets"):
         np.testing.assert_array_equal(batch[key], again[key])
     # the labels are the teacher's actions for the states recorded
     from dvrl_marl.envs import suction_debris_v8
@@ -108,7 +109,7 @@ def test_collect_labels_every_recorded_state_with_the_teachers_action():
 
 
 def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
-    config = _config(worlds=4, rounds=2, max_cycles=30, epochs=1, validation_episodes=2,
+    config = _config(worlds=4, rounds=2, max_cycles=30, updates=3, first_updates=5, validation_episodes=2,
                      convolutions=[[8, 8, 4]], hidden=[16], partners=["scripted"])
     result = pixel_seat.train("tiny-pixels", config, 0, tmp_path)
     assert [row["driver"] for row in result["rounds"]] == ["teacher", "student"]

@@ -8,10 +8,14 @@ privileged seat (the teacher) reads.
 1. **Collect** (:func:`collect`): worlds of the batched env beside the training partners; the teacher drives in
    round 0 (with DART noise on its motion, Laskey et al. 2017: it shows how to recover), the student in later
    rounds (DAgger, Ross, Gordon and Bagnell 2011); every ``record_every``-th step of each live world, the image,
-   the proprioception and the teacher's action for that state join the data.
+   the proprioception and the teacher's action for that state join the data, with the privileged quantities the
+   image shows (the other arm's tip, the blood left in each cavity) as auxiliary targets.
 2. **Fit** (:func:`fit`): a small convolutional network, then a perceptron (:class:`PixelActor`), by the squared
-   error of the motion and the logistic loss of the valve (a switch: open when its output is positive), on images
-   shifted by a few pixels at random (the endoscope's pose varies).
+   error of the motion and the logistic loss of the valve (a switch: open when its output is positive), plus the
+   squared error of a linear read-out of the image's features against the auxiliary targets (standardised) and
+   the logistic loss of one more per cavity against "cleared" (its blood under the task's threshold: the teacher's
+   switch, a few pixels of blood at 64 px); training only: they teach the convolutions what to look for, and the
+   policy never reads them. Images are shifted by a few pixels at random (the endoscope's pose varies).
 3. **Validate** (:func:`validate`): the exported numpy policy, by its default call, beside the training partners on
    validation seeds (``teams.VALIDATION_SEED``); the best round is kept.
 
@@ -56,7 +60,11 @@ class PixelSeatConfig(BaseModel):
     worlds: PositiveInt = 64
     record_every: PositiveInt = 2
     action_noise: NonNegative = 0.3
-    epochs: PositiveInt = 4
+    updates: PositiveInt = 1500
+    first_updates: PositiveInt = 3000
+    auxiliary: Annotated[list[int], Field(min_length=2, max_length=2)] | None = [4, 9]
+    auxiliary_weight: NonNegative = 1.0
+    cleared_weight: NonNegative = 1.0
     batch_size: PositiveInt = 256
     learning_rate: Positive = 3e-4
     shift_px: Annotated[int, Field(ge=0, le=16)] = 3
@@ -107,12 +115,24 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
                 if index < len(sizes) - 2:
                     head.append(nn.ReLU())
             self.head = nn.Sequential(*head)
+            aux = config.auxiliary
+            self.auxiliary = None if aux is None else nn.Linear(size, aux[1] - aux[0])  # training only
+            self.cleared = nn.Linear(size, len(_cleared_levels()))  # training only
+
+        def features(self, images):
+            return self.encoder(images.permute(0, 3, 1, 2).float() / 255.0 - 0.5)
 
         def forward(self, images, own):  # images: (B, S, S, 3) uint8
-            x = images.permute(0, 3, 1, 2).float() / 255.0 - 0.5
-            return self.head(torch.cat([self.encoder(x), own], dim=1))
+            return self.head(torch.cat([self.features(images), own], dim=1))
 
     return Actor()
+
+
+def _cleared_levels() -> list[tuple[int, float]]:
+    """``(observation index, level)`` of each cavity's blood fraction at the task's "cleared" threshold."""
+    from dvrl_marl.training.clone import cleared_features
+
+    return cleared_features()
 
 
 def _env(config: PixelSeatConfig, worlds: int):
@@ -127,7 +147,8 @@ def _env(config: PixelSeatConfig, worlds: int):
 def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dict:
     """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
     (the teacher with DART noise when ``student`` is None), the teacher labels. Returns the recorded images
-    ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)`` and the episodes' success rate."""
+    ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)``, auxiliary targets ``(M, a)`` and the episodes'
+    success rate."""
     from dvrl_marl.training import teams
 
     agent = config.agent
@@ -141,7 +162,9 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     observations, _ = env.reset(seed=seed)
     done = np.zeros(config.worlds, dtype=bool)
     success = np.zeros(config.worlds, dtype=bool)
-    images, proprioception, labels = [], [], []
+    images, proprioception, labels, targets, cleared = [], [], [], [], []
+    aux = slice(*(config.auxiliary or (0, 0)))
+    cleared_at = _cleared_levels()
     step = 0
     while not done.all():
         seen = observations[agent]
@@ -157,6 +180,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
             images.append(seen["image"][live].copy())
             proprioception.append(seen["observation"][live, own].astype(np.float32))
             labels.append(label[live])
+            targets.append(seen["observation"][live, aux].astype(np.float32))
+            cleared.append(np.stack([seen["observation"][live, index] < level for index, level in cleared_at], 1))
         observations, _, terminations, truncations, infos = env.step(
             {agent: action, other: np.asarray(partner(observations[other]["observation"]))})
         success |= ~done & infos[agent]["is_success"]
@@ -164,7 +189,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         step += 1
     env.close()
     return {"images": np.concatenate(images), "proprioception": np.concatenate(proprioception),
-            "labels": np.concatenate(labels), "success_rate": float(success.mean()), "steps": step}
+            "labels": np.concatenate(labels), "targets": np.concatenate(targets),
+            "cleared": np.concatenate(cleared).astype(np.float32), "success_rate": float(success.mean()), "steps": step}
 
 
 def _shifted(torch, images, shift: int, generator):
@@ -180,8 +206,9 @@ def _shifted(torch, images, shift: int, generator):
     return padded[torch.arange(count)[:, None, None], :, rows[:, :, None], columns[:, None, :]]
 
 
-def fit(model, data: dict, config: PixelSeatConfig, seed: int) -> float:
-    """``config.epochs`` passes over ``data`` (images, proprioception, labels); returns the last epoch's mean loss."""
+def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> float:
+    """``updates`` steps of Adam on minibatches drawn from ``data`` (images, proprioception, labels, targets);
+    returns the mean loss of the last tenth of them."""
     torch = _torch()
     generator = torch.Generator().manual_seed(seed)
     optimiser = getattr(model, "_optimiser", None)
@@ -190,24 +217,29 @@ def fit(model, data: dict, config: PixelSeatConfig, seed: int) -> float:
     images = torch.from_numpy(data["images"])
     own = torch.from_numpy(data["proprioception"])
     labels = torch.from_numpy(data["labels"])
+    targets = torch.from_numpy(data["targets"])
+    targets = (targets - targets.mean(0)) / targets.std(0).clamp_min(1e-6)  # each at one scale
+    cleared = torch.from_numpy(data["cleared"])
     opened = (labels[:, 3] > 0).float()
-    count = len(labels)
+    functional = torch.nn.functional
     model.train()
-    for _ in range(config.epochs):
-        order = torch.randperm(count, generator=generator)
-        total = 0.0
-        for start in range(0, count, config.batch_size):
-            batch = order[start:start + config.batch_size]
-            output = model(_shifted(torch, images[batch], config.shift_px, generator), own[batch])
-            loss = (torch.nn.functional.mse_loss(output[:, :3], labels[batch, :3])
-                    + config.valve_weight * torch.nn.functional.binary_cross_entropy_with_logits(
-                        output[:, 3], opened[batch]))
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            total += loss.item() * len(batch)
+    losses = []
+    for _ in range(updates):
+        batch = torch.randint(0, len(labels), (config.batch_size,), generator=generator)
+        features = model.features(_shifted(torch, images[batch], config.shift_px, generator))
+        output = model.head(torch.cat([features, own[batch]], dim=1))
+        loss = (functional.mse_loss(output[:, :3], labels[batch, :3])
+                + config.valve_weight * functional.binary_cross_entropy_with_logits(output[:, 3], opened[batch]))
+        if model.auxiliary is not None:
+            loss = loss + config.auxiliary_weight * functional.mse_loss(model.auxiliary(features), targets[batch])
+        loss = loss + config.cleared_weight * functional.binary_cross_entropy_with_logits(model.cleared(features),
+                                                                                         cleared[batch])
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        losses.append(loss.item())
     model.eval()
-    return total / count
+    return float(np.mean(losses[-max(1, updates // 10):]))
 
 
 def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict) -> Path:
@@ -263,7 +295,7 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
         driven = batch.pop("success_rate")
         batch.pop("steps")
         data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
-        loss = fit(model, data, config, seed * 1000 + index)
+        loss = fit(model, data, config, config.first_updates if index == 0 else config.updates, seed * 1000 + index)
         candidate = export(model, config, out / "rounds" / f"round{index}", name,
                            {"teacher": config.teacher, "training": {"rounds": index + 1, "seed": seed,
                                                                     "frames": int(len(data["labels"]))}})

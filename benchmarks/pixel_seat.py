@@ -1,0 +1,65 @@
+"""The seat that sees the endoscope beside every partner kind, on the training looks and on held-out ones.
+
+The pixel suction (``pixel-suction``: the endoscope's image and its own tip and valve) and the privileged seat it
+was distilled from (``marl-suction``: blood volumes, pin and tip positions) play beside the same partners as in
+``benchmarks/partner_zoo.py`` (the scripted surgeon, the Reach + Pick pipeline, the measured person and each held-out
+kind), by their default call, on test seeds, with a person's 6,000-step horizon. The pixel seat plays once per look
+(``image_appearance``: ``"train"``, the range it trained in; ``"held_out"``, outside it); the privileged seat sees no
+image, so one row per partner.
+
+    python benchmarks/pixel_seat.py [--episodes 50] [--partners scripted pipeline ...] [--json FILE]
+
+Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
+privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
+the privileged seat's + 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from partner_zoo import PARTNERS, evaluate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=50, help="test seeds per row")
+    parser.add_argument("--pixel", default="pixel-suction", help="the seat that sees the endoscope")
+    parser.add_argument("--privileged", default="marl-suction", help="the seat it was distilled from")
+    parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
+    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out"])
+    parser.add_argument("--json", type=Path, help="write the rows here")
+    args = parser.parse_args()
+    rows = []
+    print(f"{'partner':10s} {'player':14s} {'look':9s} {'success':>8s} {'median steps':>13s} {'contacts':>9s} "
+          f"{'tip path mm':>12s} {'gap':>6s} {'seconds':>8s}", flush=True)
+    for partner in args.partners:
+        began = time.perf_counter()
+        privileged = evaluate("suction", args.privileged, partner, args.episodes, False)
+        privileged.update(look=None, seconds=round(time.perf_counter() - began, 1))
+        rows.append(privileged)
+        runs = [(privileged, "-")]
+        for look in args.looks:
+            began = time.perf_counter()
+            row = evaluate("suction", args.pixel, partner, args.episodes, False, image_appearance=look)
+            row.update(look=look, seconds=round(time.perf_counter() - began, 1),
+                       gap=round(row["success_rate"] - privileged["success_rate"], 3))
+            rows.append(row)
+            runs.append((row, look))
+        for row, look in runs:
+            median = row["median_steps_to_completion"]
+            gap = row.get("gap")
+            print(f"{partner:10s} {row['player']:14s} {look:9s} {row['success_rate']:8.2f} "
+                  f"{'-' if median is None else f'{median:.0f}':>13s} {row['mean_contact_steps']:9.1f} "
+                  f"{row['tip_path_mm']:12.0f} {'' if gap is None else f'{gap:+.2f}':>6s} "
+                  f"{rows[-1]['seconds'] if look != '-' else rows[-len(runs)]['seconds']:8.0f}", flush=True)
+        if args.json:  # as it goes: a long run keeps what it measured
+            args.json.write_text(json.dumps({"episodes": args.episodes, "rows": rows}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
