@@ -245,6 +245,7 @@ class PolicyImage(BaseModel):
     size: Annotated[int, _NUMBER, Strict(), Field(ge=32, le=256)]
     proprioception: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]
     convolutions: Annotated[list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]], Field(min_length=1)]
+    readout: PositiveInt | None = None
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -254,7 +255,7 @@ class PolicyImage(BaseModel):
         self.encoded_size()
         return self
 
-    def encoded_size(self) -> int:
+    def convolved_size(self) -> int:
         """Length of the convolutions' flattened output (no padding)."""
         size = self.size
         for _, kernel, stride in self.convolutions:
@@ -262,6 +263,10 @@ class PolicyImage(BaseModel):
             if size < 1:
                 raise ValueError(f"the convolutions {self.convolutions} leave nothing of a {self.size} px image")
         return self.convolutions[-1][0] * size * size
+
+    def encoded_size(self) -> int:
+        """Length of what the encoder gives the perceptron: the read-out's, or the convolutions' output."""
+        return self.readout or self.convolved_size()
 
 
 class PolicyFile(BaseModel):

@@ -150,3 +150,11 @@ def test_the_shipped_pixel_seat_works_the_suction_by_its_default_call():
     result = teams.evaluate_team_batched({"suction": seat, "grasper": teams.seat("scripted", "grasper")}, 6,
                                          image_appearance="held_out")
     assert result["success_rate"] >= 5 / 6 and result["mean_contact_steps"] <= 5.0
+
+
+def test_a_bound_surgeon_seat_refuses_a_pixel_policy_by_name(tmp_path):
+    from dvrl_marl.envs import suction_debris_v8
+
+    _, _, folder = _exported(tmp_path)
+    with pytest.raises(ValueError, match="sees the endoscope"):
+        suction_debris_v8.parallel_env(surgeon=policies.load(folder), surgeon_seat="suction")

@@ -68,6 +68,11 @@ class SurgeonSeat(BaseParallelWrapper):
     def _bind_surgeon(self, surgeon, seat):
         if surgeon is None:
             return None, False
+        if getattr(surgeon, "image_options", None):  # a pixel policy: it needs the endoscope's image as well
+            raise ValueError(f"{self.env.name}: the surgeon {getattr(surgeon, 'name', surgeon)!r} sees the endoscope "
+                             f"({surgeon.image_options}); a bound seat reads the plain observation. Seat it in a "
+                             "team instead: dvrl_marl.training.teams.evaluate_team_batched, or drive it on the "
+                             "batched env made with those options")
         if isinstance(surgeon, str):
             if surgeon != "scripted":
                 raise ValueError(f"{self.env.name}: surgeon must be None, 'scripted', a callable or a teleop device, "

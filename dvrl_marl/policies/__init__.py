@@ -52,7 +52,8 @@ class NumpyPolicy:
     """A multilayer perceptron actor evaluated with numpy: ``policy(observation) -> action``."""
 
     def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]], spec: dict,
-                 kernels: list[tuple[np.ndarray, np.ndarray]] | None = None):
+                 kernels: list[tuple[np.ndarray, np.ndarray]] | None = None,
+                 readout: tuple[np.ndarray, np.ndarray] | None = None):
         if spec.get("format") != POLICY_FORMAT:
             raise ValueError(f"not a {POLICY_FORMAT} policy (format {spec.get('format')!r})")
         activations = spec["activations"]
@@ -72,7 +73,7 @@ class NumpyPolicy:
         if spec.get("image") is not None:
             from dvrl_marl.policies.image_encoder import ImageEncoder
 
-            self.encoder = ImageEncoder(spec["image"], kernels or [])
+            self.encoder = ImageEncoder(spec["image"], kernels or [], readout)
         self._feature_count = 0
         if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
             from dvrl_marl.envs import features
@@ -196,8 +197,8 @@ def load(name_or_path) -> NumpyPolicy:
             path = shipped_dir() / str(name_or_path)
         else:
             raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
-    spec, weights, kernels = _read_policy_folder(path)
-    return NumpyPolicy(weights, spec, kernels)
+    spec, weights, kernels, readout = _read_policy_folder(path)
+    return NumpyPolicy(weights, spec, kernels, readout)
 
 
 def load_seat(name_or_path, agent: str, who: str = "partner") -> NumpyPolicy:
@@ -243,21 +244,22 @@ def _read_policy_folder(path: Path):
                 raise ValueError(f"{npz_path}: array {name!r} must hold finite floats")
             layer.append(array)
         weights.append(tuple(layer))
-    kernels = []
-    if checked.image is not None:  # a pixel policy's convolutions (the schema checked their sizes chain)
+    kernels, readout = [], None
+    if checked.image is not None:  # a pixel policy's convolutions and read-out (the schema checked their sizes)
+        def image_array(name, shape):
+            if name not in arrays:
+                raise ValueError(f"{npz_path}: missing array {name!r} (policy.json's image declares it)")
+            array = arrays[name]
+            if array.shape != shape or not np.issubdtype(array.dtype, np.floating) or not np.all(np.isfinite(array)):
+                raise ValueError(f"{npz_path}: array {name!r} must hold finite floats of shape {shape}, got "
+                                 f"{array.dtype} {array.shape}")
+            return array
+
         channels = 3
         for index, (out, kernel, _) in enumerate(checked.image.convolutions):
-            layer = []
-            for name, shape in ((f"K{index}", (out, channels, kernel, kernel)), (f"k{index}", (out,))):
-                if name not in arrays:
-                    raise ValueError(f"{npz_path}: missing array {name!r} (policy.json's image declares "
-                                     f"{len(checked.image.convolutions)} convolutions)")
-                array = arrays[name]
-                if array.shape != shape or not np.issubdtype(array.dtype, np.floating) \
-                        or not np.all(np.isfinite(array)):
-                    raise ValueError(f"{npz_path}: array {name!r} must hold finite floats of shape {shape}, got "
-                                     f"{array.dtype} {array.shape}")
-                layer.append(array)
-            kernels.append(tuple(layer))
+            kernels.append((image_array(f"K{index}", (out, channels, kernel, kernel)), image_array(f"k{index}", (out,))))
             channels = out
-    return spec, weights, kernels
+        if checked.image.readout is not None:
+            size = (checked.image.readout, checked.image.convolved_size())
+            readout = (image_array("R", size), image_array("r", size[:1]))
+    return spec, weights, kernels, readout

@@ -2,9 +2,11 @@
 
 A pixel policy's ``policy.json`` has an ``"image"`` table: the observation key of the image and its size, the
 slice of the ``"observation"`` vector it reads as proprioception (the arm's own tip and tool: what the robot's
-joints tell it), and its convolutions ``[channels, kernel, stride]`` (no padding, ReLU after each). ``policy.npz``
-holds their kernels ``K0, k0, K1, k1, ...`` in torch's layout ``(out, in, kernel, kernel)``. The encoder's output
-(channels first, as torch flattens it) followed by the proprioception is what the policy's first layer reads.
+joints tell it), its convolutions ``[channels, kernel, stride]`` (no padding, ReLU after each) and optionally a
+``readout``: a linear layer of that many outputs after them (estimates of what the scene holds, such as the blood
+left). ``policy.npz`` holds the kernels ``K0, k0, K1, k1, ...`` in torch's layout ``(out, in, kernel, kernel)`` and the
+read-out's ``R, r``. The encoder's output (the convolutions' flattened channels first, as torch flattens them, or the
+read-out's) followed by the proprioception is what the policy's first layer reads.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ __all__ = ["ImageEncoder"]
 class ImageEncoder:
     """``encoder(images)``: uint8 images ``(..., S, S, 3)`` -> float32 features ``(..., encoded_size)``."""
 
-    def __init__(self, image: dict, kernels: list[tuple[np.ndarray, np.ndarray]]):
+    def __init__(self, image: dict, kernels: list[tuple[np.ndarray, np.ndarray]],
+                 readout: tuple[np.ndarray, np.ndarray] | None = None):
         checked = validated(PolicyImage, image, "policy.json's image")
         self.key = image["key"]
         self.size = int(image["size"])
@@ -28,6 +31,10 @@ class ImageEncoder:
         self.proprioception = slice(*image["proprioception"])
         self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
         self.output_size = checked.encoded_size()
+        self.readout = None if readout is None else tuple(part.astype(np.float32) for part in readout)
+        if (self.readout is None) != (checked.readout is None):
+            raise ValueError("policy.json's image names a readout of "
+                             f"{checked.readout} outputs, {'without' if self.readout is None else 'with'} weights for it")
 
     def __call__(self, images) -> np.ndarray:
         images = np.asarray(images)
@@ -41,4 +48,7 @@ class ImageEncoder:
             windows = sliding_window_view(x, (kernel, kernel), axis=(1, 2))[:, ::stride, ::stride]
             # windows: (N, H', W', in, k, k) against torch's (out, in, k, k)
             x = np.maximum(np.tensordot(windows, weight, axes=([3, 4, 5], [1, 2, 3])) + bias, 0.0)
-        return x.transpose(0, 3, 1, 2).reshape(lead + (-1,))
+        x = x.transpose(0, 3, 1, 2).reshape(len(x), -1)
+        if self.readout is not None:
+            x = x @ self.readout[0].T + self.readout[1]
+        return x.reshape(lead + (-1,))

@@ -60,9 +60,10 @@ def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Pa
 
 
 def write_policy(directory, layers, *, name: str, env_id: str, algorithm: str, observation_keys, action_low,
-                 action_high, kernels=(), **metadata) -> Path:
-    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``; ``kernels``:
-    a pixel policy's convolutions (weight, bias), whose ``image`` table goes in ``metadata``."""
+                 action_high, kernels=(), readout=None, **metadata) -> Path:
+    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``; ``kernels``
+    and ``readout``: a pixel policy's convolutions and read-out (weight, bias), whose ``image`` table goes in
+    ``metadata``."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     arrays = {}
@@ -70,6 +71,8 @@ def write_policy(directory, layers, *, name: str, env_id: str, algorithm: str, o
         arrays[f"W{index}"], arrays[f"b{index}"] = weight, bias
     for index, (weight, bias) in enumerate(kernels):
         arrays[f"K{index}"], arrays[f"k{index}"] = weight, bias
+    if readout is not None:
+        arrays["R"], arrays["r"] = readout
     with (directory / "policy.npz").open("wb") as handle:
         np.savez(handle, **arrays)
     spec = {

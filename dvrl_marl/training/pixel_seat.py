@@ -10,12 +10,15 @@ privileged seat (the teacher) reads.
    rounds (DAgger, Ross, Gordon and Bagnell 2011); every ``record_every``-th step of each live world, the image,
    the proprioception and the teacher's action for that state join the data, with the privileged quantities the
    image shows (the other arm's tip, the blood left in each cavity) as auxiliary targets.
-2. **Fit** (:func:`fit`): a small convolutional network, then a perceptron (:class:`PixelActor`), by the squared
-   error of the motion and the logistic loss of the valve (a switch: open when its output is positive), plus the
-   squared error of a linear read-out of the image's features against the auxiliary targets (standardised) and
-   the logistic loss of one more per cavity against "cleared" (its blood under the task's threshold: the teacher's
-   switch, a few pixels of blood at 64 px); training only: they teach the convolutions what to look for, and the
-   policy never reads them. Images are shifted by a few pixels at random (the endoscope's pose varies).
+2. **Fit** (:func:`fit`): a small convolutional network ends in a linear **read-out** of a few estimates (the
+   auxiliary targets, standardised, and one logit per cavity for "cleared": its blood under the task's threshold,
+   the teacher's switch, a few pixels of blood at 64 px); a perceptron acts from those estimates and the
+   proprioception alone (:class:`PixelActor`). The loss: the squared error of the motion and the logistic loss of
+   the valve (a switch: open when its output is positive), plus the estimates' own errors (their squared error,
+   and the logistic loss of "cleared"). The bottleneck is the point: the privileged seat acts from a handful of
+   numbers (measured: its action moves with its own tip and tool and the blood left, hardly with anything else),
+   and the image need only give those. Images are shifted by a few pixels at random (the endoscope's pose
+   varies).
 3. **Validate** (:func:`validate`): the exported numpy policy, by its default call, beside the training partners on
    validation seeds (``teams.VALIDATION_SEED``); the best round is kept.
 
@@ -62,7 +65,7 @@ class PixelSeatConfig(BaseModel):
     action_noise: NonNegative = 0.3
     updates: PositiveInt = 1500
     first_updates: PositiveInt = 3000
-    auxiliary: Annotated[list[int], Field(min_length=2, max_length=2)] | None = [4, 9]
+    auxiliary: Annotated[list[int], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
     batch_size: PositiveInt = 256
@@ -93,8 +96,9 @@ def _torch():
 
 
 def PixelActor(config: PixelSeatConfig, proprioception: int):
-    """The student: convolutions (ReLU) over the image in [-0.5, 0.5], flattened, the proprioception after them,
-    ReLU layers, then 4 outputs (the motion, and the valve's logit)."""
+    """The student: convolutions (ReLU) over the image in [-0.5, 0.5], flattened, a linear read-out of the
+    estimates; the estimates and the proprioception through ReLU layers to 4 outputs (the motion, the valve's
+    logit)."""
     torch = _torch()
     nn = torch.nn
 
@@ -108,19 +112,19 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
             self.encoder = nn.Sequential(*layers, nn.Flatten())
             with torch.no_grad():
                 size = self.encoder(torch.zeros(1, 3, config.image_size, config.image_size)).shape[1]
-            sizes = [size + proprioception, *config.hidden, 4]
+            aux = config.auxiliary
+            self.estimates = aux[1] - aux[0]
+            self.readout = nn.Linear(size, self.estimates + len(_cleared_levels()))
+            sizes = [self.readout.out_features + proprioception, *config.hidden, 4]
             head = []
             for index in range(len(sizes) - 1):
                 head.append(nn.Linear(sizes[index], sizes[index + 1]))
                 if index < len(sizes) - 2:
                     head.append(nn.ReLU())
             self.head = nn.Sequential(*head)
-            aux = config.auxiliary
-            self.auxiliary = None if aux is None else nn.Linear(size, aux[1] - aux[0])  # training only
-            self.cleared = nn.Linear(size, len(_cleared_levels()))  # training only
 
         def features(self, images):
-            return self.encoder(images.permute(0, 3, 1, 2).float() / 255.0 - 0.5)
+            return self.readout(self.encoder(images.permute(0, 3, 1, 2).float() / 255.0 - 0.5))
 
         def forward(self, images, own):  # images: (B, S, S, 3) uint8
             return self.head(torch.cat([self.features(images), own], dim=1))
@@ -163,7 +167,7 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     done = np.zeros(config.worlds, dtype=bool)
     success = np.zeros(config.worlds, dtype=bool)
     images, proprioception, labels, targets, cleared = [], [], [], [], []
-    aux = slice(*(config.auxiliary or (0, 0)))
+    aux = slice(*config.auxiliary)
     cleared_at = _cleared_levels()
     step = 0
     while not done.all():
@@ -218,7 +222,9 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     own = torch.from_numpy(data["proprioception"])
     labels = torch.from_numpy(data["labels"])
     targets = torch.from_numpy(data["targets"])
-    targets = (targets - targets.mean(0)) / targets.std(0).clamp_min(1e-6)  # each at one scale
+    if not hasattr(model, "_target_scale"):  # each estimate at one scale, fixed by the first round's data
+        model._target_scale = (targets.mean(0), targets.std(0).clamp_min(1e-6))
+    targets = (targets - model._target_scale[0]) / model._target_scale[1]
     cleared = torch.from_numpy(data["cleared"])
     opened = (labels[:, 3] > 0).float()
     functional = torch.nn.functional
@@ -230,10 +236,10 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
         output = model.head(torch.cat([features, own[batch]], dim=1))
         loss = (functional.mse_loss(output[:, :3], labels[batch, :3])
                 + config.valve_weight * functional.binary_cross_entropy_with_logits(output[:, 3], opened[batch]))
-        if model.auxiliary is not None:
-            loss = loss + config.auxiliary_weight * functional.mse_loss(model.auxiliary(features), targets[batch])
-        loss = loss + config.cleared_weight * functional.binary_cross_entropy_with_logits(model.cleared(features),
-                                                                                         cleared[batch])
+        estimates = model.estimates
+        loss = (loss + config.auxiliary_weight * functional.mse_loss(features[:, :estimates], targets[batch])
+                + config.cleared_weight * functional.binary_cross_entropy_with_logits(features[:, estimates:],
+                                                                                      cleared[batch]))
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -252,10 +258,13 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict)
     layers = [(layer.weight.detach().numpy().astype(np.float32), layer.bias.detach().numpy().astype(np.float32),
                "clip" if index == len(linear) - 1 else "relu") for index, layer in enumerate(linear)]
     image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
-             "convolutions": [list(layer) for layer in config.convolutions]}
+             "convolutions": [list(layer) for layer in config.convolutions],
+             "readout": model.readout.out_features}
+    readout = (model.readout.weight.detach().numpy().astype(np.float32),
+               model.readout.bias.detach().numpy().astype(np.float32))
     return write_policy(directory, layers, name=name, env_id="suction_debris_v8", algorithm="DAgger (pixels)",
                         observation_keys=["observation", "image"], action_low=[-1.0] * 4, action_high=[1.0] * 4,
-                        kernels=kernels, image=image, agent=config.agent, switch_dimensions=[3], **metadata)
+                        kernels=kernels, readout=readout, image=image, agent=config.agent, switch_dimensions=[3], **metadata)
 
 
 def validate(policy, config: PixelSeatConfig) -> dict:
