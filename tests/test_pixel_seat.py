@@ -1,5 +1,5 @@
 """The seat that sees the endoscope: its numpy policy equals the network it was trained as, it refuses what it
-cannot read, the trainer's pieces do what they say, and the shipped pixel seat works the suction by its default call."""
+cannot read, the trainer's pieces do what they say, and team evaluations give images only to the seat that sees."""
 
 import json
 import shutil
@@ -12,8 +12,6 @@ from dvrl_marl.training import teams
 
 torch = pytest.importorskip("torch")
 from dvrl_marl.training import pixel_seat  # noqa: E402  (needs torch)
-
-SHIPPED = "pixel-suction"
 
 
 def _config(**overrides):
@@ -143,18 +141,22 @@ def test_an_evaluation_gives_images_only_to_the_seat_that_sees(tmp_path):
     assert result["episodes"] == 2 and result["success_rate"] == 0.0  # an untrained net in 20 steps
 
 
-@pytest.mark.skipif(SHIPPED not in policies.available(), reason="the pixel seat is not shipped")
-def test_the_shipped_pixel_seat_works_the_suction_by_its_default_call():
-    seat = teams.seat(SHIPPED, "suction")
-    assert seat.image_options == {"image_size": 64}
-    result = teams.evaluate_team_batched({"suction": seat, "grasper": teams.seat("scripted", "grasper")}, 6,
-                                         image_appearance="held_out")
-    assert result["success_rate"] >= 5 / 6 and result["mean_contact_steps"] <= 5.0
-
-
 def test_a_bound_surgeon_seat_refuses_a_pixel_policy_by_name(tmp_path):
     from dvrl_marl.envs import suction_debris_v8
 
     _, _, folder = _exported(tmp_path)
     with pytest.raises(ValueError, match="sees the endoscope"):
         suction_debris_v8.parallel_env(surgeon=policies.load(folder), surgeon_seat="suction")
+
+
+def test_the_cli_trains_a_pixel_seat_from_its_configuration(tmp_path, capsys):
+    from dvrl_marl.cli import main
+
+    config = tmp_path / "tiny_pixels.toml"
+    config.write_text('[run]\nalgorithm = "pixel-dagger"\npartners = ["scripted"]\nworlds = 2\nrounds = 1\n'
+                      'max_cycles = 20\nfirst_updates = 2\nconvolutions = [[4, 8, 4]]\nhidden = [8]\n'
+                      'validation_episodes = 2\n')
+    assert main(["train", str(config), "--out", str(tmp_path / "run"), "--export", str(tmp_path / "seat"),
+                 "--no-progress"]) == 0
+    assert "validation success" in capsys.readouterr().out
+    assert policies.load(tmp_path / "seat").image_options == {"image_size": 64}
