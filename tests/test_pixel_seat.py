@@ -118,6 +118,13 @@ def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["selected_round"] == result["selected_round"]
 
 
+def test_the_shipped_configuration_reads():
+    from dvrl_marl.cli import resolve_config
+
+    name, config = pixel_seat.load_config(resolve_config("suction_pixels_dagger"))
+    assert name == "suction_pixels_dagger" and config.teacher == "marl-suction" and config.image_size == 64
+
+
 def test_a_bad_configuration_names_the_field(tmp_path):
     path = tmp_path / "pixels.toml"
     path.write_text('[run]\nalgorithm = "pixel-dagger"\nimage_size = 20\n')

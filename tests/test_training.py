@@ -4,6 +4,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import gymnasium as gym
@@ -17,8 +18,8 @@ from dvrl_marl.training.demonstrations import generate_demonstrations, load_demo
 from dvrl_marl.training.runner import ON_POLICY, sb3_algorithms, evaluate_policy
 
 # The goal-env configurations (the PPO ones for the collaborative env are tested in test_marl_training.py).
-CONFIGS = sorted(p for p in (Path(__file__).parents[1] / "baselines" / "configs").glob("*.toml")
-                 if not p.stem.startswith(("suction_debris", "surgeon_")))  # the single-arm goal-env runs
+CONFIGS = sorted(p for p in (Path(__file__).parents[1] / "baselines" / "configs").glob("*.toml")  # goal-env runs
+                 if {"env_id", "extends"} & set(tomllib.loads(p.read_text()).get("run", {})))
 
 
 def test_bc_loss_on_a_hand_made_batch():
