@@ -106,6 +106,23 @@ def test_collect_labels_every_recorded_state_with_the_teachers_action():
     env.step({"suction": teacher(observations["suction"]), "grasper": partner(observations["grasper"])})
 
 
+def test_the_teacher_drives_its_share_of_the_worlds():
+    config = _config(worlds=4, max_cycles=10, record_every=1, action_noise=0.2, partners=["scripted"])
+    by_teacher = pixel_seat.collect(config, None, seed=7, noise_seed=7)
+
+    def still(observations):  # a student that never moves: where it drives, the worlds differ from the teacher's
+        return np.zeros((len(observations["observation"]), 4))
+
+    half = pixel_seat.collect(config.model_copy(update={"teacher_share": 0.5}), still, seed=7, noise_seed=7)
+    whole = pixel_seat.collect(config.model_copy(update={"teacher_share": 1.0}), still, seed=7, noise_seed=7)
+    np.testing.assert_array_equal(whole["proprioception"], by_teacher["proprioception"])
+    frames = by_teacher["proprioception"].reshape(10, 4, 4)  # step, world, value
+    mixed = half["proprioception"].reshape(10, 4, 4)
+    np.testing.assert_array_equal(mixed[:, :2], frames[:, :2])  # worlds 0 and 1: the teacher drove
+    assert not np.array_equal(mixed[:, 2:], frames[:, 2:])
+    np.testing.assert_array_equal(mixed[:, 2:, :3], np.broadcast_to(mixed[:1, 2:, :3], (10, 2, 3)))  # still
+
+
 def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
     config = _config(worlds=4, rounds=2, max_cycles=30, updates=3, first_updates=5, validation_episodes=2,
                      convolutions=[[8, 8, 4]], hidden=[16], partners=["scripted"])

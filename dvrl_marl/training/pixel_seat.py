@@ -7,7 +7,8 @@ privileged seat (the teacher) reads.
 
 1. **Collect** (:func:`collect`): worlds of the batched env beside the training partners; the teacher drives in
    round 0 (with DART noise on its motion, Laskey et al. 2017: it shows how to recover), the student in later
-   rounds (DAgger, Ross, Gordon and Bagnell 2011); every ``record_every``-th step of each live world, the image,
+   rounds (DAgger, Ross, Gordon and Bagnell 2011; ``teacher_share``, DAgger's beta: the teacher still drives that
+   share of the worlds, so that one student's stuck episodes do not make up the data); every ``record_every``-th step of each live world, the image,
    the proprioception and the teacher's action for that state join the data, with the privileged quantities the
    image shows (the other arm's tip, the blood left in each cavity) as auxiliary targets.
 2. **Fit** (:func:`fit`): a small convolutional network ends in a linear **read-out** of a few estimates (the
@@ -35,7 +36,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from dvrl_marl.schemas import STRICT, NonNegative, Positive, PositiveInt, Text, validated
+from dvrl_marl.schemas import STRICT, Fraction, NonNegative, Positive, PositiveInt, Text, validated
 
 __all__ = ["PixelSeatConfig", "load_config", "PixelActor", "collect", "fit", "validate", "export", "train",
            "PIXEL_SEED"]
@@ -63,6 +64,7 @@ class PixelSeatConfig(BaseModel):
     worlds: PositiveInt = 64
     record_every: PositiveInt = 2
     action_noise: NonNegative = 0.3
+    teacher_share: Fraction = 0.0
     updates: PositiveInt = 1500
     first_updates: PositiveInt = 3000
     auxiliary: Annotated[list[int], Field(min_length=2, max_length=2)] = [4, 9]
@@ -150,7 +152,8 @@ def _env(config: PixelSeatConfig, worlds: int):
 
 def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dict:
     """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
-    (the teacher with DART noise when ``student`` is None), the teacher labels. Returns the recorded images
+    (the teacher with DART noise when ``student`` is None, and in the first ``teacher_share`` of the worlds), the
+    teacher labels. Returns the recorded images
     ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)``, auxiliary targets ``(M, a)`` and the episodes'
     success rate."""
     from dvrl_marl.training import teams
@@ -162,6 +165,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     partner = teams.partner(config.partners if len(config.partners) > 1 else config.partners[0], other,
                             noise_from=seed)
     rng = np.random.default_rng(noise_seed)
+    taught = np.arange(config.worlds) < (config.worlds if student is None else
+                                         round(config.teacher_share * config.worlds))
     own = slice(*config.proprioception)
     observations, _ = env.reset(seed=seed)
     done = np.zeros(config.worlds, dtype=bool)
@@ -173,12 +178,12 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     while not done.all():
         seen = observations[agent]
         label = np.asarray(teacher(seen["observation"]), dtype=np.float32)
-        if student is None:
-            action = label.copy()
-            action[:, :3] = np.clip(action[:, :3] + config.action_noise * rng.standard_normal((len(action), 3)),
-                                    -1.0, 1.0)
-        else:
-            action = np.asarray(student(seen), dtype=np.float32)
+        action = label.copy()
+        action[:, :3] = np.clip(action[:, :3] + config.action_noise * rng.standard_normal((len(action), 3)),
+                                -1.0, 1.0)
+        if not taught.all():
+            action[~taught] = np.asarray(student({key: value[~taught] for key, value in seen.items()}),
+                                         dtype=np.float32)
         if step % config.record_every == 0:
             live = ~done
             images.append(seen["image"][live].copy())
