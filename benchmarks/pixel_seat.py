@@ -1,13 +1,14 @@
 """The seat that sees the endoscope beside every partner kind, on the training looks and on held-out ones.
 
-The pixel suction (``pixel-suction``: the endoscope's image and its own tip and valve) and the privileged seat it
-was distilled from (``marl-suction``: blood volumes, pin and tip positions) play beside the same partners as in
+A pixel suction (``--pixel``, a policy folder that ``dvrl-marl train suction_pixels_dagger`` wrote: the endoscope's
+image and its own tip and valve) and the privileged seat it was distilled from (``marl-suction``: blood volumes, pin and tip positions) play beside the same partners as in
 ``benchmarks/partner_zoo.py`` (the scripted surgeon, the Reach + Pick pipeline, the measured person and each held-out
 kind), by their default call, on test seeds, with a person's 6,000-step horizon. The pixel seat plays once per look
 (``image_appearance``: ``"train"``, the range it trained in; ``"held_out"``, outside it); the privileged seat sees no
 image, so one row per partner.
 
-    python benchmarks/pixel_seat.py [--episodes 50] [--partners scripted pipeline ...] [--json FILE]
+    python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
+                                    [--looks train held_out] [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
 privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
@@ -28,7 +29,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--episodes", type=int, default=50, help="test seeds per row")
-    parser.add_argument("--pixel", default="pixel-suction", help="the seat that sees the endoscope")
+    parser.add_argument("--pixel", required=True,
+                        help="the seat that sees the endoscope: a policy folder (runs/<name>-seed<N>/policies/<name>)")
     parser.add_argument("--privileged", default="marl-suction", help="the seat it was distilled from")
     parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
     parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out"])
@@ -55,8 +57,8 @@ def main() -> None:
             gap = row.get("gap")
             print(f"{partner:10s} {row['player']:14s} {look:9s} {row['success_rate']:8.2f} "
                   f"{'-' if median is None else f'{median:.0f}':>13s} {row['mean_contact_steps']:9.1f} "
-                  f"{row['tip_path_mm']:12.0f} {'' if gap is None else f'{gap:+.2f}':>6s} "
-                  f"{rows[-1]['seconds'] if look != '-' else rows[-len(runs)]['seconds']:8.0f}", flush=True)
+                  f"{row['tip_path_mm']:12.0f} {'' if gap is None else f'{gap:+.2f}':>6s} {row['seconds']:8.0f}",
+                  flush=True)
         if args.json:  # as it goes: a long run keeps what it measured
             args.json.write_text(json.dumps({"episodes": args.episodes, "rows": rows}, indent=2) + "\n")
 

@@ -290,7 +290,7 @@ class PolicyFile(BaseModel):
             start, stop = self.image.proprioception
             expected = self.image.encoded_size() + stop - start
             if self.layer_sizes[0] != expected:
-                raise ValueError(f"layer_sizes[0] must be {expected} (the image's convolutions then "
+                raise ValueError(f"layer_sizes[0] must be {expected} (the image's encoding then "
                                  f"{stop - start} proprioception values), got {self.layer_sizes[0]}")
         for index in self.switch_dimensions:
             if index >= self.layer_sizes[-1]:

@@ -84,6 +84,7 @@ def test_the_trainers_shift_moves_whole_images():
         interior = shifted[index, 2:-2, 2:-2]
         assert any(np.array_equal(interior, original[index, 2 + dy:18 + dy, 2 + dx:18 + dx])
                    for dy in range(-2, 3) for dx in range(-2, 3))
+    assert sum(not np.array_equal(shifted[i], original[i]) for i in range(16)) >= 12  # and most of them did move
 
 
 def test_collect_labels_every_recorded_state_with_the_teachers_action():

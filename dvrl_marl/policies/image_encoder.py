@@ -25,10 +25,9 @@ class ImageEncoder:
     def __init__(self, image: dict, kernels: list[tuple[np.ndarray, np.ndarray]],
                  readout: tuple[np.ndarray, np.ndarray] | None = None):
         checked = validated(PolicyImage, image, "policy.json's image")
-        self.key = image["key"]
-        self.size = int(image["size"])
-        self.convolutions = [tuple(int(v) for v in layer) for layer in image["convolutions"]]
-        self.proprioception = slice(*image["proprioception"])
+        self.key, self.size = checked.key, checked.size
+        self.convolutions = [tuple(layer) for layer in checked.convolutions]
+        self.proprioception = slice(*checked.proprioception)
         self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
         self.output_size = checked.encoded_size()
         self.readout = None if readout is None else tuple(part.astype(np.float32) for part in readout)

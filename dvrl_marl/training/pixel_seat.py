@@ -8,9 +8,10 @@ privileged seat (the teacher) reads.
 1. **Collect** (:func:`collect`): worlds of the batched env beside the training partners; the teacher drives in
    round 0 (with DART noise on its motion, Laskey et al. 2017: it shows how to recover), the student in later
    rounds (DAgger, Ross, Gordon and Bagnell 2011; ``teacher_share``, DAgger's beta: the teacher still drives that
-   share of the worlds, so that one student's stuck episodes do not make up the data); every ``record_every``-th step of each live world, the image,
-   the proprioception and the teacher's action for that state join the data, with the privileged quantities the
-   image shows (the other arm's tip, the blood left in each cavity) as auxiliary targets.
+   share of the worlds, so that one student's stuck episodes do not make up the data); every ``record_every``-th
+   step of each live world, the image, the proprioception and the teacher's action for that state join the data,
+   with the privileged quantities the image shows (the other arm's tip, the blood left in each cavity) as
+   auxiliary targets.
 2. **Fit** (:func:`fit`): a small convolutional network ends in a linear **read-out** of a few estimates (the
    auxiliary targets, standardised, and one logit per cavity for "cleared": its blood under the task's threshold,
    the teacher's switch, a few pixels of blood at 64 px); a perceptron acts from those estimates and the
@@ -36,7 +37,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from dvrl_marl.schemas import STRICT, Fraction, NonNegative, Positive, PositiveInt, Text, validated
+from dvrl_marl.schemas import STRICT, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text, validated
 
 __all__ = ["PixelSeatConfig", "load_config", "PixelActor", "collect", "fit", "validate", "export", "train",
            "PIXEL_SEED"]
@@ -56,7 +57,7 @@ class PixelSeatConfig(BaseModel):
     partners: Annotated[list[Text], Field(min_length=1)] = ["scripted", "marl-grasper", "person-like"]
     image_size: Annotated[int, Field(ge=32, le=256)] = 64
     image_appearance: Literal["train", "none"] = "train"
-    proprioception: Annotated[list[int], Field(min_length=2, max_length=2)] = [0, 4]
+    proprioception: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [0, 4]
     convolutions: list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]] = [[16, 5, 2], [32, 3, 2],
                                                                                             [32, 3, 2]]
     hidden: list[PositiveInt] = [256, 256]
@@ -67,7 +68,7 @@ class PixelSeatConfig(BaseModel):
     teacher_share: Fraction = 0.0
     updates: PositiveInt = 1500
     first_updates: PositiveInt = 3000
-    auxiliary: Annotated[list[int], Field(min_length=2, max_length=2)] = [4, 9]
+    auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
     batch_size: PositiveInt = 256
@@ -141,6 +142,18 @@ def _cleared_levels() -> list[tuple[int, float]]:
     return cleared_features()
 
 
+def _other(config: PixelSeatConfig) -> str:
+    return "grasper" if config.agent == "suction" else "suction"
+
+
+def _partner(config: PixelSeatConfig, noise_from: int | None = None):
+    """The training partners in the other seat (one, or a share of the worlds each)."""
+    from dvrl_marl.training import teams
+
+    names = config.partners if len(config.partners) > 1 else config.partners[0]
+    return teams.partner(names, _other(config), noise_from=noise_from)
+
+
 def _env(config: PixelSeatConfig, worlds: int):
     from dvrl_marl.envs import suction_debris_v8
 
@@ -153,17 +166,14 @@ def _env(config: PixelSeatConfig, worlds: int):
 def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dict:
     """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
     (the teacher with DART noise when ``student`` is None, and in the first ``teacher_share`` of the worlds), the
-    teacher labels. Returns the recorded images
-    ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)``, auxiliary targets ``(M, a)`` and the episodes'
-    success rate."""
+    teacher labels. Returns the recorded images ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)``,
+    auxiliary targets ``(M, a)``, "cleared" per cavity ``(M, C)`` and the episodes' success rate."""
     from dvrl_marl.training import teams
 
-    agent = config.agent
-    other = "grasper" if agent == "suction" else "suction"
+    agent, other = config.agent, _other(config)
     env = _env(config, config.worlds)
     teacher = teams.seat(config.teacher, agent)
-    partner = teams.partner(config.partners if len(config.partners) > 1 else config.partners[0], other,
-                            noise_from=seed)
+    partner = _partner(config, noise_from=seed)
     rng = np.random.default_rng(noise_seed)
     taught = np.arange(config.worlds) < (config.worlds if student is None else
                                          round(config.teacher_share * config.worlds))
@@ -276,8 +286,8 @@ def validate(policy, config: PixelSeatConfig) -> dict:
     """The policy by its default call beside the training partners, on validation seeds."""
     from dvrl_marl.training import teams
 
-    other = "grasper" if config.agent == "suction" else "suction"
-    partner = teams.partner(config.partners if len(config.partners) > 1 else config.partners[0], other)
+    other = _other(config)
+    partner = _partner(config)
     options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
     if config.image_appearance != "none":
         options["image_appearance"] = config.image_appearance
