@@ -270,12 +270,14 @@ def test_a_person_like_operator_finishes_from_what_the_page_shows(browser, serve
     seen = {"heights": set(), "reach": False, "holding": False, "banner_reach": False, "banner_holding": False}
 
     def read_cues(view, page):
-        if view["cues"]["in_reach"] and not seen["reach"]:
-            seen["reach"] = "IN REACH" in page.inner_text("#reach")
-            seen["banner_reach"] = "Pin in reach" in page.inner_text("#cue")
-        if view["cues"]["holding"] and not seen["holding"]:
-            seen["holding"] = "mm to the hand-off" in page.inner_text("#reach")
-            seen["banner_holding"] = "Holding a pin" in page.inner_text("#cue")
+        # each cue is read until it is seen once: the page shows the newest status, the view is 200 ms old, and a
+        # blocked move's warning takes the banner while it lasts
+        if view["cues"]["in_reach"]:
+            seen["reach"] = seen["reach"] or "IN REACH" in page.inner_text("#reach")
+            seen["banner_reach"] = seen["banner_reach"] or "Pin in reach" in page.inner_text("#cue")
+        if view["cues"]["holding"]:
+            seen["holding"] = seen["holding"] or "mm to the hand-off" in page.inner_text("#reach")
+            seen["banner_holding"] = seen["banner_holding"] or "Holding a pin" in page.inner_text("#cue")
         if len(seen["heights"]) < 5:
             seen["heights"].add(page.inner_text("#height"))
 
