@@ -2,11 +2,13 @@
 
 For each seat, the learned policy (its default call: the mean action, as a robot is driven) and the scripted
 expert play beside the same partners: the scripted one, the Reach + Pick pipeline, the measured person
-(:data:`dvrl_marl.agents.partners.PERSON`) and each held-out kind (:data:`~dvrl_marl.agents.partners.HELD_OUT`:
-late, slow, shaky, hesitant; drawn with ``ZOO_SEED``, never used in training). Test seeds (``teams.EVAL_SEED`` on),
+(:data:`dvrl_marl.agents.partners.PERSON`), each held-out kind (:data:`~dvrl_marl.agents.partners.HELD_OUT`:
+late, slow, shaky, hesitant; drawn with ``ZOO_SEED``, never used in training) and, beside the suction, the held-out
+surgeons that rest in its way (:data:`dvrl_marl.agents.in_the_way.HELD_OUT`). Test seeds (``teams.EVAL_SEED`` on),
 ``suction_debris_v8`` with a person's 6,000-step horizon.
 
     python benchmarks/partner_zoo.py [--episodes 100] [--suction marl-suction] [--grasper marl-grasper]
+                                     [--seats suction grasper] [--partners scripted in-the-way ...]
                                      [--noise] [--json baselines/results/partner_zoo.json]
 
 Prints, per seat and partner: success, median steps to success, instrument-contact steps, the seat's tip path (mm)
@@ -24,13 +26,15 @@ from dvrl_marl.agents.partners import HELD_OUT, zoo_partner
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
-PARTNERS = ("scripted", "pipeline", "person", *sorted(HELD_OUT))
+PARTNERS = ("scripted", "pipeline", "person", *sorted(HELD_OUT), "in-the-way")
+#: Kinds that fill one seat only: the obstructing surgeons (dvrl_marl.agents.in_the_way) sit in the LND seat.
+SEAT_OF = {"in-the-way": "grasper"}
 
 
 def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, **env_kwargs) -> dict:
     """One row: ``player`` in ``seat`` beside ``partner`` (``env_kwargs``: the evaluation env's options, such as
     ``image_appearance`` for a seat that sees the endoscope)."""
-    other = "grasper" if seat == "suction" else "suction"
+    other = other_seat(seat)
     env = suction_debris_v8.parallel_env()
     filler = (zoo_partner(partner, other, env) if partner not in ("scripted", "pipeline")
               else teams.seat(partner, other))
@@ -43,6 +47,10 @@ def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, *
             "action_change": result["mean_action_change"][seat]}
 
 
+def other_seat(seat: str) -> str:
+    return "grasper" if seat == "suction" else "suction"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -50,13 +58,19 @@ def main() -> None:
     parser.add_argument("--suction", default="marl-suction", help="the learned suction seat")
     parser.add_argument("--grasper", default="marl-grasper", help="the learned grasper seat")
     parser.add_argument("--noise", action="store_true", help="learned seats act with their exploration noise")
+    parser.add_argument("--seats", nargs="+", choices=("suction", "grasper"), default=["suction", "grasper"],
+                        help="the seats to measure")
+    parser.add_argument("--partners", nargs="+", choices=PARTNERS, default=list(PARTNERS), help="the partner kinds")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
     print(f"{'seat':8s} {'partner':10s} {'player':14s} {'success':>8s} {'median steps':>13s} {'contacts':>9s} "
           f"{'tip path mm':>12s} {'action change':>14s}")
-    for seat, learned in (("suction", args.suction), ("grasper", args.grasper)):
-        for partner in PARTNERS:
+    for seat in args.seats:
+        learned = args.suction if seat == "suction" else args.grasper
+        for partner in args.partners:
+            if SEAT_OF.get(partner, other_seat(seat)) != other_seat(seat):
+                continue
             for player in (learned, "scripted"):
                 row = evaluate(seat, player, partner, args.episodes, args.noise)
                 rows.append(row)

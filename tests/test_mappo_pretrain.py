@@ -138,3 +138,75 @@ def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
     mappo.train(config, 0, run, total_steps=2560, resume=True, progress=False, log=messages.append)
     assert not any("cloned" in m for m in messages)
 
+
+
+INIT_CONFIG = """
+[run]
+algorithm = "mappo"
+total_steps = 1024
+num_envs = 16
+rollout_steps = 16
+eval_every = 1024
+eval_episodes = 2
+checkpoint_every = 1024
+surgeon = "scripted"
+surgeon_seat = "grasper"
+[env]
+observation_features = "suction_debris_routes"
+max_cycles = 40
+[model]
+hidden = {hidden}
+tool_head = "switch"
+[pretrain]
+init_policy = {{ suction = "marl-suction" }}
+critic_warmup_steps = 1024
+"""
+
+
+def _init_config(tmp_path, hidden="[256, 256]"):
+    path = tmp_path / "init.toml"
+    path.write_text(INIT_CONFIG.format(hidden=hidden))
+    return mappo.load_config(path)
+
+
+def test_an_actor_started_from_a_policy_acts_as_that_policy(tmp_path):
+    """init_policy: the torch actor's mean is the shipped policy's action (the tool's logit on the same side), the
+    normaliser the identity, and a run records where it started and evaluates the policy before PPO."""
+    from dvrl_marl import policies
+
+    config = _init_config(tmp_path)
+    env = suction_debris_v8.batched_env(num_envs=8, surgeon="scripted", surgeon_seat="grasper", **config.env)
+    agents = list(env.possible_agents)
+    _, _, actor_net, _ = models.build_models(config, agents, env.observation_space("suction").shape[0],
+                                            env.state_space.shape[0], 4, feature_spec=env.feature_spec)
+    summary = pretrain.start_from_policies(config, actor_net, agents, env.feature_spec)
+    assert summary == {"started_from": {"suction": "marl-suction"}}
+    observations, _ = env.reset(seed=3)
+    shipped = policies.load("marl-suction")
+    for _ in range(30):
+        with torch.no_grad():
+            loc = actor_net.agent_forward(torch.from_numpy(observations["suction"].astype(np.float32)), 0).numpy()
+        expected = shipped(observations["suction"])
+        np.testing.assert_allclose(np.clip(loc[:, :3], -1, 1), expected[:, :3], atol=1e-4)
+        np.testing.assert_array_equal(np.where(loc[:, 3] > 0, 1.0, -1.0), expected[:, 3])
+        observations, *_ = env.step({"suction": expected})
+    run = mappo.train(config, 0, tmp_path / "run", progress=False, tensorboard=False, log=lambda *_: None)
+    assert json.loads((tmp_path / "run" / "pretrain.json").read_text()) == summary
+    with (tmp_path / "run" / "progress.csv").open() as handle:
+        assert [row["steps"] for row in csv.DictReader(handle)][0] == "0"  # the policy before PPO
+    spec = json.loads((tmp_path / "run" / "policies" / "marl-suction" / "policy.json").read_text())
+    assert spec["training"]["started_from"] == {"suction": "marl-suction"} and run["steps"] >= 1024
+
+
+def test_a_policy_of_another_network_is_refused_by_name(tmp_path):
+    config = _init_config(tmp_path, hidden="[64, 64]")
+    env = suction_debris_v8.batched_env(num_envs=1, surgeon="scripted", surgeon_seat="grasper", **config.env)
+    _, _, actor_net, _ = models.build_models(config, ["suction"], env.observation_space("suction").shape[0],
+                                            env.state_space.shape[0], 4, feature_spec=env.feature_spec)
+    with pytest.raises(ValueError, match=r"init_policy suction = 'marl-suction': layers .* set \[model\] hidden"):
+        pretrain.start_from_policies(config, actor_net, ["suction"], env.feature_spec)
+    config = _init_config(tmp_path)
+    _, _, actor_net, _ = models.build_models(config, ["suction"], env.observation_space("suction").shape[0],
+                                            env.state_space.shape[0], 4, feature_spec={"name": "other"})
+    with pytest.raises(ValueError, match="observation features 'suction_debris_routes' are not this run's 'other'"):
+        pretrain.start_from_policies(config, actor_net, ["suction"], {"name": "other"})

@@ -23,7 +23,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from dvrl_marl.envs.suction_debris_batched import takes_worlds
+from dvrl_marl.agents.population import Partners
 
 __all__ = ["Partners", "Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
            "training_partners", "ZOO_SEED", "TRAINING_SEED"]
@@ -157,55 +157,19 @@ class PersonLikePartner:
         return f"PersonLikePartner({self.agent!r}, {self.profile})"
 
 
-class Partners:
-    """Several partners filling one seat of a batch of worlds, a share each: world ``i`` is played by
-    ``members[i % len(members)]`` (a fixed assignment, so each partner keeps the same worlds across resets)."""
-
-    def __init__(self, members, names):
-        if not members:
-            raise ValueError("Partners: no partner given")
-        self.members, self.names = list(members), [str(name) for name in names]
-        self._resets = [(getattr(member, "reset", None), takes_worlds(getattr(member, "reset", None)))
-                        for member in self.members]
-
-    def __call__(self, observations: np.ndarray) -> np.ndarray:
-        observations = np.asarray(observations)
-        actions = np.empty((len(observations), 4), dtype=np.float64)
-        count = len(self.members)
-        for index, member in enumerate(self.members):
-            if index < len(observations):
-                actions[index::count] = member(observations[index::count])
-        return actions
-
-    def reset(self, worlds=None) -> None:
-        """Every member starts again (``worlds`` None), or only in those worlds (a member that keeps state world by
-        world is told which of its own worlds; one that cannot is left as it is)."""
-        count = len(self.members)
-        if worlds is not None:
-            worlds = np.asarray(worlds)
-            worlds = np.flatnonzero(worlds) if worlds.dtype == bool else worlds
-        for index, (reset, resets_worlds) in enumerate(self._resets):
-            if reset is None:
-                continue
-            if worlds is None:
-                reset()
-            elif resets_worlds:
-                mine = worlds[worlds % count == index] // count  # this member's own rows (world i is member i % n's)
-                if len(mine):
-                    reset(mine)
-
-    def __repr__(self) -> str:
-        return f"Partners({self.names})"
-
-
 def zoo_partner(kind: str, agent: str, env, members: int = 4):
-    """A held-out kind (:data:`HELD_OUT`, or ``"person"``) in ``agent``'s seat: ``members`` profiles drawn from
-    its ranges with :data:`ZOO_SEED`, a share of the worlds each (:class:`Partners`)."""
+    """A held-out kind (:data:`HELD_OUT`, ``"person"``, or ``"in-the-way"``: the LND seat's obstructing surgeons,
+    :mod:`dvrl_marl.agents.in_the_way`) in ``agent``'s seat: ``members`` profiles drawn from its ranges with
+    :data:`ZOO_SEED`, a share of the worlds each (:class:`Partners`)."""
     if agent not in ("suction", "grasper"):
         raise ValueError(f"zoo_partner: agent must be 'suction' or 'grasper', got {agent!r}")
+    if kind == "in-the-way":
+        from dvrl_marl.agents.in_the_way import held_out_obstructors
+
+        return held_out_obstructors(agent, env, members)
     ranges = PERSON if kind == "person" else HELD_OUT.get(kind)
     if ranges is None:
-        raise ValueError(f"unknown partner kind {kind!r}; held out: {sorted(HELD_OUT)}, or 'person'")
+        raise ValueError(f"unknown partner kind {kind!r}; held out: {sorted(HELD_OUT)}, 'in-the-way' or 'person'")
     stream = ZOO_SEED + 1000 * (sorted(HELD_OUT).index(kind) + 1 if kind in HELD_OUT else 0) + (agent == "grasper")
     profiles = draw_profiles(ranges, members, stream)
     partners = [PersonLikePartner(agent, env, profile, seed=stream + index) for index, profile in enumerate(profiles)]

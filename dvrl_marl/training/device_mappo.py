@@ -38,7 +38,7 @@ from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, 
 __all__ = ["train", "collect", "advantages", "update", "validate", "Rollout"]
 
 #: What this trainer does not do (the trainer of record does): the option, and the value that turns it off.
-_NOT_HERE = {"surgeon": "none", "bc_expert": "", "critic_warmup_steps": 0}
+_NOT_HERE = {"surgeon": "none", "bc_expert": "", "init_policy": {}, "critic_warmup_steps": 0}
 
 
 @dataclass

@@ -177,26 +177,26 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     next_checkpoint = (steps_done // config.checkpoint_every + 1) * config.checkpoint_every
     episodes_ended = successes = 0
     delivered_sum = blood_left_sum = 0.0
-    best_success, best_blood = -1.0, -1.0
+    best = (-1.0, -math.inf, -1.0)  # the best validation's rank (see _rank)
     if resume and (out / "best.json").is_file():
-        best_success, best_blood = json.loads((out / "best.json").read_text())
+        recorded = json.loads((out / "best.json").read_text())
+        best = tuple(recorded) if len(recorded) == 3 else (recorded[0], -math.inf, recorded[1])  # (older runs)
     last = {}
 
     def evaluate(steps: int, easy: float, episode_success: float) -> dict:
         """Validation of the current actors (with the scripted partner, if any): a progress row, the best
         checkpoint's policies, TensorBoard and the log."""
-        nonlocal best_success, best_blood
+        nonlocal best
         seats = _learned_seats(actor_net, agents, out, config, seed, steps, actor_head.log_std,
                                env.observation_scaling)
         if surgeon is not None:
             seats[config.surgeon_seat] = partner(config, env, noise_from=teams.VALIDATION_SEED)
         result = evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
                                        **_eval_kwargs(config))
-        if result["success_rate"] > best_success or (result["success_rate"] == best_success and
-                                                     result["mean_blood_removed_ml"] > best_blood):
-            best_success, best_blood = result["success_rate"], result["mean_blood_removed_ml"]
+        if _rank(result) > best:
+            best = _rank(result)
             shutil.copytree(out / "policies", out / "policies_best", dirs_exist_ok=True)
-            (out / "best.json").write_text(json.dumps([best_success, best_blood]))
+            (out / "best.json").write_text(json.dumps(list(best)))
         row = {"steps": steps, "success_rate": result["success_rate"],
                "blood_removed_ml": result["mean_blood_removed_ml"],
                "median_steps": result["median_steps_to_completion"], "contact_steps": result["mean_contact_steps"],
@@ -227,6 +227,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
         log(f"{config.name} seed {seed}: cloned the {config.bc_expert} expert ({fitted}) in "
             f"{summary['wall_seconds']:.0f} s")
         last = evaluate(0, easy_share(0.0), 0.0)  # what the clone does before PPO
+    elif config.init_policy and steps_done == 0:  # fine-tuning a policy already trained
+        from dvrl_marl.training import pretrain
+
+        summary = pretrain.start_from_policies(config, actor_net, agents, env.feature_spec)
+        (out / "pretrain.json").write_text(json.dumps(summary, indent=2) + "\n")
+        log(f"{config.name} seed {seed}: actors start from {summary['started_from']}")
+        last = evaluate(0, easy_share(0.0), 0.0)  # what the policy does before PPO
     # Where the time goes (benchmarks/ray_scaling.py reads it from result.json): collecting vs. updating.
     timing = {"collect_seconds": 0.0, "learn_seconds": 0.0, "steps": 0, "collectors": collectors.count}
     try:
@@ -306,7 +313,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             observed = torch.from_numpy(obs_buf).to(device)
             # A clone keeps the input scaling it was fitted with (refitting it to the rollouts took one from 0.88
             # success to 0.00 while its weights were frozen).
-            if not config.bc_expert:
+            if not (config.bc_expert or config.init_policy):
                 norms["observation"].update(observed)
             if "state" in norms:
                 norms["state"].update(torch.from_numpy(state_buf).to(device))
@@ -362,6 +369,12 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
                                                 indent=2) + "\n")
     return last
 
+
+
+def _rank(result: dict) -> tuple:
+    """How validations compare: success first; at equal success fewer instrument-contact steps (a seat that waits
+    beats one that pushes), then more blood removed."""
+    return (result["success_rate"], -result["mean_contact_steps"], result["mean_blood_removed_ml"])
 
 
 def _finished_result(out: Path, steps_done: int) -> dict:

@@ -95,6 +95,10 @@ class MappoConfig:
     bc_epochs: PositiveInt = 30
     bc_learning_rate: Positive = 1e-3
     bc_dagger_rounds: NonNegativeInt = 0  # then this many DAgger rounds: the clone drives, the expert labels, the clone refits
+    # fine-tuning: a learning seat's actor starts from a policy (a shipped name or a folder) of the same network
+    # and observation features, e.g. { suction = "marl-suction" }; its input scaling is kept, as a clone's is.
+    # A run that uses it learns from that policy's demonstrations or runs (reported apart from the runs from scratch).
+    init_policy: dict[Literal[suction_debris_v8.AGENTS], Text] = field(default_factory=dict)
     # PPO steps (parallel env steps) at the start of the run during which only the critic learns, the actor frozen
     critic_warmup_steps: NonNegativeInt = 0
     # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
@@ -123,7 +127,7 @@ TABLE_KEYS = {
     "model": ("hidden", "initial_std", "final_std", "tool_head", "initial_tool_logit", "critic_input"),
     "curriculum": ("levels",),
     "pretrain": ("bc_expert", "bc_episodes", "bc_action_noise", "bc_epochs", "bc_learning_rate", "bc_dagger_rounds",
-                 "critic_warmup_steps"),
+                 "init_policy", "critic_warmup_steps"),
 }
 
 _FIELDS = {f.name for f in fields(MappoConfig)}
@@ -202,7 +206,24 @@ def load_config(path) -> MappoConfig:
     if config.critic_input != "state" and config.algorithm != "mappo":
         raise ValueError(f"{path}: critic_input is MAPPO's (IPPO's critics read each agent's own observation)")
     start_levels.checked_schedule(config.levels, f"{path}: [curriculum] levels")
+    _check_init_policy(path, config)
     return config
+
+
+def _check_init_policy(path, config: MappoConfig) -> None:
+    """``init_policy``: learning seats only, not with a clone, each a policy trained for that seat."""
+    if not config.init_policy:
+        return
+    if config.bc_expert:
+        raise ValueError(f"{path}: [pretrain] init_policy and bc_expert both start the actors: give one")
+    for agent, name in config.init_policy.items():
+        if config.surgeon != "none" and agent == config.surgeon_seat:
+            raise ValueError(f"{path}: [pretrain] init_policy names {agent!r}, the partner's seat (surgeon_seat): "
+                             "only a learning seat starts from a policy")
+        try:
+            teams.seat(name, agent)
+        except (ValueError, FileNotFoundError, KeyError) as error:
+            raise ValueError(f"{path}: [pretrain] init_policy {agent} = {name!r}: {error}") from None
 
 
 def check_surgeon(path, config: MappoConfig) -> None:
@@ -245,7 +266,10 @@ def partners(config: MappoConfig) -> list:
 
 
 def demonstrations(config: MappoConfig) -> dict:
-    """What a policy learnt from besides its reward (recorded in its policy.json): nothing, or the cloned expert."""
+    """What a policy learnt from besides its reward (recorded in its policy.json): nothing, the cloned expert, or the
+    policies its actors started from."""
+    if config.init_policy:
+        return {"demonstrations": None, "started_from": dict(config.init_policy)}
     if not config.bc_expert:
         return {"demonstrations": None}
     return {"demonstrations": {"expert": config.bc_expert, "episodes": int(config.bc_episodes),

@@ -13,6 +13,8 @@ PPO then fine-tunes the clone on the team's reward.
 - :func:`clone_actor` fits one agent's actor mean to those labels (squared error on the motion, clipped to the
   action box; with the switch tool head, cross-entropy of the open/closed logit), observation normaliser first.
 - :func:`clone_experts` does both, then ``bc_dagger_rounds`` rounds of DAgger (the clone drives, the expert labels).
+- :func:`start_from_policies` (``init_policy``) instead starts an actor from a policy already trained (a shipped
+  one, or a run's export): fine-tuning it on another reward or beside other partners.
 - The trainer then runs PPO with the actor frozen for ``critic_warmup_steps`` (only the critic learns: advantages
   from an untrained critic would push the clone off what it learnt before the critic knows its value).
 """
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["record_expert", "clone_actor", "clone_experts"]
+__all__ = ["record_expert", "clone_actor", "clone_experts", "start_from_policies"]
 
 
 def record_expert(config, seed: int, *, act=None, round_index: int = 0) -> dict:
@@ -142,3 +144,48 @@ def clone_actor(actor_net, index: int, observations: np.ndarray, actions: np.nda
             total += float(loss.detach())
         last = total / steps_per_epoch
     return last
+
+
+def start_from_policies(config, actor_net, agents, feature_spec) -> dict:
+    """Load ``config.init_policy``'s policies into their agents' actors: the exported layers (the input scaling
+    folded into the first) become the networks' weights, the shared observation normaliser the identity (and, as
+    for a clone, it is not refitted), the switch tool's logit unscaled. The network, its activations and the
+    observation features must be the run's. Returns a summary for ``pretrain.json``."""
+    import torch
+
+    from dvrl_marl import policies
+    from dvrl_marl.training.models import SWITCH_EXPORT_GAIN
+
+    for agent in config.init_policy:
+        if agent not in agents:
+            raise ValueError(f"init_policy: {agent!r} is not a learning seat of this run ({agents})")
+    with torch.no_grad():
+        actor_net.norm.mean.zero_()
+        actor_net.norm.var.fill_(1.0)
+    summary = {"started_from": dict(config.init_policy)}
+    for agent, name in config.init_policy.items():
+        policy = policies.load(name)
+        spec, net = policy.spec, actor_net.nets[agents.index(agent)]
+        linears = [module for module in net if hasattr(module, "weight")]
+        sizes = [int(linears[0].weight.shape[1])] + [int(module.weight.shape[0]) for module in linears]
+        if list(spec["layer_sizes"]) != sizes or spec["activations"] != ["tanh"] * (len(sizes) - 2) + ["clip"]:
+            raise ValueError(f"init_policy {agent} = {name!r}: layers {spec['layer_sizes']} ({spec['activations']}) "
+                             f"are not this run's {sizes} (tanh, clipped output): set [model] hidden to match")
+        if (spec.get("features") or None) != (feature_spec or None):
+            raise ValueError(f"init_policy {agent} = {name!r}: its observation features "
+                             f"{(spec.get('features') or {}).get('name')!r} are not this run's "
+                             f"{(feature_spec or {}).get('name')!r} ([env] observation_features)")
+        switch = (spec.get("exploration") or {}).get("tool_head") == "switch" or 3 in spec.get("switch_dimensions", ())
+        if switch != (config.tool_head == "switch"):
+            raise ValueError(f"init_policy {agent} = {name!r}: its tool is {'a switch' if switch else 'Gaussian'}, "
+                             f"this run's tool_head is {config.tool_head!r}")
+        with torch.no_grad():
+            for index, module in enumerate(linears):
+                weight, bias = (torch.tensor(np.array(value), dtype=module.weight.dtype)
+                                for value in policy.weights[index])
+                if index == len(linears) - 1 and switch:  # the export scaled the logit into a sign
+                    weight[-1] /= SWITCH_EXPORT_GAIN
+                    bias[-1] /= SWITCH_EXPORT_GAIN
+                module.weight.copy_(weight)
+                module.bias.copy_(bias)
+    return summary

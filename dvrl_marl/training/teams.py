@@ -9,7 +9,8 @@ matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "script
 ```
 
 A seat is named by ``"scripted"`` (the built-in expert), ``"person-like"`` (eight person-like partners drawn from
-the training ranges, :mod:`dvrl_marl.agents.partners`), ``"pipeline"`` (the ``learned_team`` pipeline: the
+the training ranges, :mod:`dvrl_marl.agents.partners`), ``"in-the-way"`` (the LND seat only: eight surgeons that
+rest over the suction's route until it has waited near them, :mod:`dvrl_marl.agents.in_the_way`), ``"pipeline"`` (the ``learned_team`` pipeline: the
 single-arm Reach and Pick policies composed, one pipeline per world), a shipped policy name
 (:func:`dvrl_marl.policies.available`) or a policy folder.
 """
@@ -65,6 +66,10 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
         from dvrl_marl.agents.partners import training_partners
 
         return training_partners(agent, env)
+    if name == "in-the-way":  # surgeons that rest over the suction's route until it has waited near them
+        from dvrl_marl.agents.in_the_way import training_obstructors
+
+        return training_obstructors(agent, env)
     if name == "pipeline":
         from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
