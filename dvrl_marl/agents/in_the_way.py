@@ -15,9 +15,9 @@ the tip and stopped against the shaft is close too), it yields: from then on it 
 they are uncovered). A suction that keeps farther away is never let through.
 
 Obstructions are drawn from ranges with a seed, like the person-like profiles (:mod:`dvrl_marl.agents.partners`):
-:data:`TRAINING_RANGES` for the partners a trainer may use (the seat name ``"in-the-way"``), and the held-out kind
-:data:`HELD_OUT` (the partner zoo's ``"in-the-way"``), which rests in the cavity itself and waits longer before it
-yields, never met in training.
+:data:`TRAINING_RANGES` for the partners a trainer may use (the seat name ``"in-the-way"``: half rest on the route,
+half in the cavity), and the held-out kind :data:`HELD_OUT` (the partner zoo's ``"in-the-way"``), which waits longer
+before it yields than any met in training.
 """
 
 from __future__ import annotations
@@ -50,24 +50,29 @@ class Obstruction:
             raise ValueError(f"Obstruction: a value is out of range: {self}")
 
 
-#: The ranges a trainer's obstructing partners are drawn from (uniform; patience_steps inclusive): on the suction's
-#: route at about its travelling height (the scripted suction travels 10 mm above the phantom).
-TRAINING_RANGES = {"along": (0.15, 0.6), "height_mm": (7.0, 13.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 75)}
-#: The held-out kind: it rests in the mouth of the cavity the suction clears first and waits longer before yielding.
-HELD_OUT = {"along": (0.0, 0.05), "height_mm": (-4.0, 2.0), "near_mm": (15.0, 25.0), "patience_steps": (90, 140)}
+#: Where a trainer's obstructing partners rest, drawn uniformly from these ranges (patience_steps inclusive), half
+#: of them at each place: on the suction's route at about its travelling height (the scripted suction travels 10 mm
+#: above the phantom), or in the mouth of the cavity the suction clears first.
+TRAINING_RANGES = {
+    "route": {"along": (0.15, 0.6), "height_mm": (7.0, 13.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 75)},
+    "cavity": {"along": (0.0, 0.05), "height_mm": (-4.0, 2.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 75)},
+}
+#: The held-out kind leaves the training ranges in one way: it makes the suction wait longer before it yields.
+HELD_OUT = {place: {**ranges, "patience_steps": (100, 150)} for place, ranges in TRAINING_RANGES.items()}
 #: Obstructions for training are drawn from this seed, the held-out ones from ZOO_SEED (documented, reproducible).
 TRAINING_SEED = 55_000
 ZOO_SEED = 535_353
 
 
-def draw_obstructions(ranges: dict, count: int, seed: int) -> list[Obstruction]:
-    """``count`` obstructions drawn uniformly from ``ranges``, reproducibly from ``seed``."""
+def draw_obstructions(places: dict, count: int, seed: int) -> list[Obstruction]:
+    """``count`` obstructions, the places taken in turn (``places``: name -> ranges), each drawn uniformly from its
+    place's ranges, reproducibly from ``seed``."""
     rng = np.random.default_rng(seed)
-    drawn = []
-    for _ in range(count):
+    drawn, ranges = [], list(places.values())
+    for index in range(count):
         values = {}
         for item in fields(Obstruction):
-            low, high = ranges[item.name]
+            low, high = ranges[index % len(ranges)][item.name]
             values[item.name] = (int(rng.integers(low, high + 1)) if item.name == "patience_steps"
                                  else float(rng.uniform(low, high)))
         drawn.append(Obstruction(**values))
