@@ -54,11 +54,11 @@ class Obstruction:
 #: of them at each place: on the suction's route at about its travelling height (the scripted suction travels 10 mm
 #: above the phantom), or in the mouth of the cavity the suction clears first.
 TRAINING_RANGES = {
-    "route": {"along": (0.15, 0.6), "height_mm": (7.0, 13.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 75)},
-    "cavity": {"along": (0.0, 0.05), "height_mm": (-4.0, 2.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 75)},
+    "route": {"along": (0.15, 0.6), "height_mm": (7.0, 13.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 200)},
+    "cavity": {"along": (0.0, 0.05), "height_mm": (-4.0, 2.0), "near_mm": (15.0, 25.0), "patience_steps": (25, 200)},
 }
 #: The held-out kind leaves the training ranges in one way: it makes the suction wait longer before it yields.
-HELD_OUT = {place: {**ranges, "patience_steps": (100, 150)} for place, ranges in TRAINING_RANGES.items()}
+HELD_OUT = {place: {**ranges, "patience_steps": (250, 350)} for place, ranges in TRAINING_RANGES.items()}
 #: Obstructions for training are drawn from this seed, the held-out ones from ZOO_SEED (documented, reproducible).
 TRAINING_SEED = 55_000
 ZOO_SEED = 535_353
