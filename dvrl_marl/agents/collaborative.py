@@ -1,5 +1,6 @@
 """The collaborative scene's scripted experts (they live with the task: :mod:`dvrl_marl.envs.scripted_team`)."""
 
-from dvrl_marl.envs.scripted_team import KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.envs.scripted_team import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon,
+                                          YieldingSuction)
 
-__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon"]
+__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "YieldingSuction"]

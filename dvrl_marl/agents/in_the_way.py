@@ -9,7 +9,7 @@ other instrument until it gives way; a person beside a robot expects it to wait,
 :class:`InTheWayPartner` fills the LND seat: at each episode's start it takes its instrument to a resting point
 ``along`` the way from the suction's start to the cavity the suction clears first (0: over that cavity, 1: at the
 suction's start), ``height_mm`` above the phantom's top (below 0: into the cavity), and holds it there with the jaw
-open. Once the suction has stayed within ``near_mm`` of it for ``patience_steps`` steps in a row (the distance
+open (it stops short wherever the suction is already beside it: it never pushes). Once the suction has stayed within ``near_mm`` of it for ``patience_steps`` steps in a row (the distance
 between the instruments' axes, each a line from its remote centre of motion to its tip: a suction that went past
 the tip and stopped against the shaft is close too), it yields: from then on it is the scripted surgeon (it goes to its waiting place over its own side and picks the pins as
 they are uncovered). A suction that keeps farther away is never let through.
@@ -132,6 +132,7 @@ class InTheWayPartner:
             expert = self.expert
             way = expert._via_safe_height(own[resting], self._rest[resting], 2 * expert.near)
             actions[resting, :3] = expert._towards(own[resting], way)
+            actions[resting & close, :3] = 0.0  # with the suction beside it, it stops where it is (it never pushes)
             actions[resting, 3] = 1.0  # the jaw open, as a surgeon waiting to work
         return actions[0].astype(np.float32) if single else actions
 

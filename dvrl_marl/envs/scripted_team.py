@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core.instruments import segment_distance
 from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
 
-__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon"]
+__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "YieldingSuction"]
 
 
 
@@ -136,6 +137,29 @@ class ScriptedSuction(_Scripted):
                 inside = np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius and tip[2] < self.layout.phantom_top
                 return np.append(move, 1.0 if inside else -1.0).astype(np.float32)
         return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.park, 4 * self.near)), -1.0).astype(np.float32)
+
+
+class YieldingSuction(ScriptedSuction):
+    """The scripted suction that waits instead of pushing: a move that would bring its instrument within ``keep_mm``
+    of the other's (their axes, each from its remote centre of motion to its tip), and nearer than it is, is not made;
+    it holds its place, the valve as planned, until the way clears. A surgeon resting in its way that moves off once
+    the suction has waited beside it (:mod:`dvrl_marl.agents.in_the_way`) lets it through without a contact."""
+
+    def __init__(self, layout, observation_layout, workspace_range: float, keep_mm: float = 12.0):
+        super().__init__(layout, observation_layout, workspace_range)
+        self.keep = keep_mm / 1000.0 / workspace_range
+        self.centres = [np.asarray(layout.base_positions[agent], dtype=np.float64) for agent in ("suction", "grasper")]
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        action = super().act(obs)
+        tip, other = obs[:, self.slices["own_tip"]], obs[:, self.slices["other_tip"]]
+        now = segment_distance(tip, self.centres[0], other, self.centres[1])
+        after = segment_distance(tip + action[:, :3] / self.gain, self.centres[0], other, self.centres[1])
+        action[(after < self.keep) & (after < now), :3] = 0.0
+        return action
+
+    def act_one(self, obs: np.ndarray) -> np.ndarray:
+        return self.act(np.asarray(obs, dtype=np.float64)[None])[0]
 
 
 class ScriptedSurgeon(_Scripted):
