@@ -118,3 +118,21 @@ def test_the_held_out_kind_lies_outside_the_training_ranges_and_is_the_zoos():
 def test_bad_settings_are_named(make, message):
     with pytest.raises(ValueError, match=message):
         make(suction_debris_v8.parallel_env())
+
+
+def test_the_yielding_script_passes_them_without_a_contact_and_otherwise_is_the_scripted_suction():
+    from dvrl_marl.agents.collaborative import ScriptedSuction, YieldingSuction
+
+    env = suction_debris_v8.parallel_env()
+    for partner in (training_obstructors("grasper", env), held_out_obstructors("grasper", env)):
+        result = teams.evaluate_team_batched({"suction": YieldingSuction.for_env(env), "grasper": partner}, 16,
+                                             max_cycles=3000)
+        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, result
+    batched = suction_debris_v8.batched_env(num_envs=4, surgeon="scripted", surgeon_seat="grasper")
+    observations, _ = batched.reset(seed=8)
+    yielding, scripted = YieldingSuction.for_env(batched), ScriptedSuction.for_env(batched)
+    for _ in range(300):  # beside the scripted surgeon, which keeps out of its way, nothing is held back
+        action = yielding(observations["suction"])
+        np.testing.assert_array_equal(action, scripted(observations["suction"]))
+        np.testing.assert_array_equal(yielding(observations["suction"][0]), action[0])
+        observations, *_ = batched.step({"suction": action})

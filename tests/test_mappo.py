@@ -222,6 +222,7 @@ def test_cli_train_mappo(tmp_path):
     ("[pretrain]\ninit_policy = { suction = 'no-such-policy' }\n", "init_policy suction = 'no-such-policy'"),
     ("[pretrain]\ninit_policy = { assistant = 'marl-suction' }\n", "[pretrain] init_policy.assistant"),
     ("[run]\nsurgeon = 'in-the-way'\nsurgeon_seat = 'suction'\n", "fill the LND seat ('grasper')"),
+    ("[pretrain]\nbc_expert = 'yielding'\n", "the suction must be the only learning seat"),
     ("[curriculum]\nlevels = [[0.0, 1.5]]\n", "[curriculum] levels[0][1]: must be <= 1"),
     ("[curriculum]\nlevels = [[0.5, 0.0], [0.2, 1.0]]\n", "[curriculum] levels: the progress points must increase"),
     ("[shaping]\noff_centre_grasps = 1.0\n", "[shaping] shaping: retired when the env took it over (now the env's guided reward"),

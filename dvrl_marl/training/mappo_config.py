@@ -87,9 +87,9 @@ class MappoConfig:
     # (PPO optimises the noisy policy; see NumpyPolicy.with_noise); the deterministic figure is measured after
     evaluate_with_noise: Flag = False
     # behaviour cloning before PPO (see dvrl_marl.training.pretrain): "" off, "scripted": the scripted experts of
-    # the learning seats, recorded over bc_episodes episodes with DART noise bc_action_noise. A run that uses it
+    # the learning seats ("yielding": the suction seat's YieldingSuction), recorded over bc_episodes episodes with DART noise bc_action_noise. A run that uses it
     # learns from demonstrations (reported apart from the runs from scratch).
-    bc_expert: Literal["", "scripted"] = ""
+    bc_expert: Literal["", "scripted", "yielding"] = ""
     bc_episodes: PositiveInt = 256
     bc_action_noise: NonNegative = 0.3
     bc_epochs: PositiveInt = 30
@@ -207,6 +207,9 @@ def load_config(path) -> MappoConfig:
         raise ValueError(f"{path}: critic_input is MAPPO's (IPPO's critics read each agent's own observation)")
     start_levels.checked_schedule(config.levels, f"{path}: [curriculum] levels")
     _check_init_policy(path, config)
+    if config.bc_expert == "yielding" and (config.surgeon == "none" or config.surgeon_seat != "grasper"):
+        raise ValueError(f"{path}: [pretrain] bc_expert = \"yielding\" clones the suction seat's expert: the suction "
+                         "must be the only learning seat (a surgeon in surgeon_seat = \"grasper\")")
     return config
 
 
