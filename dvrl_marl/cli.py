@@ -331,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--seat", choices=["grasper", "suction"], default="grasper",
                         help="the arm the person works (default: grasper, the LND)")
     teleop.add_argument("--partner", default="scripted", help="who works the other arm: scripted (default), learned "
-                        "(the learned seat: marl-suction or marl-grasper), pipeline (the Reach + Pick "
+                        "(the learned seat: marl-suction-yielding or marl-grasper), pipeline (the Reach + Pick "
                         "pipeline), or a shipped policy name or folder")
     teleop.add_argument("--port", type=PORT, default=8000, help="port (default 8000; 0: any free port)")
     teleop.add_argument("--host", type=host_address, default="127.0.0.1", help="interface to serve on (default 127.0.0.1: this "

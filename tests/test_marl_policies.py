@@ -17,6 +17,7 @@ from dvrl_marl.training import teams
 
 @pytest.mark.parametrize("name, agent, feature_set", [
     ("marl-suction", "suction", "suction_debris_routes"),
+    ("marl-suction-yielding", "suction", "suction_debris_routes"),
     ("marl-grasper", "grasper", "suction_debris_cleared_pins"),
 ])
 def test_shipped_marl_policy_loads_with_numpy_alone(name, agent, feature_set):
@@ -40,6 +41,23 @@ def test_marl_suction_clears_the_field_beside_the_scripted_surgeon():
     # and its mean action (the policy called plainly) still clears blood: the learned routes, not the noise, do that
     plain = teams.evaluate_team_batched(teams.seats("marl-suction", "scripted"), episodes=30, seed=teams.EVAL_SEED)
     assert plain["mean_blood_removed_ml"] > 12.0
+
+
+def test_the_yielding_suction_waits_for_a_surgeon_in_its_way_and_finishes_beside_the_others():
+    """By its default call (the mean action), on held-out seeds: beside the held-out surgeons that rest in its way
+    (they wait longer than any it met in training) it finishes without pushing, where the scripted suction pushes
+    for about 180 steps an episode; beside the scripted surgeon and a person-like one it is as the script."""
+    from dvrl_marl.agents.partners import zoo_partner
+    from dvrl_marl.envs import suction_debris_v8
+
+    env = suction_debris_v8.parallel_env()
+    seat = teams.seat("marl-suction-yielding", "suction")
+    in_the_way = teams.evaluate_team_batched({"suction": seat, "grasper": zoo_partner("in-the-way", "grasper", env)},
+                                             episodes=16, max_cycles=6000)
+    assert in_the_way["success_rate"] == 1.0 and in_the_way["mean_contact_steps"] <= 5.0, in_the_way
+    for partner in (teams.seat("scripted", "grasper"), zoo_partner("person", "grasper", env)):
+        result = teams.evaluate_team_batched({"suction": seat, "grasper": partner}, episodes=16, max_cycles=6000)
+        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, result
 
 
 def test_marl_grasper_collects_every_pin_beside_the_scripted_suction():

@@ -31,13 +31,14 @@ from dvrl_marl.pacing import RealTimePacer
 
 __all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "TELEOP_ENV_ID", "scene_view", "pack_frame", "unpack_frame"]
 
-#: ``learned`` is the learned seat for the partner's arm (``marl-suction`` beside a person at the LND,
-#: ``marl-grasper`` beside a person at the suction: deployable by their mean action); ``pipeline`` is the learned_team
+#: ``learned`` is the learned seat for the partner's arm (``marl-suction-yielding`` beside a person at the LND: it
+#: waits rather than push where the person's instrument is in its way; ``marl-grasper`` beside a person at the
+#: suction: deployable by their mean action); ``pipeline`` is the learned_team
 #: pipeline's arm (the learned Reach policy for the suction, Reach + Pick for the
 #: LND); a shipped policy name or folder also works.
 PARTNERS = ("scripted", "learned", "pipeline")
 #: ``--partner learned``: the learned seat that works the other arm beside a person in ``seat``.
-LEARNED_PARTNERS = {"grasper": "marl-suction", "suction": "marl-grasper"}
+LEARNED_PARTNERS = {"grasper": "marl-suction-yielding", "suction": "marl-grasper"}
 #: A person gets 2 minutes (6,000 steps at 50 Hz); the task's 1,500 steps (30 s) suit a script, not a newcomer.
 TELEOP_MAX_CYCLES = 6000
 DEFAULT_DATASET_ID = "dvrl_marl/surgeon-teleop-v1"
