@@ -53,6 +53,19 @@ def test_cross_play_rows_and_seat_errors():
         teams.evaluate_team_batched({"suction": teams.seat("scripted", "suction")}, episodes=1)
 
 
+def test_the_named_scripted_seats_are_their_experts():
+    from dvrl_marl.agents.collaborative import KeepClearSuction, KeepClearSurgeon, YieldingSuction
+
+    assert isinstance(teams.seat("keep-clear", "suction"), KeepClearSuction)
+    assert isinstance(teams.seat("keep-clear", "grasper"), KeepClearSurgeon)
+    assert isinstance(teams.seat("yielding", "suction"), YieldingSuction)
+    with pytest.raises(ValueError, match="'yielding' is a suction seat"):
+        teams.seat("yielding", "grasper")
+    result = teams.evaluate_team_batched(teams.seats("keep-clear", "keep-clear"), episodes=4, bleeding_ml_s=0.1,
+                                         max_cycles=3000)
+    assert result["success_rate"] >= 0.75 and result["mean_contact_steps"] == 0.0, result
+
+
 def test_evaluate_team_cli():
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "evaluate-team", "--suction", "scripted",
                              "--grasper", "scripted", "--episodes", "3"], capture_output=True, text=True, timeout=300)

@@ -8,7 +8,8 @@ result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper")
 matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "scripted", "pipeline"])
 ```
 
-A seat is named by ``"scripted"`` (the built-in expert), ``"yielding"`` (the suction seat only: the scripted
+A seat is named by ``"scripted"`` (the built-in expert), ``"keep-clear"`` (the cooperative experts for a bleeding
+field), ``"yielding"`` (the suction seat only: the scripted
 suction that holds its place rather than push into the other instrument), ``"person-like"`` (eight person-like partners drawn from
 the training ranges, :mod:`dvrl_marl.agents.partners`), ``"in-the-way"`` (the LND seat only: eight surgeons that
 rest over the suction's route until it has waited near them, :mod:`dvrl_marl.agents.in_the_way`), ``"pipeline"`` (the ``learned_team`` pipeline: the
@@ -63,6 +64,10 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     env = env or suction_debris_v8.parallel_env()
     if name == "scripted":
         return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
+    if name == "keep-clear":  # the cooperative experts for a bleeding field
+        from dvrl_marl.agents.collaborative import KeepClearSuction, KeepClearSurgeon
+
+        return (KeepClearSuction if agent == "suction" else KeepClearSurgeon).for_env(env)
     if name == "yielding":  # the scripted suction that holds its place rather than push into the other instrument
         from dvrl_marl.agents.collaborative import YieldingSuction
 
