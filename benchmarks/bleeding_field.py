@@ -1,6 +1,6 @@
 """The collaborative teams on suction_debris_v8 without and with a bleeding field.
 
-    python benchmarks/bleeding_field.py [--episodes 100] [--bleeding 0.1 0.3]
+    python benchmarks/bleeding_field.py [--episodes 100] [--bleeding 0.1 0.3] [--no-plain] [--teams "MAPPO team"]
         [--marl-suction runs/<run>/policies_best/marl-suction] [--marl-team runs/<run>/policies_best]
 
 Teams: the scripted team, the learned pipeline team (learned_team.toml), the keep-clear scripted team (the
@@ -29,8 +29,10 @@ def main() -> None:
     parser.add_argument("--marl-suction", help="a multi-agent PPO suction policy folder (trained beside the scripted surgeon)")
     parser.add_argument("--marl-team", help="a folder with marl-suction/ and marl-grasper/ (trained together)")
     parser.add_argument("--out", help="write the figures to this JSON file")
+    parser.add_argument("--teams", nargs="+", help="only these teams (their names as printed, e.g. \"MAPPO team\")")
+    parser.add_argument("--no-plain", action="store_true", help="leave out the variant without bleeding")
     args = parser.parse_args()
-    variants = {"no bleeding": {}}
+    variants = {} if args.no_plain else {"no bleeding": {}}
     for rate in args.bleeding:
         variants[f"bleeding {rate} ml/s"] = {"bleeding_ml_s": rate}
     layout = suction_debris_v8.parallel_env()
@@ -40,6 +42,11 @@ def main() -> None:
         lineup["MAPPO suction + scripted surgeon"] = (args.marl_suction, "scripted")
     if args.marl_team:
         lineup["MAPPO team"] = (str(Path(args.marl_team) / "marl-suction"), str(Path(args.marl_team) / "marl-grasper"))
+    if args.teams:
+        unknown = sorted(set(args.teams) - set(lineup))
+        if unknown:
+            parser.error(f"--teams: unknown {unknown}; the teams are {sorted(lineup)}")
+        lineup = {name: seats for name, seats in lineup.items() if name in args.teams}
     rows = []
     print(f"{'variant':28s} {'team':34s} {'success':>8s} {'median steps':>13s} {'blood left':>11s} "
           f"{'debris':>7s} {'contacts':>9s} {'wall s':>7s}")
