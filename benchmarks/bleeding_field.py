@@ -16,8 +16,6 @@ import json
 import time
 from pathlib import Path
 
-from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon
-from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
 
@@ -35,9 +33,8 @@ def main() -> None:
     variants = {} if args.no_plain else {"no bleeding": {}}
     for rate in args.bleeding:
         variants[f"bleeding {rate} ml/s"] = {"bleeding_ml_s": rate}
-    layout = suction_debris_v8.parallel_env()
     lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline"),
-              "keep-clear scripted team": (KeepClearSuction.for_env(layout), KeepClearSurgeon.for_env(layout))}
+              "keep-clear scripted team": ("keep-clear", "keep-clear")}
     if args.marl_suction:
         lineup["MAPPO suction + scripted surgeon"] = (args.marl_suction, "scripted")
     if args.marl_team:

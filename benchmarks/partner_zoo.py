@@ -69,7 +69,7 @@ def main() -> None:
     for seat in args.seats:
         learned = args.suction if seat == "suction" else args.grasper
         for partner in args.partners:
-            if SEAT_OF.get(partner, other_seat(seat)) != other_seat(seat):
+            if partner in SEAT_OF and SEAT_OF[partner] != other_seat(seat):
                 continue
             for player in (learned, "scripted"):
                 row = evaluate(seat, player, partner, args.episodes, args.noise)

@@ -1,9 +1,9 @@
 """The seat that sees the endoscope beside every partner kind, on the training looks and on held-out ones.
 
 A pixel suction (``--pixel``, a policy folder that ``dvrl-marl train suction_pixels_dagger`` wrote: the endoscope's
-image and its own tip and valve) and the privileged seat it was distilled from (``marl-suction``: blood volumes, pin and tip positions) play beside the same partners as in
-``benchmarks/partner_zoo.py`` (the scripted surgeon, the Reach + Pick pipeline, the measured person and each held-out
-kind), by their default call, on test seeds, with a person's 6,000-step horizon. The pixel seat plays once per look
+image and its own tip and valve) and the privileged seat it was distilled from (``marl-suction``: blood volumes, pin
+and tip positions) play beside the same partners as in ``benchmarks/partner_zoo.py`` (the scripted surgeon, the
+Reach + Pick pipeline, the measured person and each held-out kind), by their default call, on test seeds, with a person's 6,000-step horizon. The pixel seat plays once per look
 (``image_appearance``: ``"train"``, the range it trained in; ``"held_out"``, outside it); the privileged seat sees no
 image, so one row per partner.
 

@@ -778,3 +778,12 @@ def test_the_trainer_runs_on_suction_debris_v8(tmp_path):
     final = mappo.train(config, 0, run, progress=False, log=lambda *_: None)
     assert final["steps"] == 2048
     assert suction_debris_v8.batched_env(num_envs=1, **config.env).params.deliver_at_grip
+
+
+def test_the_best_checkpoint_prefers_success_then_fewer_contacts_then_blood():
+    def result(success, contacts, blood):
+        return {"success_rate": success, "mean_contact_steps": contacts, "mean_blood_removed_ml": blood}
+
+    assert mappo._rank(result(0.9, 50.0, 10.0)) > mappo._rank(result(0.8, 0.0, 15.0))  # success first
+    assert mappo._rank(result(0.9, 0.0, 14.0)) > mappo._rank(result(0.9, 5.0, 15.0))  # a seat that waits
+    assert mappo._rank(result(0.9, 0.0, 15.0)) > mappo._rank(result(0.9, 0.0, 14.0))

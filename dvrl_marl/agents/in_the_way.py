@@ -9,10 +9,11 @@ other instrument until it gives way; a person beside a robot expects it to wait,
 :class:`InTheWayPartner` fills the LND seat: at each episode's start it takes its instrument to a resting point
 ``along`` the way from the suction's start to the cavity the suction clears first (0: over that cavity, 1: at the
 suction's start), ``height_mm`` above the phantom's top (below 0: into the cavity), and holds it there with the jaw
-open (it stops short wherever the suction is already beside it: it never pushes). Once the suction has stayed within ``near_mm`` of it for ``patience_steps`` steps in a row (the distance
-between the instruments' axes, each a line from its remote centre of motion to its tip: a suction that went past
-the tip and stopped against the shaft is close too), it yields: from then on it is the scripted surgeon (it goes to its waiting place over its own side and picks the pins as
-they are uncovered). A suction that keeps farther away is never let through.
+open (it stops short wherever the suction is already beside it: it never pushes). Once the suction has stayed within
+``near_mm`` of it for ``patience_steps`` steps in a row (the distance between the instruments' axes, each a line from
+its remote centre of motion to its tip: a suction that went past the tip and stopped against the shaft is close too),
+it yields: from then on it is the scripted surgeon (it goes to its waiting place over its own side and picks the pins
+as they are uncovered). A suction that keeps farther away is never let through.
 
 Obstructions are drawn from ranges with a seed, like the person-like profiles (:mod:`dvrl_marl.agents.partners`):
 :data:`TRAINING_RANGES` for the partners a trainer may use (the seat name ``"in-the-way"``: half rest on the route,
@@ -22,11 +23,11 @@ before it yields than any met in training.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
-from dvrl_marl.agents.population import Partners
+from dvrl_marl.agents.population import Partners, draw_within
 from dvrl_marl.core.instruments import segment_distance
 
 __all__ = ["Obstruction", "InTheWayPartner", "TRAINING_RANGES", "HELD_OUT", "draw_obstructions",
@@ -67,16 +68,8 @@ ZOO_SEED = 535_353
 def draw_obstructions(places: dict, count: int, seed: int) -> list[Obstruction]:
     """``count`` obstructions, the places taken in turn (``places``: name -> ranges), each drawn uniformly from its
     place's ranges, reproducibly from ``seed``."""
-    rng = np.random.default_rng(seed)
-    drawn, ranges = [], list(places.values())
-    for index in range(count):
-        values = {}
-        for item in fields(Obstruction):
-            low, high = ranges[index % len(ranges)][item.name]
-            values[item.name] = (int(rng.integers(low, high + 1)) if item.name == "patience_steps"
-                                 else float(rng.uniform(low, high)))
-        drawn.append(Obstruction(**values))
-    return drawn
+    rng, ranges = np.random.default_rng(seed), list(places.values())
+    return [draw_within(Obstruction, ranges[index % len(ranges)], rng) for index in range(count)]
 
 
 class InTheWayPartner:
@@ -126,8 +119,10 @@ class InTheWayPartner:
         close = segment_distance(own, self.centres["grasper"], other, self.centres["suction"]) < self.near
         self._waited = np.where(close & ~self._yielded, self._waited + 1, 0)
         self._yielded |= self._waited >= self.obstruction.patience_steps
-        actions = np.asarray(self.expert(batch), dtype=np.float64).reshape(n, 4).copy()
-        resting = ~self._yielded
+        actions = np.empty((n, 4))
+        yielded, resting = self._yielded, ~self._yielded
+        if yielded.any():
+            actions[yielded] = self.expert(batch[yielded])
         if resting.any():
             expert = self.expert
             way = expert._via_safe_height(own[resting], self._rest[resting], 2 * expert.near)

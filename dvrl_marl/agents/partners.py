@@ -19,11 +19,11 @@ Every partner takes one observation ``(d,)`` or a batch ``(N, d)``, keeps per-wo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
-from dvrl_marl.agents.population import Partners
+from dvrl_marl.agents.population import Partners, draw_within
 
 __all__ = ["Partners", "Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
            "training_partners", "ZOO_SEED", "TRAINING_SEED"]
@@ -72,15 +72,7 @@ TRAINING_SEED = 77_000
 def draw_profiles(ranges: dict, count: int, seed: int) -> list[Profile]:
     """``count`` profiles drawn uniformly from ``ranges`` (integers inclusive), reproducibly from ``seed``."""
     rng = np.random.default_rng(seed)
-    profiles = []
-    for _ in range(count):
-        values = {}
-        for item in fields(Profile):
-            low, high = ranges[item.name]
-            values[item.name] = (int(rng.integers(low, high + 1)) if item.type in (int, "int")
-                                 else float(rng.uniform(low, high)))
-        profiles.append(Profile(**values))
-    return profiles
+    return [draw_within(Profile, ranges, rng) for _ in range(count)]
 
 
 class PersonLikePartner:

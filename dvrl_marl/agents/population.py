@@ -1,12 +1,26 @@
-"""A population in one seat: several partners, a share of the batch's worlds each (:class:`Partners`)."""
+"""A population in one seat: several partners, a share of the batch's worlds each (:class:`Partners`), their
+settings drawn from ranges (:func:`draw_within`)."""
 
 from __future__ import annotations
+
+from dataclasses import fields
 
 import numpy as np
 
 from dvrl_marl.envs.suction_debris_batched import takes_worlds
 
-__all__ = ["Partners"]
+__all__ = ["Partners", "draw_within"]
+
+
+def draw_within(kind, ranges: dict, rng: np.random.Generator):
+    """One ``kind`` (a dataclass) whose every field is drawn uniformly from ``ranges[field]`` (low, high): whole
+    numbers for the integer fields (both ends included), real numbers for the others."""
+    values = {}
+    for item in fields(kind):
+        low, high = ranges[item.name]
+        values[item.name] = (int(rng.integers(low, high + 1)) if item.type in (int, "int")
+                             else float(rng.uniform(low, high)))
+    return kind(**values)
 
 
 class Partners:

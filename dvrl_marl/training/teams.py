@@ -9,11 +9,11 @@ matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "script
 ```
 
 A seat is named by ``"scripted"`` (the built-in expert), ``"keep-clear"`` (the cooperative experts for a bleeding
-field), ``"yielding"`` (the suction seat only: the scripted
-suction that holds its place rather than push into the other instrument), ``"person-like"`` (eight person-like partners drawn from
-the training ranges, :mod:`dvrl_marl.agents.partners`), ``"in-the-way"`` (the LND seat only: eight surgeons that
-rest over the suction's route until it has waited near them, :mod:`dvrl_marl.agents.in_the_way`), ``"pipeline"`` (the ``learned_team`` pipeline: the
-single-arm Reach and Pick policies composed, one pipeline per world), a shipped policy name
+field), ``"yielding"`` (the suction seat only: the scripted suction that holds its place rather than push into the
+other instrument), ``"person-like"`` (eight person-like partners drawn from the training ranges,
+:mod:`dvrl_marl.agents.partners`), ``"in-the-way"`` (the LND seat only: eight surgeons that rest over the suction's
+route until it has waited near them, :mod:`dvrl_marl.agents.in_the_way`), ``"pipeline"`` (the ``learned_team``
+pipeline: the single-arm Reach and Pick policies composed, one pipeline per world), a shipped policy name
 (:func:`dvrl_marl.policies.available`) or a policy folder.
 """
 
@@ -55,7 +55,8 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     """A callable on observations ``(N, obs_dim)`` -> ``(N, 4)`` for ``agent`` (see the module documentation).
     ``noise_from``: a learned policy acts with its exploration noise, seeded from this evaluation seed."""
     from dvrl_marl import policies
-    from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
+    from dvrl_marl.agents.collaborative import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon,
+                                                YieldingSuction)
 
     if agent not in suction_debris_v8.AGENTS:
         raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris_v8.AGENTS)}")
@@ -65,12 +66,8 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     if name == "scripted":
         return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
     if name == "keep-clear":  # the cooperative experts for a bleeding field
-        from dvrl_marl.agents.collaborative import KeepClearSuction, KeepClearSurgeon
-
         return (KeepClearSuction if agent == "suction" else KeepClearSurgeon).for_env(env)
     if name == "yielding":  # the scripted suction that holds its place rather than push into the other instrument
-        from dvrl_marl.agents.collaborative import YieldingSuction
-
         if agent != "suction":
             raise ValueError(f"'yielding' is a suction seat (YieldingSuction), not {agent!r}")
         return YieldingSuction.for_env(env)
