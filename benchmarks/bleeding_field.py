@@ -3,7 +3,7 @@
     python benchmarks/bleeding_field.py [--episodes 100] [--bleeding 0.1 0.3] [--no-plain] [--teams "MAPPO team"]
         [--marl-suction runs/<run>/policies_best/marl-suction] [--marl-team runs/<run>/policies_best]
 
-Teams: the scripted team, the learned pipeline team (learned_team.toml), the keep-clear scripted team (the
+Teams: the scripted team, the learned pipeline team (learned_team.toml), the keep-clear and the sweeping scripted teams (the
 cooperative experts for a bleeding field), and, when given, a multi-agent PPO
 suction beside the scripted surgeon and a MAPPO team (both seats). Held-out seeds (teams.EVAL_SEED), all worlds
 batched. Prints one row per (variant, team) and writes the figures as JSON next to the table when --out is given.
@@ -34,7 +34,8 @@ def main() -> None:
     for rate in args.bleeding:
         variants[f"bleeding {rate} ml/s"] = {"bleeding_ml_s": rate}
     lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline"),
-              "keep-clear scripted team": ("keep-clear", "keep-clear")}
+              "keep-clear scripted team": ("keep-clear", "keep-clear"),
+              "sweeping scripted team": ("sweeping", "sweeping")}
     if args.marl_suction:
         lineup["MAPPO suction + scripted surgeon"] = (args.marl_suction, "scripted")
     if args.marl_team:

@@ -455,3 +455,28 @@ def test_normalize_observations_passes_the_pettingzoo_and_torchrl_checks():
     width = td["agents", "observation"].shape[-1]
     np.testing.assert_allclose(td["state"][:, -2 * width:].reshape(2, 2, width).numpy(),
                                td["agents", "observation"].numpy(), rtol=0, atol=1e-5)
+
+
+def test_bleeding_features_read_the_field_in_thresholds_and_the_last_pin():
+    torch = pytest.importorskip("torch")
+    env = suction_debris_v8.parallel_env(observation_features="suction_debris_bleeding", bleeding_ml_s=0.1)
+    observations, _ = env.reset(seed=2)
+    layout, threshold = env.observation_layout, np.asarray(env.layout().blood_threshold_fraction)
+    assert observations["suction"].shape == env.observation_space("suction").shape
+    spec = features.spec("suction_debris_bleeding", env.layout(), env.params.debris_count)
+    row = observations["suction"][: layout["features"].start].astype(np.float64)
+    row[layout["blood"]] = 0.5 * threshold
+    debris = row[layout["debris"]].reshape(-1, 6)
+    debris[:, 3:] = (1.0, 0.0, 1.0)  # revealed and delivered...
+    debris[0, 3:] = (1.0, 1.0, 0.0)  # ...but the first, held: the last pin
+    row[layout["debris"]] = debris.ravel()
+    extra = features.apply(spec, row)[-7:]
+    assert features.feature_count("suction_debris_bleeding") == 39
+    np.testing.assert_allclose(extra, [*np.tanh([0.5, 0.5]), *np.tanh([5.0, 5.0]), 1 / 3, 1.0, 0.0], rtol=1e-6)
+    debris[1, 3:] = (0.0, 0.0, 0.0)  # a second pin still hidden: the held one is no longer the last
+    row[layout["debris"]] = debris.ravel()
+    extra = features.apply(spec, row)[-3:]
+    np.testing.assert_allclose(extra, [2 / 3, 0.0, 1.0])
+    # torch computes the same (the trainer's actors) as numpy (the exported policy)
+    batch = np.stack([row, observations["grasper"][: layout["features"].start]])
+    np.testing.assert_allclose(features.apply(spec, torch.as_tensor(batch)).numpy(), features.apply(spec, batch))

@@ -1,6 +1,7 @@
 """The collaborative scene's scripted experts (they live with the task: :mod:`dvrl_marl.envs.scripted_team`)."""
 
 from dvrl_marl.envs.scripted_team import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon,
-                                          YieldingSuction)
+                                          SweepingSuction, SweepingSurgeon, YieldingSuction)
 
-__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "YieldingSuction"]
+__all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "SweepingSuction",
+           "SweepingSurgeon", "YieldingSuction"]

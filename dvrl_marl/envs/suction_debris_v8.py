@@ -165,8 +165,8 @@ real time at 50 Hz), ``max_cycles``,
 Options that help learning (off by default; ``preset="benchmark"`` sets them): ``reward_type="guided"`` and ``guidance``,
 ``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.envs.features.SCENE_FEATURE_SETS`): each
 agent's observation gets those features appended (relative targets computed from the observation alone: the pin
-to collect, the carry, the routes out of the cavities, zoomed offsets; ``observation_layout["features"]``), the
-ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
+to collect, the carry, the routes out of the cavities, zoomed offsets, a bleeding field's levels in thresholds and
+the last pin; ``observation_layout["features"]``), the ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
 ``jaw_command`` and ``hold_until_handoff`` (above): a grasp a Gaussian policy decides once and cannot undo by noise;
 ``state_observations`` (above): both arms' observations in the state, for a library's centralised critics.
 ``normalize_observations``: every agent's observation (features included) and the state as ``(x - centre) / spread``

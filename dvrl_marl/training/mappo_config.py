@@ -87,10 +87,10 @@ class MappoConfig:
     # (PPO optimises the noisy policy; see NumpyPolicy.with_noise); the deterministic figure is measured after
     evaluate_with_noise: Flag = False
     # behaviour cloning before PPO (see dvrl_marl.training.pretrain): "" off, "scripted": the scripted experts of
-    # the learning seats ("keep-clear": the bleeding field's KeepClearSuction and KeepClearSurgeon; "yielding": the
-    # suction seat's YieldingSuction), recorded over bc_episodes episodes with DART noise bc_action_noise. A run that uses it
+    # the learning seats ("keep-clear": the bleeding field's KeepClearSuction and KeepClearSurgeon; "sweeping": its
+    # SweepingSuction and SweepingSurgeon; "yielding": the suction seat's YieldingSuction), recorded over bc_episodes episodes with DART noise bc_action_noise. A run that uses it
     # learns from demonstrations (reported apart from the runs from scratch).
-    bc_expert: Literal["", "scripted", "keep-clear", "yielding"] = ""
+    bc_expert: Literal["", "scripted", "keep-clear", "sweeping", "yielding"] = ""
     bc_episodes: PositiveInt = 256
     bc_action_noise: NonNegative = 0.3
     bc_epochs: PositiveInt = 30

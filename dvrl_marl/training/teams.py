@@ -8,8 +8,8 @@ result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper")
 matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "scripted", "pipeline"])
 ```
 
-A seat is named by ``"scripted"`` (the built-in expert), ``"keep-clear"`` (the cooperative experts for a bleeding
-field), ``"yielding"`` (the suction seat only: the scripted suction that holds its place rather than push into the
+A seat is named by ``"scripted"`` (the built-in expert), ``"keep-clear"`` and ``"sweeping"`` (the cooperative
+experts for a bleeding field), ``"yielding"`` (the suction seat only: the scripted suction that holds its place rather than push into the
 other instrument), ``"person-like"`` (eight person-like partners drawn from the training ranges,
 :mod:`dvrl_marl.agents.partners`), ``"in-the-way"`` (the LND seat only: eight surgeons that rest over the suction's
 route until it has waited near them, :mod:`dvrl_marl.agents.in_the_way`), ``"pipeline"`` (the ``learned_team``
@@ -56,7 +56,7 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     ``noise_from``: a learned policy acts with its exploration noise, seeded from this evaluation seed."""
     from dvrl_marl import policies
     from dvrl_marl.agents.collaborative import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon,
-                                                YieldingSuction)
+                                                SweepingSuction, SweepingSurgeon, YieldingSuction)
 
     if agent not in suction_debris_v8.AGENTS:
         raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris_v8.AGENTS)}")
@@ -67,6 +67,8 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
         return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
     if name == "keep-clear":  # the cooperative experts for a bleeding field
         return (KeepClearSuction if agent == "suction" else KeepClearSurgeon).for_env(env)
+    if name == "sweeping":  # the bleeding field's experts that clear once and sweep at the last hand-off
+        return (SweepingSuction if agent == "suction" else SweepingSurgeon).for_env(env)
     if name == "yielding":  # the scripted suction that holds its place rather than push into the other instrument
         if agent != "suction":
             raise ValueError(f"'yielding' is a suction seat (YieldingSuction), not {agent!r}")
