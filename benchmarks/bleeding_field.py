@@ -4,7 +4,8 @@
         [--marl-suction runs/<run>/policies_best/marl-suction] [--marl-team runs/<run>/policies_best]
 
 Teams: the scripted team, the learned pipeline team (learned_team.toml), the keep-clear and the sweeping scripted teams (the
-cooperative experts for a bleeding field), and, when given, a multi-agent PPO
+cooperative experts for a bleeding field), the learned bleeding team (marl-suction-bleeding, marl-grasper-bleeding:
+the sweeping experts cloned), and, when given, a multi-agent PPO
 suction beside the scripted surgeon and a MAPPO team (both seats). Held-out seeds (teams.EVAL_SEED), all worlds
 batched. Prints one row per (variant, team) and writes the figures as JSON next to the table when --out is given.
 """
@@ -35,7 +36,8 @@ def main() -> None:
         variants[f"bleeding {rate} ml/s"] = {"bleeding_ml_s": rate}
     lineup = {"scripted team": ("scripted", "scripted"), "learned pipeline team": ("pipeline", "pipeline"),
               "keep-clear scripted team": ("keep-clear", "keep-clear"),
-              "sweeping scripted team": ("sweeping", "sweeping")}
+              "sweeping scripted team": ("sweeping", "sweeping"),
+              "learned bleeding team": ("marl-suction-bleeding", "marl-grasper-bleeding")}
     if args.marl_suction:
         lineup["MAPPO suction + scripted surgeon"] = (args.marl_suction, "scripted")
     if args.marl_team:

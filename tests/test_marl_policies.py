@@ -19,6 +19,8 @@ from dvrl_marl.training import teams
     ("marl-suction", "suction", "suction_debris_routes"),
     ("marl-suction-yielding", "suction", "suction_debris_routes"),
     ("marl-grasper", "grasper", "suction_debris_cleared_pins"),
+    ("marl-suction-bleeding", "suction", "suction_debris_bleeding"),
+    ("marl-grasper-bleeding", "grasper", "suction_debris_bleeding"),
 ])
 def test_shipped_marl_policy_loads_with_numpy_alone(name, agent, feature_set):
     assert name in policies.available()
@@ -58,6 +60,18 @@ def test_the_yielding_suction_waits_for_a_surgeon_in_its_way_and_finishes_beside
     for partner in (teams.seat("scripted", "grasper"), zoo_partner("person", "grasper", env)):
         result = teams.evaluate_team_batched({"suction": seat, "grasper": partner}, episodes=16, max_cycles=6000)
         assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, result
+
+
+def test_the_bleeding_team_finishes_where_the_keep_clear_team_runs_out_of_steps():
+    """By their default call (the mean action), on held-out seeds of the task's own 1,500 steps: the sweeping experts
+    cloned finish a bleeding field the keep-clear scripted team mostly leaves unfinished, without a contact."""
+    team = teams.seats("marl-suction-bleeding", "marl-grasper-bleeding")
+    slow = teams.evaluate_team_batched(team, episodes=16, bleeding_ml_s=0.1)
+    assert slow["success_rate"] >= 0.85 and slow["mean_contact_steps"] == 0.0, slow
+    fast = teams.evaluate_team_batched(team, episodes=16, bleeding_ml_s=0.3)
+    keep_clear = teams.evaluate_team_batched(teams.seats("keep-clear", "keep-clear"), episodes=16, bleeding_ml_s=0.3)
+    assert fast["success_rate"] >= 0.4 and fast["success_rate"] > keep_clear["success_rate"], (fast, keep_clear)
+    assert fast["mean_contact_steps"] == 0.0
 
 
 def test_marl_grasper_collects_every_pin_beside_the_scripted_suction():

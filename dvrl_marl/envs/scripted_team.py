@@ -265,6 +265,13 @@ class _KeepClear(_Scripted):
     def _grasper_reaching_over(self, grasper_tip) -> bool:
         return bool(abs(grasper_tip[0] - self.grasper_base[0]) > self.reach_over)
 
+    def _suck(self, tip, cavity) -> np.ndarray:
+        """Down to the cavity's floor, the valve open once inside it (the suction's move)."""
+        cx, cy = self.cavity_centres[cavity]
+        bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
+        move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
+        return np.append(move, 1.0 if self._inside(tip, cavity) else -1.0).astype(np.float32)
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         return np.stack([self.act_one(row) for row in obs])
 
@@ -297,12 +304,6 @@ class KeepClearSuction(_KeepClear):
             return self._suck(tip, max(wanted, key=lambda c: level[c]))
         return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
                          -1.0).astype(np.float32)
-
-    def _suck(self, tip, cavity) -> np.ndarray:
-        cx, cy = self.cavity_centres[cavity]
-        bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
-        move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
-        return np.append(move, 1.0 if self._inside(tip, cavity) else -1.0).astype(np.float32)
 
 
 class KeepClearSurgeon(_KeepClear):
@@ -375,12 +376,6 @@ class SweepingSuction(_KeepClear):
                 return self._suck(tip, max(wanted, key=lambda c: level[c]) if sweeping else wanted[0])
         return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
                          -1.0).astype(np.float32)
-
-    def _suck(self, tip, cavity) -> np.ndarray:
-        cx, cy = self.cavity_centres[cavity]
-        bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
-        move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
-        return np.append(move, 1.0 if self._inside(tip, cavity) else -1.0).astype(np.float32)
 
 
 class SweepingSurgeon(KeepClearSurgeon):
