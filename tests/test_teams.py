@@ -96,6 +96,7 @@ def test_the_sweeping_suction_waits_while_the_grasper_picks_and_sweeps_while_it_
     row[layout["debris"]] = debris.ravel()
     waiting = suction(row)
     assert waiting[3] == -1.0  # valve closed: it keeps out of the way
+    np.testing.assert_allclose(waiting, suction._wait_outside(row[layout["own_tip"]]))  # at its waiting place
     np.testing.assert_allclose(waiting, suction(row[None])[0])  # one row and a batch act alike
     far, near = suction.order
     row[blood] = np.where(np.arange(len(suction.order)) == near, 0.9, 0.6)  # the near cavity the fuller

@@ -26,6 +26,13 @@ __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearS
 
 
 
+def _far_first(layout) -> list[int]:
+    """The cavities, the one farthest from the suction's remote centre of motion first (the order it clears them)."""
+    base = np.asarray(layout.base_positions["suction"][:2])
+    distances = [np.linalg.norm(np.asarray(c) - base) for c in layout.cavity_centres]
+    return [int(i) for i in np.argsort(distances)[::-1]]
+
+
 class _Scripted:
     """Shared by both experts. ``__call__`` takes one observation ``(d,)`` or a batch ``(N, d)`` (the batched
     environment's worlds)."""
@@ -109,9 +116,7 @@ class ScriptedSuction(_Scripted):
 
     def __init__(self, layout, observation_layout, workspace_range: float):
         super().__init__(layout, observation_layout, workspace_range)
-        base = np.asarray(layout.base_positions["suction"][:2])
-        distances = [np.linalg.norm(np.asarray(c) - base) for c in layout.cavity_centres]
-        self.order = [int(i) for i in np.argsort(distances)[::-1]]  # farthest cavity first
+        self.order = _far_first(layout)
         self.park = suction_parking_place(layout, workspace_range)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
@@ -251,6 +256,7 @@ class _KeepClear(_Scripted):
         # How far (in x, from its base) the grasper's tip reaches before its shaft is over its near cavity.
         self.reach_over = (abs(self.cavity_centres[self.grasper_near, 0] - self.grasper_base[0])
                            - layout.cavity_mouth_radius)
+        self.settled = 0.003 / workspace_range  # a suction tip within 3 mm of a cavity's floor works there
 
     def _inside(self, tip, cavity) -> bool:
         cx, cy = self.cavity_centres[cavity]
@@ -264,6 +270,15 @@ class _KeepClear(_Scripted):
 
     def _grasper_reaching_over(self, grasper_tip) -> bool:
         return bool(abs(grasper_tip[0] - self.grasper_base[0]) > self.reach_over)
+
+    def _down(self, tip, cavity) -> bool:
+        """The suction's tip has settled near the cavity's floor (once it rises, it has left)."""
+        return bool(tip[2] < self.layout.cavity_floor[cavity] + self.layout.clearance + self.settled)
+
+    def _wait_outside(self, tip) -> np.ndarray:
+        """The suction's move to its waiting place, the valve closed."""
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
+                         -1.0).astype(np.float32)
 
     def _suck(self, tip, cavity) -> np.ndarray:
         """Down to the cavity's floor, the valve open once inside it (the suction's move)."""
@@ -287,7 +302,6 @@ class KeepClearSuction(_KeepClear):
     def __init__(self, layout, observation_layout, workspace_range: float, empty: float = 0.1, refill: float = 1.5):
         super().__init__(layout, observation_layout, workspace_range)
         self.empty, self.refill = float(empty), float(refill)
-        self.settled = 0.003 / workspace_range  # within 3 mm of the floor: working there
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:
         tip, other, blood, _, _ = self._parts(obs)
@@ -295,15 +309,13 @@ class KeepClearSuction(_KeepClear):
         free = [c for c in range(len(level)) if not self._inside(other, c)
                 and not (c == self.grasper_near and self._grasper_reaching_over(other))]
         for cavity in free:  # keep emptying the cavity it works in: all of a full one; a low one while still down
-            down = tip[2] < self.layout.cavity_floor[cavity] + self.layout.clearance + self.settled  # (once it
-            committed = level[cavity] > self.refill or (down and level[cavity] > self.empty)  # rises, it has left)
+            committed = level[cavity] > self.refill or (self._down(tip, cavity) and level[cavity] > self.empty)
             if self._inside(tip, cavity) and committed:
                 return self._suck(tip, cavity)
         wanted = [c for c in free if level[c] > self.refill]
         if wanted:
             return self._suck(tip, max(wanted, key=lambda c: level[c]))
-        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
-                         -1.0).astype(np.float32)
+        return self._wait_outside(tip)
 
 
 class KeepClearSurgeon(_KeepClear):
@@ -355,9 +367,7 @@ class SweepingSuction(_KeepClear):
     def __init__(self, layout, observation_layout, workspace_range: float, empty: float = 0.1):
         super().__init__(layout, observation_layout, workspace_range)
         self.empty = float(empty)
-        self.settled = 0.003 / workspace_range  # within 3 mm of the floor: working there
-        base = np.asarray(layout.base_positions["suction"][:2])
-        self.order = [int(i) for i in np.argsort(np.hypot(*(self.cavity_centres - base).T))[::-1]]  # far first
+        self.order = _far_first(layout)
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:
         tip, other, blood, debris, _ = self._parts(obs)
@@ -368,14 +378,12 @@ class SweepingSuction(_KeepClear):
         if hidden or sweeping:
             free = [c for c in self.order if not self._inside(other, c)]
             for cavity in free:  # finish the cavity it works in
-                down = tip[2] < self.layout.cavity_floor[cavity] + self.layout.clearance + self.settled
-                if self._inside(tip, cavity) and level[cavity] > (self.empty if down else 1.0):
+                if self._inside(tip, cavity) and level[cavity] > (self.empty if self._down(tip, cavity) else 1.0):
                     return self._suck(tip, cavity)
             wanted = [c for c in free if level[c] >= 1.0]
             if wanted:  # revealing: the far cavity first (the scripted order); sweeping: the fullest
                 return self._suck(tip, max(wanted, key=lambda c: level[c]) if sweeping else wanted[0])
-        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
-                         -1.0).astype(np.float32)
+        return self._wait_outside(tip)
 
 
 class SweepingSurgeon(KeepClearSurgeon):
