@@ -54,7 +54,11 @@ def main() -> None:
                                   stop_at=args.target, max_seconds=args.seconds)
         seconds = time.perf_counter() - STARTED  # (the clock stops at the validation that ended the run)
         test = _test(Path(folder) / "run" / "policies", config, args.test_episodes)
-    row = {"what": "device_trainer", "device": args.device, "worlds": args.worlds, "rollout": args.rollout,
+    import torch
+
+    name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device
+    row = {"what": "device_trainer", "device": name, "worlds": args.worlds, "rollout": args.rollout,
+           "eval_every": config.eval_every,
            "seed": args.seed, "steps": last.get("steps"), "validation_success": last.get("success_rate"),
            "env_steps_per_s": last.get("env_steps_per_s"), "reached_target": (last.get("success_rate") or 0.0)
            >= args.target, "seconds_from_process_start": seconds, "test_success": test,
