@@ -6,20 +6,22 @@ Two steps. Here, on a machine with a package registry (once; the wheels are igno
     python benchmarks/device_probe.py prepare        # wheels for Python 3.12, manylinux x86-64, into .whl/
 
 There (the lent machine has Python 3.12 with torch and JAX's CUDA build; ``$OUT`` is where figures are kept), one
-command, at most about 8.5 minutes (the sections' limits: 45, 90, 80, 45, 95, 95 and 60 s), carrying ``.whl`` and
+command, at most about 10 minutes at the sections' limits (45, 90, 80, 90, 80, 95, 95 and 60 s), carrying ``.whl`` and
 ``.gl`` (EGL's libraries as Debian packages, for the endoscope's section):
 
     for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig; \
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
       && PYTHONPATH=/tmp/site:. python3 benchmarks/device_probe.py run --out "$OUT"
 
-Sections (each a process of its own with its own time limit; one that fails or runs out says so and the next runs):
+Sections (each a process of its own with its own time limit; one that fails or runs out says so and the next runs;
+``--only NAME ...`` runs some alone):
 
 1. ``machine``: the GPU's name and memory, JAX's and torch's devices, the commit;
 2. ``tests``: the device tests on the GPU (``tests/test_device_env.py``, ``tests/test_backends.py``,
    ``tests/test_streams.py``; ``DVRL_MARL_TEST_DEVICE=cuda``);
-3. ``speed``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a torch policy's inference, N from
-   1,024 to 1,048,576, with the defaults and with the benchmark's setting, the numpy env beside it up to N = 4,096;
+3. ``speed``, ``speed_1m``, ``speed_benchmark``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a
+   torch policy's inference, N from 1,024 to 1,048,576 with the defaults and 16,384 and 262,144 with the benchmark's
+   setting, the numpy env beside it up to N = 4,096;
 4. ``trainer``, ``trainer_4096``: ``benchmarks/device_training.py``, the device trainer on the configuration of
    record with 16,384 worlds (validated every 4M steps) and with 4,096 (every 2M steps): env-steps/s end to end and the
    wall clock to 0.9 validation success (or what it reached in 60 s);
@@ -44,8 +46,10 @@ ROOT = Path(__file__).resolve().parents[1]
 #: What the lent machine lacks (its image has numpy, torch, JAX, pytest, hypothesis, typing-extensions, absl-py,
 #: etils, cloudpickle): what importing the env needs. MuJoCo 4 comes in parts: ``mujoco`` is the front,
 #: ``mujoco-core`` the bindings and the renderer; ``mujoco-studio`` (the viewer, with Filament) is never imported here.
+#: The trainer's models are TorchRL's (its compiled extension is optional; tensordict's links no torch).
 WHEELS = ("pydantic", "pydantic-core", "annotated-types", "typing-inspection", "array-api-compat", "gymnasium",
-          "farama-notifications", "pettingzoo", "mujoco", "mujoco-core", "pyopengl", "glfw")
+          "farama-notifications", "pettingzoo", "mujoco", "mujoco-core", "pyopengl", "glfw", "torchrl", "tensordict",
+          "pyvers", "hoptorch", "orjson", "importlib-metadata")
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64",
              "manylinux1_x86_64", "any")
 
@@ -91,7 +95,7 @@ def _section(name: str, command: list[str], timeout: float, log, env=None) -> in
     return status
 
 
-def run(out: Path, device: str = "cuda") -> int:
+def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     figures, log_file = out / "probe.jsonl", (out / "probe.log").open("a")
 
@@ -109,29 +113,32 @@ def run(out: Path, device: str = "cuda") -> int:
                "'gpu': torch.cuda.get_device_name(0) if torch.cuda.is_available() else None, "
                "'memory_gib': round(torch.cuda.get_device_properties(0).total_memory / 2**30, 1) "
                "if torch.cuda.is_available() else None, 'jax_devices': [str(d) for d in jax.devices()]}))")
-    statuses = {"machine": _section("machine", [python, "-c", machine], 45, log, env)}
-    statuses["tests"] = _section("tests", [python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x",
-                                           "tests/test_device_env.py", "tests/test_backends.py",
-                                           "tests/test_streams.py"], 90, log, {**env, "DVRL_MARL_TEST_DEVICE": device})
+    gpu = device != "cpu"  # (cpu: a dry run of the script, small sizes)
     speed = [python, "benchmarks/device_speed.py", "--device", device, "--json", str(figures), "--repeats", "2"]
-    sizes = ["1024", "16384", "262144", "1048576"] if device != "cpu" else ["64", "1024"]  # (cpu: a dry run)
-    statuses["speed"] = _section("speed", speed + ["--sizes", *sizes], 80, log, env)
-    statuses["speed_benchmark"] = _section("speed_benchmark", speed + ["--preset", "benchmark", "--sizes",
-                                                                       *sizes[1:3]], 45, log, env)
-    trainer = ROOT / "benchmarks" / "device_training.py"
-    if trainer.is_file():  # (always, since it was written; the check keeps the probe runnable on older commits)
+    trainer = [python, "benchmarks/device_training.py", "--device", device, "--seconds", "60", "--json", str(figures)]
+    sections = {  # name: (command, time limit in seconds, extra environment)
+        "machine": ([python, "-c", machine], 45, {}),
+        "tests": ([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x", "tests/test_device_env.py",
+                   "tests/test_backends.py", "tests/test_streams.py"], 90, {"DVRL_MARL_TEST_DEVICE": device}),
+        "speed": (speed + ["--sizes", *(["1024", "16384", "262144"] if gpu else ["64", "1024"])], 80, {}),
+        # (a size per process: each N compiles its own step)
+        "speed_1m": (speed + ["--sizes", "1048576" if gpu else "2048"], 90, {}),
+        "speed_benchmark": (speed + ["--preset", "benchmark", "--sizes", *(["16384", "262144"] if gpu else
+                                                                           ["1024"])], 80, {}),
         # the large batch for the throughput, a smaller one validated less often for the time to the target
-        for name, worlds, eval_every in (("trainer", "16384", "4194304"), ("trainer_4096", "4096", "2097152")):
-            worlds = worlds if device != "cpu" else "256"
-            statuses[name] = _section(name, [python, str(trainer), "--device", device, "--worlds", worlds,
-                                             "--eval-every", eval_every, "--seconds", "60", "--json", str(figures)],
-                                      95, log, env)
-    else:
-        log("=== trainer: not built yet (benchmarks/device_training.py)")
-    worlds = ["1", "256", "1024", "4096"] if device != "cpu" else ["1", "16"]
-    statuses["endoscope"] = _section("endoscope", [python, "benchmarks/endoscope_speed.py", "--sizes", "84",
-                                                   "--worlds", *worlds, "--repeats", "2", "--json", str(figures)],
-                                     60, log, env)
+        "trainer": (trainer + ["--worlds", "16384" if gpu else "256", "--eval-every", "4194304"], 95, {}),
+        "trainer_4096": (trainer + ["--worlds", "4096" if gpu else "256", "--eval-every", "2097152"], 95, {}),
+        "endoscope": ([python, "benchmarks/endoscope_speed.py", "--sizes", "84", "--worlds",
+                       *(["1", "256", "1024", "4096"] if gpu else ["1", "16"]), "--repeats", "2", "--json",
+                       str(figures)], 60, {}),
+    }
+    unknown = sorted(set(only or ()) - set(sections))
+    if unknown:
+        raise SystemExit(f"--only: no section {', '.join(unknown)}; the sections: {', '.join(sections)}")
+    statuses = {}
+    for name, (command, limit, extra) in sections.items():
+        if not only or name in only:
+            statuses[name] = _section(name, command, limit, log, {**env, **extra})
     log("probe: " + json.dumps(statuses))
     return 0 if all(status == 0 for status in statuses.values()) else 1
 
@@ -144,8 +151,9 @@ def main() -> None:
     runner = commands.add_parser("run", help="on the lent machine: tests and figures")
     runner.add_argument("--out", required=True)
     runner.add_argument("--device", default="cuda", help="cuda (default); cpu: a dry run of the script here")
+    runner.add_argument("--only", nargs="+", metavar="SECTION", help="run these sections alone (a second call)")
     args = parser.parse_args()
-    sys.exit(prepare(Path(args.folder)) if args.command == "prepare" else run(Path(args.out), args.device))
+    sys.exit(prepare(Path(args.folder)) if args.command == "prepare" else run(Path(args.out), args.device, args.only))
 
 
 if __name__ == "__main__":
