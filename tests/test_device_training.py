@@ -57,3 +57,53 @@ def test_what_it_does_not_do_is_refused_by_name(tmp_path):
     device_mappo.train(replace(TINY, total_steps=256, eval_every=256), 0, tmp_path / "c", log=lambda *_: None)
     with pytest.raises(ValueError, match="holds a run already"):
         device_mappo.train(TINY, 0, tmp_path / "c")
+
+
+def test_collect_bootstraps_from_the_state_each_step_ended_on():
+    """The live worlds' value after a step is the next step's value; an ended world's is its final state's (the critic
+    runs once per step and again on the ended worlds alone)."""
+    import torch
+
+    from dvrl_marl.envs import suction_debris_v8
+
+    config = replace(TINY, num_envs=6, env={**TINY.env, "max_cycles": 10})
+    host = suction_debris_v8.batched_env(num_envs=config.num_envs, **config.env)
+    env = device_mappo._TorchView(host, torch)
+    models = device_mappo._models(config, host, torch.device("cpu"), torch)
+    observations, _ = env.reset(seed=5)
+    observations = device_mappo._stack(observations, models["agents"], torch).float()
+    state = env.state().float()
+    finals = []
+    step = env.step
+    env.step = lambda actions: finals.append(result := step(actions)) or result
+    rollout, *_ = device_mappo.collect(env, models, observations, state, 24, torch, torch.device("cpu"))
+    done = rollout.done
+    assert done.any() and (~done).any()  # (max_cycles 10: every world ends twice within 24 steps)
+    live = ~done[:-1]
+    assert torch.allclose(rollout.next_values[:-1][live], rollout.values[1:][live], atol=1e-6)
+    agents = models["agents"]
+    distinguishes = False  # (somewhere a final state's value differs from the new episode's: the test can fail)
+    for t in range(24):
+        rows = done[t].nonzero().squeeze(-1)
+        if len(rows):
+            info = finals[t][4][agents[0]]
+            final = device_mappo._stack(info["final_observation"], agents, torch).float()[rows]
+            with torch.no_grad():
+                expected = models["critic"](info["final_state"].float()[rows], final)
+            assert torch.allclose(rollout.next_values[t][rows], expected, atol=1e-6)
+            distinguishes |= t < 23 and not torch.allclose(expected, rollout.values[t + 1][rows], atol=1e-3)
+    assert distinguishes
+
+
+@pytest.mark.parametrize("beside", [True, False])
+def test_a_run_stops_at_its_first_validation_that_reaches_the_target(tmp_path, beside):
+    """Validations score beside the learner or in its process alike: the run stops at the first that reaches
+    ``stop_at``, keeps the policies that validation scored and leaves no half-validated folder."""
+    config = replace(TINY, total_steps=4096)
+    last = device_mappo.train(config, 3, tmp_path / "run", stop_at=0.0, validate_beside=beside, log=lambda *_: None)
+    rows = list(csv.DictReader((tmp_path / "run" / "progress.csv").open()))
+    assert len(rows) == 1 and int(rows[0]["steps"]) == last["steps"]
+    assert last["steps"] == (512 if not beside else int(rows[0]["steps"])) and last["steps"] < 4096
+    spec = policies.load(tmp_path / "run" / "policies" / "marl-suction").spec
+    assert spec["training"]["steps"] == last["steps"]
+    assert not (tmp_path / "run" / "validating").exists()

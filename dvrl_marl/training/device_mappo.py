@@ -104,12 +104,13 @@ def collect(env, models, observations, state, steps: int, torch, device):
     head, critic, distribution, agents = models["head"], models["critic"], models["distribution"], models["agents"]
     buffers = {key: [] for key in Rollout.__dataclass_fields__}
     successes = ended = 0
+    with torch.no_grad():
+        value = critic(state, observations)
     for _ in range(steps):
         with torch.no_grad():
             loc, scale = head(observations)
             policy = distribution(loc, scale)
             action = policy.sample()
-            value = critic(state, observations)
         next_observations, rewards, terminated, truncated, infos = env.step(
             {agent: action[:, index] for index, agent in enumerate(agents)})
         agent = agents[0]
@@ -117,22 +118,25 @@ def collect(env, models, observations, state, steps: int, torch, device):
         done = (terminated[agent] | truncated[agent]).to(device)
         next_observations = _stack(next_observations, agents, torch).to(device, torch.float32)
         next_state = env.state().to(device, torch.float32)
-        # the value after the step: of the state it ended on (a reset world's final state, not its new one)
-        ending_observations, ending_state = next_observations, next_state
+        # the value after the step: of the state it ended on (a reset world's final state, not its new one); the
+        # live worlds' is the next step's value, so the critic runs once per step and again on the ended worlds only
+        with torch.no_grad():
+            following = critic(next_state, next_observations)
+        next_value = following
         if bool(done.any()):
-            final = _stack(infos["final_observation"], agents, torch).to(device, torch.float32)
-            ending_observations = torch.where(done[:, None, None], final, next_observations)
-            ending_state = torch.where(done[:, None], infos["final_state"].to(device, torch.float32), next_state)
+            rows = done.nonzero().squeeze(-1)
+            final = _stack(infos["final_observation"], agents, torch).to(device, torch.float32)[rows]
+            with torch.no_grad():
+                ending = critic(infos["final_state"].to(device, torch.float32)[rows], final)
+            next_value = following.index_put((rows,), ending)
             successes += int((infos["is_success"].to(device) & done).sum())
             ended += int(done.sum())
-        with torch.no_grad():
-            next_value = critic(ending_state, ending_observations)
         for key, item in (("observations", observations), ("states", state), ("actions", action),
                           ("log_probs", policy.log_prob(action)), ("values", value),
                           ("rewards", _stack(rewards, agents, torch).to(device, torch.float32)), ("done", done),
                           ("terminated", terminated[agent].to(device)), ("next_values", next_value)):
             buffers[key].append(item)
-        observations, state = next_observations, next_state
+        observations, state, value = next_observations, next_state, following
     return Rollout(**{key: torch.stack(items) for key, items in buffers.items()}), observations, state, (successes,
                                                                                                        ended)
 
@@ -188,27 +192,93 @@ def update(models, optimiser, rollout: Rollout, advantage, returns, config: Mapp
     return {key: value / (config.epochs * config.minibatches) for key, value in sums.items()}
 
 
-def validate(models, config: MappoConfig, out: Path, seed: int, steps: int, env) -> dict:
-    """Export the actors as numpy policies and score them by their mean action on the validation seeds (what a
-    user loads is what is scored)."""
-    from dvrl_marl import policies
-
-    seats = {}
+def export(models, config: MappoConfig, folder: Path, seed: int, steps: int, env) -> dict:
+    """Export the actors as numpy policies into ``folder`` (one ``marl-<agent>`` folder each); returns their paths."""
+    folders = {}
     for index, agent in enumerate(models["agents"]):
-        folder = out / "policies" / f"marl-{agent}"
-        export_actor(models["actor_net"], index, folder, name=f"marl-{agent}", agent=agent,
+        folders[agent] = folder / f"marl-{agent}"
+        export_actor(models["actor_net"], index, folders[agent], name=f"marl-{agent}", agent=agent,
                      tool_head=config.tool_head, env_id=env_name(str(config.env.get("task", "suction_debris_v8"))),
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                             "steps": steps, "trainer": "device_mappo"}},
                      log_std=models["log_std"][index],
                      input_scaling=None if env.observation_scaling is None
                      else env.observation_scaling.observation_affine(agent))
+    return folders
+
+
+def score(folders: dict, env_options: dict, episodes: int, with_noise: bool) -> dict:
+    """The exported policies in ``folders`` scored on the validation seeds, by their mean action or, ``with_noise``,
+    acting as they trained (seeded): what a user loads is what is scored. Numpy only (it runs beside the learner)."""
+    from dvrl_marl import policies
+
+    seats = {}
+    for agent, folder in folders.items():
         seats[agent] = policies.load(folder)
-        if config.evaluate_with_noise:  # acting as they trained (seeded)
+        if with_noise:
             seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
     # the configured scene without its learning options (the exported policies compute their features and scaling)
-    return teams.evaluate_team_batched(seats, config.eval_episodes, seed=teams.VALIDATION_SEED,
-                                       **scene_options(**config.env))
+    return teams.evaluate_team_batched(seats, episodes, seed=teams.VALIDATION_SEED, **scene_options(**env_options))
+
+
+def validate(models, config: MappoConfig, out: Path, seed: int, steps: int, env) -> dict:
+    """Export the actors into ``out/policies`` and score them there and then (:func:`score`)."""
+    folders = export(models, config, out / "policies", seed, steps, env)
+    return score(folders, dict(config.env), config.eval_episodes, config.evaluate_with_noise)
+
+
+class _Validations:
+    """Validations beside the learner: each exports the actors at once and scores them in a worker process (another
+    core, or the host's CPU while the learner holds the GPU), one at a time; the learner steps on meanwhile. A
+    validation falls due every ``eval_every`` steps, and waits for the one in flight to report. The policies last
+    scored are kept in ``out/policies``."""
+
+    def __init__(self, out: Path, config: MappoConfig, seed: int, beside: bool):
+        self.out, self.config, self.seed = out, config, seed
+        self.pending = None  # (steps, wall seconds at export, folder, future)
+        self.pool = None
+        if beside:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn: a fork of a process holding torch's threads (or CUDA) is not safe
+            self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+
+    def busy(self) -> bool:
+        return self.pending is not None
+
+    def start(self, models, steps: int, wall: float, env) -> None:
+        folder = self.out / "validating" / str(steps)
+        folders = export(models, self.config, folder, self.seed, steps, env)
+        job = (folders, dict(self.config.env), self.config.eval_episodes, self.config.evaluate_with_noise)
+        if self.pool is None:
+            from concurrent.futures import Future
+
+            future = Future()
+            future.set_result(score(*job))
+        else:
+            future = self.pool.submit(score, *job)
+        self.pending = (steps, wall, folder, future)
+
+    def result(self, wait: bool = False):
+        """``(steps, wall seconds at export, result)`` of the validation in flight once it has reported, else None."""
+        if self.pending is None or not (wait or self.pending[3].done()):
+            return None
+        steps, wall, folder, future = self.pending
+        self.pending = None
+        result = future.result()
+        import shutil
+
+        shutil.rmtree(self.out / "policies", ignore_errors=True)
+        folder.rename(self.out / "policies")
+        return steps, wall, result
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+        import shutil
+
+        shutil.rmtree(self.out / "validating", ignore_errors=True)
 
 
 def _models(config: MappoConfig, env, device, torch) -> dict:
@@ -238,11 +308,13 @@ def _models(config: MappoConfig, env, device, torch) -> dict:
 
 def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backend: str | None = None,
           total_steps: int | None = None, stop_at: float | None = None, max_seconds: float | None = None,
-          log=print) -> dict:
-    """Train ``config`` with seed ``seed`` on ``device``; writes ``progress.csv`` (steps, validation success by the
-    mean action, env-steps/s, wall clock from the call) and the exported policies in ``out_dir``; returns the last
-    row. ``stop_at``: stop once a validation reaches this success (time to target); ``max_seconds``: stop at the first
-    validation after this much wall clock."""
+          validate_beside: bool = True, log=print) -> dict:
+    """Train ``config`` with seed ``seed`` on ``device``; writes ``progress.csv`` (per validation: the steps its
+    policies were exported at, their validation success, train success since the last row, env-steps/s up to the
+    export, wall clock from the call to the result) and the policies last validated in ``out_dir/policies``; returns
+    the last row. ``stop_at``: stop once a validation reaches this success (time to target); ``max_seconds``: stop at
+    the first validation reported after this much wall clock. ``validate_beside``: score in a worker process while
+    the learner steps on (:class:`_Validations`); False scores in this process, the learner waiting."""
     torch = require_torch()
     for option, off in _NOT_HERE.items():
         if getattr(config, option) != off:
@@ -281,49 +353,62 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     done_steps, next_validation, last = 0, config.eval_every, {}
     successes = ended = 0
     collect_seconds = 0.0
-    while done_steps < total:
-        progress = done_steps / total
-        level = config.level(progress)
-        if level is not None:
-            env.set_start_level(level)
-        if config.final_std:
-            with torch.no_grad():
-                models["log_std"].fill_(math.log(config.exploration_std(progress)))
-        if config.anneal_lr:
-            for group in optimiser.param_groups:
-                group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
-        start = time.perf_counter()
-        rollout, observations, state, (won, finished) = collect(env, models, observations, state,
-                                                                config.rollout_steps, torch, device)
-        collect_seconds += time.perf_counter() - start
-        successes, ended = successes + won, ended + finished
-        rollout.rewards = rollout.rewards / return_scale.update(rollout.rewards, rollout.done)
-        advantage, returns = advantages(rollout, config.gamma, config.gae_lambda, torch)
-        update(models, optimiser, rollout, advantage, returns, config, torch)
-        norms = models["norms"]  # normalisers move after the update, as in the trainer of record
-        norms["observation"].update(rollout.observations)
-        if "state" in norms:
-            norms["state"].update(rollout.states)
-        if "critic_observation" in norms:
-            norms["critic_observation"].update(rollout.observations)
-        done_steps += config.num_envs * config.rollout_steps
-        if done_steps >= next_validation or done_steps >= total:
-            next_validation += config.eval_every
-            wall = time.perf_counter() - began
-            result = validate(models, config, out, seed, done_steps, host)
-            last = {"steps": done_steps, "success_rate": result["success_rate"],
-                    "blood_removed_ml": result["mean_blood_removed_ml"], "contact_steps": result["mean_contact_steps"],
-                    "train_success": successes / max(ended, 1), "env_steps_per_s": done_steps / wall,
-                    "wall_seconds": time.perf_counter() - began}
-            with progress_file.open("a", newline="") as handle:
-                csv.writer(handle).writerow(list(last.values()))
-            log(f"{config.name} seed {seed} @ {done_steps:,d} steps: validation {result['success_rate']:.2f}, "
-                f"train {last['train_success']:.2f}, {last['env_steps_per_s']:,.0f} env-steps/s, "
-                f"{last['wall_seconds']:.0f} s")
-            successes = ended = 0
-            if (stop_at is not None and result["success_rate"] >= stop_at) or (
-                    max_seconds is not None and last["wall_seconds"] >= max_seconds):
+    validations = _Validations(out, config, seed, beside=validate_beside)
+
+    def report(steps: int, wall: float, result: dict) -> bool:
+        """Log a validation's row; whether the run stops there."""
+        nonlocal successes, ended, last
+        last = {"steps": steps, "success_rate": result["success_rate"],
+                "blood_removed_ml": result["mean_blood_removed_ml"], "contact_steps": result["mean_contact_steps"],
+                "train_success": successes / max(ended, 1), "env_steps_per_s": steps / wall,
+                "wall_seconds": time.perf_counter() - began}
+        with progress_file.open("a", newline="") as handle:
+            csv.writer(handle).writerow(list(last.values()))
+        log(f"{config.name} seed {seed} @ {steps:,d} steps: validation {result['success_rate']:.2f}, "
+            f"train {last['train_success']:.2f}, {last['env_steps_per_s']:,.0f} env-steps/s, "
+            f"{last['wall_seconds']:.0f} s")
+        successes = ended = 0
+        return (stop_at is not None and result["success_rate"] >= stop_at) or (
+            max_seconds is not None and last["wall_seconds"] >= max_seconds)
+
+    try:
+        while done_steps < total:
+            progress = done_steps / total
+            level = config.level(progress)
+            if level is not None:
+                env.set_start_level(level)
+            if config.final_std:
+                with torch.no_grad():
+                    models["log_std"].fill_(math.log(config.exploration_std(progress)))
+            if config.anneal_lr:
+                for group in optimiser.param_groups:
+                    group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
+            start = time.perf_counter()
+            rollout, observations, state, (won, finished) = collect(env, models, observations, state,
+                                                                    config.rollout_steps, torch, device)
+            collect_seconds += time.perf_counter() - start
+            successes, ended = successes + won, ended + finished
+            rollout.rewards = rollout.rewards / return_scale.update(rollout.rewards, rollout.done)
+            advantage, returns = advantages(rollout, config.gamma, config.gae_lambda, torch)
+            update(models, optimiser, rollout, advantage, returns, config, torch)
+            norms = models["norms"]  # normalisers move after the update, as in the trainer of record
+            norms["observation"].update(rollout.observations)
+            if "state" in norms:
+                norms["state"].update(rollout.states)
+            if "critic_observation" in norms:
+                norms["critic_observation"].update(rollout.observations)
+            done_steps += config.num_envs * config.rollout_steps
+            finished_run = done_steps >= total
+            reported = validations.result(wait=finished_run)
+            if reported is not None and report(*reported):
                 break
+            if not validations.busy() and (done_steps >= next_validation or finished_run):
+                next_validation = done_steps + config.eval_every
+                validations.start(models, done_steps, time.perf_counter() - began, host)
+                if (finished_run or not validate_beside) and report(*validations.result(wait=True)):
+                    break
+    finally:
+        validations.close()
     (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, "device": str(device),
                                                  "backend": backend, "collect_seconds": collect_seconds, **last},
                                                 indent=2) + "\n")
