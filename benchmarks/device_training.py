@@ -37,6 +37,9 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=180.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--test-episodes", type=int, default=100, help="held-out test episodes of the last policies")
+    parser.add_argument("--collector", choices=("inline", "process"), default="inline",
+                        help="process: the worlds step in a worker process while the learner updates (numpy's env "
+                             "on a CPU)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
@@ -50,15 +53,16 @@ def main() -> None:
                      evaluate_with_noise=False, eval_every=args.eval_every or 8 * batch,
                      total_steps=max(config.total_steps, 1000 * batch))
     with tempfile.TemporaryDirectory() as folder:
+        collector = args.collector
         last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, backend=args.backend,
-                                  stop_at=args.target, max_seconds=args.seconds)
+                                  stop_at=args.target, max_seconds=args.seconds, collector=collector)
         seconds = time.perf_counter() - STARTED  # (the clock stops at the validation that ended the run)
         test = _test(Path(folder) / "run" / "policies", config, args.test_episodes)
     import torch
 
     name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device
     row = {"what": "device_trainer", "device": name, "worlds": args.worlds, "rollout": args.rollout,
-           "eval_every": config.eval_every,
+           "eval_every": config.eval_every, "collector": collector,
            "seed": args.seed, "steps": last.get("steps"), "validation_success": last.get("success_rate"),
            "env_steps_per_s": last.get("env_steps_per_s"), "reached_target": (last.get("success_rate") or 0.0)
            >= args.target, "seconds_from_process_start": seconds, "test_success": test,

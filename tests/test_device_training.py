@@ -107,3 +107,37 @@ def test_a_run_stops_at_its_first_validation_that_reaches_the_target(tmp_path, b
     spec = policies.load(tmp_path / "run" / "policies" / "marl-suction").spec
     assert spec["training"]["steps"] == last["steps"]
     assert not (tmp_path / "run" / "validating").exists()
+
+
+def test_a_run_with_its_worlds_in_a_worker_process_validates_as_the_inline_one(tmp_path):
+    """collector="process": the worlds step in a worker while the learner updates; the run's rows and policies are
+    as the inline run's, and what it cannot do is refused by name."""
+    last = device_mappo.train(TINY, 3, tmp_path / "run", collector="process", log=lambda *_: None)
+    rows = list(csv.DictReader((tmp_path / "run" / "progress.csv").open()))
+    assert [int(row["steps"]) for row in rows] == [512, 1024] and last["steps"] == 1024
+    assert policies.load(tmp_path / "run" / "policies" / "marl-grasper").spec["training"]["steps"] == 1024
+    with pytest.raises(ValueError, match="collector must be 'inline' or 'process'"):
+        device_mappo.train(TINY, 3, tmp_path / "other", collector="ray")
+    with pytest.raises(ValueError, match="collector='process' steps numpy's env"):
+        device_mappo.train(TINY, 3, tmp_path / "other", collector="process", backend="jax")
+
+
+def test_steps_become_a_rollout_whose_values_are_the_critics_of_each_step():
+    import torch
+
+    from dvrl_marl.envs import suction_debris_v8
+
+    config = replace(TINY, num_envs=4, env={**TINY.env, "max_cycles": 6})
+    host = suction_debris_v8.batched_env(num_envs=config.num_envs, **config.env)
+    env = device_mappo._TorchView(host, torch)
+    models = device_mappo._models(config, host, torch.device("cpu"), torch)
+    observations, _ = env.reset(seed=1)
+    observations = device_mappo._stack(observations, models["agents"], torch).float()
+    taken = device_mappo.step_worlds(env, models["head"], models["distribution"], models["agents"], observations,
+                                     env.state().float(), 8, torch, torch.device("cpu"))
+    assert taken.observations.shape[0] == 9 and taken.actions.shape[:2] == (8, 4)
+    assert len(taken.ended_at) == int(taken.done.sum()) == 4  # (every world ends at its 6th step)
+    rollout = device_mappo.value_rollout(taken, models["critic"], torch)
+    with torch.no_grad():
+        for t in (0, 7):
+            assert torch.allclose(rollout.values[t], models["critic"](taken.states[t], taken.observations[t]))

@@ -21,6 +21,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,7 @@ from dvrl_marl.training.mappo_config import MappoConfig, load_config
 from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, limit_threads, require_torch,
                                        switch_gaussian)
 
-__all__ = ["train", "collect", "advantages", "update", "validate", "Rollout"]
+__all__ = ["train", "collect", "step_worlds", "value_rollout", "advantages", "update", "validate", "Rollout", "Steps"]
 
 #: What this trainer does not do (the trainer of record does): the option, and the value that turns it off.
 _NOT_HERE = {"surgeon": "none", "bc_expert": "", "init_policy": {}, "critic_warmup_steps": 0}
@@ -98,15 +99,33 @@ def _stack(values: dict, agents, torch):
     return torch.stack([values[agent] for agent in agents], dim=1)
 
 
-def collect(env, models, observations, state, steps: int, torch, device):
-    """Step every world ``steps`` times with the actors' samples. Returns the :class:`Rollout`, the last observations
-    and state, and the episodes that ended: ``(successes, ended)``."""
-    head, critic, distribution, agents = models["head"], models["critic"], models["distribution"], models["agents"]
-    buffers = {key: [] for key in Rollout.__dataclass_fields__}
-    successes = ended = 0
-    with torch.no_grad():
-        value = critic(state, observations)
-    for _ in range(steps):
+@dataclass
+class Steps:
+    """What stepping the worlds gives, before any value is computed: ``observations`` (T + 1, N, A, d) and ``states``
+    (T + 1, N, S), each step's and, last, those after the last step; ``actions`` (T, N, A, 4), their ``log_probs`` and
+    the ``rewards`` (T, N, A); per world ``done`` and ``terminated`` (T, N); the final observations (E, A, d) and
+    states (E, S) of the E episodes that ended, at ``ended_at`` (E, 2: step, world); ``successes`` among them."""
+
+    observations: object
+    states: object
+    actions: object
+    log_probs: object
+    rewards: object
+    done: object
+    terminated: object
+    final_observations: object
+    final_states: object
+    ended_at: object
+    successes: int
+
+
+def step_worlds(env, head, distribution, agents, observations, state, steps: int, torch, device) -> Steps:
+    """Step every world ``steps`` times with the actors' samples (no critic: :func:`value_rollout` values them)."""
+    keys = ("observations", "states", "actions", "log_probs", "rewards", "done", "terminated")
+    buffers = {key: [] for key in keys}
+    finals, final_states, ended_at = [], [], []
+    successes = 0
+    for t in range(steps):
         with torch.no_grad():
             loc, scale = head(observations)
             policy = distribution(loc, scale)
@@ -116,29 +135,119 @@ def collect(env, models, observations, state, steps: int, torch, device):
         agent = agents[0]
         infos = infos[agent]
         done = (terminated[agent] | truncated[agent]).to(device)
-        next_observations = _stack(next_observations, agents, torch).to(device, torch.float32)
-        next_state = env.state().to(device, torch.float32)
-        # the value after the step: of the state it ended on (a reset world's final state, not its new one); the
-        # live worlds' is the next step's value, so the critic runs once per step and again on the ended worlds only
-        with torch.no_grad():
-            following = critic(next_state, next_observations)
-        next_value = following
-        if bool(done.any()):
+        if bool(done.any()):  # the state each ended world's step ended on (a reset world's final state, not its new one)
             rows = done.nonzero().squeeze(-1)
-            final = _stack(infos["final_observation"], agents, torch).to(device, torch.float32)[rows]
-            with torch.no_grad():
-                ending = critic(infos["final_state"].to(device, torch.float32)[rows], final)
-            next_value = following.index_put((rows,), ending)
+            finals.append(_stack(infos["final_observation"], agents, torch).to(device, torch.float32)[rows])
+            final_states.append(infos["final_state"].to(device, torch.float32)[rows])
+            ended_at.append(torch.stack([torch.full_like(rows, t), rows], dim=1))
             successes += int((infos["is_success"].to(device) & done).sum())
-            ended += int(done.sum())
         for key, item in (("observations", observations), ("states", state), ("actions", action),
-                          ("log_probs", policy.log_prob(action)), ("values", value),
+                          ("log_probs", policy.log_prob(action)),
                           ("rewards", _stack(rewards, agents, torch).to(device, torch.float32)), ("done", done),
-                          ("terminated", terminated[agent].to(device)), ("next_values", next_value)):
+                          ("terminated", terminated[agent].to(device))):
             buffers[key].append(item)
-        observations, state, value = next_observations, next_state, following
-    return Rollout(**{key: torch.stack(items) for key, items in buffers.items()}), observations, state, (successes,
-                                                                                                       ended)
+        observations = _stack(next_observations, agents, torch).to(device, torch.float32)
+        state = env.state().to(device, torch.float32)
+    buffers["observations"].append(observations)
+    buffers["states"].append(state)
+    stacked = {key: torch.stack(items) for key, items in buffers.items()}
+    if finals:
+        ending = (torch.cat(finals), torch.cat(final_states), torch.cat(ended_at))
+    else:
+        ending = (stacked["observations"][:0, 0], stacked["states"][:0, 0],
+                  torch.zeros((0, 2), dtype=torch.long, device=device))
+    return Steps(**stacked, final_observations=ending[0], final_states=ending[1], ended_at=ending[2],
+                 successes=successes)
+
+
+def value_rollout(steps: Steps, critic, torch) -> Rollout:
+    """The critic's values of every step in one call, and after each step: the next step's value, or the final
+    state's for a world that ended there."""
+    with torch.no_grad():
+        values = critic(steps.states, steps.observations)  # (T + 1, N, A)
+        next_values = values[1:].clone()
+        if len(steps.ended_at):
+            ended = steps.ended_at.to(values.device)
+            next_values[ended[:, 0], ended[:, 1]] = critic(steps.final_states, steps.final_observations)
+    return Rollout(observations=steps.observations[:-1], states=steps.states[:-1], actions=steps.actions,
+                   log_probs=steps.log_probs, values=values[:-1], rewards=steps.rewards, done=steps.done,
+                   terminated=steps.terminated, next_values=next_values)
+
+
+def collect(env, models, observations, state, steps: int, torch, device):
+    """Step every world ``steps`` times with the actors' samples and value the steps. Returns the :class:`Rollout`,
+    the last observations and state, and the episodes that ended: ``(successes, ended)``."""
+    taken = step_worlds(env, models["head"], models["distribution"], models["agents"], observations, state, steps,
+                        torch, device)
+    return (value_rollout(taken, models["critic"], torch), taken.observations[-1], taken.states[-1],
+            (taken.successes, len(taken.ended_at)))
+
+
+class _ProcessCollector:
+    """The worlds stepped in a worker process while the learner updates (on a CPU: the env on one core, the update on
+    another). The worker holds the numpy env and a copy of the actors; each :meth:`submit` sends the actors' weights
+    (and the start level) and asks for the next ``rollout_steps``, which :meth:`result` returns as :class:`Steps`. The
+    learner submits the next rollout before it updates on the last, so each rollout is collected by the actors of
+    one update before (PPO's ratio is taken against the log-probabilities the worker recorded)."""
+
+    def __init__(self, config: MappoConfig, seed: int):
+        import multiprocessing
+
+        context = multiprocessing.get_context("spawn")  # (a fork of a process holding torch's threads is not safe)
+        self.connection, theirs = context.Pipe()
+        self.process = context.Process(target=_collector_main, args=(theirs, config, seed), daemon=True,
+                                       name="dvrl-marl collector")
+        self.process.start()
+        theirs.close()
+
+    def submit(self, head, level) -> None:
+        self.connection.send(({key: value.detach().cpu().clone() for key, value in head.state_dict().items()}, level))
+
+    def result(self) -> Steps:
+        try:
+            return self.connection.recv()
+        except (EOFError, ConnectionResetError):
+            raise RuntimeError(f"the collector process ended (exit code {self.process.exitcode}); its error is "
+                               "printed above") from None
+
+    def close(self) -> None:
+        try:
+            self.connection.send(None)
+        except (BrokenPipeError, OSError):
+            pass
+        self.process.join(timeout=10)
+        if self.process.is_alive():
+            self.process.terminate()
+
+
+def _received(connection):
+    try:
+        return connection.recv()
+    except EOFError:  # (the learner is gone)
+        return None
+
+
+def _collector_main(connection, config: MappoConfig, seed: int) -> None:
+    _worker_start()
+    torch = require_torch()
+    limit_threads(1)
+    torch.manual_seed(seed)
+    host = suction_debris_v8.batched_env(num_envs=config.num_envs, **dict(config.env))
+    env = _TorchView(host, torch)
+    models = _models(config, host, torch.device("cpu"), torch)
+    observations, _ = env.reset(seed=seed)
+    observations = _stack(observations, models["agents"], torch).to(torch.float32)
+    state = env.state().to(torch.float32)
+    while (message := _received(connection)) is not None:
+        weights, level = message
+        models["head"].load_state_dict(weights)
+        if level is not None:
+            env.set_start_level(level)
+        taken = step_worlds(env, models["head"], models["distribution"], models["agents"], observations, state,
+                            config.rollout_steps, torch, torch.device("cpu"))
+        observations, state = taken.observations[-1], taken.states[-1]
+        connection.send(taken)
+    connection.close()
 
 
 def advantages(rollout: Rollout, gamma: float, lam: float, torch):
@@ -227,6 +336,26 @@ def validate(models, config: MappoConfig, out: Path, seed: int, steps: int, env)
     return score(folders, dict(config.env), config.eval_episodes, config.evaluate_with_noise)
 
 
+def _worker_start() -> None:
+    """A worker's numpy on one BLAS thread (two, beside the learner on a 2-core machine, slow both), and its end with
+    its learner's: a learner stopped by a signal leaves no worker behind."""
+    import threading
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="dvrl-marl parent watch").start()
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(1, user_api="blas")
+
+
 class _Validations:
     """Validations beside the learner: each exports the actors at once and scores them in a worker process (another
     core, or the host's CPU while the learner holds the GPU), one at a time; the learner steps on meanwhile. A
@@ -242,7 +371,8 @@ class _Validations:
             from concurrent.futures import ProcessPoolExecutor
 
             # spawn: a fork of a process holding torch's threads (or CUDA) is not safe
-            self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+            self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=_worker_start)
 
     def busy(self) -> bool:
         return self.pending is not None
@@ -308,14 +438,18 @@ def _models(config: MappoConfig, env, device, torch) -> dict:
 
 def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backend: str | None = None,
           total_steps: int | None = None, stop_at: float | None = None, max_seconds: float | None = None,
-          validate_beside: bool = True, log=print) -> dict:
+          validate_beside: bool = True, collector: str = "inline", log=print) -> dict:
     """Train ``config`` with seed ``seed`` on ``device``; writes ``progress.csv`` (per validation: the steps its
     policies were exported at, their validation success, train success since the last row, env-steps/s up to the
     export, wall clock from the call to the result) and the policies last validated in ``out_dir/policies``; returns
     the last row. ``stop_at``: stop once a validation reaches this success (time to target); ``max_seconds``: stop at
     the first validation reported after this much wall clock. ``validate_beside``: score in a worker process while
-    the learner steps on (:class:`_Validations`); False scores in this process, the learner waiting."""
+    the learner steps on (:class:`_Validations`); False scores in this process, the learner waiting.
+    ``collector``: ``"inline"`` steps the worlds in this process between updates; ``"process"`` (numpy's env on a
+    CPU) steps them in a worker process while the learner updates (:class:`_ProcessCollector`)."""
     torch = require_torch()
+    if collector not in ("inline", "process"):
+        raise ValueError(f"collector must be 'inline' or 'process', got {collector!r}")
     for option, off in _NOT_HERE.items():
         if getattr(config, option) != off:
             raise ValueError(f"{config.name}: {option} = {getattr(config, option)!r} is the trainer of record's "
@@ -323,8 +457,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     backend = backend or ("jax" if str(device).startswith("cuda") else "numpy")
     if backend not in ("numpy", "jax"):
         raise ValueError(f"backend must be 'numpy' or 'jax', got {backend!r}")
+    if collector == "process" and (backend != "numpy" or str(device) != "cpu"):
+        raise ValueError(f"collector='process' steps numpy's env for a learner on the CPU; got backend {backend!r} "
+                         f"on {device!r} (on a GPU the worlds are the device's: collector='inline')")
     if config.torch_threads:
         limit_threads(int(config.torch_threads))
+    elif collector == "process":  # (the worker's core is its own)
+        limit_threads(max(1, (os.cpu_count() or 2) - 1))
     began = time.perf_counter()
     device = torch.device(device)
     torch.manual_seed(seed)
@@ -343,9 +482,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     optimiser = torch.optim.Adam(models["parameters"], lr=config.learning_rate)
     total = int(total_steps or config.total_steps)
     agents = models["agents"]
-    observations, _ = env.reset(seed=seed)
-    observations = _stack(observations, agents, torch).to(device, torch.float32)
-    state = env.state().to(device, torch.float32)
+    if collector == "inline":
+        observations, _ = env.reset(seed=seed)
+        observations = _stack(observations, agents, torch).to(device, torch.float32)
+        state = env.state().to(device, torch.float32)
+    else:
+        worker = _ProcessCollector(config, seed)
+        worker.submit(models["head"], config.level(0.0))
     return_scale = _ReturnScale(len(agents), config.gamma, torch, device)
     progress_file = out / "progress.csv"
     progress_file.write_text("steps,success_rate,blood_removed_ml,contact_steps,train_success,env_steps_per_s,"
@@ -384,8 +527,16 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
                 for group in optimiser.param_groups:
                     group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
             start = time.perf_counter()
-            rollout, observations, state, (won, finished) = collect(env, models, observations, state,
-                                                                    config.rollout_steps, torch, device)
+            if collector == "inline":
+                rollout, observations, state, (won, finished) = collect(env, models, observations, state,
+                                                                        config.rollout_steps, torch, device)
+            else:  # the next rollout is asked for before this one is learnt from: the worker steps while we update
+                taken = worker.result()
+                if done_steps + config.num_envs * config.rollout_steps < total:
+                    worker.submit(models["head"], config.level((done_steps + config.num_envs * config.rollout_steps)
+                                                               / total))
+                rollout, (won, finished) = value_rollout(taken, models["critic"], torch), (taken.successes,
+                                                                                           len(taken.ended_at))
             collect_seconds += time.perf_counter() - start
             successes, ended = successes + won, ended + finished
             rollout.rewards = rollout.rewards / return_scale.update(rollout.rewards, rollout.done)
@@ -409,6 +560,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
                     break
     finally:
         validations.close()
+        if collector == "process":
+            worker.close()
     (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, "device": str(device),
                                                  "backend": backend, "collect_seconds": collect_seconds, **last},
                                                 indent=2) + "\n")
