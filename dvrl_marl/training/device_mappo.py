@@ -5,14 +5,16 @@ and out; on a CPU, ``backend="numpy"`` keeps numpy's env, which is faster there)
 ``rollout_steps`` steps never leaves the device until validation. It reads the configurations of the trainer of record
 (:class:`~dvrl_marl.training.mappo_config.MappoConfig`, ``baselines/configs/*.toml``): the same models, the same
 exported numpy policies, the same validation (the exported actors by their mean action, ``teams.VALIDATION_SEED``).
-Read top to bottom: :func:`collect` steps the worlds, :func:`advantages` is GAE, :func:`update` is PPO's clipped
-objective, :func:`validate` exports and scores the actors, :func:`train` ties them together.
+Read top to bottom: :func:`step_worlds` steps the worlds and :func:`value_rollout` values the steps (together
+:func:`collect`; :class:`_ProcessCollector` steps them in a worker process instead), :func:`advantages` is GAE,
+:func:`update` is PPO's clipped objective, :func:`export` and :func:`score` validate the actors (beside the learner,
+in a worker process: :class:`_Validations`), :func:`train` ties them together.
 
     python -m dvrl_marl.training.device_mappo baselines/configs/suction_debris_mappo.toml --device cuda --out runs/x
 
 What it leaves out of the trainer of record (``dvrl_marl.training.mappo``), refused by name: partners in a seat,
 pretraining from demonstrations and the critic's warm-up; it keeps no checkpoints (no resuming) and uses no Ray
-collectors.
+collectors (a CPU's second core steps the worlds with ``collector="process"``).
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ from dvrl_marl.training.mappo_config import MappoConfig, load_config
 from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, limit_threads, require_torch,
                                        switch_gaussian)
 
-__all__ = ["train", "collect", "step_worlds", "value_rollout", "advantages", "update", "validate", "Rollout", "Steps"]
+__all__ = ["train", "collect", "step_worlds", "value_rollout", "advantages", "update", "export", "score", "validate",
+           "Rollout", "Steps"]
 
 #: What this trainer does not do (the trainer of record does): the option, and the value that turns it off.
 _NOT_HERE = {"surgeon": "none", "bc_expert": "", "init_policy": {}, "critic_warmup_steps": 0}
@@ -605,9 +608,11 @@ def main() -> None:
     parser.add_argument("--backend", choices=("numpy", "jax"), default=None, help="default: jax on a GPU, else numpy")
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--stop-at", type=float, default=None, help="stop once validation reaches this success")
+    parser.add_argument("--collector", choices=("inline", "process"), default="inline",
+                        help="process: numpy's worlds step in a worker process while the learner updates (a CPU)")
     args = parser.parse_args()
     train(load_config(args.config), args.seed, args.out, device=args.device, backend=args.backend,
-          total_steps=args.steps, stop_at=args.stop_at)
+          total_steps=args.steps, stop_at=args.stop_at, collector=args.collector)
 
 
 if __name__ == "__main__":
