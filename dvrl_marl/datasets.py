@@ -6,7 +6,7 @@ from dvrl_marl.agents import ScriptedSurgeon
 
 dataset = datasets.record("dvrl_marl/surgeon-scripted-v1", "scripted", episodes=20, seed=0)   # the LND seat
 observations, actions = datasets.transitions("dvrl_marl/surgeon-scripted-v1")                # for cloning
-actions = datasets.episode_actions("dvrl_marl/surgeon-scripted-v1", episode=3)               # one episode's
+device = datasets.replay_device("dvrl_marl/surgeon-scripted-v1", episode=3)                   # a teleop device
 ```
 
 Each episode is one seat of ``suction_debris_v8`` as the Gymnasium env ``dvrl_marl/SurgeonSeat-v8`` (the partner
@@ -14,17 +14,16 @@ inside it) sees it: observations, actions, rewards, terminations, truncations an
 ``blood_remaining``, ``debris_delivered``, ``collision`` and the partner's action), with the env spec (id and
 keyword arguments) and each episode's seed, so ``replay`` plays an episode back exactly. Minari keeps datasets
 under ``~/.minari/datasets`` unless ``MINARI_DATASETS_PATH`` says otherwise. Needs ``pip install "dvrl-marl[data]"``
-(Minari with its HDF5 storage; recording does not need Minari's JAX extra). The teleop layer above builds on this one:
-:meth:`dvrl_marl.teleop.ReplayDevice.from_dataset` fills a seat with an episode, and
-:func:`dvrl_marl.teleop.dataset_from_recordings` converts files recorded with :class:`~dvrl_marl.teleop.Recorder`.
+(Minari with its HDF5 storage; recording does not need Minari's JAX extra). Files recorded with
+:class:`~dvrl_marl.teleop.Recorder` (``.npz``) convert with :func:`from_recording`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["record", "record_episodes", "transitions", "replay", "episode_actions", "EpisodeRecorder", "save_episodes",
-           "next_free_id", "check_id", "SEAT_ENV_ID"]
+__all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "EpisodeRecorder",
+           "save_episodes", "next_free_id", "SEAT_ENV_ID"]
 
 #: The Gymnasium env every dataset here is recorded from.
 SEAT_ENV_ID = "dvrl_marl/SurgeonSeat-v8"
@@ -144,7 +143,7 @@ def save_episodes(dataset_id: str, buffers, env, *, description: str, algorithm_
     """Write episode buffers recorded in ``env`` (made with ``gym.make``, so its spec can be replayed) as the
     Minari dataset ``dataset_id``."""
     minari = _minari()
-    check_id(dataset_id)
+    _check_id(dataset_id)
     if dataset_id in minari.list_local_datasets():
         raise ValueError(f"a Minari dataset {dataset_id!r} exists already; delete it first (minari.delete_dataset)")
     return minari.create_dataset_from_buffers(
@@ -160,7 +159,7 @@ def next_free_id(dataset_id: str) -> str:
     interrupted write, a hand-edited metadata file) is not listed by Minari, yet writing there fails, and a person's
     recording must never be lost to it."""
     minari = _minari()
-    check_id(dataset_id)
+    _check_id(dataset_id)
     from minari.dataset.minari_dataset import gen_dataset_id, parse_dataset_id
     from minari.storage.datasets_root_dir import get_dataset_path
 
@@ -178,7 +177,7 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
     """Record ``episodes`` episodes of ``policy`` in the surgeon seat as the Minari dataset ``dataset_id``
     (``namespace/name-vN``); returns the dataset. An existing dataset of that id is an error (delete it with
     ``minari.delete_dataset``)."""
-    check_id(dataset_id)
+    _check_id(dataset_id)
     if dataset_id in _minari().list_local_datasets():  # before the episodes are run, not after
         raise ValueError(f"a Minari dataset {dataset_id!r} exists already; delete it first (minari.delete_dataset)")
     buffers, env = record_episodes(policy, episodes, seed=seed, env_kwargs=env_kwargs, action_noise=action_noise)
@@ -189,7 +188,7 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
                                                      f"action noise {action_noise})"))
 
 
-def check_id(dataset_id: str) -> None:
+def _check_id(dataset_id: str) -> None:
     """Refuse a malformed id before anything is written (Minari would leave a folder that breaks its own listing)."""
     from minari.dataset.minari_dataset import parse_dataset_id
 
@@ -232,9 +231,11 @@ def _episode(dataset, index: int):
     return dataset, episodes[0]
 
 
-def episode_actions(dataset, episode: int = 0) -> np.ndarray:
-    """The actions one episode of a dataset (an id or a loaded dataset) executed, ``(T, 4)`` float32."""
-    return np.asarray(_episode(dataset, episode)[1].actions, dtype=np.float32)
+def replay_device(dataset, episode: int = 0):
+    """A :class:`~dvrl_marl.teleop.ReplayDevice` that plays one episode's actions."""
+    from dvrl_marl.teleop import ReplayDevice
+
+    return ReplayDevice(np.asarray(_episode(dataset, episode)[1].actions, dtype=np.float32))
 
 
 def replay(dataset, episode: int = 0) -> dict:
@@ -254,3 +255,20 @@ def replay(dataset, episode: int = 0) -> dict:
     env.close()
     return {"max_observation_difference": worst, "success": bool(info["is_success"]),
             "recorded_success": bool(np.asarray(data.infos["is_success"])[-1]), "steps": len(data.actions)}
+
+
+def from_recording(dataset_id: str, paths, *, seeds=None, env_kwargs: dict | None = None):
+    """Convert demonstration files (``teleop.Recorder`` / ``save_demonstration``, one episode each) into a Minari
+    dataset by replaying their actions in the surgeon seat (seeded with ``seeds``, one per file, or the seed the
+    file's metadata names)."""
+    from dvrl_marl.teleop import ReplayDevice, load_demonstration
+
+    _check_id(dataset_id)
+    buffers, env = [], None
+    for index, path in enumerate(paths):
+        _, actions, metadata = load_demonstration(path)
+        seed = int(seeds[index] if seeds is not None else metadata.get("seed", index))
+        episode_buffers, env = record_episodes(ReplayDevice(actions), 1, seed=seed, env_kwargs=env_kwargs)
+        buffers.append(episode_buffers[0].__class__(**{**episode_buffers[0].__dict__, "id": index}))
+    return save_episodes(dataset_id, buffers, env, algorithm_name="dvrl-marl recording",
+                         description=f"{len(buffers)} recorded episodes converted from demonstration files")

@@ -14,7 +14,7 @@ minari = pytest.importorskip("minari", reason='Minari is the "data" extra: pip i
 
 from dvrl_marl import datasets, policies  # noqa: E402
 from dvrl_marl.agents import ScriptedSuction  # noqa: E402
-from dvrl_marl.teleop import KeyboardDevice, Recorder, ReplayDevice, dataset_from_recordings  # noqa: E402
+from dvrl_marl.teleop import KeyboardDevice, Recorder  # noqa: E402
 
 SCRIPTED_PARTNER = {"partner": "scripted"}  # fast: no pipelines to build
 
@@ -77,7 +77,7 @@ def test_an_episode_replays_exactly(recorded):
 
 
 def test_a_replay_device_fills_the_surgeon_seat(recorded):
-    device = ReplayDevice.from_dataset(recorded, 1)
+    device = datasets.replay_device(recorded, 1)
     env = suction_debris_v8.parallel_env(surgeon=device)
     suction = ScriptedSuction.for_env(env)
     observations, _ = env.reset(seed=12)
@@ -96,7 +96,7 @@ def test_recordings_convert_and_datasets_are_not_overwritten(tmp_path):
     while env.agents:
         observations, *_ = env.step({"suction": suction(observations["suction"])})
     path = recorder.save(tmp_path / "session.npz")
-    dataset = dataset_from_recordings("dvrl_marl/keyboard-session-v1", [path],
+    dataset = datasets.from_recording("dvrl_marl/keyboard-session-v1", [path],
                                       env_kwargs={**SCRIPTED_PARTNER, "max_cycles": 60})
     episode = next(dataset.iterate_episodes())
     np.testing.assert_array_equal(episode.actions, np.asarray(recorder.actions))
@@ -209,4 +209,4 @@ def test_an_episode_past_the_end_is_named(recorded, episode):
     with pytest.raises(ValueError, match=r"episode must be an episode's index in \[0, 2\)"):
         datasets.replay(recorded, episode)
     with pytest.raises(ValueError, match="episode must be"):
-        ReplayDevice.from_dataset(recorded, episode)
+        datasets.replay_device(recorded, episode)

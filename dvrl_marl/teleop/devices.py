@@ -1,5 +1,5 @@
-"""Teleoperation devices: the protocol, a keyboard (held keys, in the scene's window), replay of recordings and of
-datasets' episodes, a recorder and the conversion of its files into a dataset."""
+"""Teleoperation devices: the protocol, a keyboard (held keys, in the scene's window), replay of recordings, a
+recorder."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ __all__ = [
     "KeyboardDevice",
     "ReplayDevice",
     "Recorder",
-    "dataset_from_recordings",
     "save_demonstration",
     "load_demonstration",
     "DEMONSTRATION_FORMAT",
@@ -180,13 +179,6 @@ class ReplayDevice:
         self.actions = actions
         self.index = 0
 
-    @classmethod
-    def from_dataset(cls, dataset, episode: int = 0) -> ReplayDevice:
-        """Play the actions of one episode of a Minari dataset (an id or a loaded dataset; :mod:`dvrl_marl.datasets`)."""
-        from dvrl_marl import datasets
-
-        return cls(datasets.episode_actions(dataset, episode))
-
     def reset(self) -> None:
         self.index = 0
 
@@ -241,20 +233,3 @@ class Recorder:
         if name.startswith("__") or name in ("device", "metadata", "observations", "actions"):
             raise AttributeError(name)
         return getattr(self.device, name)
-
-
-def dataset_from_recordings(dataset_id: str, paths, *, seeds=None, env_kwargs: dict | None = None):
-    """Convert demonstration files (:class:`Recorder` / :func:`save_demonstration`, one episode each) into the Minari
-    dataset ``dataset_id`` by replaying their actions in the surgeon seat, seeded with ``seeds`` (one per file) or
-    the seed each file's metadata names (else its index)."""
-    from dvrl_marl import datasets
-
-    datasets.check_id(dataset_id)  # (before any replay)
-    buffers, env = [], None
-    for index, path in enumerate(paths):
-        _, actions, metadata = load_demonstration(path)
-        seed = int(seeds[index] if seeds is not None else metadata.get("seed", index))
-        episode_buffers, env = datasets.record_episodes(ReplayDevice(actions), 1, seed=seed, env_kwargs=env_kwargs)
-        buffers.append(episode_buffers[0].__class__(**{**episode_buffers[0].__dict__, "id": index}))
-    return datasets.save_episodes(dataset_id, buffers, env, algorithm_name="dvrl-marl recording",
-                                  description=f"{len(buffers)} recorded episodes converted from demonstration files")
