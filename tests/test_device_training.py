@@ -59,20 +59,26 @@ def test_what_it_does_not_do_is_refused_by_name(tmp_path):
         device_mappo.train(TINY, 0, tmp_path / "c")
 
 
-def test_collect_bootstraps_from_the_state_each_step_ended_on():
-    """The live worlds' value after a step is the next step's value; an ended world's is its final state's (the critic
-    runs once per step and again on the ended worlds alone)."""
+def _worlds(num_envs: int, max_cycles: int, seed: int):
+    """A tiny batch seen through torch, its models and its first observations and state."""
     import torch
 
     from dvrl_marl.envs import suction_debris_v8
 
-    config = replace(TINY, num_envs=6, env={**TINY.env, "max_cycles": 10})
+    config = replace(TINY, num_envs=num_envs, env={**TINY.env, "max_cycles": max_cycles})
     host = suction_debris_v8.batched_env(num_envs=config.num_envs, **config.env)
     env = device_mappo._TorchView(host, torch)
     models = device_mappo._models(config, host, torch.device("cpu"), torch)
-    observations, _ = env.reset(seed=5)
-    observations = device_mappo._stack(observations, models["agents"], torch).float()
-    state = env.state().float()
+    observations, _ = env.reset(seed=seed)
+    return env, models, device_mappo._stack(observations, models["agents"], torch).float(), env.state().float()
+
+
+def test_collect_bootstraps_from_the_state_each_step_ended_on():
+    """The live worlds' value after a step is the next step's value; an ended world's is its final state's (the critic
+    values the rollout in one call and the ended worlds' final states in another)."""
+    import torch
+
+    env, models, observations, state = _worlds(6, 10, seed=5)
     finals = []
     step = env.step
     env.step = lambda actions: finals.append(result := step(actions)) or result
@@ -125,16 +131,9 @@ def test_a_run_with_its_worlds_in_a_worker_process_validates_as_the_inline_one(t
 def test_steps_become_a_rollout_whose_values_are_the_critics_of_each_step():
     import torch
 
-    from dvrl_marl.envs import suction_debris_v8
-
-    config = replace(TINY, num_envs=4, env={**TINY.env, "max_cycles": 6})
-    host = suction_debris_v8.batched_env(num_envs=config.num_envs, **config.env)
-    env = device_mappo._TorchView(host, torch)
-    models = device_mappo._models(config, host, torch.device("cpu"), torch)
-    observations, _ = env.reset(seed=1)
-    observations = device_mappo._stack(observations, models["agents"], torch).float()
+    env, models, observations, state = _worlds(4, 6, seed=1)
     taken = device_mappo.step_worlds(env, models["head"], models["distribution"], models["agents"], observations,
-                                     env.state().float(), 8, torch, torch.device("cpu"))
+                                     state, 8, torch, torch.device("cpu"))
     assert taken.observations.shape[0] == 9 and taken.actions.shape[:2] == (8, 4)
     assert len(taken.ended_at) == int(taken.done.sum()) == 4  # (every world ends at its 6th step)
     rollout = device_mappo.value_rollout(taken, models["critic"], torch)
