@@ -40,6 +40,12 @@ def main() -> None:
     parser.add_argument("--collector", choices=("inline", "process"), default="inline",
                         help="process: the worlds step in a worker process while the learner updates (numpy's env "
                              "on a CPU)")
+    parser.add_argument("--epochs", type=int, default=None, help="PPO epochs per rollout (default: the record's)")
+    parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (default: the record's)")
+    parser.add_argument("--learning-rate", type=float, default=None, help="default: the record's")
+    parser.add_argument("--total-steps", type=int, default=None,
+                        help="the run's length, which paces the curriculum (default: the record's 12M or 1,000 "
+                             "batches, whichever is more)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
@@ -51,7 +57,11 @@ def main() -> None:
     # validated by the mean action (the record's validation acts with its noise); torch takes every core
     config = replace(config, num_envs=args.worlds, rollout_steps=args.rollout, torch_threads=0,
                      evaluate_with_noise=False, eval_every=args.eval_every or 8 * batch,
-                     total_steps=max(config.total_steps, 1000 * batch))
+                     total_steps=args.total_steps or max(config.total_steps, 1000 * batch))
+    for field, value in (("epochs", args.epochs), ("minibatches", args.minibatches),
+                         ("learning_rate", args.learning_rate)):
+        if value is not None:
+            config = replace(config, **{field: value})
     with tempfile.TemporaryDirectory() as folder:
         collector = args.collector
         last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, backend=args.backend,
@@ -63,6 +73,8 @@ def main() -> None:
     name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device
     row = {"what": "device_trainer", "device": name, "worlds": args.worlds, "rollout": args.rollout,
            "eval_every": config.eval_every, "collector": collector,
+           "epochs": config.epochs, "minibatches": config.minibatches, "learning_rate": config.learning_rate,
+           "total_steps": config.total_steps,
            "seed": args.seed, "steps": last.get("steps"), "validation_success": last.get("success_rate"),
            "env_steps_per_s": last.get("env_steps_per_s"), "reached_target": (last.get("success_rate") or 0.0)
            >= args.target, "seconds_from_process_start": seconds, "test_success": test,

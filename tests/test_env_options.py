@@ -313,6 +313,30 @@ def test_state_observations_append_every_arms_observation_single_and_batched():
         suction_debris_v8.parallel_env(state_observations="yes")
 
 
+def test_batched_state_reuses_the_step_features_and_nothing_stale():
+    """state() after step() reuses the features the step computed for the same observations: the same values as a
+    fresh env's pass, untouched by a caller who writes into the observations it was given, and recomputed once the
+    worlds have moved (here by set_tip_positions, which no step sees)."""
+    kwargs = dict(task="suction_debris_v8", state_observations=True, **OPTIONS)
+    env = suction_debris_v8.batched_env(num_envs=3, **kwargs)
+    env.reset(seed=2)
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        observations, *_ = env.step({agent: rng.uniform(-1, 1, (3, 4)) for agent in env.agents})
+    expected = env.state().copy()
+    env._last_features = None  # (what a pass without the reuse computes)
+    np.testing.assert_array_equal(env.state(), expected)
+    for value in observations.values():
+        value[:] = 7.0  # a caller's own copy: the state is not theirs
+    np.testing.assert_array_equal(env.state(), expected)
+    grasper = env.core.arms["grasper"]
+    env.set_tip_positions({"grasper": grasper.tip + grasper.base_position + [0.0, 0.0, 0.002]})
+    moved = env.state().copy()
+    env._last_features = None
+    np.testing.assert_array_equal(env.state(), moved)
+    assert not np.array_equal(moved, expected)
+
+
 def test_torchrl_state_carries_both_observations():
     pytest.importorskip("torchrl")
     from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv

@@ -196,6 +196,7 @@ class SuctionDebrisBatchedEnv:
             raise ValueError(f"{self.name}: observation_features must be a feature set's name or '', "
                              f"got {observation_features!r}")
         self.feature_spec = None
+        self._last_features = None  # (the plain observations, their features), reused row by row
         if observation_features:
             try:
                 self.feature_spec = features.spec(observation_features, self.layout(), d)
@@ -408,7 +409,7 @@ class SuctionDebrisBatchedEnv:
         else:
             self._reset_at_default(worlds)
         self._reset_surgeon(worlds)
-        self._restart_potential()
+        self._restart_potential(worlds)
 
     def _reset_surgeon(self, worlds) -> None:
         """The seat's filler starts its episode again: in every world (``worlds`` None), or in those worlds only
@@ -488,9 +489,19 @@ class SuctionDebrisBatchedEnv:
         """``{agent: (N,)}``: the guided reward's potentials in the worlds' present state (empty without it)."""
         return self._guided.potentials(self.core.state(), self.core.remaining_ml) if self._guided is not None else {}
 
-    def _restart_potential(self) -> None:
-        if self._guided is not None:
+    def _restart_potential(self, worlds=None) -> None:
+        """The guided terms' potentials again, in every world or in ``worlds`` (indices) only: rows are independent,
+        and an autoreset that restarts a few of many worlds leaves the others' as they were."""
+        if self._guided is None:
+            return
+        if worlds is None or self._potential is None:
             self._potential = self._guided.potentials(self.core.state(), self.core.remaining_ml)
+            return
+        fresh = self._guided.potentials(self.core.state()[worlds], self.core.remaining_ml[worlds])
+        potential = {agent: value.copy() for agent, value in self._potential.items()}
+        for agent, value in fresh.items():
+            potential[agent][worlds] = value
+        self._potential = potential
 
     def set_tip_positions(self, tips: dict, worlds=None) -> None:
         """Move tips at the start of an episode, keeping everything else of it (for curricula that start an arm
@@ -569,7 +580,19 @@ class SuctionDebrisBatchedEnv:
         if len({value.shape for value in values}) > 1:
             return {agent: features.apply(self.feature_spec, value) for agent, value in observations.items()}
         xp = namespace(values[0])
-        together = features.apply(self.feature_spec, xp.concatenate(values, axis=0))
+        plain = xp.concatenate(values, axis=0)
+        if xp is not np:
+            together = features.apply(self.feature_spec, plain)
+        else:  # rows seen last time keep their features: state() after step(), the worlds an autoreset left alone
+            last = self._last_features
+            changed = None if last is None or last[0].shape != plain.shape else (last[0] != plain).any(axis=1)
+            if changed is None or changed.all():
+                together = features.apply(self.feature_spec, plain)
+            else:
+                together = last[1].copy()
+                if changed.any():
+                    together[changed] = features.apply(self.feature_spec, plain[changed])
+            self._last_features = (plain, together.copy())
         n = values[0].shape[0]
         return {agent: together[k * n:(k + 1) * n] for k, agent in enumerate(observations)}
 
