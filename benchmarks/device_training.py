@@ -67,7 +67,7 @@ def main() -> None:
         last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, backend=args.backend,
                                   stop_at=args.target, max_seconds=args.seconds, collector=collector)
         seconds = time.perf_counter() - STARTED  # (the clock stops at the validation that ended the run)
-        test = _test(Path(folder) / "run" / "policies", config, args.test_episodes)
+        test = _test(Path(folder) / "run" / "policies", config, args.test_episodes) if args.test_episodes else None
     import torch
 
     name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device

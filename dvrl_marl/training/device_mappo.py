@@ -463,10 +463,15 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     if collector == "process" and (backend != "numpy" or str(device) != "cpu"):
         raise ValueError(f"collector='process' steps numpy's env for a learner on the CPU; got backend {backend!r} "
                          f"on {device!r} (on a GPU the worlds are the device's: collector='inline')")
+    cores = os.cpu_count() or 2
     if config.torch_threads:
         limit_threads(int(config.torch_threads))
     elif collector == "process":  # (the worker's core is its own)
-        limit_threads(max(1, (os.cpu_count() or 2) - 1))
+        limit_threads(max(1, cores - 1))
+    # a CPU learner on every core gives one to a validation while it runs beside (both slow on an oversubscribed
+    # machine); a learner on a GPU or with threads set keeps its threads
+    share_a_core = (not config.torch_threads and collector == "inline" and validate_beside and cores > 1
+                    and str(device) == "cpu")
     began = time.perf_counter()
     device = torch.device(device)
     torch.manual_seed(seed)
@@ -529,6 +534,10 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
             if config.anneal_lr:
                 for group in optimiser.param_groups:
                     group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
+            if share_a_core:
+                threads = cores - 1 if validations.busy() else cores
+                if torch.get_num_threads() != threads:
+                    limit_threads(threads)
             start = time.perf_counter()
             if collector == "inline":
                 rollout, observations, state, (won, finished) = collect(env, models, observations, state,
