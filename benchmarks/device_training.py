@@ -1,15 +1,16 @@
 """The device trainer's figures: env-steps/s end to end (collection, update, validation) and the wall clock from
 process start to a validation success (the mean action, the exported policies), on one device.
 
-The configuration of record (``baselines/configs/suction_debris_mappo.toml``) with ``--worlds`` worlds per batch (its
-other settings unchanged: a starting point for a large batch, not a tuned one), validated by the mean action (the
-record validates with its exploration noise), stopped at ``--target`` validation
+A MAPPO configuration (``--config``; default the record's, ``baselines/configs/suction_debris_mappo.toml``;
+``suction_debris_mappo_large_batch.toml`` is its retuning for a large batch on a CPU), any of its settings replaced
+by the options given (``--worlds`` beyond the configuration's keeps the curriculum at least 1,000 updates long),
+validated by the mean action (the record validates with its exploration noise), stopped at ``--target`` validation
 success or after ``--seconds`` (the clock runs from process start, imports and validations included); then the last
 policies are tested by their mean action on ``--test-episodes`` held-out seeds. One JSON line per run goes to
 ``--json`` (the device probe reads it).
 
-    python benchmarks/device_training.py --device cpu --worlds 256 --seconds 120
-    python benchmarks/device_training.py --device cuda --worlds 16384 --seconds 200 --json out.jsonl
+    python benchmarks/device_training.py --device cpu --config baselines/configs/suction_debris_mappo_large_batch.toml
+    python benchmarks/device_training.py --device cuda --worlds 16384 --eval-every 4194304 --json out.jsonl
 """
 
 from __future__ import annotations
@@ -30,9 +31,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--backend", choices=("numpy", "jax"), default=None, help="default: jax on a GPU, else numpy")
-    parser.add_argument("--worlds", type=int, default=256)
-    parser.add_argument("--rollout", type=int, default=32, help="steps per world per update")
-    parser.add_argument("--eval-every", type=int, default=None, help="env steps between validations (default: 8 batches)")
+    parser.add_argument("--config", type=Path, default=HERE / "baselines" / "configs" / "suction_debris_mappo.toml",
+                        help="a MAPPO configuration (default: the record's; suction_debris_mappo_large_batch.toml is "
+                             "its retuning for a large batch on a CPU)")
+    parser.add_argument("--worlds", type=int, default=None, help="default: the configuration's")
+    parser.add_argument("--rollout", type=int, default=None, help="steps per world per update (default: the "
+                        "configuration's)")
+    parser.add_argument("--eval-every", type=int, default=None, help="env steps between validations (default: the "
+                        "configuration's)")
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--seconds", type=float, default=180.0)
     parser.add_argument("--seed", type=int, default=1)
@@ -40,28 +46,32 @@ def main() -> None:
     parser.add_argument("--collector", choices=("inline", "process"), default="inline",
                         help="process: the worlds step in a worker process while the learner updates (numpy's env "
                              "on a CPU)")
-    parser.add_argument("--epochs", type=int, default=None, help="PPO epochs per rollout (default: the record's)")
-    parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (default: the record's)")
-    parser.add_argument("--learning-rate", type=float, default=None, help="default: the record's")
+    parser.add_argument("--epochs", type=int, default=None, help="PPO epochs per rollout (default: the "
+                        "configuration's)")
+    parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (default: the "
+                        "configuration's)")
+    parser.add_argument("--learning-rate", type=float, default=None, help="default: the configuration's")
     parser.add_argument("--total-steps", type=int, default=None,
-                        help="the run's length, which paces the curriculum (default: the record's 12M or 1,000 "
-                             "batches, whichever is more)")
+                        help="the run's length, which paces the curriculum (default: the configuration's; with "
+                             "--worlds, that or 1,000 batches, whichever is more)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
     from dvrl_marl.training import device_mappo
     from dvrl_marl.training.mappo_config import load_config
 
-    config = load_config(HERE / "baselines" / "configs" / "suction_debris_mappo.toml")
-    batch = args.worlds * args.rollout
+    config = load_config(args.config)
     # validated by the mean action (the record's validation acts with its noise); torch takes every core
-    config = replace(config, num_envs=args.worlds, rollout_steps=args.rollout, torch_threads=0,
-                     evaluate_with_noise=False, eval_every=args.eval_every or 8 * batch,
-                     total_steps=args.total_steps or max(config.total_steps, 1000 * batch))
-    for field, value in (("epochs", args.epochs), ("minibatches", args.minibatches),
+    config = replace(config, torch_threads=0, evaluate_with_noise=False)
+    for field, value in (("num_envs", args.worlds), ("rollout_steps", args.rollout), ("eval_every", args.eval_every),
+                         ("epochs", args.epochs), ("minibatches", args.minibatches),
                          ("learning_rate", args.learning_rate)):
         if value is not None:
             config = replace(config, **{field: value})
+    batch = config.num_envs * config.rollout_steps
+    # a larger batch than the configuration's keeps its curriculum at least 1,000 updates long
+    config = replace(config, total_steps=args.total_steps or (max(config.total_steps, 1000 * batch) if args.worlds
+                                                              else config.total_steps))
     with tempfile.TemporaryDirectory() as folder:
         collector = args.collector
         last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, backend=args.backend,
@@ -71,7 +81,8 @@ def main() -> None:
     import torch
 
     name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device
-    row = {"what": "device_trainer", "device": name, "worlds": args.worlds, "rollout": args.rollout,
+    row = {"what": "device_trainer", "config": config.name, "device": name, "worlds": config.num_envs,
+           "rollout": config.rollout_steps,
            "eval_every": config.eval_every, "collector": collector,
            "epochs": config.epochs, "minibatches": config.minibatches, "learning_rate": config.learning_rate,
            "total_steps": config.total_steps,

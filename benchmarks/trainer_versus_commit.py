@@ -5,8 +5,8 @@ times each) so that a busy machine slows both alike; a run's figure is the train
 training (collection and updates, no validation: each run validates only at its end, after its figure is taken).
 
 - the checkout (``--against``, e.g. a worktree of commit 36a42a0, the issue's "today"): ``python -m dvrl_marl.cli
-  train`` on its configuration of record (``baselines/configs/suction_debris_mappo.toml`` there), with
-  ``torch_threads = 0`` (every core: the record's 1 is for two runs side by side);
+  train`` on its configuration of record (``baselines/configs/suction_debris_mappo.toml`` there), as it stands
+  (``torch_threads = 1``: the issue's "today") or with ``--record-threads`` (0: every core);
 - this checkout: ``benchmarks/device_training.py``'s run with the options given after ``--`` (the configuration of
   record, or a large-batch one: ``--worlds 1024 --epochs 1 --minibatches 16``).
 
@@ -30,12 +30,13 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parents[1]
 
 
-def record_rate(checkout: Path, steps: int) -> float:
+def record_rate(checkout: Path, steps: int, threads: int | None) -> float:
     """The checkout's trainer of record for ``steps`` steps: the last env-steps/s it printed before validating."""
     config = (checkout / "baselines" / "configs" / "suction_debris_mappo.toml").read_text()
-    config, count = re.subn(r"(?m)^torch_threads\s*=.*$", "torch_threads = 0", config)
-    if count != 1:
-        raise SystemExit(f"{checkout}: its configuration of record names no torch_threads; is it a dvrl-marl checkout?")
+    if threads is not None:
+        config, count = re.subn(r"(?m)^torch_threads\s*=.*$", f"torch_threads = {threads}", config)
+        if count != 1:
+            raise SystemExit(f"{checkout}: its configuration of record names no torch_threads")
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "suction_debris_mappo.toml"
         path.write_text(config)
@@ -66,14 +67,17 @@ def main() -> None:
     parser.add_argument("--against", type=Path, required=True, help="a checkout of the project (a git worktree)")
     parser.add_argument("--steps", type=int, default=1_048_576)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--record-threads", type=int, default=None,
+                        help="the trainer of record's torch_threads (default: its configuration's own, 1)")
     parser.add_argument("options", nargs="*", help="benchmarks/device_training.py's options, after --")
     args = parser.parse_args()
     rates = {"record": [], "device": []}
     for _ in range(args.repeats):
-        rates["record"].append(record_rate(args.against, args.steps))
+        rates["record"].append(record_rate(args.against, args.steps, args.record_threads))
         rates["device"].append(device_rate(args.steps, args.options))
     record, device = statistics.median(rates["record"]), statistics.median(rates["device"])
     print(json.dumps({"what": "trainer_versus_commit", "against": str(args.against), "steps": args.steps,
+                      "record_threads": args.record_threads,
                       "device_options": args.options, "record_env_steps_per_s": rates["record"],
                       "device_env_steps_per_s": rates["device"], "median_ratio": device / record}))
     print(f"trainer of record at {args.against}: {record:,.0f} env-steps/s; device trainer {' '.join(args.options)}: "

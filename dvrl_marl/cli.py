@@ -31,15 +31,14 @@ def _render(args) -> int:
 
 
 def _train(args) -> int:
-    from dvrl_marl.files import read_toml
+    from dvrl_marl.files import read_extended_toml
     from dvrl_marl.training import mappo as multi_agent, runner as goal_env
 
     args.config = resolve_config(args.config)
-    run_table = read_toml(args.config).get("run", {})
+    run_table = read_extended_toml(args.config).get("run", {})  # (a file that extends another: the chain's [run])
     algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
     known = ("bc", "pixel-dagger", *multi_agent.ALGORITHMS, *goal_env.ALGORITHMS)  # (ppo: a goal env's or the team's)
-    if algorithm is not None and algorithm not in known or (algorithm is None and "extends" not in run_table
-                                                           and "env_id" in run_table):
+    if algorithm is not None and algorithm not in known or (algorithm is None and "env_id" in run_table):
         # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]
         raise ValueError(f"{args.config}: [run] algorithm: must be one of {', '.join(known)}, got {algorithm!r}")
     if algorithm == "bc":  # behaviour cloning of a seat from a Minari dataset
@@ -85,7 +84,7 @@ def _train(args) -> int:
         return 0
     # Goal-env configurations name a Gymnasium env_id (or extend one that does), PPO's among them; the
     # collaborative SB3 PPO ones do not.
-    if algorithm in ("ppo", None) and "env_id" not in run_table and "extends" not in run_table:
+    if algorithm in ("ppo", None) and "env_id" not in run_table:
         from dvrl_marl.training.marl import train_ppo
 
         out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")

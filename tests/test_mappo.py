@@ -248,6 +248,9 @@ def test_cli_train_mappo(tmp_path):
     ("[env]\nbleeding_ml_s = -0.3\n", "[env] suction_debris_v8: bleeding_ml_s: must be >= 0"),
     ("[model]\nhidden = [64, 0]\n", "[model] hidden[1]: must be >= 1"),
     ("[model]\ninitial_tool_logit = { assistant = 1.0 }\n", "[model] initial_tool_logit.assistant"),
+    ("[run]\nextends = 'missing.toml'\n", "[run] extends = 'missing.toml': no such file"),
+    ("[run]\nextends = 'bad.toml'\n", "comes back to a file of its own chain (bad.toml -> bad.toml)"),
+    ("[run]\nextends = 3\n", "[run] extends: a configuration file's name"),
 ])
 def test_bad_configuration_names_file_and_key(tmp_path, text, message):
     path = tmp_path / "bad.toml"
@@ -659,6 +662,25 @@ def test_every_recorded_configuration_before_the_env_options_names_its_commit(pa
 def test_every_shipped_multi_agent_configuration_loads(path):
     config = mappo.load_config(path)
     assert config.name == path.stem and config.algorithm in mappo.ALGORITHMS
+
+
+def test_a_configuration_that_extends_the_record_holds_only_what_differs(tmp_path):
+    """``[run] extends``: the record's settings, key by key overridden by the file's own (the large-batch retuning
+    among the shipped ones); a chain through another file; the name is the file's."""
+    record = mappo.load_config(ROOT / "baselines" / "configs" / "suction_debris_mappo.toml")
+    large = mappo.load_config(ROOT / "baselines" / "configs" / "suction_debris_mappo_large_batch.toml")
+    assert (large.num_envs, large.epochs, large.minibatches, large.learning_rate) == (512, 2, 8, 0.0003)
+    assert (large.env, large.levels, large.hidden, large.gamma) == (record.env, record.levels, record.hidden,
+                                                                     record.gamma)
+    (tmp_path / "base.toml").write_text((ROOT / "baselines" / "configs" / "suction_debris_mappo.toml").read_text())
+    (tmp_path / "middle.toml").write_text("[run]\nextends = 'base.toml'\nnum_envs = 8\n[ppo]\nepochs = 2\n")
+    (tmp_path / "leaf.toml").write_text("[run]\nextends = 'middle.toml'\n[ppo]\nepochs = 3\n[env]\ncontact_penalty = 0.5\n")
+    leaf = mappo.load_config(tmp_path / "leaf.toml")
+    assert (leaf.name, leaf.num_envs, leaf.epochs, leaf.minibatches) == ("leaf", 8, 3, record.minibatches)
+    assert leaf.env == {**record.env, "contact_penalty": 0.5}
+    (tmp_path / "base.toml").write_text("[run]\nextends = 'leaf.toml'\n")
+    with pytest.raises(ValueError, match=r"comes back to a file of its own chain \(leaf.toml -> middle.toml -> base.toml"):
+        mappo.load_config(tmp_path / "leaf.toml")
 
 
 def _pin_along_x(seeds=range(40)):

@@ -4,7 +4,6 @@ import dataclasses
 import json
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import gymnasium as gym
@@ -13,13 +12,14 @@ import pytest
 import torch as th
 
 from dvrl_marl import policies
+from dvrl_marl.files import read_extended_toml
 from dvrl_marl.training import bc_loss, export_policy, load_config, q_filter_mask, train
 from dvrl_marl.training.demonstrations import generate_demonstrations, load_demonstrations, save_demonstrations
 from dvrl_marl.training.runner import ON_POLICY, sb3_algorithms, evaluate_policy
 
 # The goal-env configurations (the PPO ones for the collaborative env are tested in test_marl_training.py).
 CONFIGS = sorted(p for p in (Path(__file__).parents[1] / "baselines" / "configs").glob("*.toml")  # goal-env runs
-                 if {"env_id", "extends"} & set(tomllib.loads(p.read_text()).get("run", {})))
+                 if "env_id" in read_extended_toml(p).get("run", {}))
 
 
 def test_bc_loss_on_a_hand_made_batch():

@@ -165,12 +165,13 @@ def _check_env(path, config: MappoConfig) -> None:
 def load_config(path) -> MappoConfig:
     """Read a configuration TOML, checked against :class:`MappoConfig`'s declared schema: an unknown table or key, a
     key in a table it does not belong to, a value of the wrong type or out of range, and ``[env]`` keyword arguments
-    the scene refuses each raise ``ValueError`` naming the file, the table and the field."""
-    from dvrl_marl.files import read_toml
+    the scene refuses each raise ``ValueError`` naming the file, the table and the field. A file may hold only what
+    differs from another: ``[run] extends = "suction_debris_mappo.toml"`` (:func:`dvrl_marl.files.read_extended_toml`)."""
+    from dvrl_marl.files import read_extended_toml
     from dvrl_marl.schemas import validated
 
     path = Path(path)
-    table = read_toml(path)
+    table = read_extended_toml(path)
     values: dict = {"name": path.stem}
     where: dict = {}  # key -> the table it came from, for the messages
     retired = [("shaping", "shaping")] if "shaping" in table else []
