@@ -20,8 +20,8 @@ def _collect(modules, layers):
         if isinstance(module, nn.Linear):
             layers.append([module.weight.detach().cpu().numpy().astype(np.float32),
                            module.bias.detach().cpu().numpy().astype(np.float32), "identity"])
-        elif type(module) in _ACTIVATION_NAMES:
-            layers[-1][2] = _ACTIVATION_NAMES[type(module)]
+        elif isinstance(module, tuple(_ACTIVATION_NAMES)):  # (a subclass computes the same function another way)
+            layers[-1][2] = next(name for kind, name in _ACTIVATION_NAMES.items() if isinstance(module, kind))
         elif isinstance(module, nn.Sequential):
             _collect(module, layers)
         elif not isinstance(module, (nn.Flatten, nn.Identity)):

@@ -143,10 +143,18 @@ def build_models(config, agents, obs_dim: int, state_dim: int, action_dim: int, 
         def forward(self, x):
             return ((x - self.mean.float()) / self.std().float())
 
+    class Tanh(nn.Tanh):
+        """tanh as 2 sigmoid(2x) - 1 (within 2e-7 of it; the exported policies compute tanh). Why: torch's CPU tanh
+        took 350-440 us for 2,048 x 64 on one thread, this 140 (numpy's tanh 61), and tanh was 18 % of PPO's
+        update (measured 2026-11-27, torch 2.13 CPU build)."""
+
+        def forward(self, x):
+            return torch.sigmoid(2.0 * x) * 2.0 - 1.0
+
     def mlp(inputs, outputs):
         layers, width = [], inputs
         for size in config.hidden:
-            layers += [nn.Linear(width, int(size)), nn.Tanh()]
+            layers += [nn.Linear(width, int(size)), Tanh()]
             width = int(size)
         layers.append(nn.Linear(width, outputs))
         return nn.Sequential(*layers)
