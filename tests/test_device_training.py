@@ -9,6 +9,8 @@ import pytest
 
 pytest.importorskip("torchrl")
 
+import torch  # noqa: E402
+
 from dvrl_marl import policies  # noqa: E402
 from dvrl_marl.training import device_mappo  # noqa: E402
 from dvrl_marl.training.mappo_config import MappoConfig  # noqa: E402
@@ -105,8 +107,10 @@ def test_collect_bootstraps_from_the_state_each_step_ended_on():
 def test_a_run_stops_at_its_first_validation_that_reaches_the_target(tmp_path, beside):
     """Validations score beside the learner or in its process alike: the run stops at the first that reaches
     ``stop_at``, keeps the policies that validation scored and leaves no half-validated folder."""
-    config = replace(TINY, total_steps=4096)
+    config = replace(TINY, total_steps=4096, torch_threads=0)
+    threads = torch.get_num_threads()
     last = device_mappo.train(config, 3, tmp_path / "run", stop_at=0.0, validate_beside=beside, log=lambda *_: None)
+    assert torch.get_num_threads() == threads  # (a learner that gave a validation a core gives it back)
     rows = list(csv.DictReader((tmp_path / "run" / "progress.csv").open()))
     assert len(rows) == 1 and int(rows[0]["steps"]) == last["steps"]
     assert last["steps"] == (512 if not beside else int(rows[0]["steps"])) and last["steps"] < 4096

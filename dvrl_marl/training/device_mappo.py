@@ -470,7 +470,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
         limit_threads(max(1, cores - 1))
     # a CPU learner on every core gives one to a validation while it runs beside (both slow on an oversubscribed
     # machine); a learner on a GPU or with threads set keeps its threads
-    share_a_core = (not config.torch_threads and collector == "inline" and validate_beside and cores > 1
+    found_threads = torch.get_num_threads()
+    share_a_core = (not config.torch_threads and collector == "inline" and validate_beside and found_threads > 1
                     and str(device) == "cpu")
     began = time.perf_counter()
     device = torch.device(device)
@@ -535,7 +536,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
                 for group in optimiser.param_groups:
                     group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
             if share_a_core:
-                threads = cores - 1 if validations.busy() else cores
+                threads = found_threads - 1 if validations.busy() else found_threads
                 if torch.get_num_threads() != threads:
                     limit_threads(threads)
             start = time.perf_counter()
@@ -574,6 +575,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
         validations.close()
         if collector == "process":
             worker.close()
+        if share_a_core:  # (the caller's threads as this run found them)
+            limit_threads(found_threads)
     (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, "device": str(device),
                                                  "backend": backend, "collect_seconds": collect_seconds, **last},
                                                 indent=2) + "\n")
