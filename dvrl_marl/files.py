@@ -35,33 +35,41 @@ def read_toml(path) -> dict:
         raise ValueError(f"{path}: not valid TOML ({error})") from None
 
 
-def read_extended_toml(path, _chain: tuple = ()) -> dict:
-    """A configuration's tables with its ``[run] extends = "<file>.toml"`` (a path beside it) followed: the file it
-    extends, table by table and key by key overridden by this one's (a chain of them too). A missing file, a chain
-    that comes back to a file of its own and an ``extends`` that is not a file name are errors naming the file."""
-    path = Path(path)
-    table = read_toml(path)
-    run = table.get("run")
-    if not isinstance(run, dict) or "extends" not in run:
-        return table
-    run = dict(run)
-    base = run.pop("extends")
-    if not isinstance(base, str) or not base.endswith(".toml"):
-        raise ValueError(f"{path}: [run] extends: a configuration file's name (e.g. \"suction_debris_mappo.toml\"), "
-                         f"got {base!r}")
-    chain = (*_chain, path.resolve())
-    base_path = path.parent / base
-    if base_path.resolve() in chain:
-        names = " -> ".join(link.name for link in chain)
-        raise ValueError(f"{path}: [run] extends = {base!r} comes back to a file of its own chain ({names} -> {base})")
-    if not base_path.is_file():
-        raise ValueError(f"{path}: [run] extends = {base!r}: no such file {base_path}")
-    merged = read_extended_toml(base_path, chain)
-    for section, content in {**table, "run": run}.items():
-        if isinstance(content, dict) and isinstance(merged.get(section), dict):
-            merged[section] = {**merged[section], **content}
-        else:
-            merged[section] = content
+def extended_chain(path) -> list[Path]:
+    """The files a configuration is made of, the one it extends first: ``[run] extends = "<file>.toml"`` (a path
+    beside it) followed to a file that extends none. A missing file, a chain that comes back to a file of its own
+    and an ``extends`` that is not a file name are errors naming the file."""
+    chain = [Path(path)]
+    while True:
+        path = chain[-1]
+        run = read_toml(path).get("run")
+        if not isinstance(run, dict) or "extends" not in run:
+            return chain[::-1]
+        base = run["extends"]
+        if not isinstance(base, str) or not base.endswith(".toml"):
+            raise ValueError(f"{path}: [run] extends: a configuration file's name (e.g. \"suction_debris_mappo.toml\"), "
+                             f"got {base!r}")
+        base_path = path.parent / base
+        if base_path.resolve() in [link.resolve() for link in chain]:
+            names = " -> ".join(link.name for link in chain)
+            raise ValueError(f"{path}: [run] extends = {base!r} comes back to a file of its own chain ({names} -> {base})")
+        if not base_path.is_file():
+            raise ValueError(f"{path}: [run] extends = {base!r}: no such file {base_path}")
+        chain.append(base_path)
+
+
+def read_extended_toml(path) -> dict:
+    """A configuration's tables with its :func:`extended_chain` followed: the file it extends, table by table and key
+    by key overridden by this one's (``extends`` itself left out)."""
+    merged: dict = {}
+    for link in extended_chain(path):
+        for section, content in read_toml(link).items():
+            if isinstance(content, dict) and isinstance(merged.get(section), dict):
+                merged[section] = {**merged[section], **content}
+            else:
+                merged[section] = content
+    if isinstance(merged.get("run"), dict):
+        merged["run"] = {key: value for key, value in merged["run"].items() if key != "extends"}
     return merged
 
 

@@ -230,3 +230,15 @@ def test_cli_evaluate_and_plot(tmp_path, capsys):
     assert (tmp_path / "curves.png").stat().st_size > 1000
     assert "reach,10,0.5" in (tmp_path / "curves.csv").read_text()
     assert main(["evaluate", "no-such-policy"]) == 2
+
+
+def test_a_goal_env_configuration_extends_another_and_keeps_the_chain(tmp_path):
+    """``[run] extends`` for the goal-env runner too (the MAPPO reader's mechanism): the base's settings, key by key
+    overridden; the run folder's copy of the configuration holds every file of the chain."""
+    base = Path(__file__).parents[1] / "baselines" / "configs" / "reach_lnd_ddpg_her.toml"
+    (tmp_path / "base.toml").write_text(base.read_text())
+    (tmp_path / "short.toml").write_text("[run]\nextends = 'base.toml'\ntotal_timesteps = 500\n")
+    short, record = load_config(tmp_path / "short.toml"), load_config(base)
+    assert (short.name, short.total_timesteps) == ("short", 500)
+    assert (short.env_id, short.algorithm, short.her) == (record.env_id, record.algorithm, record.her)
+    assert short.source.startswith(base.read_text()) and "# --- short.toml ---" in short.source

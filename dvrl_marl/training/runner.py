@@ -157,25 +157,15 @@ def load_config(path) -> RunConfig:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no configuration file {path}")
-    from dvrl_marl.files import read_toml
+    from dvrl_marl.files import extended_chain, read_extended_toml
 
-    text = path.read_text()
-    table = read_toml(path)
+    # A variant of another configuration (e.g. the same run on a newer env version) holds what differs:
+    # [run] extends, followed key by key; the run folder keeps every file of the chain.
+    chain = extended_chain(path)
+    text = "".join((f"\n# --- {link.name} ---\n" if index else "") + link.read_text()
+                   for index, link in enumerate(chain))
+    table = read_extended_toml(path)
     run = dict(table.get("run", {}))
-    if "extends" in run:
-        # A variant of another configuration (e.g. the same run on a newer env version): its tables, key by key
-        # overridden by this file's.
-        base_path = path.parent / str(run.pop("extends"))
-        if base_path.resolve() == path.resolve():
-            raise ValueError(f"config {path}: extends itself")
-        base = load_config(base_path)
-        merged = {"run": {key: getattr(base, key) for key in _RUN_KEYS if getattr(base, key) is not None},
-                  "env": dict(base.env), "train_env": dict(base.train_env), "her": dict(base.her),
-                  "algorithm": dict(base.algorithm_kwargs), "policy": dict(base.policy)}
-        merged["run"].update(run)
-        for key in ("env", "train_env", "her", "algorithm", "policy"):
-            merged[key].update(table.get(key, {}))
-        table, run, text = merged, merged["run"], base.source + "\n# --- " + path.name + " ---\n" + text
     unknown = [name for name in table if name not in _TABLES or not isinstance(table[name], dict)]
     if unknown:
         raise ValueError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(_TABLES)})")
