@@ -144,3 +144,40 @@ def test_steps_become_a_rollout_whose_values_are_the_critics_of_each_step():
     with torch.no_grad():
         for t in (0, 7):
             assert torch.allclose(rollout.values[t], models["critic"](taken.states[t], taken.observations[t]))
+
+
+def test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give(tmp_path):
+    """backend="jax" (a GPU's default; ``DVRL_MARL_TEST_DEVICE`` picks the device, the CPU here): env, policy and
+    buffers on one device; its first rollout is the numpy env's, step by step, and the run exports policies that
+    load and act."""
+    pytest.importorskip("jax")
+    import os
+
+    device = os.environ.get("DVRL_MARL_TEST_DEVICE", "cpu")
+    rollouts = {}
+    for backend in ("numpy", "jax"):
+        torch.manual_seed(0)
+        env = suction_debris_v8_env(backend, device)
+        models = device_mappo._models(TINY, env if backend == "jax" else env.env, torch.device(device), torch)
+        observations, _ = env.reset(seed=5)
+        agents = models["agents"]
+        observations = device_mappo._stack(observations, agents, torch).to(device, torch.float32)
+        torch.manual_seed(1)
+        rollouts[backend] = device_mappo.step_worlds(env, models["head"], models["distribution"], agents,
+                                                     observations, env.state().to(device, torch.float32), 24, torch,
+                                                     torch.device(device))
+    numpy_steps, compiled = rollouts["numpy"], rollouts["jax"]
+    for key in ("observations", "states", "actions", "rewards"):  # (float32 on the device; float64 in numpy's env)
+        assert torch.allclose(getattr(compiled, key).cpu(), getattr(numpy_steps, key).cpu(), atol=1e-4), key
+    assert torch.equal(compiled.done.cpu(), numpy_steps.done.cpu())
+    last = device_mappo.train(TINY, 3, tmp_path / "run", device=device, backend="jax", log=lambda *_: None)
+    assert last["steps"] == 1024 and 0.0 <= last["success_rate"] <= 1.0
+    assert policies.load(tmp_path / "run" / "policies" / "marl-suction").spec["training"]["steps"] == 1024
+
+
+def suction_debris_v8_env(backend: str, device: str):
+    from dvrl_marl.envs import suction_debris_v8
+
+    if backend == "jax":
+        return suction_debris_v8.batched_env(num_envs=8, device=device, **TINY.env)
+    return device_mappo._TorchView(suction_debris_v8.batched_env(num_envs=8, **TINY.env), torch)
