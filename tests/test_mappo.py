@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rule_sets import v0_rules  # the hand-off judged at the pin's centre
 
 from dvrl_marl.envs import suction_debris_v8
@@ -117,6 +119,43 @@ def test_export_matches_the_torch_actor(tmp_path):
         np.testing.assert_allclose(policies.load(folder)(observations[:, index]), expected[:, index], atol=2e-5)
 
 
+
+@settings(max_examples=12, deadline=None)
+@given(batches=st.lists(st.tuples(st.integers(1, 40), st.floats(-1e3, 1e3), st.floats(1e-3, 1e2)), min_size=1,
+                        max_size=5), seed=st.integers(0, 2**16))
+def test_the_normalisers_hold_the_statistics_of_everything_they_saw(tmp_path_factory, batches, seed):
+    """Batch after batch (float32, as a rollout gives them; any offset and spread), the running mean and variance
+    are those of a float64 merge of every batch (Chan et al.) from the prior (mean 0, variance 1, count 1e-4), within
+    float32's precision, the actor's and the critic's observation normalisers alike; ``observation=False`` leaves
+    the actor's as it was (a clone keeps its input scaling)."""
+    from dataclasses import replace
+
+    config = replace(mappo.load_config(_config(tmp_path_factory.mktemp("config"))),
+                     critic_input="state_and_observation")
+    _, _, _, norms = models.build_models(config, ["suction", "grasper"], 6, 5, 4)
+    _, _, _, kept = models.build_models(config, ["suction", "grasper"], 6, 5, 4)
+    rng = np.random.default_rng(seed)
+    expected = {key: (torch.zeros(d, dtype=torch.float64), torch.ones(d, dtype=torch.float64), 1e-4)
+                for key, d in (("observation", 6), ("state", 5))}
+    for rows, centre, spread in batches:
+        observations = torch.from_numpy(rng.normal(centre, spread, (rows, 3, 2, 6))).float()
+        state = torch.from_numpy(rng.normal(-centre, spread, (rows, 3, 5))).float()
+        models.update_norms(norms, observations, state)
+        models.update_norms(kept, observations, state, observation=False)
+        for key, x in (("observation", observations.double().reshape(-1, 6)), ("state", state.double().reshape(-1, 5))):
+            mean, var, count = expected[key]
+            n, delta = x.shape[0], x.mean(0) - mean
+            total = count + n
+            expected[key] = (mean + delta * n / total,
+                             (var * count + x.var(0, unbiased=False) * n + delta**2 * count * n / total) / total, total)
+    for key, truth in (("observation", "observation"), ("critic_observation", "observation"), ("state", "state")):
+        mean, var, count = expected[truth]
+        scale = var.sqrt() + 1e-6 * mean.abs()  # (float32 rows hold their offset to 6e-8 of it)
+        assert torch.all((norms[key].mean - mean).abs() <= 1e-5 * scale + 1e-12), key
+        assert torch.all((norms[key].var.sqrt() - var.sqrt()).abs() <= 1e-4 * scale + 1e-12), key
+        assert float(norms[key].count) == pytest.approx(count)
+    assert torch.equal(kept["observation"].mean, torch.zeros(6, dtype=torch.float64))
+    assert torch.equal(kept["critic_observation"].var, norms["critic_observation"].var)
 
 def test_export_folds_the_envs_observation_normalisation(tmp_path):
     """An actor trained on ``normalize_observations``' inputs exports a policy that reads the scene's units (what the

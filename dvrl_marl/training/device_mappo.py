@@ -36,7 +36,7 @@ from dvrl_marl.envs.suction_debris import env_name
 from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import MappoConfig, load_config
 from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, limit_threads, require_torch,
-                                       switch_gaussian)
+                                       switch_gaussian, update_norms)
 
 __all__ = ["train", "collect", "step_worlds", "value_rollout", "advantages", "update", "export", "score", "validate",
            "Rollout", "Steps"]
@@ -282,14 +282,17 @@ def update(models, optimiser, rollout: Rollout, advantage, returns, config: Mapp
         order = torch.randperm(count, device=observations.device)
         for start in range(0, size * config.minibatches, size):
             rows = order[start:start + size]
-            loc, scale = head(observations[rows])
+            # (index_select: a CPU's advanced indexing took 8x as long for these rows; 14 % of the update)
+            take = lambda x: x.index_select(0, rows)  # noqa: E731
+            seen = take(observations)
+            loc, scale = head(seen)
             policy = distribution(loc, scale)
-            ratio = torch.exp(policy.log_prob(actions[rows]) - old_log_probs[rows])
-            gain = advantage[rows]
+            ratio = torch.exp(policy.log_prob(take(actions)) - take(old_log_probs))
+            gain = take(advantage)
             gain = (gain - gain.mean(0)) / (gain.std(0) + 1e-8)  # normalised per agent
             policy_loss = -torch.min(ratio * gain, ratio.clamp(1 - config.clip_epsilon, 1 + config.clip_epsilon)
                                      * gain).mean()
-            value_loss = torch.nn.functional.smooth_l1_loss(critic(states[rows], observations[rows]), returns[rows])
+            value_loss = torch.nn.functional.smooth_l1_loss(critic(take(states), seen), take(returns))
             entropy = policy.entropy().mean()
             loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
             if config.bounds_loss_coef > 0.0:  # the means kept inside the action box, where the noise explores
@@ -555,12 +558,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
             rollout.rewards = rollout.rewards / return_scale.update(rollout.rewards, rollout.done)
             advantage, returns = advantages(rollout, config.gamma, config.gae_lambda, torch)
             update(models, optimiser, rollout, advantage, returns, config, torch)
-            norms = models["norms"]  # normalisers move after the update, as in the trainer of record
-            norms["observation"].update(rollout.observations)
-            if "state" in norms:
-                norms["state"].update(rollout.states)
-            if "critic_observation" in norms:
-                norms["critic_observation"].update(rollout.observations)
+            # normalisers move after the update, as in the trainer of record
+            update_norms(models["norms"], rollout.observations, rollout.states)
             done_steps += config.num_envs * config.rollout_steps
             finished_run = done_steps >= total
             reported = validations.result(wait=finished_run)

@@ -66,7 +66,7 @@ from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
                                              MappoConfig, config_toml, demonstrations, load_config, partner, partners)
 from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, learner_device,
-                                       limit_threads, require_torch)
+                                       limit_threads, require_torch, update_norms)
 from dvrl_marl.training.teams import evaluate_team_batched
 
 __all__ = ["MappoConfig", "load_config", "train", "export_actor", "load_checkpoint", "TRAIN_SEED_BASE", "ALGORITHMS",
@@ -313,12 +313,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             observed = torch.from_numpy(obs_buf).to(device)
             # A clone keeps the input scaling it was fitted with (refitting it to the rollouts took one from 0.88
             # success to 0.00 while its weights were frozen).
-            if not (config.bc_expert or config.init_policy):
-                norms["observation"].update(observed)
-            if "state" in norms:
-                norms["state"].update(torch.from_numpy(state_buf).to(device))
-            if "critic_observation" in norms:
-                norms["critic_observation"].update(observed)
+            update_norms(norms, observed, torch.from_numpy(state_buf).to(device),
+                         observation=not (config.bc_expert or config.init_policy))
             if writer is not None:
                 updates = config.epochs * config.minibatches
                 for key, value in sums.items():
