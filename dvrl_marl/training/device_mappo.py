@@ -277,7 +277,7 @@ def update(models, optimiser, rollout: Rollout, advantage, returns, config: Mapp
     old_log_probs, advantage, returns = flat(rollout.log_probs), flat(advantage), flat(returns)
     count = observations.shape[0]
     size = max(1, count // config.minibatches)
-    sums = {"policy": 0.0, "value": 0.0, "entropy": 0.0}
+    sums = {key: torch.zeros((), device=observations.device) for key in ("policy", "value", "entropy")}
     for _ in range(config.epochs):
         order = torch.randperm(count, device=observations.device)
         for start in range(0, size * config.minibatches, size):
@@ -301,10 +301,9 @@ def update(models, optimiser, rollout: Rollout, advantage, returns, config: Mapp
             loss.backward()
             torch.nn.utils.clip_grad_norm_(models["parameters"], config.max_grad_norm)
             optimiser.step()
-            sums["policy"] += float(policy_loss.detach())
-            sums["value"] += float(value_loss.detach())
-            sums["entropy"] += float(entropy.detach())
-    return {key: value / (config.epochs * config.minibatches) for key, value in sums.items()}
+            for key, value in (("policy", policy_loss), ("value", value_loss), ("entropy", entropy)):
+                sums[key] += value.detach()  # (on the device: no wait for it within the update)
+    return {key: float(value) / (config.epochs * config.minibatches) for key, value in sums.items()}
 
 
 def export(models, config: MappoConfig, folder: Path, seed: int, steps: int, env) -> dict:
