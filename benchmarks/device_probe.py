@@ -6,7 +6,8 @@ Two steps. Here, on a machine with a package registry (once; the wheels are igno
     python benchmarks/device_probe.py prepare        # wheels for Python 3.12, manylinux x86-64, into .whl/
 
 There (the lent machine has Python 3.12 with torch and JAX's CUDA build; ``$OUT`` is where figures are kept), one
-command, at most about 10 minutes at the sections' limits (45, 90, 80, 90, 80, 95, 95 and 60 s), carrying ``.whl`` and
+command, at most about 12 minutes at the sections' limits (45, 120, 120, 120, 90, 80, 80 and 60 s; a lent machine's
+call is at most 10: run some sections with ``--only``, the least measured first), carrying ``.whl`` and
 ``.gl`` (EGL's libraries as Debian packages, for the endoscope's section):
 
     for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig; \
@@ -17,17 +18,20 @@ Sections (each a process of its own with its own time limit; one that fails or r
 ``--only NAME ...`` runs some alone):
 
 1. ``machine``: the GPU's name and memory, JAX's and torch's devices, the commit;
-2. ``tests``: the device tests on the GPU (``tests/test_device_env.py``, ``tests/test_backends.py``,
-   ``tests/test_streams.py``; ``DVRL_MARL_TEST_DEVICE=cuda``);
-3. ``speed``, ``speed_1m``, ``speed_benchmark``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a
-   torch policy's inference, N from 1,024 to 1,048,576 with the defaults and 16,384 and 262,144 with the benchmark's
-   setting, the numpy env beside it up to N = 4,096;
-4. ``trainer``, ``trainer_4096``: ``benchmarks/device_training.py``, the device trainer on the configuration of
-   record with 16,384 worlds (validated every 4M steps) and with 4,096 (every 2M steps): env-steps/s end to end and the
-   wall clock to 0.9 validation success (or what it reached in 60 s);
+2. ``trainer``, ``trainer_16384``: ``benchmarks/device_training.py``, the device trainer on the large-batch
+   configuration (``baselines/configs/suction_debris_mappo_large_batch.toml``) scaled up, minibatches of 16,384 rows:
+   4,096 worlds with a curriculum of 100M steps, validated every 8M, for the time to 0.9 validation success (or what
+   it reached in 60 s), and 16,384 worlds for the throughput (env-steps/s end to end);
+3. ``tests``: the device tests on the GPU (``tests/test_device_env.py``, ``tests/test_backends.py``,
+   ``tests/test_streams.py``, ``tests/test_device_training.py``; ``DVRL_MARL_TEST_DEVICE=cuda``);
+4. ``speed_1m``, ``speed``, ``speed_benchmark``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a
+   torch policy's inference, N = 1,048,576, then 1,024 to 262,144 with the defaults and 16,384 and 262,144 with the
+   benchmark's setting, the numpy env beside it up to N = 4,096;
 5. ``endoscope``: ``benchmarks/endoscope_speed.py``, image observations at 84 x 84 through the batched step on the
    GPU's EGL, 1 to 4,096 worlds, beside a bare ``mujoco.Renderer`` (the libraries EGL needs travel as ``.gl/``, the
-   device tool's README says how).
+   device tool's README says how; MuJoCo's import needs them too, ``MUJOCO_GL=egl`` being set for every section).
+
+``benchmarks/device_trainer_profile.py`` (not a section) times the parts of the trainer's update cycle.
 
 Figures land in ``$OUT/probe.jsonl`` (one JSON line each) and ``$OUT/probe.log``.
 """
