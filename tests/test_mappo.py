@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from rule_sets import v0_rules  # the hand-off judged at the pin's centre
 
@@ -121,6 +121,7 @@ def test_export_matches_the_torch_actor(tmp_path):
 
 
 @settings(max_examples=12, deadline=None)
+@example(batches=[(1, 26.0, 0.5)], seed=0)  # (a float32 mean of 26 holds it to about 1e-6)
 @given(batches=st.lists(st.tuples(st.integers(1, 40), st.floats(-1e3, 1e3), st.floats(1e-3, 1e2)), min_size=1,
                         max_size=5), seed=st.integers(0, 2**16))
 def test_the_normalisers_hold_the_statistics_of_everything_they_saw(tmp_path_factory, batches, seed):
@@ -150,9 +151,9 @@ def test_the_normalisers_hold_the_statistics_of_everything_they_saw(tmp_path_fac
                              (var * count + x.var(0, unbiased=False) * n + delta**2 * count * n / total) / total, total)
     for key, truth in (("observation", "observation"), ("critic_observation", "observation"), ("state", "state")):
         mean, var, count = expected[truth]
-        scale = var.sqrt() + 1e-6 * mean.abs()  # (float32 rows hold their offset to 6e-8 of it)
-        assert torch.all((norms[key].mean - mean).abs() <= 1e-5 * scale + 1e-12), key
-        assert torch.all((norms[key].var.sqrt() - var.sqrt()).abs() <= 1e-4 * scale + 1e-12), key
+        offset = 1e-6 * mean.abs()  # (a float32 row holds its offset to 6e-8 of it)
+        assert torch.all((norms[key].mean - mean).abs() <= 1e-5 * var.sqrt() + offset + 1e-12), key
+        assert torch.all((norms[key].var.sqrt() - var.sqrt()).abs() <= 1e-4 * var.sqrt() + offset + 1e-12), key
         assert float(norms[key].count) == pytest.approx(count)
     assert torch.equal(kept["observation"].mean, torch.zeros(6, dtype=torch.float64))
     assert torch.equal(kept["critic_observation"].var, norms["critic_observation"].var)
