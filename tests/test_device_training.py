@@ -181,3 +181,24 @@ def suction_debris_v8_env(backend: str, device: str):
     if backend == "jax":
         return suction_debris_v8.batched_env(num_envs=8, device=device, **TINY.env)
     return device_mappo._TorchView(suction_debris_v8.batched_env(num_envs=8, **TINY.env), torch)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "jax"])
+def test_diverged_actors_stop_the_run_by_name(tmp_path, monkeypatch, backend):
+    """Diverged networks (NaN motions) stop the run at that step with an error that says so, on numpy's env and on
+    the compiled one alike (which checks every step's actions: unchecked, a NaN motion reaches the next
+    observations and the tool's Bernoulli fails with an error naming no cause)."""
+    if backend == "jax":
+        pytest.importorskip("jax")
+    built = device_mappo._models
+
+    def diverged(*args, **kwargs):
+        models = built(*args, **kwargs)
+        with torch.no_grad():  # the motions' means (the tool's logit stays a number: a Bernoulli refuses NaN)
+            for net in models["actor_net"].nets:
+                net[-1].weight[:-1].fill_(float("nan"))
+        return models
+
+    monkeypatch.setattr(device_mappo, "_models", diverged)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        device_mappo.train(TINY, 3, tmp_path / "run", backend=backend, log=lambda *_: None)

@@ -127,7 +127,7 @@ def step_worlds(env, head, distribution, agents, observations, state, steps: int
     keys = ("observations", "states", "actions", "log_probs", "rewards", "done", "terminated")
     buffers = {key: [] for key in keys}
     finals, final_states, ended_at = [], [], []
-    successes = 0
+    successes = torch.zeros((), dtype=torch.long, device=device)  # (summed on the device: no wait for it a step)
     for t in range(steps):
         with torch.no_grad():
             loc, scale = head(observations)
@@ -138,12 +138,12 @@ def step_worlds(env, head, distribution, agents, observations, state, steps: int
         agent = agents[0]
         infos = infos[agent]
         done = (terminated[agent] | truncated[agent]).to(device)
-        if bool(done.any()):  # the state each ended world's step ended on (a reset world's final state, not its new one)
-            rows = done.nonzero().squeeze(-1)
+        rows = done.nonzero().squeeze(-1)  # (a step's one wait for a device: which worlds ended)
+        if len(rows):  # the state each ended world's step ended on (a reset world's final state, not its new one)
             finals.append(_stack(infos["final_observation"], agents, torch).to(device, torch.float32)[rows])
             final_states.append(infos["final_state"].to(device, torch.float32)[rows])
             ended_at.append(torch.stack([torch.full_like(rows, t), rows], dim=1))
-            successes += int((infos["is_success"].to(device) & done).sum())
+            successes += (infos["is_success"].to(device) & done).sum()
         for key, item in (("observations", observations), ("states", state), ("actions", action),
                           ("log_probs", policy.log_prob(action)),
                           ("rewards", _stack(rewards, agents, torch).to(device, torch.float32)), ("done", done),
@@ -160,7 +160,7 @@ def step_worlds(env, head, distribution, agents, observations, state, steps: int
         ending = (stacked["observations"][:0, 0], stacked["states"][:0, 0],
                   torch.zeros((0, 2), dtype=torch.long, device=device))
     return Steps(**stacked, final_observations=ending[0], final_states=ending[1], ended_at=ending[2],
-                 successes=successes)
+                 successes=int(successes))
 
 
 def value_rollout(steps: Steps, critic, torch) -> Rollout:
