@@ -23,7 +23,8 @@ Sections (each a process of its own with its own time limit; one that fails or r
    4,096 worlds with a curriculum of 100M steps, validated every 8M, for the time to 0.9 validation success (or what
    it reached in 60 s), and 16,384 worlds for the throughput (env-steps/s end to end);
 3. ``tests``: the device tests on the GPU (``tests/test_device_env.py``, ``tests/test_backends.py``,
-   ``tests/test_streams.py``, ``tests/test_device_training.py``; ``DVRL_MARL_TEST_DEVICE=cuda``);
+   ``tests/test_streams.py`` and the trainer's run on the compiled env in ``tests/test_device_training.py``;
+   ``DVRL_MARL_TEST_DEVICE=cuda``; on 2026-11-27 the whole of ``test_device_training.py`` outran the limit);
 4. ``speed_1m``, ``speed``, ``speed_benchmark``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a
    torch policy's inference, N = 1,048,576, then 1,024 to 262,144 with the defaults and 16,384 and 262,144 with the
    benchmark's setting, the numpy env beside it up to N = 4,096;
@@ -129,8 +130,10 @@ def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
                                        else "1048576", "--eval-every", "8388608" if gpu else "65536"], 120, {}),
         "trainer_16384": (trainer + large + ["--worlds", "16384" if gpu else "128", "--minibatches", "32",
                                              "--eval-every", "16777216" if gpu else "131072"], 120, {}),
+        # (the trainer's tests on the GPU: its run on the compiled env; the others are the CPU's)
         "tests": ([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x", "tests/test_device_env.py",
-                   "tests/test_backends.py", "tests/test_streams.py", "tests/test_device_training.py"], 120,
+                   "tests/test_backends.py", "tests/test_streams.py", "tests/test_device_training.py::"
+                   "test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give"], 120,
                   {"DVRL_MARL_TEST_DEVICE": device}),
         # (a size per process: each N compiles its own step)
         "speed_1m": (speed + ["--sizes", "1048576" if gpu else "2048"], 90, {}),
