@@ -38,6 +38,7 @@ def main() -> None:
     from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.training import device_mappo
     from dvrl_marl.training.mappo_config import load_config
+    from dvrl_marl.training.models import update_norms
 
     config = replace(load_config(args.config), num_envs=args.worlds, torch_threads=0)
     if args.minibatches:
@@ -100,15 +101,7 @@ def main() -> None:
                                                                           torch))
         timed("PPO update", lambda: device_mappo.update(models, optimiser, rollout, advantage, returns, config,
                                                         torch))
-
-        def norms():
-            models["norms"]["observation"].update(rollout.observations)
-            if "state" in models["norms"]:
-                models["norms"]["state"].update(rollout.states)
-            if "critic_observation" in models["norms"]:
-                models["norms"]["critic_observation"].update(rollout.observations)
-
-        timed("normalisers", norms)
+        timed("normalisers", lambda: update_norms(models["norms"], rollout.observations, rollout.states))
     batch = config.num_envs * config.rollout_steps
     name = torch.cuda.get_device_name(0) if device.type == "cuda" else "cpu"
     cycle = sum(statistics.median(v) for key, v in times.items() if "alone" not in key)

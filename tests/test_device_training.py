@@ -157,7 +157,7 @@ def test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give(tmp
     rollouts = {}
     for backend in ("numpy", "jax"):
         torch.manual_seed(0)
-        env = suction_debris_v8_env(backend, device)
+        env = _batched_env(backend, device)
         models = device_mappo._models(TINY, env if backend == "jax" else env.env, torch.device(device), torch)
         observations, _ = env.reset(seed=5)
         agents = models["agents"]
@@ -175,7 +175,8 @@ def test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give(tmp
     assert policies.load(tmp_path / "run" / "policies" / "marl-suction").spec["training"]["steps"] == 1024
 
 
-def suction_debris_v8_env(backend: str, device: str):
+def _batched_env(backend: str, device: str):
+    """TINY's 8 worlds with torch tensors in and out: the compiled env, or numpy's through the CPU learner's view."""
     from dvrl_marl.envs import suction_debris_v8
 
     if backend == "jax":
