@@ -35,6 +35,20 @@ def test_batched_evaluation_matches_single_env_episodes():
         assert bool(infos["suction"]["is_success"]) == result["success"][j]
 
 
+@pytest.mark.parametrize("grasper", ["pipeline", "person-like"])
+def test_a_seat_that_keeps_state_plays_a_second_evaluation_as_its_first(grasper):
+    """A pipeline (one stage machine per world) or a person-like partner (reaction ring, noise streams) reused for a
+    second evaluation starts its episodes again: once, a reused pipeline made 5 % beside the suction where a fresh
+    one made 100 %."""
+    team = teams.seats("scripted", grasper)
+    first = teams.evaluate_team_batched(team, episodes=2, max_cycles=150)
+    again = teams.evaluate_team_batched(team, episodes=2, max_cycles=150)
+    fresh = teams.evaluate_team_batched(teams.seats("scripted", grasper), episodes=2, max_cycles=150)
+    for result in (again, fresh):
+        assert result["mean_tip_path_mm"] == first["mean_tip_path_mm"]
+        assert result["mean_action_change"] == first["mean_action_change"]
+
+
 def test_a_lazy_team_fails_and_is_reported_as_such():
     still = lambda obs: np.zeros((len(obs), 4))  # noqa: E731
     result = teams.evaluate_team_batched({"suction": still, "grasper": still}, episodes=2, max_cycles=50)

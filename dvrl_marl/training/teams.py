@@ -45,6 +45,14 @@ class _PerWorld:
             self.policies = [self.make() for _ in range(len(observations))]
         return np.stack([np.asarray(p(o), dtype=np.float64) for p, o in zip(self.policies, observations)])
 
+    def reset(self, worlds=None) -> None:
+        """New episodes: every world's policy made again (``worlds`` None), or those worlds' only."""
+        if worlds is None or self.policies is None:
+            self.policies = None
+            return
+        for world in np.flatnonzero(worlds) if np.asarray(worlds).dtype == bool else np.atleast_1d(worlds):
+            self.policies[world] = self.make()
+
 
 def noise_seed(agent: str, seed: int) -> int:
     """The seed of a learned seat's exploration noise in an evaluation starting at ``seed`` (one per seat)."""
@@ -149,6 +157,8 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     if missing:
         raise ValueError(f"evaluate_team_batched: no policy for seat(s) {sorted(missing)}")
     observations, infos = env.reset(seed=seed)
+    for policy in team.values():  # a seat that keeps state (a pipeline, a person-like partner) starts its episodes
+        getattr(policy, "reset", lambda: None)()
     first = env.agents[0]
     initial = infos[first]["blood_remaining"].copy()
     done = np.zeros(episodes, dtype=bool)
