@@ -19,7 +19,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
 
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
-           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "cli_number", "Seed", "Seeds",
+           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "PolicyImageFill", "cli_number", "Seed", "Seeds",
            "Text", "Flag", "UnitInterval"]
 
 #: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
@@ -237,6 +237,16 @@ class CloneEvaluate(BaseModel):
 
 
 # --- policy files --------------------------------------------------------------------------------
+class PolicyImageFill(BaseModel):
+    """How a pixel policy fills the observation of the state policy it acts with: ``template`` (the scene's constants,
+    zero for what the image does not give), its proprioception at the same indices as in the env's observation, its
+    read-out's estimates at ``estimates_at``."""
+
+    model_config = STRICT
+    template: Annotated[list[Finite], Field(min_length=1)]
+    estimates_at: Annotated[list[NonNegativeInt], Field(min_length=1)]
+
+
 class PolicyImage(BaseModel):
     """A pixel policy's image table (:mod:`dvrl_marl.policies.image_encoder`)."""
 
@@ -246,6 +256,7 @@ class PolicyImage(BaseModel):
     proprioception: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]
     convolutions: Annotated[list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]], Field(min_length=1)]
     readout: PositiveInt | None = None
+    fills: PolicyImageFill | None = None
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -253,7 +264,24 @@ class PolicyImage(BaseModel):
         if not start < stop:
             raise ValueError(f"proprioception must be [start, stop) with start < stop, got {self.proprioception}")
         self.encoded_size()
+        if self.fills is not None:
+            size, at = len(self.fills.template), self.fills.estimates_at
+            if self.readout != len(at):
+                raise ValueError(f"fills.estimates_at names {len(at)} indices for a read-out of {self.readout} outputs")
+            if stop > size or max(at) >= size or len(set(at)) != len(at):
+                raise ValueError(f"fills: proprioception {self.proprioception} and estimates_at {at} must be distinct "
+                                 f"indices of the {size}-long template")
+            if any(start <= index < stop for index in at):
+                raise ValueError(f"fills.estimates_at {at} overlaps the proprioception {self.proprioception}")
         return self
+
+    def policy_input_size(self) -> int:
+        """Length of what the policy's layers read from the encoder: the filled observation, or the encoding followed
+        by the proprioception."""
+        if self.fills is not None:
+            return len(self.fills.template)
+        start, stop = self.proprioception
+        return self.encoded_size() + stop - start
 
     def convolved_size(self) -> int:
         """Length of the convolutions' flattened output (no padding)."""
@@ -286,9 +314,13 @@ class PolicyFile(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self):
-        if self.image is not None:
+        if self.image is not None and self.image.fills is not None:  # (features of its own may follow the fill)
+            if self.layer_sizes[0] < len(self.image.fills.template):
+                raise ValueError(f"layer_sizes[0] must be at least {len(self.image.fills.template)} (the filled "
+                                 f"observation), got {self.layer_sizes[0]}")
+        elif self.image is not None:
             start, stop = self.image.proprioception
-            expected = self.image.encoded_size() + stop - start
+            expected = self.image.policy_input_size()
             if self.layer_sizes[0] != expected:
                 raise ValueError(f"layer_sizes[0] must be {expected} (the image's encoding then "
                                  f"{stop - start} proprioception values), got {self.layer_sizes[0]}")

@@ -95,12 +95,17 @@ class NumpyPolicy:
             got = sorted(observation) if isinstance(observation, dict) else f"an array {np.shape(observation)}"
             raise ValueError(f"policy {self.name!r} sees the endoscope: it reads {{'observation', "
                              f"{self.encoder.key!r}}} from an env made with image_size={self.encoder.size}, got {got}")
-        own = np.asarray(observation["observation"], dtype=np.float32)[..., self.encoder.proprioception]
-        return np.concatenate([self.encoder(observation[self.encoder.key]), own], axis=-1).astype(np.float64)
+        if self.encoder.fills is None:  # (float32 proprioception, as the network trained on it)
+            own = np.asarray(observation["observation"], dtype=np.float32)
+            return self.encoder.observation(observation[self.encoder.key], own)
+        return self.encoder.observation(observation[self.encoder.key], observation["observation"])
 
     def features(self, observation) -> np.ndarray:
         if self.encoder is not None:
-            return self._seen(observation)
+            seen = self._seen(observation)
+            if self.encoder.fills is None:
+                return seen
+            observation = seen  # a state policy's observation, filled from the image: on as for any vector
         if isinstance(observation, dict):
             missing = [key for key in self.observation_keys if key not in observation]
             if missing:

@@ -6,7 +6,10 @@ joints tell it), its convolutions ``[channels, kernel, stride]`` (no padding, Re
 ``readout``: a linear layer of that many outputs after them (estimates of what the scene holds, such as the blood
 left). ``policy.npz`` holds the kernels ``K0, k0, K1, k1, ...`` in torch's layout ``(out, in, kernel, kernel)`` and the
 read-out's ``R, r``. The encoder's output (the convolutions' flattened channels first, as torch flattens them, or the
-read-out's) followed by the proprioception is what the policy's first layer reads.
+read-out's) followed by the proprioception is what the policy's first layer reads; or, with a ``fills`` table, the
+read-out's estimates fill a state policy's observation (a template of the scene's constants, the proprioception at
+its own indices), which the policy reads as it would the env's (its ``features`` computed from it): a privileged
+policy acting on what the image tells it.
 """
 
 from __future__ import annotations
@@ -31,9 +34,27 @@ class ImageEncoder:
         self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
         self.output_size = checked.encoded_size()
         self.readout = None if readout is None else tuple(part.astype(np.float32) for part in readout)
+        # a state policy's observation to fill (the scene's constants), or None: the encoding then the proprioception
+        self.fills = None
+        if checked.fills is not None:
+            self.fills = (np.asarray(checked.fills.template, dtype=np.float64), np.asarray(checked.fills.estimates_at))
         if (self.readout is None) != (checked.readout is None):
             raise ValueError("policy.json's image names a readout of "
                              f"{checked.readout} outputs, {'without' if self.readout is None else 'with'} weights for it")
+
+    def observation(self, images, observation) -> np.ndarray:
+        """What the policy's layers read: the filled observation (the template, the env observation's
+        proprioception at its own indices, the estimates at theirs), or the encoding followed by the
+        proprioception."""
+        own = np.asarray(observation, dtype=np.float64)[..., self.proprioception]
+        encoded = self(images).astype(np.float64)
+        if self.fills is None:
+            return np.concatenate([encoded, own], axis=-1)
+        template, estimates_at = self.fills
+        filled = np.broadcast_to(template, own.shape[:-1] + template.shape).copy()
+        filled[..., self.proprioception] = own
+        filled[..., estimates_at] = encoded
+        return filled
 
     def __call__(self, images) -> np.ndarray:
         images = np.asarray(images)

@@ -68,6 +68,10 @@ class PixelSeatConfig(BaseModel):
     teacher_share: Fraction = 0.0
     updates: PositiveInt = 1500
     first_updates: PositiveInt = 3000
+    acts_by: Literal["perceptron", "teacher"] = "perceptron"
+    estimated: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [7, 9]
+    estimate_margin: NonNegative = 0.02
+    estimate_floor: Positive = 0.05
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
@@ -100,8 +104,8 @@ def _torch():
 
 def PixelActor(config: PixelSeatConfig, proprioception: int):
     """The student: convolutions (ReLU) over the image in [-0.5, 0.5], flattened, a linear read-out of the
-    estimates; the estimates and the proprioception through ReLU layers to 4 outputs (the motion, the valve's
-    logit)."""
+    estimates; by ``acts_by = "perceptron"``, the estimates and the proprioception through ReLU layers to 4 outputs
+    (the motion, the valve's logit); by ``"teacher"``, the read-out alone (the teacher acts on its estimates)."""
     torch = _torch()
     nn = torch.nn
 
@@ -115,6 +119,11 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
             self.encoder = nn.Sequential(*layers, nn.Flatten())
             with torch.no_grad():
                 size = self.encoder(torch.zeros(1, 3, config.image_size, config.image_size)).shape[1]
+            if config.acts_by == "teacher":
+                start, stop = config.estimated
+                self.estimates = stop - start
+                self.readout, self.head = nn.Linear(size, self.estimates), None
+                return
             aux = config.auxiliary
             self.estimates = aux[1] - aux[0]
             self.readout = nn.Linear(size, self.estimates + len(_cleared_levels()))
@@ -167,7 +176,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
     (the teacher with DART noise when ``student`` is None, and in the first ``teacher_share`` of the worlds), the
     teacher labels. Returns the recorded images ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)``,
-    auxiliary targets ``(M, a)``, "cleared" per cavity ``(M, C)`` and the episodes' success rate."""
+    auxiliary targets ``(M, a)`` (the estimates, by ``acts_by = "teacher"``), "cleared" per cavity ``(M, C)``, the
+    episodes' success rate and the observation's constants (NaN where a value varied)."""
     from dvrl_marl.training import teams
 
     agent, other = config.agent, _other(config)
@@ -182,7 +192,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     done = np.zeros(config.worlds, dtype=bool)
     success = np.zeros(config.worlds, dtype=bool)
     images, proprioception, labels, targets, cleared = [], [], [], [], []
-    aux = slice(*config.auxiliary)
+    aux = slice(*(config.estimated if config.acts_by == "teacher" else config.auxiliary))
+    low = high = observations[agent]["observation"][0]
     cleared_at = _cleared_levels()
     step = 0
     while not done.all():
@@ -201,6 +212,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
             labels.append(label[live])
             targets.append(seen["observation"][live, aux].astype(np.float32))
             cleared.append(np.stack([seen["observation"][live, index] < level for index, level in cleared_at], 1))
+            low = np.minimum(low, seen["observation"][live].min(0))
+            high = np.maximum(high, seen["observation"][live].max(0))
         observations, _, terminations, truncations, infos = env.step(
             {agent: action, other: np.asarray(partner(observations[other]["observation"]))})
         success |= ~done & infos[agent]["is_success"]
@@ -209,7 +222,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     env.close()
     return {"images": np.concatenate(images), "proprioception": np.concatenate(proprioception),
             "labels": np.concatenate(labels), "targets": np.concatenate(targets),
-            "cleared": np.concatenate(cleared).astype(np.float32), "success_rate": float(success.mean()), "steps": step}
+            "cleared": np.concatenate(cleared).astype(np.float32), "success_rate": float(success.mean()), "steps": step,
+            "constants": np.where(low == high, low, np.nan)}
 
 
 def _shifted(torch, images, shift: int, generator):
@@ -237,14 +251,28 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     own = torch.from_numpy(data["proprioception"])
     labels = torch.from_numpy(data["labels"])
     targets = torch.from_numpy(data["targets"])
+    functional = torch.nn.functional
+    model.train()
+    losses = []
+    if config.acts_by == "teacher":  # the estimates alone: the teacher acts on them
+        # errors weigh more where a value is small (the teacher's switch: a cavity's blood near empty)
+        weights = 1.0 / (targets.abs() + config.estimate_floor) ** 2
+        weights = weights / weights.mean()
+        for _ in range(updates):
+            batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
+            estimates = model.features(_shifted(torch, images[batch], config.shift_px, generator))
+            loss = (weights[batch] * (estimates - targets[batch]) ** 2).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            losses.append(loss.item())
+        model.eval()
+        return float(np.mean(losses[-max(1, updates // 10):]))
     if not hasattr(model, "_target_scale"):  # each estimate at one scale, fixed by the first round's data
         model._target_scale = (targets.mean(0), targets.std(0).clamp_min(1e-6))
     targets = (targets - model._target_scale[0]) / model._target_scale[1]
     cleared = torch.from_numpy(data["cleared"])
     opened = (labels[:, 3] > 0).float()
-    functional = torch.nn.functional
-    model.train()
-    losses = []
     for _ in range(updates):
         batch = torch.randint(0, len(labels), (config.batch_size,), generator=generator)
         features = model.features(_shifted(torch, images[batch], config.shift_px, generator))
@@ -263,12 +291,55 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     return float(np.mean(losses[-max(1, updates // 10):]))
 
 
-def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict) -> Path:
-    """The student as a numpy policy folder (:mod:`dvrl_marl.policies`, with its ``image`` table)."""
+def estimate_errors(model, data: dict, small: float = 0.15) -> dict:
+    """How the read-out's estimates miss ``data``'s targets (frames it has not fitted yet, to be fair): the mean
+    absolute error, and where a target is under ``small`` (a cavity near empty) the mean absolute error and the
+    error's 1st percentile (an estimate below the truth makes the teacher leave too early)."""
+    torch = _torch()
+    with torch.no_grad():
+        estimates = np.concatenate([model.features(torch.from_numpy(chunk)).numpy()
+                                    for chunk in np.array_split(data["images"], max(1, len(data["images"]) // 1024))])
+    error = estimates[:, :data["targets"].shape[1]] - data["targets"]
+    near = data["targets"] < small
+    return {"mean_absolute": round(float(np.abs(error).mean()), 4),
+            "small_mean_absolute": round(float(np.abs(error[near]).mean()), 4) if near.any() else None,
+            "small_first_percentile": round(float(np.percentile(error[near], 1)), 4) if near.any() else None}
+
+
+def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
+           constants: np.ndarray | None = None) -> Path:
+    """The student as a numpy policy folder (:mod:`dvrl_marl.policies`, with its ``image`` table). By ``acts_by =
+    "teacher"``: the teacher's own layers and features, acting on an observation filled from ``constants`` (the
+    observation's values that never varied, NaN elsewhere: read as zero, which a hidden pin's position reads too),
+    the proprioception and the estimates, each raised by ``estimate_margin`` (the teacher leaves a cavity too early
+    on an estimate too low, never on one too high)."""
     from dvrl_marl.training.export import write_policy
 
     kernels = [(layer.weight.detach().numpy().astype(np.float32), layer.bias.detach().numpy().astype(np.float32))
                for layer in model.encoder if hasattr(layer, "weight")]
+    if config.acts_by == "teacher":
+        from dvrl_marl import policies
+
+        teacher = policies.load_seat(config.teacher, config.agent, who="teacher")
+        if constants is None:
+            raise ValueError("export: acts_by = 'teacher' needs the observation's constants to fill")
+        start, stop = config.estimated
+        template = np.where(np.isnan(constants), 0.0, constants)
+        template[start:stop] = 0.0
+        template[slice(*config.proprioception)] = 0.0
+        image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
+                 "convolutions": [list(layer) for layer in config.convolutions], "readout": stop - start,
+                 "fills": {"template": [float(value) for value in template], "estimates_at": list(range(start, stop))}}
+        readout = (model.readout.weight.detach().numpy().astype(np.float32),
+                   model.readout.bias.detach().numpy().astype(np.float32) + np.float32(config.estimate_margin))
+        layers = [(weight, bias, activation) for (weight, bias), activation
+                  in zip(teacher.weights, teacher.spec["activations"])]
+        extra = {"features": teacher.spec["features"]} if teacher.spec.get("features") else {}
+        return write_policy(directory, layers, name=name, env_id="suction_debris_v8",
+                            algorithm=f"DAgger (pixels: estimates for {teacher.name})",
+                            observation_keys=["observation", "image"], action_low=teacher.action_low.tolist(),
+                            action_high=teacher.action_high.tolist(), kernels=kernels, readout=readout, image=image,
+                            agent=config.agent, switch_dimensions=teacher.switch_dimensions, **extra, **metadata)
     linear = [layer for layer in model.head if hasattr(layer, "weight")]
     layers = [(layer.weight.detach().numpy().astype(np.float32), layer.bias.detach().numpy().astype(np.float32),
                "clip" if index == len(linear) - 1 else "relu") for index, layer in enumerate(linear)]
@@ -318,21 +389,27 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
         batch = collect(config, student, world_seed, noise_seed=world_seed)
         driven = batch.pop("success_rate")
         batch.pop("steps")
+        seen_constants = batch.pop("constants")
+        errors = estimate_errors(model, batch) if config.acts_by == "teacher" and index > 0 else None
+        constants = seen_constants if index == 0 else np.where(constants == seen_constants, constants, np.nan)
         data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
         loss = fit(model, data, config, config.first_updates if index == 0 else config.updates, seed * 1000 + index)
         candidate = export(model, config, out / "rounds" / f"round{index}", name,
                            {"teacher": config.teacher, "training": {"rounds": index + 1, "seed": seed,
-                                                                    "frames": int(len(data["labels"]))}})
+                                                                    "frames": int(len(data["labels"]))}},
+                           constants)
         student = policies.load(candidate)
         validation = validate(student, config)
         row = {"round": index, "driver": "teacher" if index == 0 else "student", "driver_success": driven,
                "frames": int(len(data["labels"])), "loss": round(loss, 5), "validation": validation,
+               **({"estimate_errors_before_fit": errors} if errors else {}),
                "wall_seconds": round(time.perf_counter() - began, 1)}
         rounds.append(row)
         if progress:
             print(f"round {index}: {row['driver']} drove ({driven:.0%}), {row['frames']:,d} frames, loss "
                   f"{row['loss']:.4f}, validation {validation['success_rate']:.0%} "
-                  f"({validation['mean_contact_steps']:.1f} contacts), {row['wall_seconds']:.0f} s", flush=True)
+                  f"({validation['mean_contact_steps']:.1f} contacts), {row['wall_seconds']:.0f} s"
+                  + (f", estimate errors on its frames before the fit {errors}" if errors else ""), flush=True)
         key = (validation["success_rate"], -validation["mean_contact_steps"])
         if best is None or key > best[0]:
             best = (key, index, candidate)
