@@ -257,6 +257,7 @@ class PolicyImage(BaseModel):
     convolutions: Annotated[list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]], Field(min_length=1)]
     readout: PositiveInt | None = None
     fills: PolicyImageFill | None = None
+    normalise: Literal["none", "per_image"] = "none"
 
     @model_validator(mode="after")
     def _consistent(self):

@@ -31,8 +31,10 @@ def _observation(count, size=64, seed=0):
             "image": rng.integers(0, 256, (count, size, size, 3), dtype=np.uint8)}
 
 
-def test_the_numpy_policy_is_the_network_it_was_trained_as(tmp_path):
-    model, config, folder = _exported(tmp_path, image_size=48, convolutions=[[8, 4, 2], [8, 3, 1]], hidden=[32])
+@pytest.mark.parametrize("normalise", ["none", "per_image"])
+def test_the_numpy_policy_is_the_network_it_was_trained_as(tmp_path, normalise):
+    model, config, folder = _exported(tmp_path, image_size=48, convolutions=[[8, 4, 2], [8, 3, 1]], hidden=[32],
+                                      normalise=normalise)
     policy = policies.load(folder)
     observation = _observation(7, size=48)
     with torch.no_grad():
@@ -49,6 +51,9 @@ def test_the_numpy_policy_is_the_network_it_was_trained_as(tmp_path):
     private = {**observation, "observation": observation["observation"].copy()}
     private["observation"][:, 4:] = 0.0
     np.testing.assert_array_equal(policy(private), action)
+    if normalise == "per_image":  # a gain over the whole image changes nothing the network reads
+        darker = {**observation, "image": (observation["image"] * 0.75).round().astype(np.uint8)}
+        np.testing.assert_allclose(policy.encoder(darker["image"]), policy.encoder(observation["image"]), atol=0.05)
 
 
 def test_a_pixel_policy_refuses_what_it_cannot_read(tmp_path):
@@ -73,6 +78,50 @@ def test_a_pixel_policy_refuses_what_it_cannot_read(tmp_path):
     np.savez(broken / "policy.npz", **arrays)
     with pytest.raises(ValueError, match="K1"):
         policies.load(broken)
+
+
+def test_a_seat_acting_by_the_teacher_is_the_teacher_on_what_the_image_tells_it(tmp_path):
+    """acts_by = "teacher": the read-out's estimates (plus the margin) fill the teacher's observation beside the
+    proprioception and the scene's constants; the teacher's own layers and features act on it."""
+    config = _config(acts_by="teacher", estimated=[7, 9], estimate_margin=0.02, convolutions=[[8, 8, 4]])
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    constants = np.full(30, np.nan)
+    constants[27:30] = [0.975, 0.0, 0.1875]  # the hand-off point, the same in every world
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-estimates", {}, constants)
+    policy, teacher = policies.load(folder), teams.seat("marl-suction", "suction")
+    observation = _observation(5)
+    with torch.no_grad():
+        estimates = model.features(torch.from_numpy(observation["image"])).numpy()
+    filled = np.zeros((5, 30))
+    filled[:, :4] = observation["observation"][:, :4]
+    filled[:, 7:9] = estimates + 0.02
+    filled[:, 27:30] = constants[27:30]
+    np.testing.assert_allclose(policy(observation), teacher(filled), atol=1e-5)
+    private = {**observation, "observation": observation["observation"].copy()}
+    private["observation"][:, 4:] = 7.0  # the privileged rest of the observation changes nothing
+    np.testing.assert_array_equal(policy(private), policy(observation))
+    spec = json.loads((folder / "policy.json").read_text())
+    assert spec["features"] == teacher.spec["features"] and spec["image"]["fills"]["estimates_at"] == [7, 8]
+    with pytest.raises(ValueError, match="constants"):
+        pixel_seat.export(model, config, tmp_path / "again", "test-estimates", {})
+
+
+@pytest.mark.parametrize("fills, message", [
+    ({"template": [0.0] * 30, "estimates_at": [7]}, "1 indices for a read-out of 2"),
+    ({"template": [0.0] * 30, "estimates_at": [3, 8]}, "overlaps the proprioception"),
+    ({"template": [0.0] * 8, "estimates_at": [7, 8]}, "8-long template"),
+    ({"template": [0.0] * 29 + [float("nan")], "estimates_at": [7, 8]}, "template"),
+])
+def test_a_fill_that_does_not_fit_is_refused_by_name(tmp_path, fills, message):
+    config = _config(acts_by="teacher", convolutions=[[8, 8, 4]])
+    model = pixel_seat.PixelActor(config, 4)
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-estimates", {}, np.full(30, np.nan))
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["image"]["fills"] = fills
+    (folder / "policy.json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=message):
+        policies.load(folder)
 
 
 def test_the_trainers_shift_moves_whole_images():
@@ -136,11 +185,13 @@ def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["selected_round"] == result["selected_round"]
 
 
-def test_the_shipped_configuration_reads():
+def test_the_shipped_configurations_read():
     from dvrl_marl.cli import resolve_config
 
     name, config = pixel_seat.load_config(resolve_config("suction_pixels_dagger"))
     assert name == "suction_pixels_dagger" and config.teacher == "marl-suction" and config.image_size == 64
+    name, config = pixel_seat.load_config(resolve_config("suction_pixels_estimates"))
+    assert config.acts_by == "teacher" and config.estimated == [7, 9]
 
 
 def test_a_bad_configuration_names_the_field(tmp_path):

@@ -19,7 +19,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from dvrl_marl.schemas import PolicyImage, validated
 
-__all__ = ["ImageEncoder"]
+__all__ = ["ImageEncoder", "NORMALISE_FLOOR"]
+
+#: ``normalise = "per_image"``: added to a channel's spread, so that a flat image is not blown up.
+NORMALISE_FLOOR = 0.02
 
 
 class ImageEncoder:
@@ -28,7 +31,7 @@ class ImageEncoder:
     def __init__(self, image: dict, kernels: list[tuple[np.ndarray, np.ndarray]],
                  readout: tuple[np.ndarray, np.ndarray] | None = None):
         checked = validated(PolicyImage, image, "policy.json's image")
-        self.key, self.size = checked.key, checked.size
+        self.key, self.size, self.normalise = checked.key, checked.size, checked.normalise
         self.convolutions = [tuple(layer) for layer in checked.convolutions]
         self.proprioception = slice(*checked.proprioception)
         self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
@@ -62,8 +65,11 @@ class ImageEncoder:
             raise ValueError(f"the policy sees {self.size} x {self.size} RGB images (make the env with "
                              f"image_size={self.size}), got an image of shape {images.shape[-3:]}")
         lead = images.shape[:-3]
-        # pixels in [-0.5, 0.5], as the trainer fed them
-        x = images.reshape((-1,) + images.shape[-3:]).astype(np.float32) / 255.0 - 0.5
+        x = images.reshape((-1,) + images.shape[-3:]).astype(np.float32) / 255.0
+        if self.normalise == "per_image":  # each channel of each image at zero mean, unit spread
+            x = (x - x.mean(axis=(1, 2), keepdims=True)) / (x.std(axis=(1, 2), keepdims=True) + NORMALISE_FLOOR)
+        else:  # pixels in [-0.5, 0.5], as the trainer fed them
+            x = x - 0.5
         for (weight, bias), (_, kernel, stride) in zip(self.kernels, self.convolutions):
             windows = sliding_window_view(x, (kernel, kernel), axis=(1, 2))[:, ::stride, ::stride]
             # windows: (N, H', W', in, k, k) against torch's (out, in, k, k)

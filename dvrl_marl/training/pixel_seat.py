@@ -78,6 +78,7 @@ class PixelSeatConfig(BaseModel):
     batch_size: PositiveInt = 256
     learning_rate: Positive = 3e-4
     shift_px: Annotated[int, Field(ge=0, le=16)] = 3
+    normalise: Literal["none", "per_image"] = "none"
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
     max_cycles: PositiveInt | None = None
@@ -106,6 +107,8 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
     """The student: convolutions (ReLU) over the image in [-0.5, 0.5], flattened, a linear read-out of the
     estimates; by ``acts_by = "perceptron"``, the estimates and the proprioception through ReLU layers to 4 outputs
     (the motion, the valve's logit); by ``"teacher"``, the read-out alone (the teacher acts on its estimates)."""
+    from dvrl_marl.policies.image_encoder import NORMALISE_FLOOR
+
     torch = _torch()
     nn = torch.nn
 
@@ -136,7 +139,13 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
             self.head = nn.Sequential(*head)
 
         def features(self, images):
-            return self.readout(self.encoder(images.permute(0, 3, 1, 2).float() / 255.0 - 0.5))
+            x = images.permute(0, 3, 1, 2).float() / 255.0
+            if config.normalise == "per_image":  # as the numpy encoder does (its docstring)
+                x = (x - x.mean(dim=(2, 3), keepdim=True)) / (x.std(dim=(2, 3), keepdim=True, correction=0)
+                                                              + NORMALISE_FLOOR)
+            else:
+                x = x - 0.5
+            return self.readout(self.encoder(x))
 
         def forward(self, images, own):  # images: (B, S, S, 3) uint8
             return self.head(torch.cat([self.features(images), own], dim=1))
@@ -329,6 +338,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         template[slice(*config.proprioception)] = 0.0
         image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
                  "convolutions": [list(layer) for layer in config.convolutions], "readout": stop - start,
+                 "normalise": config.normalise,
                  "fills": {"template": [float(value) for value in template], "estimates_at": list(range(start, stop))}}
         readout = (model.readout.weight.detach().numpy().astype(np.float32),
                    model.readout.bias.detach().numpy().astype(np.float32) + np.float32(config.estimate_margin))
@@ -345,7 +355,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
                "clip" if index == len(linear) - 1 else "relu") for index, layer in enumerate(linear)]
     image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
              "convolutions": [list(layer) for layer in config.convolutions],
-             "readout": model.readout.out_features}
+             "readout": model.readout.out_features, "normalise": config.normalise}
     readout = (model.readout.weight.detach().numpy().astype(np.float32),
                model.readout.bias.detach().numpy().astype(np.float32))
     return write_policy(directory, layers, name=name, env_id="suction_debris_v8", algorithm="DAgger (pixels)",
