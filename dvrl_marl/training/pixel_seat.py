@@ -21,6 +21,13 @@ privileged seat (the teacher) reads.
    numbers (measured: its action moves with its own tip and tool and the blood left, hardly with anything else),
    and the image need only give those. Images are shifted by a few pixels at random (the endoscope's pose
    varies).
+   By ``acts_by = "teacher"`` there is no perceptron to clone: the read-out estimates only the ``estimated`` slice
+   of the teacher's observation (the blood left per cavity; squared errors weighted towards small values, where the
+   teacher decides), and the exported policy is the teacher itself acting on an observation filled from the image
+   (:mod:`dvrl_marl.policies.image_encoder`'s ``fills``): its own proprioception, the estimates raised by
+   ``estimate_margin`` (an estimate too low makes it leave a cavity early), the scene's constants, zero for the
+   rest (what it reads of those, the results page measures). The data then only has to teach perception, and
+   DAgger's rounds bring the states where the student's estimates lead it.
 3. **Validate** (:func:`validate`): the exported numpy policy, by its default call, beside the training partners on
    validation seeds (``teams.VALIDATION_SEED``); the best round is kept.
 
