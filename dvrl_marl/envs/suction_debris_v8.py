@@ -109,8 +109,8 @@ pixel policy on looks it never met:
 In the parallel, AEC and batched env, the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the
 ``"observation"``) and TorchRL's adapter (``"pixels"``, ``"depth"``, ``"segmentation"`` at the root, one camera for
 both agents); the device env refuses them (they are drawn by OpenGL on the host). A seat that acts from them, the
-image and its own tip and valve alone, is trained by ``dvrl-marl train suction_pixels_dagger``
-(:mod:`dvrl_marl.training.pixel_seat`; its figures on the results page).
+image and its own tip and valve alone, is trained by ``dvrl-marl train suction_pixels_dagger`` or
+``suction_pixels_estimates`` (:mod:`dvrl_marl.training.pixel_seat`; its figures on the results page).
 
 ## Rewards
 ``reward_type="sparse"`` (default): the team gets -1 per step until the task is complete, 0 on completion.
