@@ -19,7 +19,8 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
 
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
-           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "PolicyImageFill", "cli_number", "Seed", "Seeds",
+           "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "PolicyImageFill", "cli_number",
+           "Seed", "Seeds",
            "Text", "Flag", "UnitInterval"]
 
 #: Every schema: unknown keys are errors (the types below are strict: no "0.99" for a number, no true for 1).
