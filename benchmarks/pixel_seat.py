@@ -22,7 +22,35 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 from partner_zoo import PARTNERS, evaluate
+
+from dvrl_marl import policies
+
+
+class KeepingLowest:
+    """A trial, before the policy format carries it (``--keep-lowest``): a pixel seat whose read-out fills its
+    teacher's observation (``image.fills``) keeps, world by world, the lowest of each estimate since its episode
+    began. Without bleeding a cavity's blood only falls, and a cleared cavity that the other instrument covers reads
+    as full again. An evaluation starts its episodes through ``reset``."""
+
+    def __init__(self, folder):
+        self.policy = policies.load(folder)
+        if self.policy.encoder is None or self.policy.encoder.fills is None:
+            raise ValueError(f"--keep-lowest: {folder} does not fill its teacher's observation from the image")
+        self.image_options, self.spec, self.lowest = self.policy.image_options, self.policy.spec, None
+        self.teacher = policies.load_seat(self.spec["teacher"], self.spec["agent"], who="teacher")
+
+    def reset(self, worlds=None) -> None:
+        self.lowest = None
+
+    def __call__(self, observation) -> np.ndarray:
+        encoder = self.policy.encoder
+        filled = encoder.observation(observation[encoder.key], observation["observation"])
+        at = encoder.fills[1]
+        self.lowest = filled[..., at] if self.lowest is None else np.minimum(self.lowest, filled[..., at])
+        filled[..., at] = self.lowest
+        return self.teacher(filled)  # the policy's layers are its teacher's
 
 
 def main() -> None:
@@ -34,6 +62,8 @@ def main() -> None:
     parser.add_argument("--privileged", default="marl-suction", help="the seat it was distilled from")
     parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
     parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out"])
+    parser.add_argument("--keep-lowest", action="store_true",
+                        help="the pixel seat keeps the lowest of each estimate in its episode (KeepingLowest)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
@@ -47,7 +77,9 @@ def main() -> None:
         runs = [(privileged, "-")]
         for look in args.looks:
             began = time.perf_counter()
-            row = evaluate("suction", args.pixel, partner, args.episodes, False, image_appearance=look)
+            pixel = KeepingLowest(args.pixel) if args.keep_lowest else args.pixel
+            row = evaluate("suction", pixel, partner, args.episodes, False, image_appearance=look)
+            row["player"] = str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
             rows.append(row)
