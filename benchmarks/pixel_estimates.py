@@ -19,22 +19,10 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from dvrl_marl.cli import resolve_config
 from dvrl_marl.training import pixel_seat
-
-
-def errors(model, data: dict) -> dict:
-    with torch.no_grad():
-        estimates = np.concatenate([model.features(torch.from_numpy(chunk)).numpy()
-                                    for chunk in np.array_split(data["images"], max(1, len(data["images"]) // 1024))])
-    error, truth = (estimates - data["targets"]).ravel(), data["targets"].ravel()
-    near = truth < 0.15
-    return {"mean_absolute": float(np.abs(error).mean()), "near_empty_mean": float(error[near].mean()),
-            "near_empty_mean_absolute": float(np.abs(error[near]).mean()),
-            "near_empty_p1": float(np.percentile(error[near], 1)), "near_empty_p99": float(np.percentile(error[near], 99))}
 
 
 def main() -> None:
@@ -59,11 +47,11 @@ def main() -> None:
         model = pixel_seat.PixelActor(options, 4)
         pixel_seat.fit(model, fitted_on, options, args.updates, 0)
         for look, data in scored_on.items():
-            row = {"normalise": normalise, "look": look, **errors(model, data)}
+            row = {"normalise": normalise, "look": look, **pixel_seat.estimate_errors(model, data)}
             rows.append(row)
             print(f"{normalise:10s} {look:9s} mean |error| {row['mean_absolute']:.4f}; nearly empty: mean "
-                  f"{row['near_empty_mean']:+.4f}, |error| {row['near_empty_mean_absolute']:.4f}, 1st / 99th "
-                  f"percentile {row['near_empty_p1']:+.4f} / {row['near_empty_p99']:+.4f}", flush=True)
+                  f"{row['small_mean']:+.4f}, |error| {row['small_mean_absolute']:.4f}, 1st / 99th "
+                  f"percentile {row['small_first_percentile']:+.4f} / {row['small_99th_percentile']:+.4f}", flush=True)
         if args.json:
             args.json.write_text(json.dumps({"updates": args.updates, "rows": rows}, indent=2) + "\n")
 

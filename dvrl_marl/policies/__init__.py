@@ -95,9 +95,6 @@ class NumpyPolicy:
             got = sorted(observation) if isinstance(observation, dict) else f"an array {np.shape(observation)}"
             raise ValueError(f"policy {self.name!r} sees the endoscope: it reads {{'observation', "
                              f"{self.encoder.key!r}}} from an env made with image_size={self.encoder.size}, got {got}")
-        if self.encoder.fills is None:  # (float32 proprioception, as the network trained on it)
-            own = np.asarray(observation["observation"], dtype=np.float32)
-            return self.encoder.observation(observation[self.encoder.key], own)
         return self.encoder.observation(observation[self.encoder.key], observation["observation"])
 
     def features(self, observation) -> np.ndarray:

@@ -49,7 +49,9 @@ class ImageEncoder:
         """What the policy's layers read: the filled observation (the template, the env observation's
         proprioception at its own indices, the estimates at theirs), or the encoding followed by the
         proprioception."""
-        own = np.asarray(observation, dtype=np.float64)[..., self.proprioception]
+        # a network of its own trained on float32 proprioception; a teacher's layers read the float64 observation
+        own = np.asarray(observation, dtype=np.float32 if self.fills is None else np.float64)[..., self.proprioception]
+        own = own.astype(np.float64)
         encoded = self(images).astype(np.float64)
         if self.fills is None:
             return np.concatenate([encoded, own], axis=-1)

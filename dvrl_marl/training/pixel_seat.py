@@ -268,37 +268,33 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     labels = torch.from_numpy(data["labels"])
     targets = torch.from_numpy(data["targets"])
     functional = torch.nn.functional
-    model.train()
-    losses = []
     if config.acts_by == "teacher":  # the estimates alone: the teacher acts on them
         # errors weigh more where a value is small (the teacher's switch: a cavity's blood near empty)
         weights = 1.0 / (targets.abs() + config.estimate_floor) ** 2
         weights = weights / weights.mean()
-        for _ in range(updates):
-            batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
-            estimates = model.features(_shifted(torch, images[batch], config.shift_px, generator))
-            loss = (weights[batch] * (estimates - targets[batch]) ** 2).mean()
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            losses.append(loss.item())
-        model.eval()
-        return float(np.mean(losses[-max(1, updates // 10):]))
-    if not hasattr(model, "_target_scale"):  # each estimate at one scale, fixed by the first round's data
-        model._target_scale = (targets.mean(0), targets.std(0).clamp_min(1e-6))
-    targets = (targets - model._target_scale[0]) / model._target_scale[1]
-    cleared = torch.from_numpy(data["cleared"])
-    opened = (labels[:, 3] > 0).float()
-    for _ in range(updates):
-        batch = torch.randint(0, len(labels), (config.batch_size,), generator=generator)
-        features = model.features(_shifted(torch, images[batch], config.shift_px, generator))
-        output = model.head(torch.cat([features, own[batch]], dim=1))
-        loss = (functional.mse_loss(output[:, :3], labels[batch, :3])
-                + config.valve_weight * functional.binary_cross_entropy_with_logits(output[:, 3], opened[batch]))
+
+        def batch_loss(batch, features):
+            return (weights[batch] * (features - targets[batch]) ** 2).mean()
+    else:
+        if not hasattr(model, "_target_scale"):  # each estimate at one scale, fixed by the first round's data
+            model._target_scale = (targets.mean(0), targets.std(0).clamp_min(1e-6))
+        targets = (targets - model._target_scale[0]) / model._target_scale[1]
+        cleared = torch.from_numpy(data["cleared"])
+        opened = (labels[:, 3] > 0).float()
         estimates = model.estimates
-        loss = (loss + config.auxiliary_weight * functional.mse_loss(features[:, :estimates], targets[batch])
-                + config.cleared_weight * functional.binary_cross_entropy_with_logits(features[:, estimates:],
-                                                                                      cleared[batch]))
+
+        def batch_loss(batch, features):
+            output = model.head(torch.cat([features, own[batch]], dim=1))
+            return (functional.mse_loss(output[:, :3], labels[batch, :3])
+                    + config.valve_weight * functional.binary_cross_entropy_with_logits(output[:, 3], opened[batch])
+                    + config.auxiliary_weight * functional.mse_loss(features[:, :estimates], targets[batch])
+                    + config.cleared_weight * functional.binary_cross_entropy_with_logits(features[:, estimates:],
+                                                                                          cleared[batch]))
+    model.train()
+    losses = []
+    for _ in range(updates):
+        batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
+        loss = batch_loss(batch, model.features(_shifted(torch, images[batch], config.shift_px, generator)))
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -309,17 +305,22 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
 
 def estimate_errors(model, data: dict, small: float = 0.15) -> dict:
     """How the read-out's estimates miss ``data``'s targets (frames it has not fitted yet, to be fair): the mean
-    absolute error, and where a target is under ``small`` (a cavity near empty) the mean absolute error and the
-    error's 1st percentile (an estimate below the truth makes the teacher leave too early)."""
+    absolute error, and where a target is under ``small`` (a cavity near empty) the mean error, the mean absolute
+    error and the error's 1st and 99th percentiles (an estimate below the truth makes the teacher leave too early,
+    one far above keeps it in an empty cavity)."""
     torch = _torch()
     with torch.no_grad():
         estimates = np.concatenate([model.features(torch.from_numpy(chunk)).numpy()
                                     for chunk in np.array_split(data["images"], max(1, len(data["images"]) // 1024))])
     error = estimates[:, :data["targets"].shape[1]] - data["targets"]
     near = data["targets"] < small
-    return {"mean_absolute": round(float(np.abs(error).mean()), 4),
-            "small_mean_absolute": round(float(np.abs(error[near]).mean()), 4) if near.any() else None,
-            "small_first_percentile": round(float(np.percentile(error[near], 1)), 4) if near.any() else None}
+    if not near.any():
+        return {"mean_absolute": round(float(np.abs(error).mean()), 4), "small_mean": None,
+                "small_mean_absolute": None, "small_first_percentile": None, "small_99th_percentile": None}
+    return {"mean_absolute": round(float(np.abs(error).mean()), 4), "small_mean": round(float(error[near].mean()), 4),
+            "small_mean_absolute": round(float(np.abs(error[near]).mean()), 4),
+            "small_first_percentile": round(float(np.percentile(error[near], 1)), 4),
+            "small_99th_percentile": round(float(np.percentile(error[near], 99)), 4)}
 
 
 def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
