@@ -50,7 +50,7 @@ def main() -> None:
     else:
         host = suction_debris_v8.batched_env(num_envs=config.num_envs, **dict(config.env))
         env = device_mappo._TorchView(host, torch)
-    models = device_mappo._models(config, host, device, torch)
+    models = device_mappo.build_learner(config, host, device, torch)
     agents = models["agents"]
     optimiser = torch.optim.Adam(models["parameters"], lr=config.learning_rate)
     scale = device_mappo._ReturnScale(len(agents), config.gamma, torch, device)

@@ -70,7 +70,7 @@ def _worlds(num_envs: int, max_cycles: int, seed: int):
     config = replace(TINY, num_envs=num_envs, env={**TINY.env, "max_cycles": max_cycles})
     host = suction_debris_v8.batched_env(num_envs=config.num_envs, **config.env)
     env = device_mappo._TorchView(host, torch)
-    models = device_mappo._models(config, host, torch.device("cpu"), torch)
+    models = device_mappo.build_learner(config, host, torch.device("cpu"), torch)
     observations, _ = env.reset(seed=seed)
     return env, models, device_mappo._stack(observations, models["agents"], torch).float(), env.state().float()
 
@@ -158,7 +158,7 @@ def test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give(tmp
     for backend in ("numpy", "jax"):
         torch.manual_seed(0)
         env = _batched_env(backend, device)
-        models = device_mappo._models(TINY, env if backend == "jax" else env.env, torch.device(device), torch)
+        models = device_mappo.build_learner(TINY, env if backend == "jax" else env.env, torch.device(device), torch)
         observations, _ = env.reset(seed=5)
         agents = models["agents"]
         observations = device_mappo._stack(observations, agents, torch).to(device, torch.float32)
@@ -191,7 +191,7 @@ def test_diverged_actors_stop_the_run_by_name(tmp_path, monkeypatch, backend):
     observations and the tool's Bernoulli fails with an error naming no cause)."""
     if backend == "jax":
         pytest.importorskip("jax")
-    built = device_mappo._models
+    built = device_mappo.build_learner
 
     def diverged(*args, **kwargs):
         models = built(*args, **kwargs)
@@ -200,6 +200,6 @@ def test_diverged_actors_stop_the_run_by_name(tmp_path, monkeypatch, backend):
                 net[-1].weight[:-1].fill_(float("nan"))
         return models
 
-    monkeypatch.setattr(device_mappo, "_models", diverged)
+    monkeypatch.setattr(device_mappo, "build_learner", diverged)
     with pytest.raises(ValueError, match="NaN or inf"):
         device_mappo.train(TINY, 3, tmp_path / "run", backend=backend, log=lambda *_: None)

@@ -261,10 +261,46 @@ class SuctionDebrisDeviceEnv:
         return (out(observations), out(rewards), {agent: out(terminated) for agent in self.agents},
                 {agent: out(truncated) for agent in self.agents}, {agent: infos for agent in self.agents})
 
+    # --- the step as a function, for a caller that compiles its own loop around it ----------------------------
+    @property
+    def step_function(self):
+        """The step as a pure function of the worlds' state and the actions, for a learner that compiles it into its
+        own loop (``jax.lax.scan``: :mod:`dvrl_marl.training.jax_mappo`): ``step(state, actions) -> (state,
+        observations, rewards, terminated, truncated, infos)``, JAX arrays; ``actions`` a dict over the agents of
+        ``(N, 4)`` float64 (clipped to the box; NaN is not checked, ``infos["actions_finite"]`` says), ``infos`` with
+        ``is_success``, ``final_observation``, ``final_state`` and ``state`` (the global state after the automatic
+        resets). Traceable only: call it inside ``jax.jit``."""
+        if self.autoreset_mode != "same_step":
+            raise ValueError(f"{self.name}: step_function resets ended worlds in the step; make the env with "
+                             "autoreset_mode='same_step'")
+        return self._traced_step
+
+    @property
+    def world_state(self) -> dict:
+        """The worlds' state on the device (a dict of JAX arrays; what :attr:`step_function` takes and gives)."""
+        if self._state is None:
+            raise RuntimeError(f"{self.name}: call reset() before reading world_state")
+        return self._state
+
+    @world_state.setter
+    def world_state(self, state: dict) -> None:
+        if self._state is None or set(state) != set(self._state):
+            raise ValueError(f"{self.name}: world_state takes the dict world_state gave (after a reset)")
+        self._state = state
+        self._global_state = None  # (computed from the new state when asked)
+
+    def _traced_global_state(self, state):
+        self._load(state)
+        out = self._tracing.state()
+        self._rest()
+        return out
+
     def state(self):
         """(N, state_dim): the global state on the device."""
         if self._state is None:
             raise RuntimeError(f"{self.name}: call reset() before state()")
+        if self._global_state is None:
+            self._global_state = self._jax.jit(self._traced_global_state)(self._state)
         return self._out(self._global_state)
 
     def close(self) -> None:

@@ -8,7 +8,7 @@ exported numpy policies, the same validation (the exported actors by their mean 
 Read top to bottom: :func:`step_worlds` steps the worlds and :func:`value_rollout` values the steps (together
 :func:`collect`; :class:`_ProcessCollector` steps them in a worker process instead), :func:`advantages` is GAE,
 :func:`update` is PPO's clipped objective, :func:`export` and :func:`score` validate the actors (beside the learner,
-in a worker process: :class:`_Validations`), :func:`train` ties them together.
+in a worker process: :class:`Validations`), :func:`train` ties them together.
 
     python -m dvrl_marl.training.device_mappo baselines/configs/suction_debris_mappo.toml --device cuda --out runs/x
 
@@ -237,7 +237,7 @@ def _collector_main(connection, config: MappoConfig, seed: int) -> None:
     torch.manual_seed(seed)
     host = suction_debris_v8.batched_env(num_envs=config.num_envs, **dict(config.env))
     env = _TorchView(host, torch)
-    models = _models(config, host, torch.device("cpu"), torch)
+    models = build_learner(config, host, torch.device("cpu"), torch)
     observations, _ = env.reset(seed=seed)
     observations = _stack(observations, models["agents"], torch).to(torch.float32)
     state = env.state().to(torch.float32)
@@ -361,26 +361,29 @@ def _worker_start() -> None:
     threadpool_limits(1, user_api="blas")
 
 
-class _Validations:
+class Validations:
     """Validations beside the learner: each exports the actors at once and scores them in a worker process (another
-    core, or the host's CPU while the learner holds the GPU), one at a time; the learner steps on meanwhile. A
-    validation falls due every ``eval_every`` steps, and waits for the one in flight to report. The policies last
-    scored are kept in ``out/policies``."""
+    core, or the host's CPU while the learner holds the GPU), up to ``workers`` at a time; the learner steps on
+    meanwhile. A validation falls due every ``eval_every`` steps and waits while ``workers`` are in flight; results
+    come back in the order the validations started. The policies last reported are kept in ``out/policies``."""
 
-    def __init__(self, out: Path, config: MappoConfig, seed: int, beside: bool):
-        self.out, self.config, self.seed = out, config, seed
-        self.pending = None  # (steps, wall seconds at export, folder, future)
+    def __init__(self, out: Path, config: MappoConfig, seed: int, beside: bool, workers: int = 1):
+        if int(workers) < 1:
+            raise ValueError(f"workers must be at least 1, got {workers!r}")
+        self.out, self.config, self.seed, self.workers = out, config, seed, int(workers)
+        self.pending = []  # (steps, wall seconds at export, folder, future), oldest first
         self.pool = None
         if beside:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
             # spawn: a fork of a process holding torch's threads (or CUDA) is not safe
-            self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+            self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
                                             initializer=_worker_start)
 
     def busy(self) -> bool:
-        return self.pending is not None
+        """Whether as many validations as workers are in flight."""
+        return len(self.pending) >= self.workers
 
     def start(self, models, steps: int, wall: float, env) -> None:
         folder = self.out / "validating" / str(steps)
@@ -393,20 +396,21 @@ class _Validations:
             future.set_result(score(*job))
         else:
             future = self.pool.submit(score, *job)
-        self.pending = (steps, wall, folder, future)
+        self.pending.append((steps, wall, folder, future))
 
-    def result(self, wait: bool = False):
-        """``(steps, wall seconds at export, result)`` of the validation in flight once it has reported, else None."""
-        if self.pending is None or not (wait or self.pending[3].done()):
-            return None
-        steps, wall, folder, future = self.pending
-        self.pending = None
-        result = future.result()
+    def results(self, wait: bool = False) -> list:
+        """``(steps, wall seconds at export, result)`` of each validation that has reported, in the order they
+        started (``wait``: of every one in flight)."""
         import shutil
 
-        shutil.rmtree(self.out / "policies", ignore_errors=True)
-        folder.rename(self.out / "policies")
-        return steps, wall, result
+        reported = []
+        while self.pending and (wait or self.pending[0][3].done()):
+            steps, wall, folder, future = self.pending.pop(0)
+            result = future.result()
+            shutil.rmtree(self.out / "policies", ignore_errors=True)
+            folder.rename(self.out / "policies")
+            reported.append((steps, wall, result))
+        return reported
 
     def close(self) -> None:
         if self.pool is not None:
@@ -416,7 +420,68 @@ class _Validations:
         shutil.rmtree(self.out / "validating", ignore_errors=True)
 
 
-def _models(config: MappoConfig, env, device, torch) -> dict:
+class Progress:
+    """A run's ``progress.csv``, one row per validation (the steps its policies were exported at, their validation
+    success, train success since the last row, env-steps/s up to the export, wall clock from the run's start to the
+    result), its log line, and ``result.json`` at the end; :meth:`report` says whether the run stops there."""
+
+    COLUMNS = ("steps", "success_rate", "blood_removed_ml", "contact_steps", "train_success", "env_steps_per_s",
+               "wall_seconds")
+
+    def __init__(self, out: Path, config: MappoConfig, seed: int, began: float, *, stop_at=None, max_seconds=None,
+                 log=print):
+        self.out, self.config, self.seed, self.began = out, config, seed, began
+        self.stop_at, self.max_seconds, self.log = stop_at, max_seconds, log
+        self.file = out / "progress.csv"
+        self.file.write_text(",".join(self.COLUMNS) + "\n")
+        self.successes = self.ended = 0
+        self.last = {}
+
+    def count(self, successes: int, ended: int) -> None:
+        """Training episodes that ended, and how many of them completed the task."""
+        self.successes += int(successes)
+        self.ended += int(ended)
+
+    def report(self, steps: int, wall: float, result: dict) -> bool:
+        self.last = last = {"steps": steps, "success_rate": result["success_rate"],
+                            "blood_removed_ml": result["mean_blood_removed_ml"],
+                            "contact_steps": result["mean_contact_steps"],
+                            "train_success": self.successes / max(self.ended, 1), "env_steps_per_s": steps / wall,
+                            "wall_seconds": time.perf_counter() - self.began}
+        with self.file.open("a", newline="") as handle:
+            csv.writer(handle).writerow([last[column] for column in self.COLUMNS])
+        self.log(f"{self.config.name} seed {self.seed} @ {steps:,d} steps: validation {result['success_rate']:.2f}, "
+                 f"train {last['train_success']:.2f}, {last['env_steps_per_s']:,.0f} env-steps/s, "
+                 f"{last['wall_seconds']:.0f} s")
+        self.successes = self.ended = 0
+        return (self.stop_at is not None and result["success_rate"] >= self.stop_at) or (
+            self.max_seconds is not None and last["wall_seconds"] >= self.max_seconds)
+
+    def finish(self, **extra) -> None:
+        (self.out / "result.json").write_text(json.dumps({"config": self.config.name, "seed": self.seed, **extra,
+                                                          **self.last}, indent=2) + "\n")
+
+
+def refuse_options(config: MappoConfig, trainer: str = "the device trainer") -> None:
+    """Refuse, by name, the options of the trainer of record this trainer does not have."""
+    for option, off in _NOT_HERE.items():
+        if getattr(config, option) != off:
+            raise ValueError(f"{config.name}: {option} = {getattr(config, option)!r} is the trainer of record's "
+                             f"(python -m dvrl_marl.training.mappo); {trainer} takes none")
+
+
+def new_run_folder(out_dir) -> Path:
+    """``out_dir``, made; refused when it holds a run already."""
+    out = Path(out_dir)
+    if (out / "progress.csv").exists():
+        raise ValueError(f"{out} holds a run already (progress.csv); another folder starts a new one")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def build_learner(config: MappoConfig, env, device, torch) -> dict:
+    """The torch models of ``config`` for ``env`` on ``device``: the actors' head, the critic's values, the actors'
+    network and normalisers, the log standard deviations, the parameters and the distribution class."""
     agents = list(env.possible_agents)
     obs_dim, state_dim = env.observation_space(agents[0]).shape[0], env.state_space.shape[0]
     actor, critic, actor_net, norms = build_models(config, agents, obs_dim, state_dim, 4,
@@ -436,7 +501,8 @@ def _models(config: MappoConfig, env, device, torch) -> dict:
     head.to(device)
     critic_net.to(device)
     parameters = [p for p in list(head.parameters()) + list(critic_net.parameters()) if p.requires_grad]
-    return {"agents": agents, "head": head, "critic": value, "actor_net": actor_net, "norms": norms,
+    return {"agents": agents, "head": head, "critic": value, "critic_net": critic_net, "actor_net": actor_net,
+            "norms": norms,
             "log_std": head.log_std, "parameters": parameters,
             "distribution": switch_gaussian() if config.tool_head == "switch" else IndependentNormal}
 
@@ -449,16 +515,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     export, wall clock from the call to the result) and the policies last validated in ``out_dir/policies``; returns
     the last row. ``stop_at``: stop once a validation reaches this success (time to target); ``max_seconds``: stop at
     the first validation reported after this much wall clock. ``validate_beside``: score in a worker process while
-    the learner steps on (:class:`_Validations`); False scores in this process, the learner waiting.
+    the learner steps on (:class:`Validations`); False scores in this process, the learner waiting.
     ``collector``: ``"inline"`` steps the worlds in this process between updates; ``"process"`` (numpy's env on a
     CPU) steps them in a worker process while the learner updates (:class:`_ProcessCollector`)."""
     torch = require_torch()
     if collector not in ("inline", "process"):
         raise ValueError(f"collector must be 'inline' or 'process', got {collector!r}")
-    for option, off in _NOT_HERE.items():
-        if getattr(config, option) != off:
-            raise ValueError(f"{config.name}: {option} = {getattr(config, option)!r} is the trainer of record's "
-                             "(python -m dvrl_marl.training.mappo); the device trainer takes none")
+    refuse_options(config)
     backend = backend or ("jax" if str(device).startswith("cuda") else "numpy")
     if backend not in ("numpy", "jax"):
         raise ValueError(f"backend must be 'numpy' or 'jax', got {backend!r}")
@@ -478,10 +541,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     began = time.perf_counter()
     device = torch.device(device)
     torch.manual_seed(seed)
-    out = Path(out_dir)
-    if (out / "progress.csv").exists():
-        raise ValueError(f"{out} holds a run already (progress.csv); another folder starts a new one")
-    out.mkdir(parents=True, exist_ok=True)
+    out = new_run_folder(out_dir)
     options = dict(config.env)
     if backend == "jax":
         env = suction_debris_v8.batched_env(num_envs=config.num_envs, device=str(device), **options)
@@ -489,7 +549,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     else:
         host = suction_debris_v8.batched_env(num_envs=config.num_envs, **options)
         env = _TorchView(host, torch)
-    models = _models(config, host, device, torch)
+    models = build_learner(config, host, device, torch)
     optimiser = torch.optim.Adam(models["parameters"], lr=config.learning_rate)
     total = int(total_steps or config.total_steps)
     agents = models["agents"]
@@ -501,42 +561,23 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
         worker = _ProcessCollector(config, seed)
         worker.submit(models["head"], config.level(0.0))
     return_scale = _ReturnScale(len(agents), config.gamma, torch, device)
-    progress_file = out / "progress.csv"
-    progress_file.write_text("steps,success_rate,blood_removed_ml,contact_steps,train_success,env_steps_per_s,"
-                             "wall_seconds\n")
-    done_steps, next_validation, last = 0, config.eval_every, {}
-    successes = ended = 0
+    progress = Progress(out, config, seed, began, stop_at=stop_at, max_seconds=max_seconds, log=log)
+    done_steps, next_validation = 0, config.eval_every
     collect_seconds = 0.0
-    validations = _Validations(out, config, seed, beside=validate_beside)
-
-    def report(steps: int, wall: float, result: dict) -> bool:
-        """Log a validation's row; whether the run stops there."""
-        nonlocal successes, ended, last
-        last = {"steps": steps, "success_rate": result["success_rate"],
-                "blood_removed_ml": result["mean_blood_removed_ml"], "contact_steps": result["mean_contact_steps"],
-                "train_success": successes / max(ended, 1), "env_steps_per_s": steps / wall,
-                "wall_seconds": time.perf_counter() - began}
-        with progress_file.open("a", newline="") as handle:
-            csv.writer(handle).writerow(list(last.values()))
-        log(f"{config.name} seed {seed} @ {steps:,d} steps: validation {result['success_rate']:.2f}, "
-            f"train {last['train_success']:.2f}, {last['env_steps_per_s']:,.0f} env-steps/s, "
-            f"{last['wall_seconds']:.0f} s")
-        successes = ended = 0
-        return (stop_at is not None and result["success_rate"] >= stop_at) or (
-            max_seconds is not None and last["wall_seconds"] >= max_seconds)
+    validations = Validations(out, config, seed, beside=validate_beside)
 
     try:
         while done_steps < total:
-            progress = done_steps / total
-            level = config.level(progress)
+            fraction = done_steps / total
+            level = config.level(fraction)
             if level is not None:
                 env.set_start_level(level)
             if config.final_std:
                 with torch.no_grad():
-                    models["log_std"].fill_(math.log(config.exploration_std(progress)))
+                    models["log_std"].fill_(math.log(config.exploration_std(fraction)))
             if config.anneal_lr:
                 for group in optimiser.param_groups:
-                    group["lr"] = config.learning_rate * max(1.0 - progress, 0.0)
+                    group["lr"] = config.learning_rate * max(1.0 - fraction, 0.0)
             if share_a_core:
                 threads = found_threads - 1 if validations.busy() else found_threads
                 if torch.get_num_threads() != threads:
@@ -553,7 +594,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
                 rollout, (won, finished) = value_rollout(taken, models["critic"], torch), (taken.successes,
                                                                                            len(taken.ended_at))
             collect_seconds += time.perf_counter() - start
-            successes, ended = successes + won, ended + finished
+            progress.count(won, finished)
             rollout.rewards = rollout.rewards / return_scale.update(rollout.rewards, rollout.done)
             advantage, returns = advantages(rollout, config.gamma, config.gae_lambda, torch)
             update(models, optimiser, rollout, advantage, returns, config, torch)
@@ -561,13 +602,13 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
             update_norms(models["norms"], rollout.observations, rollout.states)
             done_steps += config.num_envs * config.rollout_steps
             finished_run = done_steps >= total
-            reported = validations.result(wait=finished_run)
-            if reported is not None and report(*reported):
+            if any(progress.report(*row) for row in validations.results(wait=finished_run)):
                 break
             if not validations.busy() and (done_steps >= next_validation or finished_run):
                 next_validation = done_steps + config.eval_every
                 validations.start(models, done_steps, time.perf_counter() - began, host)
-                if (finished_run or not validate_beside) and report(*validations.result(wait=True)):
+                if (finished_run or not validate_beside) and any(
+                        progress.report(*row) for row in validations.results(wait=True)):
                     break
     finally:
         validations.close()
@@ -575,10 +616,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
             worker.close()
         if share_a_core:  # (the caller's threads as this run found them)
             limit_threads(found_threads)
-    (out / "result.json").write_text(json.dumps({"config": config.name, "seed": seed, "device": str(device),
-                                                 "backend": backend, "collect_seconds": collect_seconds, **last},
-                                                indent=2) + "\n")
-    return last
+    progress.finish(device=str(device), backend=backend, collect_seconds=collect_seconds)
+    return progress.last
 
 
 class _ReturnScale:

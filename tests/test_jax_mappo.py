@@ -1,0 +1,193 @@
+"""The JAX trainer (dvrl_marl.training.jax_mappo) is the device trainer's algorithm: a minibatch's losses and
+gradients, the reward scaling and GAE equal the torch learner's on the same weights and data; its compiled cycle is
+deterministic over many steps; a tiny run on the CPU validates and exports numpy policies that act as its actors."""
+
+import csv
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torchrl")
+jax = pytest.importorskip("jax")
+pytest.importorskip("optax")
+
+import torch  # noqa: E402
+
+from dvrl_marl import policies  # noqa: E402
+from dvrl_marl.envs import suction_debris_v8  # noqa: E402
+from dvrl_marl.training import device_mappo, jax_mappo  # noqa: E402
+from dvrl_marl.training.mappo_config import MappoConfig  # noqa: E402
+
+TINY = MappoConfig(total_steps=512, num_envs=8, rollout_steps=16, eval_every=256, eval_episodes=2, hidden=[16, 16],
+                   env={"preset": "benchmark", "max_cycles": 40}, tool_head="switch", epochs=2, minibatches=2,
+                   critic_input="state_and_observation", levels=[(0.0, 0.0), (1.0, 1.0)], bounds_loss_coef=1.0,
+                   initial_tool_logit={"suction": 3.0}, entropy_coef=0.01, max_grad_norm=1e9)
+
+CRITICS = {"state_and_observation": {}, "state": {"critic_input": "state"},
+           "ippo": {"algorithm": "ippo", "critic_input": "state"}}
+
+
+def _batch(config, rows: int, seed: int):
+    """Observations and states the env gives (moved apart by noise), actions, old log-probabilities, advantages and
+    returns, as a minibatch; the JAX learner's parameters and normalisers (moved off their start), and torch's
+    models holding the same."""
+    env = suction_debris_v8.batched_env(num_envs=rows, **config.env)
+    observations, _ = env.reset(seed=seed)
+    agents = list(env.possible_agents)
+    random = np.random.default_rng(seed)
+    seen = np.stack([observations[agent] for agent in agents], axis=1).astype(np.float32)
+    seen = seen + random.normal(0.0, 0.1, seen.shape).astype(np.float32)
+    state = env.state().astype(np.float32) + random.normal(0.0, 0.1, (rows, env.state_space.shape[0])).astype(
+        np.float32)
+    actions = random.normal(0.0, 0.7, (rows, len(agents), 4)).astype(np.float32)
+    actions[..., -1] = np.where(random.random((rows, len(agents))) < 0.5, 1.0, -1.0)
+    batch = {"observations": seen, "states": state, "actions": actions,
+             "log_probs": random.normal(-4.0, 0.5, (rows, len(agents))).astype(np.float32),
+             "advantages": random.normal(0.0, 1.0, (rows, len(agents))).astype(np.float32),
+             "returns": random.normal(0.0, 2.0, (rows, len(agents))).astype(np.float32)}
+    obs_dim, state_dim = seen.shape[-1], state.shape[-1]
+    params = jax_mappo.init_params(jax.random.PRNGKey(seed), config, agents, obs_dim, state_dim)
+    # the actors' last layers made larger, so the means reach past the box (the bounds loss) and the ratios move
+    params["actors"] = [[*layers[:-1], {**layers[-1], "weight": layers[-1]["weight"] * 300.0}]
+                        for layers in params["actors"]]
+    norms = jax_mappo.init_norms(config, obs_dim, state_dim)
+    norms = {name: jax_mappo._merged(norm, batch["states"] if name == "state" else batch["observations"])
+             for name, norm in norms.items()}
+    models = device_mappo.build_learner(config, env, torch.device("cpu"), torch)
+    jax_mappo.load_into_torch(params, norms, models, critic=True)
+    return agents, batch, params, norms, models
+
+
+class _Recorder:
+    """An optimiser that keeps the gradients it is given (device_mappo.update's loss, no step taken)."""
+
+    def __init__(self, parameters):
+        self.parameters = list(parameters)
+        self.gradients = None
+
+    def zero_grad(self):
+        for parameter in self.parameters:
+            parameter.grad = None
+
+    def step(self):
+        self.gradients = [parameter.grad.clone() for parameter in self.parameters]
+
+
+@pytest.mark.parametrize("critic", sorted(CRITICS))
+@pytest.mark.parametrize("tool_head", ["switch", "gaussian"])
+def test_a_minibatch_loss_and_its_gradients_equal_the_torch_learners(critic, tool_head):
+    config = replace(TINY, tool_head=tool_head, epochs=1, minibatches=1, **CRITICS[critic])
+    agents, batch, params, norms, models = _batch(config, 64, seed=5)
+    (loss, parts), gradients = jax.value_and_grad(jax_mappo.minibatch_loss, has_aux=True)(
+        params, norms, config, {key: jax.numpy.asarray(value) for key, value in batch.items()})
+    as_time_major = lambda x: torch.from_numpy(np.asarray(x))[None]  # noqa: E731  (T = 1, N = rows)
+    rollout = device_mappo.Rollout(
+        observations=as_time_major(batch["observations"]), states=as_time_major(batch["states"]),
+        actions=as_time_major(batch["actions"]), log_probs=as_time_major(batch["log_probs"]), values=None,
+        rewards=None, done=None, terminated=None, next_values=None)
+    recorder = _Recorder(models["parameters"])
+    sums = device_mappo.update(models, recorder, rollout, as_time_major(batch["advantages"]),
+                               as_time_major(batch["returns"]), config, torch)
+    for name, value in zip(("policy", "value", "entropy"), parts):
+        assert float(value) == pytest.approx(sums[name], rel=1e-5, abs=1e-6), name
+    assert abs(float(parts[0])) > 1e-3 and float(parts[1]) > 1e-3  # (a loss that moves, not zeros compared)
+    # the gradients, parameter by parameter in torch's order: the log standard deviations, the actors, the critic
+    flat = [gradients["log_std"]]
+    for layers in gradients["actors"]:
+        for layer in layers:
+            flat += [layer["weight"], layer["bias"]]
+    critic_layers = gradients["critic"] if isinstance(gradients["critic"][0], list) else [gradients["critic"]]
+    for layers in critic_layers:
+        for layer in layers:
+            flat += [layer["weight"], layer["bias"]]
+    assert len(flat) == len(recorder.gradients)
+    for mine, theirs in zip(flat, recorder.gradients):
+        np.testing.assert_allclose(np.asarray(mine), theirs.numpy(), rtol=2e-4, atol=2e-6)
+
+
+def test_the_reward_scaling_and_gae_equal_the_torch_learners():
+    random = np.random.default_rng(2)
+    steps, worlds, agents = 12, 5, 2
+    rewards = random.normal(0.0, 1.0, (steps, worlds, agents)).astype(np.float32)
+    done = random.random((steps, worlds)) < 0.2
+    terminated = done & (random.random((steps, worlds)) < 0.5)
+    values = random.normal(0.0, 1.0, (steps, worlds, agents)).astype(np.float32)
+    next_values = random.normal(0.0, 1.0, (steps, worlds, agents)).astype(np.float32)
+    theirs = device_mappo._ReturnScale(agents, 0.9, torch, torch.device("cpu"))
+    scale = {"mean": jax.numpy.zeros(agents), "var": jax.numpy.ones(agents), "count": jax.numpy.asarray(1e-4),
+             "discounted": jax.numpy.zeros((worlds, agents))}
+    for _ in range(2):  # twice: the discounted returns carry over to the next rollout
+        mine, scale = jax_mappo.scaled_rewards(jax.numpy.asarray(rewards), jax.numpy.asarray(done), scale, 0.9)
+        expected = torch.from_numpy(rewards) / theirs.update(torch.from_numpy(rewards), torch.from_numpy(done))
+        np.testing.assert_allclose(np.asarray(mine), expected.numpy(), rtol=1e-5)
+    rollout = device_mappo.Rollout(observations=None, states=None, actions=None, log_probs=None,
+                                   values=torch.from_numpy(values), rewards=torch.from_numpy(rewards),
+                                   done=torch.from_numpy(done), terminated=torch.from_numpy(terminated),
+                                   next_values=torch.from_numpy(next_values))
+    expected = device_mappo.advantages(rollout, 0.9, 0.8, torch)
+    mine = jax_mappo.advantages(*(jax.numpy.asarray(x) for x in (rewards, values, next_values, terminated, done)),
+                                0.9, 0.8)
+    for a, b in zip(mine, expected):
+        np.testing.assert_allclose(np.asarray(a), b.numpy(), rtol=1e-5, atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("jax") / "run"
+    last = jax_mappo.train(TINY, 3, folder, validate_beside=False, log=lambda *_: None)
+    return folder, last
+
+
+def test_a_tiny_run_validates_and_exports_policies_that_act(tiny_run):
+    folder, last = tiny_run
+    rows = list(csv.DictReader((folder / "progress.csv").open()))
+    assert [int(row["steps"]) for row in rows] == [256, 512]
+    assert last["steps"] == 512 and 0.0 <= last["success_rate"] <= 1.0 and last["env_steps_per_s"] > 0
+    observations, _ = suction_debris_v8.parallel_env(preset="benchmark").reset(seed=0)
+    for agent in ("suction", "grasper"):
+        policy = policies.load(folder / "policies" / f"marl-{agent}")
+        assert policy.spec["agent"] == agent and policy.spec["training"]["trainer"] == "device_mappo"
+        action = policy(observations[agent])
+        assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
+    """What the numpy policy computes from the env's observation is the JAX actor's mean, clipped to the box (the
+    switch tool: the sign of its logit), the normaliser folded into its first layer."""
+    agents, _, params, norms, models = _batch(TINY, 16, seed=4)
+    params["actors"] = [[*layers[:-1], {**layers[-1], "weight": layers[-1]["weight"] * 10.0}]
+                        for layers in params["actors"]]  # (means past the box: the clip is exercised)
+    jax_mappo.load_into_torch(params, norms, models)
+    env = suction_debris_v8.batched_env(num_envs=16, **TINY.env)
+    observations, _ = env.reset(seed=9)
+    seen = np.stack([observations[agent] for agent in agents], axis=1)
+    loc = np.asarray(jax_mappo.actor_loc(params, norms, seen.astype(np.float32)))
+    folders = device_mappo.export(models, TINY, tmp_path, 0, 0, env)
+    for index, agent in enumerate(agents):
+        expected = np.concatenate([np.clip(loc[:, index, :3], -1.0, 1.0), np.sign(loc[:, index, 3:])], axis=1)
+        assert np.abs(loc[:, index, :3]).max() > 1.0  # (the clip is exercised)
+        np.testing.assert_allclose(policies.load(folders[agent])(seen[:, index]), expected, atol=2e-4)
+
+
+def test_the_compiled_cycle_is_deterministic_over_many_steps():
+    """Two runs of eight cycles (1,024 world steps) from the same seed give the same parameters bit for bit."""
+    config = replace(TINY, rollout_steps=16)
+    env = suction_debris_v8.batched_env(num_envs=8, device="cpu", arrays="jax", check_actions=False, **config.env)
+    cycle = jax.jit(jax_mappo.make_cycle(env, config))
+    outcomes = []
+    for _ in range(2):
+        carry = jax_mappo.start(env, config, seed=7)
+        for _ in range(8):
+            carry, figures = cycle(carry, np.float32(config.learning_rate), None)
+        outcomes.append(jax.tree_util.tree_leaves(carry[3]) + [figures["losses"]])
+    for first, second in zip(*outcomes):
+        np.testing.assert_array_equal(np.asarray(first), np.asarray(second))
+    assert np.all(np.isfinite(np.asarray(outcomes[0][-1])))
+
+
+def test_what_it_does_not_do_is_refused_by_name(tmp_path):
+    with pytest.raises(ValueError, match="bc_expert"):
+        jax_mappo.train(replace(TINY, bc_expert="scripted"), 0, tmp_path / "a")
+    with pytest.raises(ValueError, match="surgeon"):
+        jax_mappo.train(replace(TINY, surgeon="scripted"), 0, tmp_path / "b")
