@@ -54,7 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The trainer's models are TorchRL's (its compiled extension is optional; tensordict's links no torch).
 WHEELS = ("pydantic", "pydantic-core", "annotated-types", "typing-inspection", "array-api-compat", "gymnasium",
           "farama-notifications", "pettingzoo", "mujoco", "mujoco-core", "pyopengl", "glfw", "torchrl", "tensordict",
-          "pyvers", "hoptorch", "orjson", "importlib-metadata")
+          "pyvers", "hoptorch", "orjson", "importlib-metadata", "optax")
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64",
              "manylinux1_x86_64", "any")
 
@@ -130,10 +130,20 @@ def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
                                        else "1048576", "--eval-every", "8388608" if gpu else "65536"], 120, {}),
         "trainer_16384": (trainer + large + ["--worlds", "16384" if gpu else "128", "--minibatches", "32",
                                              "--eval-every", "16777216" if gpu else "131072"], 120, {}),
+        # the trainer compiled whole (dvrl_marl.training.jax_mappo) on the large-batch configuration at 4,096 worlds:
+        # a curriculum of 512 batches, validated every 32 by eight validators at once, for the time to the target
+        "jax_trainer": (trainer + large + ["--trainer", "jax", "--validators", "8" if gpu else "1", "--worlds",
+                                           "4096" if gpu else "64", "--total-steps", "67108864" if gpu else "131072",
+                                           "--eval-every", "4194304" if gpu else "65536",
+                                           "--seconds", "100" if gpu else "60"], 150, {}),
+        # its cycle's speed per N (sim alone in a compiled loop; whole update cycles), compilation timed apart
+        "jax_speed": ([python, "benchmarks/jax_trainer_speed.py", "--device", device, "--json", str(figures),
+                       "--sizes", *(["4096", "16384", "65536", "262144"] if gpu else ["64"])], 150, {}),
         # (the trainer's tests on the GPU: its run on the compiled env; the others are the CPU's)
         "tests": ([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x", "tests/test_device_env.py",
                    "tests/test_backends.py", "tests/test_streams.py", "tests/test_device_training.py::"
-                   "test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give"], 120,
+                   "test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give",
+                   "tests/test_jax_mappo.py::test_the_compiled_cycle_is_deterministic_over_many_steps"], 120,
                   {"DVRL_MARL_TEST_DEVICE": device}),
         # (a size per process: each N compiles its own step)
         "speed_1m": (speed + ["--sizes", "1048576" if gpu else "2048"], 90, {}),

@@ -11,6 +11,8 @@ policies are tested by their mean action on ``--test-episodes`` held-out seeds. 
 
     python benchmarks/device_training.py --device cpu --config baselines/configs/suction_debris_mappo_large_batch.toml
     python benchmarks/device_training.py --device cuda --worlds 16384 --eval-every 4194304 --json out.jsonl
+    python benchmarks/device_training.py --trainer jax --device cuda --worlds 4096 --validators 4 \
+        --config baselines/configs/suction_debris_mappo_large_batch.toml
 """
 
 from __future__ import annotations
@@ -54,6 +56,10 @@ def main() -> None:
     parser.add_argument("--total-steps", type=int, default=None,
                         help="the run's length, which paces the curriculum (default: the configuration's; with "
                              "--worlds, that or 1,000 batches, whichever is more)")
+    parser.add_argument("--trainer", choices=("device", "jax"), default="device",
+                        help="device: dvrl_marl.training.device_mappo (torch, the env stepped from Python); jax: "
+                             "dvrl_marl.training.jax_mappo (the update cycle compiled whole)")
+    parser.add_argument("--validators", type=int, default=1, help="validations scored at once (the JAX trainer)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
@@ -74,16 +80,24 @@ def main() -> None:
                                                               else config.total_steps))
     with tempfile.TemporaryDirectory() as folder:
         collector = args.collector
-        last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, backend=args.backend,
-                                  stop_at=args.target, max_seconds=args.seconds, collector=collector)
+        if args.trainer == "jax":
+            from dvrl_marl.training import jax_mappo
+
+            collector = "compiled"
+            last = jax_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, stop_at=args.target,
+                                   max_seconds=args.seconds, validators=args.validators)
+        else:
+            last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device,
+                                      backend=args.backend, stop_at=args.target, max_seconds=args.seconds,
+                                      collector=collector)
         seconds = time.perf_counter() - STARTED  # (the clock stops at the validation that ended the run)
         test = _test(Path(folder) / "run" / "policies", config, args.test_episodes) if args.test_episodes else None
     import torch
 
     name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device
-    row = {"what": "device_trainer", "config": config.name, "device": name, "worlds": config.num_envs,
+    row = {"what": "device_trainer" if args.trainer == "device" else "jax_trainer", "config": config.name, "device": name, "worlds": config.num_envs,
            "rollout": config.rollout_steps,
-           "eval_every": config.eval_every, "collector": collector,
+           "eval_every": config.eval_every, "collector": collector, "validators": args.validators,
            "epochs": config.epochs, "minibatches": config.minibatches, "learning_rate": config.learning_rate,
            "total_steps": config.total_steps,
            "seed": args.seed, "steps": last.get("steps"), "validation_success": last.get("success_rate"),

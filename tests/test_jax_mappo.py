@@ -3,6 +3,7 @@ gradients, the reward scaling and GAE equal the torch learner's on the same weig
 deterministic over many steps; a tiny run on the CPU validates and exports numpy policies that act as its actors."""
 
 import csv
+import os
 from dataclasses import replace
 
 import numpy as np
@@ -171,9 +172,11 @@ def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
 
 
 def test_the_compiled_cycle_is_deterministic_over_many_steps():
-    """Two runs of eight cycles (1,024 world steps) from the same seed give the same parameters bit for bit."""
+    """Two runs of eight cycles (1,024 world steps) from the same seed give the same parameters bit for bit (on
+    ``DVRL_MARL_TEST_DEVICE``, the CPU here)."""
     config = replace(TINY, rollout_steps=16)
-    env = suction_debris_v8.batched_env(num_envs=8, device="cpu", arrays="jax", check_actions=False, **config.env)
+    device = os.environ.get("DVRL_MARL_TEST_DEVICE", "cpu")
+    env = suction_debris_v8.batched_env(num_envs=8, device=device, arrays="jax", check_actions=False, **config.env)
     cycle = jax.jit(jax_mappo.make_cycle(env, config))
     outcomes = []
     for _ in range(2):
