@@ -80,6 +80,7 @@ def main() -> None:
                                                               else config.total_steps))
     with tempfile.TemporaryDirectory() as folder:
         collector = args.collector
+        before_training = time.perf_counter() - STARTED  # (imports and configuration)
         if args.trainer == "jax":
             from dvrl_marl.training import jax_mappo
 
@@ -90,7 +91,9 @@ def main() -> None:
             last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device,
                                       backend=args.backend, stop_at=args.target, max_seconds=args.seconds,
                                       collector=collector)
-        seconds = time.perf_counter() - STARTED  # (the clock stops at the validation that ended the run)
+        # the clock stops at the result of the validation that ended the run (not when the validations still in
+        # flight have finished: the run waits for them before it returns)
+        seconds = before_training + last.get("wall_seconds", time.perf_counter() - STARTED - before_training)
         test = _test(Path(folder) / "run" / "policies", config, args.test_episodes) if args.test_episodes else None
     import torch
 
