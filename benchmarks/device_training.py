@@ -60,6 +60,8 @@ def main() -> None:
                         help="device: dvrl_marl.training.device_mappo (torch, the env stepped from Python); jax: "
                              "dvrl_marl.training.jax_mappo (the update cycle compiled whole)")
     parser.add_argument("--validators", type=int, default=1, help="validations scored at once (the JAX trainer)")
+    parser.add_argument("--cache", default="", help="the JAX trainer's compilation cache folder (default none: a "
+                        "fresh machine's compile is timed; 'auto': the trainer's own default)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
@@ -86,7 +88,7 @@ def main() -> None:
 
             collector = "compiled"
             last = jax_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, stop_at=args.target,
-                                   max_seconds=args.seconds, validators=args.validators)
+                                   max_seconds=args.seconds, validators=args.validators, cache=args.cache or None)
         else:
             last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device,
                                       backend=args.backend, stop_at=args.target, max_seconds=args.seconds,
@@ -101,6 +103,7 @@ def main() -> None:
     row = {"what": "device_trainer" if args.trainer == "device" else "jax_trainer", "config": config.name, "device": name, "worlds": config.num_envs,
            "rollout": config.rollout_steps,
            "eval_every": config.eval_every, "collector": collector, "validators": args.validators,
+           "cache": args.cache,
            "epochs": config.epochs, "minibatches": config.minibatches, "learning_rate": config.learning_rate,
            "total_steps": config.total_steps,
            "seed": args.seed, "steps": last.get("steps"), "validation_success": last.get("success_rate"),

@@ -41,6 +41,17 @@ def _train(args) -> int:
     if algorithm is not None and algorithm not in known or (algorithm is None and "env_id" in run_table):
         # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]
         raise ValueError(f"{args.config}: [run] algorithm: must be one of {', '.join(known)}, got {algorithm!r}")
+    if run_table.get("algorithm") not in ("mappo", "ippo"):
+        for flag, value in (("--trainer", args.trainer != "record"), ("--device", args.device),
+                            ("--validators", args.validators)):
+            if value:
+                raise ValueError(f"{args.config}: {flag} is for MAPPO/IPPO configurations; this one's algorithm is "
+                                 f"{algorithm!r}")
+    if run_table.get("algorithm") in ("mappo", "ippo") and args.trainer != "record":
+        return _train_on_device(args)
+    if args.device or args.validators:
+        raise ValueError(f"{'--device' if args.device else '--validators'} is for --trainer device or jax (the "
+                         "trainer of record takes the configuration's device)")
     if algorithm == "bc":  # behaviour cloning of a seat from a Minari dataset
         from dvrl_marl.training import clone
 
@@ -112,6 +123,39 @@ def _train(args) -> int:
                       training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
                                 "success_rate": final["success_rate"]})
         print(f"exported the policy to {args.export}")
+    return 0
+
+
+def _train_on_device(args) -> int:
+    """MAPPO/IPPO with everything on one device: the device trainer, or the trainer compiled whole by JAX."""
+    from dvrl_marl.training.mappo_config import load_config
+
+    for flag, value in (("--resume", args.resume), ("--ray-address", args.ray_address),
+                        ("--num-collectors", args.num_collectors), ("--tensorboard", args.tensorboard)):
+        if value:
+            raise ValueError(f"{flag} is the trainer of record's; --trainer {args.trainer} keeps no checkpoints, uses "
+                             "no Ray and writes progress.csv")
+    if args.validators and args.trainer != "jax":
+        raise ValueError("--validators is for --trainer jax")
+    config = load_config(args.config)
+    out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
+    device = args.device or "cpu"
+    if args.trainer == "jax":
+        from dvrl_marl.training import jax_mappo
+
+        final = jax_mappo.train(config, args.seed, out, device=device, total_steps=args.steps,
+                                validators=args.validators or 1)
+    else:
+        from dvrl_marl.training import device_mappo
+
+        final = device_mappo.train(config, args.seed, out, device=device, total_steps=args.steps)
+    print(f"{config.name} seed {args.seed}: validation success {final['success_rate']:.2f} after "
+          f"{final['steps']:,d} steps; policies in {out / 'policies'}; run folder {out}")
+    if args.export:
+        import shutil
+
+        shutil.copytree(out / "policies", args.export, dirs_exist_ok=True)
+        print(f"exported the policies to {args.export}")
     return 0
 
 
@@ -366,6 +410,12 @@ def build_parser() -> argparse.ArgumentParser:
                        "this machine joined with `ray start`; host:port; local: a Ray instance of this process)")
     train.add_argument("--num-collectors", type=COUNT, help="MAPPO/IPPO: Ray collector actors (each steps "
                        "num_envs / N worlds; default 1 with --ray-address); without --ray-address, starts Ray here")
+    train.add_argument("--trainer", choices=("record", "device", "jax"), default="record",
+                       help="MAPPO/IPPO: record, the trainer of record (TorchRL; checkpoints, partners, Ray); device, "
+                       "everything on --device (dvrl_marl.training.device_mappo); jax, each update cycle compiled "
+                       'whole by JAX (dvrl_marl.training.jax_mappo; pip install "dvrl-marl[jax]")')
+    train.add_argument("--device", help="--trainer device or jax: cpu (default), cuda or cuda:<index>")
+    train.add_argument("--validators", type=COUNT, help="--trainer jax: validations scored at once (default 1)")
     train.set_defaults(func=_train)
 
     evaluate = sub.add_parser("evaluate", help="success rate of a policy over seeded episodes")

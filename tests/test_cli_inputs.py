@@ -57,3 +57,18 @@ def test_a_progress_file_without_its_columns_is_named(capsys, tmp_path):
     assert "no column steps, success_rate, blood_removed_ml" in _refused(
         ["plot", str(csv), "--team", "--out", str(tmp_path / "c")], capsys)
     assert "no progress.csv there" in _refused(["plot", str(tmp_path), "--out", str(tmp_path / "c")], capsys)
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["train", "reach_lnd_ddpg_her", "--trainer", "jax"], "--trainer is for MAPPO/IPPO configurations"),
+    (["train", "reach_lnd_ddpg_her", "--device", "cuda"], "--device is for MAPPO/IPPO configurations"),
+    (["train", "suction_debris_mappo", "--device", "cuda"], "--device is for --trainer device or jax"),
+    (["train", "suction_debris_mappo", "--validators", "2"], "--validators is for --trainer device or jax"),
+    (["train", "suction_debris_mappo", "--trainer", "jax", "--resume"], "--resume is the trainer of record's"),
+    (["train", "suction_debris_mappo", "--trainer", "device", "--ray-address", "local"],
+     "--ray-address is the trainer of record's"),
+    (["train", "suction_debris_mappo", "--trainer", "device", "--validators", "2"], "--validators is for --trainer jax"),
+    (["train", "suction_debris_mappo", "--trainer", "compiled"], "invalid choice: 'compiled'"),
+])
+def test_a_trainer_flag_that_does_not_apply_is_named(capsys, argv, named):
+    assert named in _refused(argv, capsys)

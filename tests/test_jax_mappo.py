@@ -135,9 +135,10 @@ def test_the_reward_scaling_and_gae_equal_the_torch_learners():
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("jax") / "run"
-    last = jax_mappo.train(TINY, 3, folder, validate_beside=False, log=lambda *_: None)
-    return folder, last
+    folder = tmp_path_factory.mktemp("jax")
+    last = jax_mappo.train(TINY, 3, folder / "run", validate_beside=False, cache=folder / "compiled",
+                           log=lambda *_: None)
+    return folder / "run", last
 
 
 def test_a_tiny_run_validates_and_exports_policies_that_act(tiny_run):
@@ -151,6 +152,10 @@ def test_a_tiny_run_validates_and_exports_policies_that_act(tiny_run):
         assert policy.spec["agent"] == agent and policy.spec["training"]["trainer"] == "device_mappo"
         action = policy(observations[agent])
         assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_the_compiled_cycle_is_kept_for_the_next_run(tiny_run):
+    assert any((tiny_run[0].parent / "compiled").iterdir())
 
 
 def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
@@ -191,6 +196,20 @@ def test_the_compiled_cycle_is_deterministic_over_many_steps():
 
 def test_what_it_does_not_do_is_refused_by_name(tmp_path):
     with pytest.raises(ValueError, match="bc_expert"):
-        jax_mappo.train(replace(TINY, bc_expert="scripted"), 0, tmp_path / "a")
+        jax_mappo.train(replace(TINY, bc_expert="scripted"), 0, tmp_path / "a", cache=None)
     with pytest.raises(ValueError, match="surgeon"):
-        jax_mappo.train(replace(TINY, surgeon="scripted"), 0, tmp_path / "b")
+        jax_mappo.train(replace(TINY, surgeon="scripted"), 0, tmp_path / "b", cache=None)
+
+
+def test_the_command_line_trains_with_it(tmp_path, capsys, monkeypatch):
+    from dvrl_marl.cli import main
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))  # (the compiled cycle kept there, not in ~)
+    config = tmp_path / "tiny.toml"
+    config.write_text('[run]\nalgorithm = "mappo"\ntotal_steps = 128\nnum_envs = 8\nrollout_steps = 16\n'
+                      'eval_every = 128\neval_episodes = 2\n[env]\npreset = "benchmark"\nmax_cycles = 40\n'
+                      '[model]\nhidden = [16, 16]\n')
+    assert main(["train", str(config), "--trainer", "jax", "--out", str(tmp_path / "run"),
+                 "--export", str(tmp_path / "exported")]) == 0
+    assert "validation success" in capsys.readouterr().out
+    assert policies.load(tmp_path / "exported" / "marl-grasper").spec["agent"] == "grasper"

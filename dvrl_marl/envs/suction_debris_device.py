@@ -20,7 +20,9 @@ terminations, truncations, infos)``, dicts over the agents. What differs:
   ``level`` are taken); start levels (``start_level=``, ``set_start_level``, a ``level`` reset option) draw easy
   episodes on the device; a seat's filler (``surgeon=``) and rendering are the numpy env's;
 - actions are checked for shape on the host and for NaN/inf on the device (``check_actions=True``: one boolean
-  read back per step; ``False`` skips it and clips whatever comes).
+  read back per step; ``False`` skips it and clips whatever comes);
+- ``step_function`` is the step as a pure function of ``world_state`` and the actions, for a learner that compiles
+  its own loop around it (``jax.lax.scan``; :mod:`dvrl_marl.training.jax_mappo`).
 
 The step on JAX is the step on numpy: ``tests/test_device_env.py`` holds them equal step by step (to 1e-9) from the
 same state, with the benchmark's setting and with the defaults. JAX's float64 is switched on for the process.

@@ -361,6 +361,12 @@ def _worker_start() -> None:
     threadpool_limits(1, user_api="blas")
 
 
+def _ready() -> None:
+    """A validation worker's imports, done ahead (what :func:`score` needs)."""
+    from dvrl_marl import policies  # noqa: F401
+    from dvrl_marl.envs import suction_debris_batched  # noqa: F401
+
+
 class Validations:
     """Validations beside the learner: each exports the actors at once and scores them in a worker process (another
     core, or the host's CPU while the learner holds the GPU), up to ``workers`` at a time; the learner steps on
@@ -380,6 +386,10 @@ class Validations:
             # spawn: a fork of a process holding torch's threads (or CUDA) is not safe
             self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
                                             initializer=_worker_start)
+            # each worker started now, its imports done while the learner compiles and steps (else the first
+            # validations would wait for them: seconds, on a run that learns in a minute)
+            for _ in range(self.workers):
+                self.pool.submit(_ready)
 
     def busy(self) -> bool:
         """Whether as many validations as workers are in flight."""
