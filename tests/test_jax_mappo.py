@@ -149,7 +149,7 @@ def test_a_tiny_run_validates_and_exports_policies_that_act(tiny_run):
     observations, _ = suction_debris_v8.parallel_env(preset="benchmark").reset(seed=0)
     for agent in ("suction", "grasper"):
         policy = policies.load(folder / "policies" / f"marl-{agent}")
-        assert policy.spec["agent"] == agent and policy.spec["training"]["trainer"] == "device_mappo"
+        assert policy.spec["agent"] == agent and policy.spec["training"]["trainer"] == "jax_mappo"
         action = policy(observations[agent])
         assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
 
@@ -160,7 +160,8 @@ def test_the_compiled_cycle_is_kept_for_the_next_run(tiny_run):
 
 def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
     """What the numpy policy computes from the env's observation is the JAX actor's mean, clipped to the box (the
-    switch tool: the sign of its logit), the normaliser folded into its first layer."""
+    switch tool: the sign of its logit), the normaliser folded into its first layer: the policy the torch learner
+    exports from the same weights."""
     agents, _, params, norms, models = _batch(TINY, 16, seed=4)
     params["actors"] = [[*layers[:-1], {**layers[-1], "weight": layers[-1]["weight"] * 10.0}]
                         for layers in params["actors"]]  # (means past the box: the clip is exercised)
@@ -169,11 +170,16 @@ def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
     observations, _ = env.reset(seed=9)
     seen = np.stack([observations[agent] for agent in agents], axis=1)
     loc = np.asarray(jax_mappo.actor_loc(params, norms, seen.astype(np.float32)))
-    folders = device_mappo.export(models, TINY, tmp_path, 0, 0, env)
+    folders = device_mappo.export(jax_mappo.actors(params, norms, agents), TINY, tmp_path, 0, 0, env)
+    torch_folders = device_mappo.export(device_mappo.actors(models), TINY, tmp_path / "torch", 0, 0, env)
     for index, agent in enumerate(agents):
         expected = np.concatenate([np.clip(loc[:, index, :3], -1.0, 1.0), np.sign(loc[:, index, 3:])], axis=1)
         assert np.abs(loc[:, index, :3]).max() > 1.0  # (the clip is exercised)
         np.testing.assert_allclose(policies.load(folders[agent])(seen[:, index]), expected, atol=2e-4)
+        # the same policy as the torch learner's export of the same weights
+        mine, theirs = policies.load(folders[agent]), policies.load(torch_folders[agent])
+        np.testing.assert_allclose(mine(seen[:, index]), theirs(seen[:, index]), atol=1e-6)
+        assert mine.spec["exploration"] == theirs.spec["exploration"]
 
 
 def test_the_compiled_cycle_is_deterministic_over_many_steps():

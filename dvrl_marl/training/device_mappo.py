@@ -35,8 +35,8 @@ from dvrl_marl.envs.presets import scene_options
 from dvrl_marl.envs.suction_debris import env_name
 from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import MappoConfig, load_config
-from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, limit_threads, require_torch,
-                                       switch_gaussian, update_norms)
+from dvrl_marl.training.models import (actor_arrays, bounds_loss, build_models, limit_threads, require_torch,
+                                       switch_gaussian, update_norms, write_actor)
 
 __all__ = ["train", "collect", "step_worlds", "value_rollout", "advantages", "update", "export", "score", "validate",
            "Rollout", "Steps"]
@@ -306,18 +306,26 @@ def update(models, optimiser, rollout: Rollout, advantage, returns, config: Mapp
     return {key: float(value) / (config.epochs * config.minibatches) for key, value in sums.items()}
 
 
-def export(models, config: MappoConfig, folder: Path, seed: int, steps: int, env) -> dict:
-    """Export the actors as numpy policies into ``folder`` (one ``marl-<agent>`` folder each); returns their paths."""
+def actors(models) -> dict:
+    """The torch actors of ``models`` as numpy arrays, per agent (:func:`models.actor_arrays`: what :func:`export`
+    writes)."""
+    return {agent: actor_arrays(models["actor_net"], index, models["log_std"][index])
+            for index, agent in enumerate(models["agents"])}
+
+
+def export(arrays: dict, config: MappoConfig, folder: Path, seed: int, steps: int, env,
+           trainer: str = "device_mappo") -> dict:
+    """Export the actors given as numpy ``arrays`` per agent (:func:`actors`) as numpy policies into ``folder`` (one
+    ``marl-<agent>`` folder each), recording ``trainer``; returns their paths."""
     folders = {}
-    for index, agent in enumerate(models["agents"]):
+    for agent, actor in arrays.items():
         folders[agent] = folder / f"marl-{agent}"
-        export_actor(models["actor_net"], index, folders[agent], name=f"marl-{agent}", agent=agent,
-                     tool_head=config.tool_head, env_id=env_name(str(config.env.get("task", "suction_debris_v8"))),
-                     metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
-                                            "steps": steps, "trainer": "device_mappo"}},
-                     log_std=models["log_std"][index],
-                     input_scaling=None if env.observation_scaling is None
-                     else env.observation_scaling.observation_affine(agent))
+        write_actor(actor, folders[agent], name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
+                    env_id=env_name(str(config.env.get("task", "suction_debris_v8"))),
+                    metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
+                                           "steps": steps, "trainer": trainer}},
+                    input_scaling=None if env.observation_scaling is None
+                    else env.observation_scaling.observation_affine(agent), feature_spec=env.feature_spec)
     return folders
 
 
@@ -337,7 +345,7 @@ def score(folders: dict, env_options: dict, episodes: int, with_noise: bool) -> 
 
 def validate(models, config: MappoConfig, out: Path, seed: int, steps: int, env) -> dict:
     """Export the actors into ``out/policies`` and score them there and then (:func:`score`)."""
-    folders = export(models, config, out / "policies", seed, steps, env)
+    folders = export(actors(models), config, out / "policies", seed, steps, env)
     return score(folders, dict(config.env), config.eval_episodes, config.evaluate_with_noise)
 
 
@@ -373,10 +381,12 @@ class Validations:
     meanwhile. A validation falls due every ``eval_every`` steps and waits while ``workers`` are in flight; results
     come back in the order the validations started. The policies last reported are kept in ``out/policies``."""
 
-    def __init__(self, out: Path, config: MappoConfig, seed: int, beside: bool, workers: int = 1):
+    def __init__(self, out: Path, config: MappoConfig, seed: int, beside: bool, workers: int = 1,
+                 trainer: str = "device_mappo"):
         if int(workers) < 1:
             raise ValueError(f"workers must be at least 1, got {workers!r}")
         self.out, self.config, self.seed, self.workers = out, config, seed, int(workers)
+        self.trainer = trainer
         self.pending = []  # (steps, wall seconds at export, folder, future), oldest first
         self.pool = None
         if beside:
@@ -395,9 +405,10 @@ class Validations:
         """Whether as many validations as workers are in flight."""
         return len(self.pending) >= self.workers
 
-    def start(self, models, steps: int, wall: float, env) -> None:
+    def start(self, arrays: dict, steps: int, wall: float, env) -> None:
+        """Export the actors given as numpy ``arrays`` per agent (:func:`actors`) and score them."""
         folder = self.out / "validating" / str(steps)
-        folders = export(models, self.config, folder, self.seed, steps, env)
+        folders = export(arrays, self.config, folder, self.seed, steps, env, self.trainer)
         job = (folders, dict(self.config.env), self.config.eval_episodes, self.config.evaluate_with_noise)
         if self.pool is None:
             from concurrent.futures import Future
@@ -616,7 +627,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
                 break
             if not validations.busy() and (done_steps >= next_validation or finished_run):
                 next_validation = done_steps + config.eval_every
-                validations.start(models, done_steps, time.perf_counter() - began, host)
+                validations.start(actors(models), done_steps, time.perf_counter() - began, host)
                 if (finished_run or not validate_beside) and any(
                         progress.report(*row) for row in validations.results(wait=True)):
                     break

@@ -6,22 +6,22 @@ import json
 from pathlib import Path
 
 import numpy as np
-from torch import nn
 
 from dvrl_marl.policies import POLICY_FORMAT
 
 __all__ = ["export_policy", "actor_layers", "write_policy"]
 
-_ACTIVATION_NAMES = {nn.ReLU: "relu", nn.Tanh: "tanh"}
-
 
 def _collect(modules, layers):
+    from torch import nn  # (torch only for SB3's actors: write_policy needs none)
+
+    activation_names = {nn.ReLU: "relu", nn.Tanh: "tanh"}
     for module in modules:
         if isinstance(module, nn.Linear):
             layers.append([module.weight.detach().cpu().numpy().astype(np.float32),
                            module.bias.detach().cpu().numpy().astype(np.float32), "identity"])
-        elif isinstance(module, tuple(_ACTIVATION_NAMES)):  # (a subclass computes the same function another way)
-            layers[-1][2] = next(name for kind, name in _ACTIVATION_NAMES.items() if isinstance(module, kind))
+        elif isinstance(module, tuple(activation_names)):  # (a subclass computes the same function another way)
+            layers[-1][2] = next(name for kind, name in activation_names.items() if isinstance(module, kind))
         elif isinstance(module, nn.Sequential):
             _collect(module, layers)
         elif not isinstance(module, (nn.Flatten, nn.Identity)):

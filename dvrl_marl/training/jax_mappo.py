@@ -13,13 +13,13 @@ It is the device trainer's algorithm on the same configurations (:class:`~dvrl_m
 the same networks (torch's layouts and initial distributions), distributions (the switch tool head), losses
 (clipped objective, per-agent advantage normalisation, smooth-L1 value loss, bounds loss, global gradient clipping)
 and schedules; ``tests/test_jax_mappo.py`` holds a minibatch's loss and gradients equal to the torch learner's.
-Its random draws are JAX's, so a seed's run is its own. The actors are exported through the torch models
-(:func:`~dvrl_marl.training.models.export_actor`): the same numpy policies, scored by the same validation.
+Its random draws are JAX's, so a seed's run is its own. The actors are written by the same numpy export
+(:func:`~dvrl_marl.training.models.write_actor`) and scored by the same validation.
 
     dvrl-marl train suction_debris_mappo_gpu --trainer jax --device cuda --validators 8
     python -m dvrl_marl.training.jax_mappo baselines/configs/suction_debris_mappo_gpu.toml --device cuda --out runs/x
 
-Needs JAX and optax (``pip install "dvrl-marl[jax]"``; a GPU needs JAX's CUDA build) and torch for the export.
+Needs JAX and optax (``pip install "dvrl-marl[jax]"``; a GPU needs JAX's CUDA build), not torch.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from dvrl_marl.training import device_mappo
 from dvrl_marl.training.mappo_config import MappoConfig, load_config
 from dvrl_marl.training.models import require_torch
 
-__all__ = ["train", "compilation_cache", "init_params", "init_norms", "actor_loc", "critic_values", "minibatch_loss", "scaled_rewards",
-           "advantages", "make_cycle", "load_into_torch"]
+__all__ = ["train", "compilation_cache", "init_params", "init_norms", "actor_loc", "critic_values", "minibatch_loss",
+           "scaled_rewards", "advantages", "make_cycle", "start", "actors", "load_into_torch"]
 
 #: JAX's float32 for the networks (the process runs with float64 on: the core's arrays are float64).
 _F32 = "float32"
@@ -376,11 +376,22 @@ def make_cycle(env, config: MappoConfig):
     return cycle
 
 
-# --- the export: the JAX parameters written into the torch models the numpy export reads --------------------------
+# --- the export: numpy arrays, as the torch trainers' actors give them ------------------------------------------
+def actors(params: dict, norms: dict, agents) -> dict:
+    """The actors as numpy arrays per agent (:func:`models.actor_arrays`'s form: ``layers``, the normaliser's
+    ``mean`` and ``std``, ``log_std``), what :func:`device_mappo.export` writes; no torch."""
+    mean = np.array(norms["observation"]["mean"], dtype=np.float64)
+    std = np.maximum(np.sqrt(np.array(norms["observation"]["var"], dtype=np.float64)), MIN_SPREAD)
+    log_std = np.array(params["log_std"])
+    return {agent: {"layers": [(np.array(layer["weight"]), np.array(layer["bias"])) for layer in layers],
+                    "mean": mean, "std": std, "log_std": log_std[index]}
+            for index, (agent, layers) in enumerate(zip(agents, params["actors"]))}
+
+
 def load_into_torch(params: dict, norms: dict, models: dict, *, critic: bool = False) -> None:
     """Copy the actors, their log standard deviations and the actors' normaliser (``critic``: the critic and its
-    normalisers too) into the torch ``models`` of :func:`device_mappo.build_learner` (what
-    :func:`device_mappo.export` reads)."""
+    normalisers too) into the torch ``models`` of :func:`device_mappo.build_learner` (the torch learner on the same
+    weights: the tests hold the two equal)."""
     torch = require_torch()
 
     def copy_net(net, layers):
@@ -457,7 +468,6 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
     ``cache``: where compiled cycles are kept (:func:`compilation_cache`; None keeps none)."""
     jax = _jax()
     compilation_cache(cache)
-    torch = require_torch()
     device_mappo.refuse_options(config, "the JAX trainer")
     began = time.perf_counter()
     out = device_mappo.new_run_folder(out_dir)
@@ -466,10 +476,10 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
     carry = list(start(env, config, seed))
     cycle = jax.jit(make_cycle(env, config), donate_argnums=(0,))
     learnt_std = not config.final_std
-    torch_models = device_mappo.build_learner(config, env, torch.device("cpu"), torch)
     total = int(total_steps or config.total_steps)
     progress = device_mappo.Progress(out, config, seed, began, stop_at=stop_at, max_seconds=max_seconds, log=log)
-    validations = device_mappo.Validations(out, config, seed, beside=validate_beside, workers=validators)
+    validations = device_mappo.Validations(out, config, seed, beside=validate_beside, workers=validators,
+                                           trainer="jax_mappo")
     done_steps, next_validation, batch = 0, config.eval_every, config.num_envs * config.rollout_steps
     tally = []  # each cycle's (successes, ended), on the device until a validation reads them
     try:
@@ -495,8 +505,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
                                              f"not finite (policy, value, entropy: {losses.tolist()})")
                 progress.count(*(int(sum(int(item[i]) for item in tally)) for i in (0, 1)))
                 tally = []
-                load_into_torch(carry[3], carry[4], torch_models)
-                validations.start(torch_models, done_steps, time.perf_counter() - began, env)
+                validations.start(actors(carry[3], carry[4], env.possible_agents), done_steps,
+                                  time.perf_counter() - began, env)
             reported = validations.results(wait=finished or not validate_beside)
             if any(progress.report(*row) for row in reported):
                 break

@@ -13,7 +13,8 @@ import numpy as np
 
 from dvrl_marl.envs.observation_scaling import MIN_SPREAD
 
-__all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "limit_threads",
+__all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "actor_arrays",
+           "write_actor", "limit_threads",
            "learner_device", "SWITCH_EXPORT_GAIN"]
 
 #: Gain folded into an exported switch head's last layer: clip(gain x logit) is the sign of the logit, the
@@ -274,28 +275,35 @@ def update_norms(norms: dict, observations, states=None, *, observation: bool = 
 
 
 # --- numpy export ---------------------------------------------------------------------------------------------
-def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
-                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v8",
-                 input_scaling=None) -> Path:
-    """Write agent ``index``'s deterministic actor (the Gaussian's mean, clipped to the action box; with the switch
-    tool head the tool's more likely value, +1 or -1) as a numpy policy folder, the observation normalisation
-    folded into the first layer. ``log_std``: this agent's exploration noise (log standard deviation per action
-    dimension), recorded for :meth:`dvrl_marl.policies.NumpyPolicy.with_noise`. ``input_scaling``: the env's
-    ``normalize_observations`` map of this agent, ``(centre, spread)``, folded in too, so that the exported policy
-    reads the scene's units as every seat gives them."""
+def actor_arrays(actor_net, index: int, log_std=None) -> dict:
+    """Agent ``index``'s actor of a torch ``actor_net`` as numpy arrays (what :func:`write_actor` writes): its
+    ``layers`` ``[(weight, bias), ...]``, its normaliser's ``mean`` and ``std``, and ``log_std`` (None: no
+    exploration recorded)."""
+    norm, net = actor_net.norm, actor_net.nets[index]
+    layers = [(linear.weight.detach().cpu().numpy(), linear.bias.detach().cpu().numpy())
+              for linear in net if hasattr(linear, "weight")]
+    return {"layers": layers, "mean": norm.mean.detach().cpu().numpy(), "std": norm.std().detach().cpu().numpy(),
+            "log_std": None if log_std is None else log_std.detach().cpu().numpy()}
+
+
+def write_actor(arrays: dict, directory, *, name: str, agent: str, metadata: dict, tool_head: str = "gaussian",
+                env_id: str = "suction_debris_v8", input_scaling=None, feature_spec: dict | None = None) -> Path:
+    """Write a deterministic actor given as numpy ``arrays`` (:func:`actor_arrays`) as a numpy policy folder: the
+    Gaussian's mean clipped to the action box (with the switch tool head the tool's more likely value, +1 or -1), the
+    observation normalisation folded into the first layer. ``arrays["log_std"]``: its exploration noise, recorded for
+    :meth:`dvrl_marl.policies.NumpyPolicy.with_noise`. ``input_scaling``: the env's ``normalize_observations`` map of
+    this agent, ``(centre, spread)``, folded in too, so that the exported policy reads the scene's units as every seat
+    gives them. ``feature_spec``: the observation features the policy computes before its first layer."""
     from dvrl_marl.training.export import write_policy
 
-    norm, net = actor_net.norm, actor_net.nets[index]
-    mean = norm.mean.detach().cpu().numpy()
-    std = norm.std().detach().cpu().numpy()
+    mean = np.asarray(arrays["mean"], dtype=np.float64)
+    std = np.asarray(arrays["std"], dtype=np.float64)
     if input_scaling is not None:  # ((x - c) / r - m) / s = (x - (c + r m)) / (r s)
         centre, spread = (np.asarray(v, dtype=np.float64) for v in input_scaling)
         mean, std = centre + spread * mean, spread * std
-    linears = [m for m in net if hasattr(m, "weight")]
     layers = []
-    for position, linear in enumerate(linears):
-        weight = linear.weight.detach().cpu().numpy().astype(np.float64)
-        bias = linear.bias.detach().cpu().numpy().astype(np.float64)
+    for position, (weight, bias) in enumerate(arrays["layers"]):
+        weight, bias = np.asarray(weight, dtype=np.float64), np.asarray(bias, dtype=np.float64)
         if position == 0:  # W ((x - m) / s) + b = (W / s) x + (b - W (m / s))
             bias = bias - weight @ (mean / std)
             weight = weight / std[None, :]
@@ -305,16 +313,26 @@ def export_actor(actor_net, index: int, directory, *, name: str, agent: str, met
         layers[-1][1][-1] *= SWITCH_EXPORT_GAIN
     layers = [(weight.astype(np.float32), bias.astype(np.float32), "clip" if position == len(layers) - 1 else "tanh")
               for position, (weight, bias) in enumerate(layers)]
-    if getattr(actor_net, "feature_spec", None) is not None:  # the numpy policy computes them before layer 0
-        metadata = {**metadata, "features": dict(actor_net.feature_spec)}
-    if log_std is not None:  # the noise it acted with while training (NumpyPolicy.with_noise)
-        std = [float(v) for v in np.exp(log_std.detach().cpu().numpy().astype(np.float64))]
+    if feature_spec is not None:  # the numpy policy computes them before layer 0
+        metadata = {**metadata, "features": dict(feature_spec)}
+    if arrays.get("log_std") is not None:  # the noise it acted with while training (NumpyPolicy.with_noise)
+        std = [float(v) for v in np.exp(np.asarray(arrays["log_std"], dtype=np.float64))]
         if tool_head == "switch":
             std[-1] = None  # the tool is decided open / closed, not perturbed
         metadata = {**metadata, "exploration": {"std": std, "tool_head": tool_head}}
     return write_policy(directory, layers, name=name, env_id=env_id, algorithm="MAPPO",
                         observation_keys=["observation"], action_low=[-1.0] * layers[-1][0].shape[0],
                         action_high=[1.0] * layers[-1][0].shape[0], agent=agent, **metadata)
+
+
+def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
+                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v8",
+                 input_scaling=None) -> Path:
+    """Write agent ``index``'s deterministic actor of a torch ``actor_net`` as a numpy policy folder
+    (:func:`write_actor`; ``log_std``: this agent's log standard deviation per action dimension)."""
+    return write_actor(actor_arrays(actor_net, index, log_std), directory, name=name, agent=agent, metadata=metadata,
+                       tool_head=tool_head, env_id=env_id, input_scaling=input_scaling,
+                       feature_spec=getattr(actor_net, "feature_spec", None))
 
 
 
