@@ -241,11 +241,13 @@ class CloneEvaluate(BaseModel):
 class PolicyImageFill(BaseModel):
     """How a pixel policy fills the observation of the state policy it acts with: ``template`` (the scene's constants,
     zero for what the image does not give), its proprioception at the same indices as in the env's observation, its
-    read-out's estimates at ``estimates_at``."""
+    read-out's estimates at ``estimates_at``; with ``keep_lowest``, each estimate the lowest its episode has seen
+    (the policy then keeps state per world: ``reset`` starts an episode)."""
 
     model_config = STRICT
     template: Annotated[list[Finite], Field(min_length=1)]
     estimates_at: Annotated[list[NonNegativeInt], Field(min_length=1)]
+    keep_lowest: Flag = False
 
 
 class PolicyImage(BaseModel):

@@ -107,6 +107,45 @@ def test_a_seat_acting_by_the_teacher_is_the_teacher_on_what_the_image_tells_it(
         pixel_seat.export(model, config, tmp_path / "again", "test-estimates", {})
 
 
+def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its_episodes_start(tmp_path):
+    """keep_lowest: each world's estimates are the lowest its episode has seen; ``reset(worlds)`` forgets them in
+    those worlds only, ``reset()`` everywhere, and its noisy form starts the same episodes."""
+    config = _config(acts_by="teacher", estimated=[7, 9], keep_lowest=True, convolutions=[[8, 8, 4]])
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    constants = np.full(30, np.nan)
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-lowest", {}, constants)
+    policy = policies.load(folder)
+    assert policy.spec["image"]["fills"]["keep_lowest"] is True
+    bright, dark = _observation(3, seed=1), _observation(3, seed=2)
+    encoder = policy.encoder
+    first = encoder(bright["image"])  # (the margin folded into the read-out)
+    second = encoder(dark["image"])
+    assert not np.allclose(first, second)
+    seen = lambda o: encoder.observation(o["image"], o["observation"])[:, 7:9]  # noqa: E731
+    np.testing.assert_allclose(seen(bright), first, atol=1e-6)
+    np.testing.assert_allclose(seen(dark), np.minimum(first, second), atol=1e-6)
+    policy.reset(np.array([False, True, False]))  # world 1 starts a new episode
+    expected = np.minimum(first, second)
+    expected[1] = first[1]
+    np.testing.assert_allclose(seen(bright), expected, atol=1e-6)
+    noisy = policy.with_noise(0) if policy.spec.get("exploration") else policy
+    noisy.reset()
+    np.testing.assert_allclose(seen(dark), second, atol=1e-6)
+    # the same images from a fresh start act as a policy that keeps nothing
+    plain = policies.load(folder)
+    plain.encoder.keep_lowest = False
+    policy.reset()
+    np.testing.assert_array_equal(policy(bright), plain(bright))
+
+
+def test_keep_lowest_is_the_teacher_actings_alone(tmp_path):
+    path = tmp_path / "seat.toml"
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\nkeep_lowest = true\n')
+    with pytest.raises(ValueError, match="keep_lowest is for acts_by = 'teacher'"):
+        pixel_seat.load_config(path)
+
+
 @pytest.mark.parametrize("fills, message", [
     ({"template": [0.0] * 30, "estimates_at": [7]}, "1 indices for a read-out of 2"),
     ({"template": [0.0] * 30, "estimates_at": [3, 8]}, "overlaps the proprioception"),

@@ -133,6 +133,12 @@ class NumpyPolicy:
                 x = activation(x)
         return x
 
+    def reset(self, worlds=None) -> None:
+        """Start the episodes of ``worlds`` (a mask or indices over the batch; None: all): a policy that keeps state
+        per world (a pixel policy with ``image.fills.keep_lowest``) forgets it there; the others keep none."""
+        if self.encoder is not None:
+            self.encoder.reset(worlds)
+
     def with_noise(self, seed=None) -> "NoisyPolicy":
         """This policy acting with its training's exploration noise (see :class:`NoisyPolicy`)."""
         return NoisyPolicy(self, seed)
@@ -171,6 +177,9 @@ class NoisyPolicy:
     @property
     def name(self) -> str:
         return self.policy.name
+
+    def reset(self, worlds=None) -> None:
+        self.policy.reset(worlds)
 
     def __call__(self, observation) -> np.ndarray:
         # the Gaussian's mean before the clip (as in training: sample, then the env clips)

@@ -44,7 +44,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from dvrl_marl.schemas import STRICT, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text, validated
+from dvrl_marl.schemas import (STRICT, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
+                               validated)
 
 __all__ = ["PixelSeatConfig", "load_config", "PixelActor", "collect", "fit", "validate", "export", "train",
            "PIXEL_SEED"]
@@ -78,6 +79,8 @@ class PixelSeatConfig(BaseModel):
     acts_by: Literal["perceptron", "teacher"] = "perceptron"
     estimated: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [7, 9]
     estimate_margin: NonNegative = 0.02
+    # acts_by = "teacher": the policy keeps each estimate's lowest value of its episode (image.fills.keep_lowest)
+    keep_lowest: Flag = False
     estimate_floor: Positive = 0.05
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
@@ -101,7 +104,11 @@ def load_config(path) -> tuple[str, PixelSeatConfig]:
     unknown = set(table) - {"run"}
     if unknown:
         raise ValueError(f"{path}: unknown table(s) {sorted(unknown)}: a pixel seat's settings are all in [run]")
-    return path.stem, validated(PixelSeatConfig, table.get("run", {}), str(path), table="run")
+    config = validated(PixelSeatConfig, table.get("run", {}), str(path), table="run")
+    if config.keep_lowest and config.acts_by != "teacher":
+        raise ValueError(f"{path}: [run] keep_lowest is for acts_by = 'teacher' (the estimates filling its teacher's "
+                         f"observation), got acts_by = {config.acts_by!r}")
+    return path.stem, config
 
 
 def _torch():
@@ -205,6 +212,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
                                          round(config.teacher_share * config.worlds))
     own = slice(*config.proprioception)
     observations, _ = env.reset(seed=seed)
+    if hasattr(student, "reset"):  # (its episodes start here: a student keeping its lowest estimates forgets them)
+        student.reset()
     done = np.zeros(config.worlds, dtype=bool)
     success = np.zeros(config.worlds, dtype=bool)
     images, proprioception, labels, targets, cleared = [], [], [], [], []
@@ -347,7 +356,8 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
                  "convolutions": [list(layer) for layer in config.convolutions], "readout": stop - start,
                  "normalise": config.normalise,
-                 "fills": {"template": [float(value) for value in template], "estimates_at": list(range(start, stop))}}
+                 "fills": {"template": [float(value) for value in template], "estimates_at": list(range(start, stop)),
+                           "keep_lowest": bool(config.keep_lowest)}}
         readout = (model.readout.weight.detach().numpy().astype(np.float32),
                    model.readout.bias.detach().numpy().astype(np.float32) + np.float32(config.estimate_margin))
         layers = [(weight, bias, activation) for (weight, bias), activation
