@@ -22,35 +22,19 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 from partner_zoo import PARTNERS, evaluate
 
 from dvrl_marl import policies
 
 
-class KeepingLowest:
-    """A trial, before the policy format carries it (``--keep-lowest``): a pixel seat whose read-out fills its
-    teacher's observation (``image.fills``) keeps, world by world, the lowest of each estimate since its episode
-    began. Without bleeding a cavity's blood only falls, and a cleared cavity that the other instrument covers reads
-    as full again. An evaluation starts its episodes through ``reset``."""
-
-    def __init__(self, folder):
-        self.policy = policies.load(folder)
-        if self.policy.encoder is None or self.policy.encoder.fills is None:
-            raise ValueError(f"--keep-lowest: {folder} does not fill its teacher's observation from the image")
-        self.image_options, self.spec, self.lowest = self.policy.image_options, self.policy.spec, None
-        self.teacher = policies.load_seat(self.spec["teacher"], self.spec["agent"], who="teacher")
-
-    def reset(self, worlds=None) -> None:
-        self.lowest = None
-
-    def __call__(self, observation) -> np.ndarray:
-        encoder = self.policy.encoder
-        filled = encoder.observation(observation[encoder.key], observation["observation"])
-        at = encoder.fills[1]
-        self.lowest = filled[..., at] if self.lowest is None else np.minimum(self.lowest, filled[..., at])
-        filled[..., at] = self.lowest
-        return self.teacher(filled)  # the policy's layers are its teacher's
+def keeping_lowest(folder):
+    """``--keep-lowest``: a pixel seat exported before ``image.fills.keep_lowest`` existed, tried with it (each
+    estimate the lowest its episode has seen, world by world; the evaluation starts the episodes)."""
+    policy = policies.load(folder)
+    if policy.encoder is None or policy.encoder.fills is None:
+        raise ValueError(f"--keep-lowest: {folder} does not fill its teacher's observation from the image")
+    policy.encoder.keep_lowest = True
+    return policy
 
 
 def main() -> None:
@@ -63,7 +47,8 @@ def main() -> None:
     parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
     parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out"])
     parser.add_argument("--keep-lowest", action="store_true",
-                        help="the pixel seat keeps the lowest of each estimate in its episode (KeepingLowest)")
+                        help="the pixel seat keeps the lowest of each estimate in its episode (a policy exported "
+                             "without image.fills.keep_lowest, tried with it)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
@@ -77,7 +62,7 @@ def main() -> None:
         runs = [(privileged, "-")]
         for look in args.looks:
             began = time.perf_counter()
-            pixel = KeepingLowest(args.pixel) if args.keep_lowest else args.pixel
+            pixel = keeping_lowest(args.pixel) if args.keep_lowest else args.pixel
             row = evaluate("suction", pixel, partner, args.episodes, False, image_appearance=look)
             row["player"] = str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
