@@ -8,7 +8,7 @@ Reach + Pick pipeline, the measured person and each held-out kind), by their def
 image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
-                                    [--looks train held_out] [--json FILE]
+                                    [--looks train held_out scene] [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
 privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
@@ -45,7 +45,8 @@ def main() -> None:
                         help="the seat that sees the endoscope: a policy folder (runs/<name>-seed<N>/policies/<name>)")
     parser.add_argument("--privileged", default="marl-suction", help="the seat it was distilled from")
     parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
-    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out"])
+    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out", "scene"],
+                        help="scene: the scene's own look (no image_appearance), as a person's view draws it")
     parser.add_argument("--keep-lowest", action="store_true",
                         help="the pixel seat keeps the lowest of each estimate in its episode (a policy exported "
                              "without image.fills.keep_lowest, tried with it)")
@@ -63,7 +64,8 @@ def main() -> None:
         for look in args.looks:
             began = time.perf_counter()
             pixel = keeping_lowest(args.pixel) if args.keep_lowest else args.pixel
-            row = evaluate("suction", pixel, partner, args.episodes, False, image_appearance=look)
+            row = evaluate("suction", pixel, partner, args.episodes, False,
+                           **({} if look == "scene" else {"image_appearance": look}))
             row["player"] = str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
