@@ -219,3 +219,17 @@ def test_the_command_line_trains_with_it(tmp_path, capsys, monkeypatch):
                  "--export", str(tmp_path / "exported")]) == 0
     assert "validation success" in capsys.readouterr().out
     assert policies.load(tmp_path / "exported" / "marl-grasper").spec["agent"] == "grasper"
+
+
+def test_the_device_env_gives_its_state_to_a_loop_of_its_own_and_takes_it_back():
+    env = suction_debris_v8.batched_env(num_envs=4, device="cpu", arrays="jax", **TINY.env)
+    env.reset(seed=1)
+    env.step({agent: np.full((4, 4), 0.3) for agent in env.possible_agents})
+    after = np.asarray(env.state())
+    env.world_state = dict(env.world_state)  # (given back from outside: the global state is computed from it)
+    np.testing.assert_allclose(np.asarray(env.state()), after, atol=1e-12)
+    with pytest.raises(ValueError, match="world_state takes the dict"):
+        env.world_state = {"positions": 0}
+    numpy_env = suction_debris_v8.batched_env(num_envs=4, autoreset_mode="disabled", **TINY.env)
+    with pytest.raises(AttributeError):
+        numpy_env.step_function  # noqa: B018  (the numpy env steps eagerly: no traced step to give)
