@@ -203,3 +203,16 @@ def test_diverged_actors_stop_the_run_by_name(tmp_path, monkeypatch, backend):
     monkeypatch.setattr(device_mappo, "build_learner", diverged)
     with pytest.raises(ValueError, match="NaN or inf"):
         device_mappo.train(TINY, 3, tmp_path / "run", backend=backend, log=lambda *_: None)
+
+
+def test_validations_still_scoring_when_a_run_stops_are_stopped_not_waited_for(tmp_path):
+    import multiprocessing
+    import time
+
+    before = set(multiprocessing.active_children())
+    validations = device_mappo.Validations(tmp_path, TINY, 0, beside=True, workers=1)
+    validations.pending.append((0, 0.0, tmp_path / "validating" / "0", validations.pool.apply_async(time.sleep, (60,))))
+    began = time.perf_counter()
+    validations.close()
+    assert time.perf_counter() - began < 20.0  # (its worker's start included; the 60 s job was not waited for)
+    assert not set(multiprocessing.active_children()) - before  # (no worker left behind)

@@ -369,17 +369,33 @@ def _worker_start() -> None:
     threadpool_limits(1, user_api="blas")
 
 
-def _ready() -> None:
-    """A validation worker's imports, done ahead (what :func:`score` needs)."""
+def _validation_worker_start() -> None:
+    """A validation worker's start: :func:`_worker_start`, and the imports :func:`score` needs, done now (while the
+    learner compiles and steps) rather than at the first validation (seconds, on a run that learns in a minute)."""
+    _worker_start()
     from dvrl_marl import policies  # noqa: F401
     from dvrl_marl.envs import suction_debris_batched  # noqa: F401
+
+
+class _Scored:
+    """A validation scored in this process (``beside=False``): already ready."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def ready(self) -> bool:
+        return True
+
+    def get(self):
+        return self.value
 
 
 class Validations:
     """Validations beside the learner: each exports the actors at once and scores them in a worker process (another
     core, or the host's CPU while the learner holds the GPU), up to ``workers`` at a time; the learner steps on
     meanwhile. A validation falls due every ``eval_every`` steps and waits while ``workers`` are in flight; results
-    come back in the order the validations started. The policies last reported are kept in ``out/policies``."""
+    come back in the order the validations started. The policies last reported are kept in ``out/policies``. A run
+    that stops early (its target met) stops the validations still in flight rather than wait for them."""
 
     def __init__(self, out: Path, config: MappoConfig, seed: int, beside: bool, workers: int = 1,
                  trainer: str = "device_mappo"):
@@ -387,19 +403,13 @@ class Validations:
             raise ValueError(f"workers must be at least 1, got {workers!r}")
         self.out, self.config, self.seed, self.workers = out, config, seed, int(workers)
         self.trainer = trainer
-        self.pending = []  # (steps, wall seconds at export, folder, future), oldest first
+        self.pending = []  # (steps, wall seconds at export, folder, its result to come), oldest first
         self.pool = None
         if beside:
             import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
 
-            # spawn: a fork of a process holding torch's threads (or CUDA) is not safe
-            self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                            initializer=_worker_start)
-            # each worker started now, its imports done while the learner compiles and steps (else the first
-            # validations would wait for them: seconds, on a run that learns in a minute)
-            for _ in range(self.workers):
-                self.pool.submit(_ready)
+            # spawn: a fork of a process holding torch's threads (or CUDA) is not safe; the workers start now
+            self.pool = multiprocessing.get_context("spawn").Pool(self.workers, initializer=_validation_worker_start)
 
     def busy(self) -> bool:
         """Whether as many validations as workers are in flight."""
@@ -410,14 +420,8 @@ class Validations:
         folder = self.out / "validating" / str(steps)
         folders = export(arrays, self.config, folder, self.seed, steps, env, self.trainer)
         job = (folders, dict(self.config.env), self.config.eval_episodes, self.config.evaluate_with_noise)
-        if self.pool is None:
-            from concurrent.futures import Future
-
-            future = Future()
-            future.set_result(score(*job))
-        else:
-            future = self.pool.submit(score, *job)
-        self.pending.append((steps, wall, folder, future))
+        result = _Scored(score(*job)) if self.pool is None else self.pool.apply_async(score, job)
+        self.pending.append((steps, wall, folder, result))
 
     def results(self, wait: bool = False) -> list:
         """``(steps, wall seconds at export, result)`` of each validation that has reported, in the order they
@@ -425,17 +429,22 @@ class Validations:
         import shutil
 
         reported = []
-        while self.pending and (wait or self.pending[0][3].done()):
-            steps, wall, folder, future = self.pending.pop(0)
-            result = future.result()
+        while self.pending and (wait or self.pending[0][3].ready()):
+            steps, wall, folder, result = self.pending.pop(0)
+            result = result.get()
             shutil.rmtree(self.out / "policies", ignore_errors=True)
             folder.rename(self.out / "policies")
             reported.append((steps, wall, result))
         return reported
 
     def close(self) -> None:
+        """Stop the workers: those still scoring are stopped (the run ended without their results)."""
         if self.pool is not None:
-            self.pool.shutdown(cancel_futures=True)
+            if self.pending:
+                self.pool.terminate()
+            else:
+                self.pool.close()
+            self.pool.join()
         import shutil
 
         shutil.rmtree(self.out / "validating", ignore_errors=True)
