@@ -120,16 +120,18 @@ def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
                "if torch.cuda.is_available() else None, 'jax_devices': [str(d) for d in jax.devices()]}))")
     gpu = device != "cpu"  # (cpu: a dry run of the script, small sizes)
     speed = [python, "benchmarks/device_speed.py", "--device", device, "--json", str(figures), "--repeats", "2"]
-    trainer = [python, "benchmarks/device_training.py", "--device", device, "--seconds", "60", "--json", str(figures)]
+    trainer = [python, "benchmarks/device_training.py", "--device", device, "--json", str(figures)]
     large = ["--config", "baselines/configs/suction_debris_mappo_large_batch.toml"]
     sections = {  # name: (command, time limit in seconds, extra environment), the least measured first
         "machine": ([python, "-c", machine], 45, {}),
         # the large-batch configuration scaled up: 4,096 worlds (a curriculum of 768 batches, validated every 64) for
         # the time to the target, 16,384 (minibatches of the same 16,384 rows) for the throughput
-        "trainer": (trainer + large + ["--worlds", "4096" if gpu else "64", "--total-steps", "100663296" if gpu
-                                       else "1048576", "--eval-every", "8388608" if gpu else "65536"], 120, {}),
-        "trainer_16384": (trainer + large + ["--worlds", "16384" if gpu else "128", "--minibatches", "32",
-                                             "--eval-every", "16777216" if gpu else "131072"], 120, {}),
+        "trainer": (trainer + large + ["--seconds", "60", "--worlds", "4096" if gpu else "64", "--total-steps",
+                                       "100663296" if gpu else "1048576", "--eval-every",
+                                       "8388608" if gpu else "65536"], 120, {}),
+        "trainer_16384": (trainer + large + ["--seconds", "60", "--worlds", "16384" if gpu else "128",
+                                             "--minibatches", "32", "--eval-every", "16777216" if gpu else "131072"],
+                          120, {}),
         # the trainer compiled whole (dvrl_marl.training.jax_mappo) on the large-batch configuration at 4,096 worlds:
         # a curriculum of 512 batches, validated every 32 by eight validators at once, for the time to the target
         "jax_trainer": (trainer + large + ["--trainer", "jax", "--validators", "8" if gpu else "1", "--worlds",

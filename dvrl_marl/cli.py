@@ -87,11 +87,7 @@ def _train(args) -> int:
                             num_collectors=args.num_collectors or 0)
         print(f"{config.name} seed {args.seed}: success {final['success_rate']:.2f} after {final['steps']:,d} steps; "
               f"policies in {out / 'policies'}; run folder {out}")
-        if args.export:
-            import shutil
-
-            shutil.copytree(out / "policies", args.export, dirs_exist_ok=True)
-            print(f"exported the policies to {args.export}")
+        _export_policies(out, args.export)
         return 0
     # Goal-env configurations name a Gymnasium env_id (or extend one that does), PPO's among them; the
     # collaborative SB3 PPO ones do not.
@@ -151,12 +147,17 @@ def _train_on_device(args) -> int:
         final = device_mappo.train(config, args.seed, out, device=device, total_steps=args.steps)
     print(f"{config.name} seed {args.seed}: validation success {final['success_rate']:.2f} after "
           f"{final['steps']:,d} steps; policies in {out / 'policies'}; run folder {out}")
-    if args.export:
+    _export_policies(out, args.export)
+    return 0
+
+
+def _export_policies(out: Path, export) -> None:
+    """``--export``: a multi-agent run's policies (``out/policies``) copied there."""
+    if export:
         import shutil
 
-        shutil.copytree(out / "policies", args.export, dirs_exist_ok=True)
-        print(f"exported the policies to {args.export}")
-    return 0
+        shutil.copytree(out / "policies", export, dirs_exist_ok=True)
+        print(f"exported the policies to {export}")
 
 
 def resolve_config(name: str) -> str:

@@ -122,6 +122,7 @@ def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its
     first = encoder(bright["image"])  # (the margin folded into the read-out)
     second = encoder(dark["image"])
     assert not np.allclose(first, second)
+    assert np.any(first < second) and np.any(second < first)  # (keeping the lowest differs from the last look)
     seen = lambda o: encoder.observation(o["image"], o["observation"])[:, 7:9]  # noqa: E731
     np.testing.assert_allclose(seen(bright), first, atol=1e-6)
     np.testing.assert_allclose(seen(dark), np.minimum(first, second), atol=1e-6)

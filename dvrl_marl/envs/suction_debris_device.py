@@ -101,6 +101,7 @@ class SuctionDebrisDeviceEnv:
         self._state = None
         self._step = jax.jit(self._traced_step, donate_argnums=(0,))
         self._restart = jax.jit(self._traced_restart, donate_argnums=(0,))
+        self._global = jax.jit(self._traced_global_state)
 
     # --- spaces and facts: the numpy env's ----------------------------------------------------------------
     def observation_space(self, agent):
@@ -302,7 +303,7 @@ class SuctionDebrisDeviceEnv:
         if self._state is None:
             raise RuntimeError(f"{self.name}: call reset() before state()")
         if self._global_state is None:
-            self._global_state = self._jax.jit(self._traced_global_state)(self._state)
+            self._global_state = self._global(self._state)
         return self._out(self._global_state)
 
     def close(self) -> None:

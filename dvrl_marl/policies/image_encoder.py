@@ -73,7 +73,6 @@ class ImageEncoder:
         if self._lowest is None or worlds is None:
             self._lowest = None
             return
-        self._lowest = self._lowest.copy()
         self._lowest[np.asarray(worlds)] = np.inf
 
     def _kept_lowest(self, estimates: np.ndarray) -> np.ndarray:
@@ -82,10 +81,10 @@ class ImageEncoder:
         partner over a cavity the seat went back to it, 200+ contact steps an episode; keeping the lowest, none).
         A batch of another shape starts new episodes."""
         if self._lowest is None or self._lowest.shape != estimates.shape:
-            self._lowest = estimates.copy()
+            self._lowest = estimates
         else:
             self._lowest = np.minimum(self._lowest, estimates)
-        return self._lowest.copy()
+        return self._lowest  # (the caller writes it into its filled observation: a copy)
 
     def __call__(self, images) -> np.ndarray:
         images = np.asarray(images)

@@ -607,7 +607,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
                     models["log_std"].fill_(math.log(config.exploration_std(fraction)))
             if config.anneal_lr:
                 for group in optimiser.param_groups:
-                    group["lr"] = config.learning_rate * max(1.0 - fraction, 0.0)
+                    group["lr"] = config.learning_rate_at(fraction)
             if share_a_core:
                 threads = found_threads - 1 if validations.busy() else found_threads
                 if torch.get_num_threads() != threads:

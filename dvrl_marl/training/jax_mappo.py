@@ -481,7 +481,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
     validations = device_mappo.Validations(out, config, seed, beside=validate_beside, workers=validators,
                                            trainer="jax_mappo")
     done_steps, next_validation, batch = 0, config.eval_every, config.num_envs * config.rollout_steps
-    tally = []  # each cycle's (successes, ended), on the device until a validation reads them
+    tally = (0, 0)  # training episodes completed and ended since the last validation (summed on the device)
     try:
         while done_steps < total:
             fraction = done_steps / total
@@ -489,12 +489,11 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
             if level is not None:
                 env.set_start_level(level)
             carry[0] = env.world_state
-            learning_rate = config.learning_rate * (max(1.0 - fraction, 0.0) if config.anneal_lr else 1.0)
             log_std = None if learnt_std else np.float32(math.log(config.exploration_std(fraction)))
-            carry, figures = cycle(tuple(carry), np.float32(learning_rate), log_std)
+            carry, figures = cycle(tuple(carry), np.float32(config.learning_rate_at(fraction)), log_std)
             carry = list(carry)
             env.world_state = carry[0]
-            tally.append((figures["successes"], figures["ended"]))
+            tally = (tally[0] + figures["successes"], tally[1] + figures["ended"])
             done_steps += batch
             finished = done_steps >= total
             if not validations.busy() and (done_steps >= next_validation or finished):
@@ -503,8 +502,8 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
                 if not np.all(np.isfinite(losses)):
                     raise FloatingPointError(f"{config.name} seed {seed} @ {done_steps:,d} steps: the losses are "
                                              f"not finite (policy, value, entropy: {losses.tolist()})")
-                progress.count(*(int(sum(int(item[i]) for item in tally)) for i in (0, 1)))
-                tally = []
+                progress.count(int(tally[0]), int(tally[1]))
+                tally = (0, 0)
                 validations.start(actors(carry[3], carry[4], env.possible_agents), done_steps,
                                   time.perf_counter() - began, env)
             reported = validations.results(wait=finished or not validate_beside)

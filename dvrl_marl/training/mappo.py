@@ -263,7 +263,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
             # --- learn ---
             if config.anneal_lr:
                 for group in optimiser.param_groups:
-                    group["lr"] = config.learning_rate * max(1.0 - (steps_done - n * horizon) / total, 0.0)
+                    group["lr"] = config.learning_rate_at((steps_done - n * horizon) / total)
             scale = np.sqrt(return_var_state["var"] + 1e-8).astype(np.float32)
 
             def swap(x):  # (T, N, ...) -> (N, T, ...)

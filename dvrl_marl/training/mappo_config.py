@@ -111,6 +111,10 @@ class MappoConfig:
         progress = min(max(progress, 0.0), 1.0)
         return self.initial_std + (self.final_std - self.initial_std) * progress
 
+    def learning_rate_at(self, progress: float) -> float:
+        """The learning rate at ``progress`` in [0, 1] of the run: linearly to 0 with ``anneal_lr``, else constant."""
+        return self.learning_rate * (max(1.0 - progress, 0.0) if self.anneal_lr else 1.0)
+
     def level(self, progress: float) -> float | None:
         """The start level of episodes that begin at ``progress`` in [0, 1] of the run (None: no schedule)."""
         if not self.levels:

@@ -411,7 +411,7 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
     model = PixelActor(config, config.proprioception[1] - config.proprioception[0])
     data: dict | None = None
     rounds, best = [], None
-    student = None
+    student = constants = None
     for index in range(config.rounds):
         world_seed = PIXEL_SEED + 1_000_000 * seed + index * config.worlds
         batch = collect(config, student, world_seed, noise_seed=world_seed)
@@ -419,7 +419,8 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
         batch.pop("steps")
         seen_constants = batch.pop("constants")
         errors = estimate_errors(model, batch) if config.acts_by == "teacher" and index > 0 else None
-        constants = seen_constants if index == 0 else np.where(constants == seen_constants, constants, np.nan)
+        constants = (seen_constants if constants is None  # (NaN where a value varied, in any round)
+                     else np.where(constants == seen_constants, constants, np.nan))
         data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
         loss = fit(model, data, config, config.first_updates if index == 0 else config.updates, seed * 1000 + index)
         candidate = export(model, config, out / "rounds" / f"round{index}", name,
