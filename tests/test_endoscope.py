@@ -139,6 +139,7 @@ def test_appearance_draws_lie_in_their_ranges_and_the_held_out_range_outside_the
 
     train, held_out = APPEARANCES["train"], APPEARANCES["held_out"]
     rng = np.random.default_rng(0)
+    kept = []
     for _ in range(200):
         u = rng.random(Appearance.UNIFORMS)
         seen, unseen = train.draw(u), held_out.draw(u)
@@ -149,6 +150,9 @@ def test_appearance_draws_lie_in_their_ranges_and_the_held_out_range_outside_the
         assert np.all(np.abs(unseen["camera_shift"]) >= train.camera_mm * 1e-3 - 1e-15)
         assert np.all(np.abs(np.degrees(unseen["camera_turn"])) >= train.camera_degrees - 1e-9)
         assert 0.0 <= seen["noise"] <= train.noise <= unseen["noise"] <= held_out.noise
+        kept.append(np.all(seen["tissue"] == 1.0) and np.all(seen["blood"] == 1.0) and seen["instrument"] == 1.0)
+    # a share of training looks keeps the scene's own colours; no held-out look does (checked above)
+    assert abs(np.mean(kept) - train.scene_colours) < 0.1 and 0.0 < train.scene_colours < 1.0
 
 
 def test_each_world_wears_its_own_look_for_its_episode_seeded_like_everything_else():

@@ -40,7 +40,9 @@ class Appearance:
     training range ends, so that it lies outside it). Colour gains of the tissue and the blood (each channel times
     1 +/- the value) and of the instruments (one gain), the light's brightness (times 1 +/- the value) and direction
     (degrees about two axes), the endoscope's position (mm along each axis) and direction (degrees about two axes),
-    and the image noise's standard deviation (of 255)."""
+    and the image noise's standard deviation (of 255). ``scene_colours`` is the share of worlds that keep the scene's
+    own colours while the rest of their look is drawn: with six gains drawn apart, a look with all of them near 1
+    (the scene as a person sees it) would almost never be drawn."""
 
     colour: float
     light: float
@@ -49,6 +51,7 @@ class Appearance:
     camera_degrees: float
     noise: float
     low: "Appearance | None" = None
+    scene_colours: float = 0.0
 
     #: uniforms one world's look takes
     UNIFORMS = 32
@@ -67,15 +70,18 @@ class Appearance:
                 out.append(magnitude if sign >= 0.5 else -magnitude)
             return np.array(out)
 
-        return {"tissue": 1.0 + signed("colour", 3), "blood": 1.0 + signed("colour", 3),
+        look = {"tissue": 1.0 + signed("colour", 3), "blood": 1.0 + signed("colour", 3),
                 "instrument": 1.0 + signed("colour")[0], "light": 1.0 + signed("light")[0],
                 "light_turn": np.radians(signed("light_degrees", 2)), "camera_shift": signed("camera_mm", 3) * 1e-3,
                 "camera_turn": np.radians(signed("camera_degrees", 2)),
                 "noise": low.noise + (self.noise - low.noise) * u[next(at)]}
+        if u[next(at)] < self.scene_colours:
+            look.update(tissue=np.ones(3), blood=np.ones(3), instrument=1.0)
+        return look
 
 
 #: The named ranges of ``image_appearance``: "train" (what a seat learns beside), "held_out" (outside it, to test on).
-APPEARANCES = {"train": Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0),
+APPEARANCES = {"train": Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0, scene_colours=0.25),
                "held_out": Appearance(0.3, 0.4, 30.0, 6.0, 4.0, 8.0,
                                       low=Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0))}
 
