@@ -225,6 +225,19 @@ def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["selected_round"] == result["selected_round"]
 
 
+def test_the_kept_round_is_the_best_validated_and_a_tie_goes_to_the_later(tmp_path):
+    for index in range(4):
+        (tmp_path / "rounds" / f"round{index}").mkdir(parents=True)
+        (tmp_path / "rounds" / f"round{index}" / "policy.json").write_text(json.dumps({"training": {"round": index}}))
+    rows = [{"validation": {"success_rate": rate, "mean_contact_steps": contacts}}
+            for rate, contacts in ((0.5, 0.0), (0.75, 3.0), (0.75, 0.0), (0.75, 0.0))]
+    assert pixel_seat.keep_best(tmp_path, "seat", rows) == 3
+    spec = json.loads((tmp_path / "policies" / "seat" / "policy.json").read_text())
+    assert spec["training"]["round"] == 3 and spec["training"]["selected_by"].endswith("round 3")
+    rows[3]["validation"]["mean_contact_steps"] = 1.0  # fewer contacts win over the later round
+    assert pixel_seat.keep_best(tmp_path, "seat", rows) == 2
+
+
 def test_the_shipped_configurations_read():
     from dvrl_marl.cli import resolve_config
 

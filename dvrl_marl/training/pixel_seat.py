@@ -29,7 +29,7 @@ privileged seat (the teacher) reads.
    rest (what it reads of those, the results page measures). The data then only has to teach perception, and
    DAgger's rounds bring the states where the student's estimates lead it.
 3. **Validate** (:func:`validate`): the exported numpy policy, by its default call, beside the training partners on
-   validation seeds (``teams.VALIDATION_SEED``); the best round is kept.
+   validation seeds (``teams.VALIDATION_SEED``); the best round is kept, a tie going to the later round.
 
 The policy is exported numpy-only (:mod:`dvrl_marl.policies`, its ``image`` table) to ``<out>/policies/<name>``.
 """
@@ -397,9 +397,7 @@ def validate(policy, config: PixelSeatConfig) -> dict:
 
 def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = True) -> dict:
     """Collect, fit, validate for ``config.rounds`` rounds; the best validated round is the policy
-    (``<out>/policies/<name>``); ``<out>/result.json`` records every round."""
-    import shutil
-
+    (``<out>/policies/<name>``, :func:`keep_best`); ``<out>/result.json`` records every round."""
     from dvrl_marl import policies
 
     torch = _torch()
@@ -410,7 +408,7 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
     began = time.perf_counter()
     model = PixelActor(config, config.proprioception[1] - config.proprioception[0])
     data: dict | None = None
-    rounds, best = [], None
+    rounds = []
     student = constants = None
     for index in range(config.rounds):
         world_seed = PIXEL_SEED + 1_000_000 * seed + index * config.worlds
@@ -439,17 +437,27 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
                   f"{row['loss']:.4f}, validation {validation['success_rate']:.0%} "
                   f"({validation['mean_contact_steps']:.1f} contacts), {row['wall_seconds']:.0f} s"
                   + (f", estimate errors on its frames before the fit {errors}" if errors else ""), flush=True)
-        key = (validation["success_rate"], -validation["mean_contact_steps"])
-        if best is None or key > best[0]:
-            best = (key, index, candidate)
-    folder = out / "policies" / name
-    shutil.rmtree(folder, ignore_errors=True)
-    shutil.copytree(best[2], folder)
-    spec = json.loads((folder / "policy.json").read_text())
-    spec["training"]["selected_by"] = (f"validation success by the default call, best of {config.rounds} DAgger "
-                                       f"rounds: round {best[1]}")
-    (folder / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
-    summary = {"name": name, "seed": seed, "config": config.model_dump(), "rounds": rounds, "selected_round": best[1],
-               "policy": str(folder), "wall_seconds": round(time.perf_counter() - began, 1)}
+    selected = keep_best(out, name, rounds)
+    summary = {"name": name, "seed": seed, "config": config.model_dump(), "rounds": rounds, "selected_round": selected,
+               "policy": str(out / "policies" / name), "wall_seconds": round(time.perf_counter() - began, 1)}
     (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def keep_best(out, name: str, rounds: list[dict]) -> int:
+    """Copy the best validated round of ``rounds`` (``result.json``'s rows) from ``<out>/rounds`` to
+    ``<out>/policies/<name>``; returns its index. Best: the highest success, then the fewest contact steps; a tie
+    goes to the later round, which has learnt from more of the frames its predecessors drove."""
+    import shutil
+
+    out = Path(out)
+    index = max(range(len(rounds)), key=lambda i: (rounds[i]["validation"]["success_rate"],
+                                                   -rounds[i]["validation"]["mean_contact_steps"], i))
+    folder = out / "policies" / name
+    shutil.rmtree(folder, ignore_errors=True)
+    shutil.copytree(out / "rounds" / f"round{index}", folder)
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["training"]["selected_by"] = (f"validation success by the default call, best of {len(rounds)} DAgger "
+                                       f"rounds (ties to the later): round {index}")
+    (folder / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
+    return index
