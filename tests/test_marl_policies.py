@@ -9,6 +9,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from dvrl_marl import policies
@@ -114,3 +115,27 @@ def test_a_shipped_learned_policy_refuses_the_other_seat():
     with pytest.raises(ValueError, match="trained for the 'suction' seat"):
         teams.seat("marl-suction", "grasper")
 
+
+
+def test_the_pixel_suction_loads_with_numpy_alone_and_reads_the_endoscope():
+    code = ("import sys; sys.modules['torch'] = None; sys.modules['torchrl'] = None\n"
+            "import numpy as np\n"
+            "from dvrl_marl import policies\n"
+            "p = policies.load('marl-suction-pixels')\n"
+            "seen = {'observation': np.zeros((2, 30)), 'image': np.zeros((2, 64, 64, 3), np.uint8)}\n"
+            "print(p.spec['agent'], p.image_options['image_size'], p(seen).shape)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["suction", "64", "(2,", "4)"]
+    with pytest.raises(ValueError, match="sees the endoscope"):
+        policies.load("marl-suction-pixels")(np.zeros(30))
+
+
+@pytest.mark.parametrize("look", [None, "train"])
+def test_the_pixel_suction_clears_the_field_from_the_endoscope_beside_the_scripted_surgeon(look):
+    """By its default call, reading only the endoscope's image and its own tip and valve, on held-out seeds of the
+    task's 1,500 steps: the scene's own look (as a person's view draws it) and looks of the training range."""
+    options = {} if look is None else {"image_appearance": look}
+    team = {"suction": teams.seat("marl-suction-pixels", "suction"), "grasper": teams.seat("scripted", "grasper")}
+    result = teams.evaluate_team_batched(team, episodes=8, **options)
+    assert result["success_rate"] >= 0.85 and result["mean_contact_steps"] <= 2.0, result

@@ -245,6 +245,10 @@ def test_the_shipped_configurations_read():
     assert name == "suction_pixels_dagger" and config.teacher == "marl-suction" and config.image_size == 64
     name, config = pixel_seat.load_config(resolve_config("suction_pixels_estimates"))
     assert config.acts_by == "teacher" and config.estimated == [7, 9]
+    # a file holding only what differs: the rest from the one it extends
+    name, per_image = pixel_seat.load_config(resolve_config("suction_pixels_estimates_per_image"))
+    assert name == "suction_pixels_estimates_per_image" and per_image.normalise == "per_image"
+    assert per_image.model_dump() == {**config.model_dump(), "normalise": "per_image"}
 
 
 def test_a_bad_configuration_names_the_field(tmp_path):

@@ -96,11 +96,12 @@ class PixelSeatConfig(BaseModel):
 
 
 def load_config(path) -> tuple[str, PixelSeatConfig]:
-    """``(name, config)`` of a TOML file whose ``[run]`` table is a :class:`PixelSeatConfig`."""
-    from dvrl_marl.files import read_toml
+    """``(name, config)`` of a TOML file whose ``[run]`` table is a :class:`PixelSeatConfig` (``[run] extends`` another
+    file: :func:`dvrl_marl.files.read_extended_toml`)."""
+    from dvrl_marl.files import read_extended_toml
 
     path = Path(path)
-    table = read_toml(path)
+    table = read_extended_toml(path)
     unknown = set(table) - {"run"}
     if unknown:
         raise ValueError(f"{path}: unknown table(s) {sorted(unknown)}: a pixel seat's settings are all in [run]")
