@@ -293,3 +293,18 @@ def test_the_cli_trains_a_pixel_seat_from_its_configuration(tmp_path, capsys):
                  "--no-progress"]) == 0
     assert "validation success" in capsys.readouterr().out
     assert policies.load(tmp_path / "seat").image_options == {"image_size": 64}
+
+
+def test_colour_jitter_scales_each_images_channels_within_its_bound():
+    import torch
+
+    images = torch.full((64, 8, 8, 3), 100, dtype=torch.uint8)
+    assert pixel_seat._jittered(torch, images, 0.0, torch.Generator().manual_seed(0)) is images
+    jittered = pixel_seat._jittered(torch, images, 0.3, torch.Generator().manual_seed(0))
+    gains = jittered / 100.0
+    assert torch.all((gains >= 0.7) & (gains <= 1.3))
+    assert torch.all(gains == gains[:, :1, :1, :])  # one gain per image and channel
+    assert gains[:, 0, 0, :].std() > 0.1  # they differ between images and channels
+    bright = pixel_seat._jittered(torch, torch.full((8, 2, 2, 3), 250, dtype=torch.uint8), 0.3,
+                                  torch.Generator().manual_seed(1))
+    assert bright.max() <= 255.0

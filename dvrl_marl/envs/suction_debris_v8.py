@@ -105,6 +105,7 @@ pixel policy on looks it never met:
 | light brightness (gain) / direction | 1 +/- 0.2 / 15 degrees | 0.2-0.4 off 1 / 15-30 degrees |
 | endoscope position, per axis / direction | 3 mm / 2 degrees | 3-6 mm / 2-4 degrees |
 | image noise (standard deviation, of 255) | 0-4 | 4-8 |
+| worlds in the scene's own colours (the rest of their look drawn) | 25 % | none |
 
 In the parallel, AEC and batched env, the seat env (``dvrl_marl/SurgeonSeat-v8``; its partner reads the
 ``"observation"``) and TorchRL's adapter (``"pixels"``, ``"depth"``, ``"segmentation"`` at the root, one camera for

@@ -88,6 +88,9 @@ class PixelSeatConfig(BaseModel):
     batch_size: PositiveInt = 256
     learning_rate: Positive = 3e-4
     shift_px: Annotated[int, Field(ge=0, le=16)] = 3
+    # each fitted image's channels times 1 +/- up to this (a gain per image and channel): what tells the blood from
+    # the tissue must then be more than their absolute colours
+    colour_jitter: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
     normalise: Literal["none", "per_image"] = "none"
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
@@ -265,6 +268,14 @@ def _shifted(torch, images, shift: int, generator):
     return padded[torch.arange(count)[:, None, None], :, rows[:, :, None], columns[:, None, :]]
 
 
+def _jittered(torch, images, jitter: float, generator):
+    """Each image's channels times their own gain in 1 +/- ``jitter`` (pixel values kept in 0..255)."""
+    if jitter == 0.0:
+        return images
+    gains = 1.0 + jitter * (2.0 * torch.rand((images.shape[0], 1, 1, images.shape[3]), generator=generator) - 1.0)
+    return (images.float() * gains).clamp(0.0, 255.0)
+
+
 def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> float:
     """``updates`` steps of Adam on minibatches drawn from ``data`` (images, proprioception, labels, targets);
     returns the mean loss of the last tenth of them."""
@@ -304,7 +315,9 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     losses = []
     for _ in range(updates):
         batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
-        loss = batch_loss(batch, model.features(_shifted(torch, images[batch], config.shift_px, generator)))
+        seen = _jittered(torch, _shifted(torch, images[batch], config.shift_px, generator), config.colour_jitter,
+                         generator)
+        loss = batch_loss(batch, model.features(seen))
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
