@@ -227,8 +227,9 @@ def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
 
 def test_the_kept_round_is_the_best_validated_and_a_tie_goes_to_the_later(tmp_path):
     for index in range(4):
-        (tmp_path / "rounds" / f"round{index}").mkdir(parents=True)
-        (tmp_path / "rounds" / f"round{index}" / "policy.json").write_text(json.dumps({"training": {"round": index}}))
+        folder = pixel_seat.round_folder(tmp_path, index)
+        folder.mkdir(parents=True)
+        (folder / "policy.json").write_text(json.dumps({"training": {"round": index}}))
     rows = [{"validation": {"success_rate": rate, "mean_contact_steps": contacts}}
             for rate, contacts in ((0.5, 0.0), (0.75, 3.0), (0.75, 0.0), (0.75, 0.0))]
     assert pixel_seat.keep_best(tmp_path, "seat", rows) == 3

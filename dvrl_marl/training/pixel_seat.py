@@ -435,7 +435,7 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
                      else np.where(constants == seen_constants, constants, np.nan))
         data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
         loss = fit(model, data, config, config.first_updates if index == 0 else config.updates, seed * 1000 + index)
-        candidate = export(model, config, out / "rounds" / f"round{index}", name,
+        candidate = export(model, config, round_folder(out, index), name,
                            {"teacher": config.teacher, "training": {"rounds": index + 1, "seed": seed,
                                                                     "frames": int(len(data["labels"]))}},
                            constants)
@@ -458,6 +458,11 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
     return summary
 
 
+def round_folder(out, index: int) -> Path:
+    """Where a run exports the policy of its DAgger round ``index``."""
+    return Path(out) / "rounds" / f"round{index}"
+
+
 def keep_best(out, name: str, rounds: list[dict]) -> int:
     """Copy the best validated round of ``rounds`` (``result.json``'s rows) from ``<out>/rounds`` to
     ``<out>/policies/<name>``; returns its index. Best: the highest success, then the fewest contact steps; a tie
@@ -469,7 +474,7 @@ def keep_best(out, name: str, rounds: list[dict]) -> int:
                                                    -rounds[i]["validation"]["mean_contact_steps"], i))
     folder = out / "policies" / name
     shutil.rmtree(folder, ignore_errors=True)
-    shutil.copytree(out / "rounds" / f"round{index}", folder)
+    shutil.copytree(round_folder(out, index), folder)
     spec = json.loads((folder / "policy.json").read_text())
     spec["training"]["selected_by"] = (f"validation success by the default call, best of {len(rounds)} DAgger "
                                        f"rounds (ties to the later): round {index}")
