@@ -6,8 +6,8 @@ round: 32 worlds, training looks), then scored on frames of other episodes (12 w
 and with the held-out looks. The teacher leaves a cavity too early on an estimate 0.01 too low and not on one 0.03 too
 high (``benchmarks/privileged_inputs.py``), so the errors that count are those where the cavity is nearly empty.
 
-    python benchmarks/pixel_estimates.py [--normalise none per_image] [--colour-jitter 0 0.3] [--updates 2500]
-                                         [--json FILE]
+    python benchmarks/pixel_estimates.py [--normalise none per_image] [--colour-jitter 0 0.3] [--keep-brightness]
+                                         [--updates 2500] [--json FILE]
 
 Prints per option and look: the mean absolute error, and for a blood fraction under 0.15 the mean error, the mean
 absolute error and the error's 1st and 99th percentiles.
@@ -32,6 +32,8 @@ def main() -> None:
     parser.add_argument("--normalise", nargs="+", default=["none", "per_image"], choices=["none", "per_image"])
     parser.add_argument("--colour-jitter", nargs="+", type=float, default=[0.0],
                         help="fit once per value too (each fitted image's channels times 1 +/- up to it)")
+    parser.add_argument("--keep-brightness", action="store_true",
+                        help="the jitter's three gains divided by their mean: the colour changes, not the brightness")
     parser.add_argument("--updates", type=int, default=2500, help="Adam steps of each fit")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
@@ -46,12 +48,14 @@ def main() -> None:
     rows = []
     for normalise, jitter in [(normalise, jitter) for normalise in args.normalise for jitter in args.colour_jitter]:
         options = pixel_seat.PixelSeatConfig(**{**config.model_dump(), "normalise": normalise,
-                                                "colour_jitter": jitter})
+                                                "colour_jitter": jitter,
+                                                "jitter_brightness": not args.keep_brightness})
         torch.manual_seed(0)
         model = pixel_seat.PixelActor(options, 4)
         pixel_seat.fit(model, fitted_on, options, args.updates, 0)
         for look, data in scored_on.items():
-            row = {"normalise": normalise, "colour_jitter": jitter, "look": look,
+            row = {"normalise": normalise, "colour_jitter": jitter, "jitter_brightness": not args.keep_brightness,
+                   "look": look,
                    **pixel_seat.estimate_errors(model, data)}
             rows.append(row)
             print(f"{normalise:10s} jitter {jitter:.2f} {look:9s} mean |error| {row['mean_absolute']:.4f}; nearly "

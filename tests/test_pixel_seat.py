@@ -309,3 +309,14 @@ def test_colour_jitter_scales_each_images_channels_within_its_bound():
     bright = pixel_seat._jittered(torch, torch.full((8, 2, 2, 3), 250, dtype=torch.uint8), 0.3,
                                   torch.Generator().manual_seed(1))
     assert bright.max() <= 255.0
+
+
+def test_colour_jitter_without_brightness_keeps_each_images_mean_gain():
+    import torch
+
+    images = torch.full((64, 8, 8, 3), 100, dtype=torch.uint8)
+    jittered = pixel_seat._jittered(torch, images, 0.3, torch.Generator().manual_seed(0), brightness=False)
+    gains = jittered[:, 0, 0, :] / 100.0
+    assert torch.allclose(gains.mean(dim=1), torch.ones(64), atol=1e-5)  # the brightness stays
+    assert gains.std() > 0.1  # the colour does not
+    assert torch.all((gains > 0.7 / 1.3 - 1e-6) & (gains < 1.3 / 0.7 + 1e-6))

@@ -91,6 +91,9 @@ class PixelSeatConfig(BaseModel):
     # each fitted image's channels times 1 +/- up to this (a gain per image and channel): what tells the blood from
     # the tissue must then be more than their absolute colours
     colour_jitter: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
+    # false: each image's three gains divided by their mean, so that the jitter changes its colour, never its
+    # brightness (which the held-out light's range holds)
+    jitter_brightness: Flag = True
     normalise: Literal["none", "per_image"] = "none"
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
@@ -268,11 +271,14 @@ def _shifted(torch, images, shift: int, generator):
     return padded[torch.arange(count)[:, None, None], :, rows[:, :, None], columns[:, None, :]]
 
 
-def _jittered(torch, images, jitter: float, generator):
-    """Each image's channels times their own gain in 1 +/- ``jitter`` (pixel values kept in 0..255)."""
+def _jittered(torch, images, jitter: float, generator, brightness: bool = True):
+    """Each image's channels times their own gain in 1 +/- ``jitter`` (pixel values kept in 0..255); without
+    ``brightness``, the gains divided by their mean (the colour changes, the brightness does not)."""
     if jitter == 0.0:
         return images
     gains = 1.0 + jitter * (2.0 * torch.rand((images.shape[0], 1, 1, images.shape[3]), generator=generator) - 1.0)
+    if not brightness:
+        gains = gains / gains.mean(dim=3, keepdim=True)
     return (images.float() * gains).clamp(0.0, 255.0)
 
 
@@ -316,7 +322,7 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     for _ in range(updates):
         batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
         seen = _jittered(torch, _shifted(torch, images[batch], config.shift_px, generator), config.colour_jitter,
-                         generator)
+                         generator, config.jitter_brightness)
         loss = batch_loss(batch, model.features(seen))
         optimiser.zero_grad()
         loss.backward()
