@@ -22,6 +22,7 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 from partner_zoo import PARTNERS, evaluate
 
 from dvrl_marl import policies
@@ -33,7 +34,7 @@ def keeping_lowest(folder):
     policy = policies.load(folder)
     if policy.encoder is None or policy.encoder.fills is None:
         raise ValueError(f"--keep-lowest: {folder} does not fill its teacher's observation from the image")
-    policy.encoder.keep_lowest = True
+    policy.encoder.keep_lowest = np.ones(len(policy.encoder.fills[1]), dtype=bool)
     return policy
 
 

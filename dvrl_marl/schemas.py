@@ -241,13 +241,13 @@ class CloneEvaluate(BaseModel):
 class PolicyImageFill(BaseModel):
     """How a pixel policy fills the observation of the state policy it acts with: ``template`` (the scene's constants,
     zero for what the image does not give), its proprioception at the same indices as in the env's observation, its
-    read-out's estimates at ``estimates_at``; with ``keep_lowest``, each estimate the lowest its episode has seen
-    (the policy then keeps state per world: ``reset`` starts an episode)."""
+    read-out's estimates at ``estimates_at``; at the indices ``keep_lowest`` names (some of ``estimates_at``), each
+    estimate the lowest its episode has seen (the policy then keeps state per world: ``reset`` starts an episode)."""
 
     model_config = STRICT
     template: Annotated[list[Finite], Field(min_length=1)]
     estimates_at: Annotated[list[NonNegativeInt], Field(min_length=1)]
-    keep_lowest: Flag = False
+    keep_lowest: list[NonNegativeInt] = []
 
 
 class PolicyImage(BaseModel):
@@ -277,6 +277,9 @@ class PolicyImage(BaseModel):
                                  f"indices of the {size}-long template")
             if any(start <= index < stop for index in at):
                 raise ValueError(f"fills.estimates_at {at} overlaps the proprioception {self.proprioception}")
+            if not set(self.fills.keep_lowest) <= set(at):
+                raise ValueError(f"fills.keep_lowest {self.fills.keep_lowest} names indices that are not estimated "
+                                 f"(estimates_at {at})")
         return self
 
     def policy_input_size(self) -> int:

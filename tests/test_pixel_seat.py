@@ -116,7 +116,7 @@ def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its
     constants = np.full(30, np.nan)
     folder = pixel_seat.export(model, config, tmp_path / "policy", "test-lowest", {}, constants)
     policy = policies.load(folder)
-    assert policy.spec["image"]["fills"]["keep_lowest"] is True
+    assert policy.spec["image"]["fills"]["keep_lowest"] == [7, 8]
     bright, dark = _observation(3, seed=1), _observation(3, seed=2)
     encoder = policy.encoder
     first = encoder(bright["image"])  # (the margin folded into the read-out)
@@ -135,7 +135,7 @@ def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its
     np.testing.assert_allclose(seen(dark), second, atol=1e-6)
     # the same images from a fresh start act as a policy that keeps nothing
     plain = policies.load(folder)
-    plain.encoder.keep_lowest = False
+    plain.encoder.keep_lowest = None
     policy.reset()
     np.testing.assert_array_equal(policy(bright), plain(bright))
 
@@ -320,3 +320,42 @@ def test_colour_jitter_without_brightness_keeps_each_images_mean_gain():
     assert torch.allclose(gains.mean(dim=1), torch.ones(64), atol=1e-5)  # the brightness stays
     assert gains.std() > 0.1  # the colour does not
     assert torch.all((gains > 0.7 / 1.3 - 1e-6) & (gains < 1.3 / 0.7 + 1e-6))
+
+
+def test_a_seat_estimating_the_other_tip_raises_and_keeps_lowest_only_the_blood(tmp_path):
+    """estimated = [4, 9] (the other arm's tip and the blood left): the margin and the lowest kept are the blood's;
+    the tip's estimates fill the teacher's observation as they are, image by image."""
+    config = _config(acts_by="teacher", estimated=[4, 9], estimate_margin=0.02, keep_lowest=True,
+                     convolutions=[[8, 8, 4]])
+    np.testing.assert_array_equal(pixel_seat._blood_columns(config), [False, False, False, True, True])
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-other-tip", {}, np.full(30, np.nan))
+    policy = policies.load(folder)
+    assert policy.spec["image"]["fills"]["estimates_at"] == [4, 5, 6, 7, 8]
+    assert policy.spec["image"]["fills"]["keep_lowest"] == [7, 8]
+    bright, dark = _observation(3, seed=1), _observation(3, seed=2)
+    with torch.no_grad():
+        raw = [model.features(torch.from_numpy(o["image"])).numpy() for o in (bright, dark)]
+    seen = lambda o: policy.encoder.observation(o["image"], o["observation"])  # noqa: E731
+    np.testing.assert_allclose(seen(bright)[:, 4:9], raw[0] + [0, 0, 0, 0.02, 0.02], atol=1e-5)
+    later = seen(dark)
+    np.testing.assert_allclose(later[:, 4:7], raw[1][:, :3], atol=1e-5)  # the tip: this image's
+    np.testing.assert_allclose(later[:, 7:9], np.minimum(raw[0], raw[1])[:, 3:] + 0.02, atol=1e-5)  # the blood: lowest
+
+
+def test_fitting_the_other_tip_weighs_the_blood_towards_empty_and_the_tip_by_its_spread():
+    config = _config(acts_by="teacher", estimated=[4, 9], convolutions=[[4, 8, 4]], batch_size=8)
+    rng = np.random.default_rng(0)
+    count = 32
+    data = {"images": rng.integers(0, 256, (count, 64, 64, 3), dtype=np.uint8),
+            "proprioception": np.zeros((count, 4), np.float32), "labels": np.zeros((count, 4), np.float32),
+            "targets": np.concatenate([rng.normal(0, 0.3, (count, 3)), rng.uniform(0, 1, (count, 2))], 1
+                                      ).astype(np.float32), "cleared": np.zeros((count, 2), np.float32)}
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    first = pixel_seat.fit(model, data, config, 60, 0)
+    assert np.isfinite(first)
+    errors = pixel_seat.estimate_errors(model, data, blood=pixel_seat._blood_columns(config))
+    assert set(errors) >= {"mean_absolute", "small_mean", "other_mean_absolute"}
+    assert pixel_seat.fit(model, data, config, 200, 1) < first  # it learns the frames it is given

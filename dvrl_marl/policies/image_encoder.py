@@ -9,8 +9,8 @@ read-out's ``R, r``. The encoder's output (the convolutions' flattened channels 
 read-out's) followed by the proprioception is what the policy's first layer reads; or, with a ``fills`` table, the
 read-out's estimates fill a state policy's observation (a template of the scene's constants, the proprioception at
 its own indices), which the policy reads as it would the env's (its ``features`` computed from it): a privileged
-policy acting on what the image tells it. ``fills.keep_lowest`` keeps, world by world, each estimate's lowest value
-since the episode began (the policy's ``reset(worlds)`` starts episodes; the evaluations and the seats call it).
+policy acting on what the image tells it. ``fills.keep_lowest`` names the estimates (observation indices) kept, world
+by world, at their lowest value since the episode began (the policy's ``reset(worlds)`` starts episodes; the evaluations and the seats call it).
 """
 
 from __future__ import annotations
@@ -40,10 +40,11 @@ class ImageEncoder:
         self.readout = None if readout is None else tuple(part.astype(np.float32) for part in readout)
         # a state policy's observation to fill (the scene's constants), or None: the encoding then the proprioception
         self.fills = None
-        self.keep_lowest = False
+        self.keep_lowest = None  # the read-out's outputs kept at their lowest (a boolean mask), or None
         if checked.fills is not None:
             self.fills = (np.asarray(checked.fills.template, dtype=np.float64), np.asarray(checked.fills.estimates_at))
-            self.keep_lowest = checked.fills.keep_lowest
+            kept = np.isin(checked.fills.estimates_at, checked.fills.keep_lowest)
+            self.keep_lowest = kept if kept.any() else None
         self._lowest = None  # keep_lowest: the lowest estimates of each world's episode so far
         if (self.readout is None) != (checked.readout is None):
             raise ValueError("policy.json's image names a readout of "
@@ -62,8 +63,8 @@ class ImageEncoder:
         template, estimates_at = self.fills
         filled = np.broadcast_to(template, own.shape[:-1] + template.shape).copy()
         filled[..., self.proprioception] = own
-        if self.keep_lowest:
-            encoded = self._kept_lowest(encoded)
+        if self.keep_lowest is not None:
+            encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
         filled[..., estimates_at] = encoded
         return filled
 
@@ -76,7 +77,7 @@ class ImageEncoder:
         self._lowest[np.asarray(worlds)] = np.inf
 
     def _kept_lowest(self, estimates: np.ndarray) -> np.ndarray:
-        """Each estimate the lowest its world's episode has seen. Why: without bleeding a cavity's blood only falls,
+        """Each estimate the lowest its world's episode has seen (the caller keeps those ``keep_lowest`` names). Why: without bleeding a cavity's blood only falls,
         and a cleared cavity that the other instrument covers in the image reads as full again (measured: beside a
         partner over a cavity the seat went back to it, 200+ contact steps an episode; keeping the lowest, none).
         A batch of another shape starts new episodes."""

@@ -79,7 +79,8 @@ class PixelSeatConfig(BaseModel):
     acts_by: Literal["perceptron", "teacher"] = "perceptron"
     estimated: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [7, 9]
     estimate_margin: NonNegative = 0.02
-    # acts_by = "teacher": the policy keeps each estimate's lowest value of its episode (image.fills.keep_lowest)
+    # acts_by = "teacher": the policy keeps each cavity's blood estimate at the lowest of its episode
+    # (image.fills.keep_lowest); estimate_margin is added to those estimates alone too
     keep_lowest: Flag = False
     estimate_floor: Positive = 0.05
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
@@ -296,9 +297,11 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     targets = torch.from_numpy(data["targets"])
     functional = torch.nn.functional
     if config.acts_by == "teacher":  # the estimates alone: the teacher acts on them
-        # errors weigh more where a value is small (the teacher's switch: a cavity's blood near empty)
+        blood = torch.from_numpy(_blood_columns(config))
+        # a cavity's blood: errors weigh more where it is small (the teacher's switch, a cavity near empty); any
+        # other estimate (the other arm's tip): its squared error in units of its spread
         weights = 1.0 / (targets.abs() + config.estimate_floor) ** 2
-        weights = weights / weights.mean()
+        weights = torch.where(blood, weights / weights[:, blood].mean(), 1.0 / targets.var(0).clamp_min(1e-6))
 
         def batch_loss(batch, features):
             return (weights[batch] * (features - targets[batch]) ** 2).mean()
@@ -332,24 +335,33 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     return float(np.mean(losses[-max(1, updates // 10):]))
 
 
-def estimate_errors(model, data: dict, small: float = 0.15) -> dict:
-    """How the read-out's estimates miss ``data``'s targets (frames it has not fitted yet, to be fair): the mean
-    absolute error, and where a target is under ``small`` (a cavity near empty) the mean error, the mean absolute
-    error and the error's 1st and 99th percentiles (an estimate below the truth makes the teacher leave too early,
-    one far above keeps it in an empty cavity)."""
+def estimate_errors(model, data: dict, small: float = 0.15, blood: np.ndarray | None = None) -> dict:
+    """How the read-out's estimates of the blood left miss ``data``'s targets (frames it has not fitted yet, to be
+    fair): the mean absolute error, and where a target is under ``small`` (a cavity near empty) the mean error, the
+    mean absolute error and the error's 1st and 99th percentiles (an estimate below the truth makes the teacher leave
+    too early, one far above keeps it in an empty cavity). ``blood`` marks the targets' columns that are blood (None:
+    all); the others' mean absolute error is ``other_mean_absolute``."""
     torch = _torch()
     with torch.no_grad():
         estimates = np.concatenate([model.features(torch.from_numpy(chunk)).numpy()
                                     for chunk in np.array_split(data["images"], max(1, len(data["images"]) // 1024))])
-    error = estimates[:, :data["targets"].shape[1]] - data["targets"]
-    near = data["targets"] < small
+    errors = estimates[:, :data["targets"].shape[1]] - data["targets"]
+    blood = np.ones(errors.shape[1], dtype=bool) if blood is None else blood
+    error, near = errors[:, blood], data["targets"][:, blood] < small
+    other = ({"other_mean_absolute": round(float(np.abs(errors[:, ~blood]).mean()), 4)} if not blood.all() else {})
     if not near.any():
         return {"mean_absolute": round(float(np.abs(error).mean()), 4), "small_mean": None,
-                "small_mean_absolute": None, "small_first_percentile": None, "small_99th_percentile": None}
+                "small_mean_absolute": None, "small_first_percentile": None, "small_99th_percentile": None, **other}
     return {"mean_absolute": round(float(np.abs(error).mean()), 4), "small_mean": round(float(error[near].mean()), 4),
             "small_mean_absolute": round(float(np.abs(error[near]).mean()), 4),
             "small_first_percentile": round(float(np.percentile(error[near], 1)), 4),
-            "small_99th_percentile": round(float(np.percentile(error[near], 99)), 4)}
+            "small_99th_percentile": round(float(np.percentile(error[near], 99)), 4), **other}
+
+
+def _blood_columns(config: PixelSeatConfig) -> np.ndarray:
+    """Which of the ``estimated`` slice's columns are a cavity's blood left (the others: the other arm's tip...)."""
+    cavities = {index for index, _ in _cleared_levels()}
+    return np.array([index in cavities for index in range(*config.estimated)])
 
 
 def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
@@ -373,13 +385,18 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         template = np.where(np.isnan(constants), 0.0, constants)
         template[start:stop] = 0.0
         template[slice(*config.proprioception)] = 0.0
+        blood = _blood_columns(config)
+        estimated = list(range(start, stop))
         image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
                  "convolutions": [list(layer) for layer in config.convolutions], "readout": stop - start,
                  "normalise": config.normalise,
-                 "fills": {"template": [float(value) for value in template], "estimates_at": list(range(start, stop)),
-                           "keep_lowest": bool(config.keep_lowest)}}
+                 "fills": {"template": [float(value) for value in template], "estimates_at": estimated,
+                           "keep_lowest": [index for index, kept in zip(estimated, blood) if kept and
+                                           config.keep_lowest]}}
+        # the margin and the lowest kept are the blood's: a cavity only empties, and an estimate too low ends it
         readout = (model.readout.weight.detach().numpy().astype(np.float32),
-                   model.readout.bias.detach().numpy().astype(np.float32) + np.float32(config.estimate_margin))
+                   model.readout.bias.detach().numpy().astype(np.float32)
+                   + np.float32(config.estimate_margin) * blood.astype(np.float32))
         layers = [(weight, bias, activation) for (weight, bias), activation
                   in zip(teacher.weights, teacher.spec["activations"])]
         extra = {"features": teacher.spec["features"]} if teacher.spec.get("features") else {}
@@ -436,7 +453,8 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
         driven = batch.pop("success_rate")
         batch.pop("steps")
         seen_constants = batch.pop("constants")
-        errors = estimate_errors(model, batch) if config.acts_by == "teacher" and index > 0 else None
+        errors = (estimate_errors(model, batch, blood=_blood_columns(config)) if config.acts_by == "teacher"
+                  and index > 0 else None)
         constants = (seen_constants if constants is None  # (NaN where a value varied, in any round)
                      else np.where(constants == seen_constants, constants, np.nan))
         data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
