@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from dvrl_marl.cli import resolve_config
+from dvrl_marl.envs.endoscope import APPEARANCES
 from dvrl_marl.training import pixel_seat
 
 
@@ -34,6 +35,8 @@ def main() -> None:
                         help="fit once per value too (each fitted image's channels times 1 +/- up to it)")
     parser.add_argument("--keep-brightness", action="store_true",
                         help="the jitter's three gains divided by their mean: the colour changes, not the brightness")
+    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=sorted(APPEARANCES),
+                        help="the looks the estimates are scored on (held_out_light: that quantity alone held out)")
     parser.add_argument("--updates", type=int, default=2500, help="Adam steps of each fit")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
@@ -42,8 +45,9 @@ def main() -> None:
     fitted_on = pixel_seat.collect(config.model_copy(update={"worlds": 32}), None, 12345, 12345)
     # model_copy skips validation: the held-out looks are for scoring only, never for a fit
     scored_on = {look: pixel_seat.collect(config.model_copy(update={"worlds": 12, "image_appearance": look}), None,
-                                          777, 777) for look in ("train", "held_out")}
-    print(f"frames: {len(fitted_on['targets']):,d} to fit, {len(scored_on['train']['targets']):,d} to score per look "
+                                          777, 777) for look in args.looks}
+    scored = len(scored_on[args.looks[0]]['targets'])
+    print(f"frames: {len(fitted_on['targets']):,d} to fit, {scored:,d} to score per look "
           f"({time.perf_counter() - began:.0f} s)", flush=True)
     rows = []
     for normalise, jitter in [(normalise, jitter) for normalise in args.normalise for jitter in args.colour_jitter]:
@@ -58,7 +62,7 @@ def main() -> None:
                    "look": look,
                    **pixel_seat.estimate_errors(model, data)}
             rows.append(row)
-            print(f"{normalise:10s} jitter {jitter:.2f} {look:9s} mean |error| {row['mean_absolute']:.4f}; nearly "
+            print(f"{normalise:10s} jitter {jitter:.2f} {look:16s} mean |error| {row['mean_absolute']:.4f}; nearly "
                   f"empty: mean {row['small_mean']:+.4f}, |error| {row['small_mean_absolute']:.4f}, 1st / 99th "
                   f"percentile {row['small_first_percentile']:+.4f} / {row['small_99th_percentile']:+.4f}", flush=True)
         if args.json:

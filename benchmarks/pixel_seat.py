@@ -3,9 +3,10 @@
 A pixel suction (``--pixel``, a policy folder that ``dvrl-marl train suction_pixels_dagger`` wrote: the endoscope's
 image and its own tip and valve) and the privileged seat it was distilled from (``marl-suction``: blood volumes, pin
 and tip positions) play beside the same partners as in ``benchmarks/partner_zoo.py`` (the scripted surgeon, the
-Reach + Pick pipeline, the measured person and each held-out kind), by their default call, on test seeds, with a person's 6,000-step horizon. The pixel seat plays once per look
-(``image_appearance``: ``"train"``, the range it trained in; ``"held_out"``, outside it); the privileged seat sees no
-image, so one row per partner.
+Reach + Pick pipeline, the measured person and each held-out kind), by their default call, on test seeds, with a
+person's 6,000-step horizon. The pixel seat plays once per look (``image_appearance``: ``"train"``, the range it
+trained in; ``"held_out"``, outside it; ``"held_out_light"`` and the like, one quantity outside it); the privileged
+seat sees no image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
                                     [--looks train held_out scene] [--json FILE]
@@ -26,6 +27,7 @@ import numpy as np
 from partner_zoo import PARTNERS, evaluate
 
 from dvrl_marl import policies
+from dvrl_marl.envs.endoscope import APPEARANCES
 
 
 def keeping_lowest(folder):
@@ -46,15 +48,16 @@ def main() -> None:
                         help="the seat that sees the endoscope: a policy folder (runs/<name>-seed<N>/policies/<name>)")
     parser.add_argument("--privileged", default="marl-suction", help="the seat it was distilled from")
     parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
-    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=["train", "held_out", "scene"],
-                        help="scene: the scene's own look (no image_appearance), as a person's view draws it")
+    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=[*APPEARANCES, "scene"],
+                        help="scene: the scene's own look (no image_appearance), as a person's view draws it; "
+                             "held_out_light (colour, camera, noise): that quantity alone held out")
     parser.add_argument("--keep-lowest", action="store_true",
                         help="the pixel seat keeps the lowest of each estimate in its episode (a policy exported "
                              "without image.fills.keep_lowest, tried with it)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
-    print(f"{'partner':10s} {'player':14s} {'look':9s} {'success':>8s} {'median steps':>13s} {'contacts':>9s} "
+    print(f"{'partner':10s} {'player':14s} {'look':16s} {'success':>8s} {'median steps':>13s} {'contacts':>9s} "
           f"{'tip path mm':>12s} {'gap':>6s} {'seconds':>8s}", flush=True)
     for partner in args.partners:
         began = time.perf_counter()
@@ -75,7 +78,7 @@ def main() -> None:
         for row, look in runs:
             median = row["median_steps_to_completion"]
             gap = row.get("gap")
-            print(f"{partner:10s} {row['player']:14s} {look:9s} {row['success_rate']:8.2f} "
+            print(f"{partner:10s} {row['player']:14s} {look:16s} {row['success_rate']:8.2f} "
                   f"{'-' if median is None else f'{median:.0f}':>13s} {row['mean_contact_steps']:9.1f} "
                   f"{row['tip_path_mm']:12.0f} {'' if gap is None else f'{gap:+.2f}':>6s} {row['seconds']:8.0f}",
                   flush=True)

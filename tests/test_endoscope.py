@@ -193,6 +193,21 @@ def test_bad_appearance_options_are_refused_by_name():
         suction_debris_v8.batched_env(num_envs=1, image_size=32, image_appearance="bright")
     with pytest.raises(ValueError, match="image_appearance needs image_size"):
         suction_debris_v8.batched_env(num_envs=1, image_appearance="train")
+    with pytest.raises(ValueError, match="endoscope.Appearance"):
+        suction_debris_v8.batched_env(num_envs=1, image_size=32, image_appearance={"light": 0.5})
+
+
+def test_a_range_of_ones_own_draws_as_the_named_range_it_equals():
+    from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
+
+    named, _ = suction_debris_v8.batched_env(num_envs=2, image_size=32, image_appearance="held_out").reset(seed=3)
+    own = Appearance(**{**vars(APPEARANCES["held_out"])})
+    mine, _ = suction_debris_v8.batched_env(num_envs=2, image_size=32, image_appearance=own).reset(seed=3)
+    np.testing.assert_array_equal(named["suction"]["image"], mine["suction"]["image"])
+    only_light = Appearance(**{**vars(APPEARANCES["train"]), "light": 0.4, "scene_colours": 0.0,
+                               "low": Appearance(0.0, 0.2, 0.0, 0.0, 0.0, 0.0)})
+    other, _ = suction_debris_v8.batched_env(num_envs=2, image_size=32, image_appearance=only_light).reset(seed=3)
+    assert not np.array_equal(other["suction"]["image"], named["suction"]["image"])
 
 
 def test_the_seat_env_takes_image_observations_and_passes_gymnasiums_checker():
@@ -229,3 +244,21 @@ def test_the_device_env_refuses_images_by_name():
     pytest.importorskip("jax")
     with pytest.raises(ValueError, match="image_size"):
         suction_debris_v8.batched_env(num_envs=1, device="cpu", image_size=32)
+
+
+def test_one_quantity_held_out_draws_it_from_the_held_out_range_and_the_rest_from_the_training_range():
+    from dvrl_marl.envs.endoscope import APPEARANCES, QUANTITIES, Appearance, held_out_only
+
+    train, held_out = APPEARANCES["train"], APPEARANCES["held_out"]
+    rng = np.random.default_rng(0)
+    for quantity, fields in QUANTITIES.items():
+        look = held_out_only(quantity)
+        for name in ("colour", "light", "light_degrees", "camera_mm", "camera_degrees", "noise"):
+            assert getattr(look, name) == getattr(held_out if name in fields else train, name)
+            assert getattr(look.low, name) == (getattr(held_out.low, name) if name in fields else 0.0)
+        assert look.scene_colours == 0.0
+        drawn = [look.draw(rng.uniform(size=Appearance.UNIFORMS)) for _ in range(50)]
+        light = np.array([d["light"] for d in drawn])
+        assert (np.abs(light - 1.0) >= 0.2 - 1e-12).all() == (quantity == "light")
+    with pytest.raises(ValueError, match="quantity must be one of"):
+        held_out_only("blood")

@@ -21,7 +21,8 @@ import numpy as np
 
 from dvrl_marl.envs.scene_mirror import SceneMirror
 
-__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "SEGMENT_CLASSES", "Appearance", "APPEARANCES"]
+__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "SEGMENT_CLASSES", "Appearance", "APPEARANCES", "QUANTITIES",
+           "held_out_only"]
 
 #: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
 #: tissue, blood, a debris pin, an instrument (the arms' and the assistant's).
@@ -80,10 +81,32 @@ class Appearance:
         return look
 
 
-#: The named ranges of ``image_appearance``: "train" (what a seat learns beside), "held_out" (outside it, to test on).
+#: The named ranges of ``image_appearance``: "train" (what a seat learns beside), "held_out" (outside it, to test on);
+#: and below, each quantity held out alone.
 APPEARANCES = {"train": Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0, scene_colours=0.25),
                "held_out": Appearance(0.3, 0.4, 30.0, 6.0, 4.0, 8.0,
                                       low=Appearance(0.15, 0.2, 15.0, 3.0, 2.0, 4.0))}
+
+#: The quantities a range is made of, as :func:`held_out_only` names them: its fields.
+QUANTITIES = {"colour": ("colour",), "light": ("light", "light_degrees"), "camera": ("camera_mm", "camera_degrees"),
+              "noise": ("noise",)}
+
+
+def held_out_only(quantity: str) -> Appearance:
+    """The training range with one quantity (a key of :data:`QUANTITIES`) drawn from the held-out range instead:
+    which of the held-out range's quantities a pixel policy fails on. No world keeps the scene's own colours."""
+    if quantity not in QUANTITIES:
+        raise ValueError(f"held_out_only: quantity must be one of {sorted(QUANTITIES)}, got {quantity!r}")
+    train, held_out = APPEARANCES["train"], APPEARANCES["held_out"]
+    fields = QUANTITIES[quantity]
+    low = Appearance(**{name: getattr(held_out.low, name) if name in fields else 0.0
+                        for name in ("colour", "light", "light_degrees", "camera_mm", "camera_degrees", "noise")})
+    return Appearance(**{**vars(train), **{name: getattr(held_out, name) for name in fields}, "low": low,
+                         "scene_colours": 0.0})
+
+
+#: "held_out_colour", "held_out_light", "held_out_camera", "held_out_noise": one quantity held out at a time.
+APPEARANCES.update({f"held_out_{quantity}": held_out_only(quantity) for quantity in QUANTITIES})
 
 
 class EndoscopeRenderer:

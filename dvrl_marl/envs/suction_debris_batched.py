@@ -54,6 +54,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium import spaces
@@ -67,6 +68,9 @@ from dvrl_marl.envs import features, start_levels
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
 from dvrl_marl.envs.observation_scaling import ObservationScaling
 from dvrl_marl.envs.presets import accepts_preset
+
+if TYPE_CHECKING:  # (the renderer's module loads MuJoCo's GL: only when images are drawn)
+    from dvrl_marl.envs.endoscope import Appearance
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "SceneLayout", "batched_env", "takes_worlds"]
 
@@ -102,7 +106,8 @@ class SuctionDebrisBatchedEnv:
                  start_level: float | str = 1.0,
                  easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
                  state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
-                 image_depth: bool = False, image_segmentation: bool = False, image_appearance: str | None = None,
+                 image_depth: bool = False, image_segmentation: bool = False,
+                 image_appearance: str | Appearance | None = None,
                  width: int = 640, height: int = 480, **params):
         from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
 
@@ -147,11 +152,12 @@ class SuctionDebrisBatchedEnv:
                      validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
         self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"),
                            validated(Flag, image_segmentation, f"{self.name}: image_segmentation"))
-        from dvrl_marl.envs.endoscope import APPEARANCES
+        from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
 
-        if image_appearance is not None and image_appearance not in APPEARANCES:
-            raise ValueError(f"{self.name}: image_appearance must be None (the scene's own look) or one of "
-                             f"{sorted(APPEARANCES)}, got {image_appearance!r}")
+        if not (image_appearance is None or isinstance(image_appearance, Appearance)
+                or (isinstance(image_appearance, str) and image_appearance in APPEARANCES)):
+            raise ValueError(f"{self.name}: image_appearance must be None (the scene's own look), one of "
+                             f"{sorted(APPEARANCES)} or an endoscope.Appearance, got {image_appearance!r}")
         if image_appearance is not None and not self.image_size:
             raise ValueError(f"{self.name}: image_appearance needs image_size (it is the image's)")
         #: the range each world's look is drawn from per episode (None: the scene's own look)
@@ -281,7 +287,8 @@ class SuctionDebrisBatchedEnv:
             streams = self.core.random
             episode = np.maximum(np.asarray(streams.episode) - 1, 0)  # (the episode under way)
             draws = uniforms(streams.key_low, streams.key_high, episode, STREAMS["appearance"], Appearance.UNIFORMS)
-            appearance = APPEARANCES[self.image_appearance]
+            appearance = (self.image_appearance if isinstance(self.image_appearance, Appearance)
+                          else APPEARANCES[self.image_appearance])
             keys = list(zip(np.asarray(streams.key_low).tolist(), np.asarray(streams.key_high).tolist(),
                             episode.tolist()))
             drawn = self._endoscope.render(states, [appearance.draw(row) for row in np.asarray(draws)], keys,
