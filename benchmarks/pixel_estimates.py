@@ -6,7 +6,8 @@ round: 32 worlds, training looks), then scored on frames of other episodes (12 w
 and with the held-out looks. The teacher leaves a cavity too early on an estimate 0.01 too low and not on one 0.03 too
 high (``benchmarks/privileged_inputs.py``), so the errors that count are those where the cavity is nearly empty.
 
-    python benchmarks/pixel_estimates.py [--normalise none per_image] [--colour-jitter 0 0.3] [--keep-brightness]
+    python benchmarks/pixel_estimates.py [--normalise none per_image] [--colour-jitter 0 0.3]
+                                         [--jitter-brightness yes no] [--looks train held_out held_out_light ...]
                                          [--updates 2500] [--json FILE]
 
 Prints per option and look: the mean absolute error, and for a blood fraction under 0.15 the mean error, the mean
@@ -33,8 +34,9 @@ def main() -> None:
     parser.add_argument("--normalise", nargs="+", default=["none", "per_image"], choices=["none", "per_image"])
     parser.add_argument("--colour-jitter", nargs="+", type=float, default=[0.0],
                         help="fit once per value too (each fitted image's channels times 1 +/- up to it)")
-    parser.add_argument("--keep-brightness", action="store_true",
-                        help="the jitter's three gains divided by their mean: the colour changes, not the brightness")
+    parser.add_argument("--jitter-brightness", nargs="+", default=["yes"], choices=["yes", "no"],
+                        help="no: the jitter's three gains divided by their mean (the colour changes, not the "
+                             "brightness); fit once per value")
     parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=sorted(APPEARANCES),
                         help="the looks the estimates are scored on (held_out_light: that quantity alone held out)")
     parser.add_argument("--updates", type=int, default=2500, help="Adam steps of each fit")
@@ -50,19 +52,20 @@ def main() -> None:
     print(f"frames: {len(fitted_on['targets']):,d} to fit, {scored:,d} to score per look "
           f"({time.perf_counter() - began:.0f} s)", flush=True)
     rows = []
-    for normalise, jitter in [(normalise, jitter) for normalise in args.normalise for jitter in args.colour_jitter]:
+    fits = [(normalise, jitter, brightness == "yes") for normalise in args.normalise for jitter in args.colour_jitter
+            for brightness in args.jitter_brightness if jitter > 0 or brightness == args.jitter_brightness[0]]
+    for normalise, jitter, brightness in fits:
         options = pixel_seat.PixelSeatConfig(**{**config.model_dump(), "normalise": normalise,
-                                                "colour_jitter": jitter,
-                                                "jitter_brightness": not args.keep_brightness})
+                                                "colour_jitter": jitter, "jitter_brightness": brightness})
         torch.manual_seed(0)
         model = pixel_seat.PixelActor(options, 4)
         pixel_seat.fit(model, fitted_on, options, args.updates, 0)
         for look, data in scored_on.items():
-            row = {"normalise": normalise, "colour_jitter": jitter, "jitter_brightness": not args.keep_brightness,
-                   "look": look,
+            row = {"normalise": normalise, "colour_jitter": jitter, "jitter_brightness": brightness, "look": look,
                    **pixel_seat.estimate_errors(model, data)}
             rows.append(row)
-            print(f"{normalise:10s} jitter {jitter:.2f} {look:16s} mean |error| {row['mean_absolute']:.4f}; nearly "
+            kind = f"jitter {jitter:.2f}" + ("" if brightness else " (colour)")
+            print(f"{normalise:10s} {kind:20s} {look:16s} mean |error| {row['mean_absolute']:.4f}; nearly "
                   f"empty: mean {row['small_mean']:+.4f}, |error| {row['small_mean_absolute']:.4f}, 1st / 99th "
                   f"percentile {row['small_first_percentile']:+.4f} / {row['small_99th_percentile']:+.4f}", flush=True)
         if args.json:
