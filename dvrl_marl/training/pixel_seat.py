@@ -83,6 +83,9 @@ class PixelSeatConfig(BaseModel):
     # (image.fills.keep_lowest); estimate_margin is added to those estimates alone too
     keep_lowest: Flag = False
     estimate_floor: Positive = 0.05
+    # acts_by = "teacher": the estimates other than the blood (the other arm's tip) weigh their squared error in units
+    # of their spread times this, beside the blood's weighted error (about 1e-5 once fitted: measured)
+    other_estimate_weight: NonNegative = 1.0
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
@@ -301,7 +304,8 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
         # a cavity's blood: errors weigh more where it is small (the teacher's switch, a cavity near empty); any
         # other estimate (the other arm's tip): its squared error in units of its spread
         weights = 1.0 / (targets.abs() + config.estimate_floor) ** 2
-        weights = torch.where(blood, weights / weights[:, blood].mean(), 1.0 / targets.var(0).clamp_min(1e-6))
+        weights = torch.where(blood, weights / weights[:, blood].mean(),
+                              config.other_estimate_weight / targets.var(0).clamp_min(1e-6))
 
         def batch_loss(batch, features):
             return (weights[batch] * (features - targets[batch]) ** 2).mean()
