@@ -359,3 +359,24 @@ def test_fitting_the_other_tip_weighs_the_blood_towards_empty_and_the_tip_by_its
     errors = pixel_seat.estimate_errors(model, data, blood=pixel_seat._blood_columns(config))
     assert set(errors) >= {"mean_absolute", "small_mean", "other_mean_absolute"}
     assert pixel_seat.fit(model, data, config, 200, 1) < first  # it learns the frames it is given
+
+
+def test_the_other_estimates_weight_scales_their_share_of_the_loss():
+    """other_estimate_weight = 0: what the tip's targets hold changes nothing the fit does."""
+    rng = np.random.default_rng(1)
+    count = 16
+    images = rng.integers(0, 256, (count, 64, 64, 3), dtype=np.uint8)
+    blood = rng.uniform(0, 1, (count, 2))
+
+    def loss(weight, tip):
+        config = _config(acts_by="teacher", estimated=[4, 9], convolutions=[[4, 8, 4]], batch_size=8,
+                         other_estimate_weight=weight)
+        data = {"images": images, "proprioception": np.zeros((count, 4), np.float32),
+                "labels": np.zeros((count, 4), np.float32), "cleared": np.zeros((count, 2), np.float32),
+                "targets": np.concatenate([tip, blood], 1).astype(np.float32)}
+        torch.manual_seed(0)
+        return pixel_seat.fit(pixel_seat.PixelActor(config, 4), data, config, 10, 0)
+
+    near, far = rng.normal(0, 0.1, (count, 3)), rng.normal(0, 0.1, (count, 3)) * 50
+    assert loss(0.0, near) == pytest.approx(loss(0.0, far), rel=1e-5)
+    assert loss(1.0, near) != pytest.approx(loss(1.0, far), rel=1e-2)
