@@ -100,7 +100,7 @@ def held_out_only(quantity: str) -> Appearance:
     train, held_out = APPEARANCES["train"], APPEARANCES["held_out"]
     fields = QUANTITIES[quantity]
     low = Appearance(**{name: getattr(held_out.low, name) if name in fields else 0.0
-                        for name in ("colour", "light", "light_degrees", "camera_mm", "camera_degrees", "noise")})
+                        for names in QUANTITIES.values() for name in names})
     return Appearance(**{**vars(train), **{name: getattr(held_out, name) for name in fields}, "low": low,
                          "scene_colours": 0.0})
 

@@ -10,7 +10,8 @@ read-out's) followed by the proprioception is what the policy's first layer read
 read-out's estimates fill a state policy's observation (a template of the scene's constants, the proprioception at
 its own indices), which the policy reads as it would the env's (its ``features`` computed from it): a privileged
 policy acting on what the image tells it. ``fills.keep_lowest`` names the estimates (observation indices) kept, world
-by world, at their lowest value since the episode began (the policy's ``reset(worlds)`` starts episodes; the evaluations and the seats call it).
+by world, at their lowest value since the episode began (the policy's ``reset(worlds)`` starts episodes; the
+evaluations and the seats call it).
 """
 
 from __future__ import annotations
@@ -77,9 +78,10 @@ class ImageEncoder:
         self._lowest[np.asarray(worlds)] = np.inf
 
     def _kept_lowest(self, estimates: np.ndarray) -> np.ndarray:
-        """Each estimate the lowest its world's episode has seen (the caller keeps those ``keep_lowest`` names). Why: without bleeding a cavity's blood only falls,
-        and a cleared cavity that the other instrument covers in the image reads as full again (measured: beside a
-        partner over a cavity the seat went back to it, 200+ contact steps an episode; keeping the lowest, none).
+        """Each estimate the lowest its world's episode has seen (the caller keeps those ``keep_lowest`` names). Why:
+        without bleeding a cavity's blood only falls, and a cleared cavity that the other instrument covers in the
+        image reads as full again (measured: beside a partner over a cavity the seat went back to it, 200+ contact
+        steps an episode; keeping the lowest, none).
         A batch of another shape starts new episodes."""
         if self._lowest is None or self._lowest.shape != estimates.shape:
             self._lowest = estimates
