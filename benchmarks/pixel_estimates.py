@@ -7,7 +7,7 @@ and with the held-out looks. The teacher leaves a cavity too early on an estimat
 high (``benchmarks/privileged_inputs.py``), so the errors that count are those where the cavity is nearly empty.
 
     python benchmarks/pixel_estimates.py [--normalise none per_image] [--colour-jitter 0 0.3]
-                                         [--jitter-brightness yes no] [--looks train held_out held_out_light ...]
+                                         [--jitter-brightness yes no] [--shading 0 0.3] [--looks train held_out held_out_light ...]
                                          [--updates 2500] [--json FILE]
 
 Prints per option and look: the mean absolute error, and for a blood fraction under 0.15 the mean error, the mean
@@ -37,6 +37,8 @@ def main() -> None:
     parser.add_argument("--jitter-brightness", nargs="+", default=["yes"], choices=["yes", "no"],
                         help="no: the jitter's three gains divided by their mean (the colour changes, not the "
                              "brightness); fit once per value")
+    parser.add_argument("--shading", nargs="+", type=float, default=[0.0],
+                        help="fit once per value too (each fitted image times a gradient of light, 1 +/- up to it)")
     parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=sorted(APPEARANCES),
                         help="the looks the estimates are scored on (held_out_light: that quantity alone held out)")
     parser.add_argument("--updates", type=int, default=2500, help="Adam steps of each fit")
@@ -52,20 +54,23 @@ def main() -> None:
     print(f"frames: {len(fitted_on['targets']):,d} to fit, {scored:,d} to score per look "
           f"({time.perf_counter() - began:.0f} s)", flush=True)
     rows = []
-    fits = [(normalise, jitter, brightness == "yes") for normalise in args.normalise for jitter in args.colour_jitter
-            for brightness in args.jitter_brightness if jitter > 0 or brightness == args.jitter_brightness[0]]
-    for normalise, jitter, brightness in fits:
+    fits = [(normalise, jitter, brightness == "yes", shading) for normalise in args.normalise
+            for jitter in args.colour_jitter for brightness in args.jitter_brightness for shading in args.shading
+            if jitter > 0 or brightness == args.jitter_brightness[0]]
+    for normalise, jitter, brightness, shading in fits:
         options = pixel_seat.PixelSeatConfig(**{**config.model_dump(), "normalise": normalise,
-                                                "colour_jitter": jitter, "jitter_brightness": brightness})
+                                                "colour_jitter": jitter, "jitter_brightness": brightness,
+                                                "shading": shading})
         torch.manual_seed(0)
         model = pixel_seat.PixelActor(options, 4)
         pixel_seat.fit(model, fitted_on, options, args.updates, 0)
         for look, data in scored_on.items():
-            row = {"normalise": normalise, "colour_jitter": jitter, "jitter_brightness": brightness, "look": look,
+            row = {"normalise": normalise, "colour_jitter": jitter, "jitter_brightness": brightness,
+                   "shading": shading, "look": look,
                    **pixel_seat.estimate_errors(model, data)}
             rows.append(row)
-            kind = f"jitter {jitter:.2f}" + ("" if brightness else " (colour)")
-            print(f"{normalise:10s} {kind:20s} {look:16s} mean |error| {row['mean_absolute']:.4f}; nearly "
+            kind = f"jitter {jitter:.2f}" + ("" if brightness else " (colour)") + f" shading {shading:.2f}"
+            print(f"{normalise:10s} {kind:32s} {look:16s} mean |error| {row['mean_absolute']:.4f}; nearly "
                   f"empty: mean {row['small_mean']:+.4f}, |error| {row['small_mean_absolute']:.4f}, 1st / 99th "
                   f"percentile {row['small_first_percentile']:+.4f} / {row['small_99th_percentile']:+.4f}", flush=True)
         if args.json:

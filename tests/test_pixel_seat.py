@@ -322,6 +322,25 @@ def test_colour_jitter_without_brightness_keeps_each_images_mean_gain():
     assert torch.all((gains > 0.7 / 1.3 - 1e-6) & (gains < 1.3 / 0.7 + 1e-6))
 
 
+def test_shading_is_a_gradient_across_each_image_within_its_bound():
+    import torch
+
+    images = torch.full((64, 9, 9, 3), 100, dtype=torch.uint8)
+    assert pixel_seat._shaded(torch, images, 0.0, torch.Generator().manual_seed(0)) is images
+    gains = pixel_seat._shaded(torch, images, 0.3, torch.Generator().manual_seed(0)) / 100.0
+    assert torch.all((gains >= 0.7 - 1e-5) & (gains <= 1.3 + 1e-5))
+    assert torch.all(gains == gains[..., :1])  # the light's strength, not its colour
+    # a plane: the centre keeps its brightness, opposite pixels lie as far above it as below it
+    assert torch.allclose(gains[:, 4, 4, 0], torch.ones(64), atol=1e-5)
+    assert torch.allclose(gains[:, 0, 0, 0] + gains[:, 8, 8, 0], torch.full((64,), 2.0), atol=1e-5)
+    assert torch.allclose(gains[:, 0, 8, 0] + gains[:, 8, 0, 0], torch.full((64,), 2.0), atol=1e-5)
+    edges = torch.stack([gains[:, 4, 0, 0], gains[:, 0, 4, 0]], dim=1) - 1.0
+    assert edges.abs().max() > 0.2 and (edges > 0.05).any() and (edges < -0.05).any()  # strengths and directions vary
+    bright = pixel_seat._shaded(torch, torch.full((8, 4, 4, 3), 250, dtype=torch.uint8), 0.3,
+                                torch.Generator().manual_seed(1))
+    assert bright.max() <= 255.0
+
+
 def test_a_seat_estimating_the_other_tip_raises_and_keeps_lowest_only_the_blood(tmp_path):
     """estimated = [4, 9] (the other arm's tip and the blood left): the margin and the lowest kept are the blood's;
     the tip's estimates fill the teacher's observation as they are, image by image."""

@@ -98,6 +98,9 @@ class PixelSeatConfig(BaseModel):
     # false: each image's three gains divided by their mean, so that the jitter changes its colour, never its
     # brightness (which the held-out light's range holds)
     jitter_brightness: Flag = True
+    # each fitted image times a gradient of light across it, 1 +/- up to this at its corners, any direction: the
+    # light's direction changes what falls where, which a gain over the whole image never draws
+    shading: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
     normalise: Literal["none", "per_image"] = "none"
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
@@ -286,6 +289,21 @@ def _jittered(torch, images, jitter: float, generator, brightness: bool = True):
     return (images.float() * gains).clamp(0.0, 255.0)
 
 
+def _shaded(torch, images, shading: float, generator):
+    """Each image times a plane of light, ``1 + a (x cos t + y sin t) / (|cos t| + |sin t|)`` with x and y from -1 to
+    1 across it: ``a`` uniform in +/- ``shading`` (the gain at the farthest corners), ``t`` any direction (pixel
+    values kept in 0..255)."""
+    if shading == 0.0:
+        return images
+    count, size = images.shape[0], images.shape[1]
+    strength = shading * (2.0 * torch.rand((count, 1, 1), generator=generator) - 1.0)
+    angle = 2.0 * np.pi * torch.rand((count, 1, 1), generator=generator)
+    across = torch.linspace(-1.0, 1.0, size)
+    cos, sin = torch.cos(angle), torch.sin(angle)
+    field = 1.0 + strength * (across[None, None, :] * cos + across[None, :, None] * sin) / (cos.abs() + sin.abs())
+    return (images.float() * field[..., None]).clamp(0.0, 255.0)
+
+
 def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> float:
     """``updates`` steps of Adam on minibatches drawn from ``data`` (images, proprioception, labels, targets);
     returns the mean loss of the last tenth of them."""
@@ -330,6 +348,7 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
         batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
         seen = _jittered(torch, _shifted(torch, images[batch], config.shift_px, generator), config.colour_jitter,
                          generator, config.jitter_brightness)
+        seen = _shaded(torch, seen, config.shading, generator)
         loss = batch_loss(batch, model.features(seen))
         optimiser.zero_grad()
         loss.backward()
