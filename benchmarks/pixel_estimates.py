@@ -31,7 +31,7 @@ from dvrl_marl.training import pixel_seat
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--normalise", nargs="+", default=["none", "per_image"], choices=["none", "per_image"])
+    parser.add_argument("--normalise", nargs="+", default=["none", "per_image"], choices=["none", "per_image", "brightness"])
     parser.add_argument("--colour-jitter", nargs="+", type=float, default=[0.0],
                         help="fit once per value too (each fitted image's channels times 1 +/- up to it)")
     parser.add_argument("--jitter-brightness", nargs="+", default=["yes"], choices=["yes", "no"],

@@ -260,7 +260,7 @@ class PolicyImage(BaseModel):
     convolutions: Annotated[list[Annotated[list[PositiveInt], Field(min_length=3, max_length=3)]], Field(min_length=1)]
     readout: PositiveInt | None = None
     fills: PolicyImageFill | None = None
-    normalise: Literal["none", "per_image"] = "none"
+    normalise: Literal["none", "per_image", "brightness"] = "none"
 
     @model_validator(mode="after")
     def _consistent(self):

@@ -23,7 +23,8 @@ from dvrl_marl.schemas import PolicyImage, validated
 
 __all__ = ["ImageEncoder", "NORMALISE_FLOOR"]
 
-#: ``normalise = "per_image"``: added to a channel's spread, so that a flat image is not blown up.
+#: ``normalise = "per_image"``: added to a channel's spread (``"brightness"``: to an image's mean), so that a flat
+#: (or black) image is not blown up.
 NORMALISE_FLOOR = 0.02
 
 
@@ -98,6 +99,8 @@ class ImageEncoder:
         x = images.reshape((-1,) + images.shape[-3:]).astype(np.float32) / 255.0
         if self.normalise == "per_image":  # each channel of each image at zero mean, unit spread
             x = (x - x.mean(axis=(1, 2), keepdims=True)) / (x.std(axis=(1, 2), keepdims=True) + NORMALISE_FLOOR)
+        elif self.normalise == "brightness":  # each image's mean at 0.5 (an exposure), then in [-0.5, ...]
+            x = x * (0.5 / (x.mean(axis=(1, 2, 3), keepdims=True) + NORMALISE_FLOOR)) - 0.5
         else:  # pixels in [-0.5, 0.5], as the trainer fed them
             x = x - 0.5
         for (weight, bias), (_, kernel, stride) in zip(self.kernels, self.convolutions):

@@ -101,7 +101,9 @@ class PixelSeatConfig(BaseModel):
     # each fitted image times a gradient of light across it, 1 +/- up to this at its corners, any direction: the
     # light's direction changes what falls where, which a gain over the whole image never draws
     shading: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
-    normalise: Literal["none", "per_image"] = "none"
+    # per_image: each channel of each image at zero mean and unit spread; brightness: each image scaled to one mean
+    # (an exposure: a gain over the whole image changes nothing the network reads)
+    normalise: Literal["none", "per_image", "brightness"] = "none"
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
     max_cycles: PositiveInt | None = None
@@ -171,6 +173,8 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
             if config.normalise == "per_image":  # as the numpy encoder does (its docstring)
                 x = (x - x.mean(dim=(2, 3), keepdim=True)) / (x.std(dim=(2, 3), keepdim=True, correction=0)
                                                               + NORMALISE_FLOOR)
+            elif config.normalise == "brightness":
+                x = x * (0.5 / (x.mean(dim=(1, 2, 3), keepdim=True) + NORMALISE_FLOOR)) - 0.5
             else:
                 x = x - 0.5
             return self.readout(self.encoder(x))
