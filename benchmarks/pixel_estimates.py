@@ -6,9 +6,9 @@ round: 32 worlds, training looks), then scored on frames of other episodes (12 w
 and with the held-out looks. The teacher leaves a cavity too early on an estimate 0.01 too low and not on one 0.03 too
 high (``benchmarks/privileged_inputs.py``), so the errors that count are those where the cavity is nearly empty.
 
-    python benchmarks/pixel_estimates.py [--normalise none per_image] [--colour-jitter 0 0.3]
-                                         [--jitter-brightness yes no] [--shading 0 0.3] [--looks train held_out held_out_light ...]
-                                         [--updates 2500] [--json FILE]
+    python benchmarks/pixel_estimates.py [--normalise none per_image brightness] [--colour-jitter 0 0.3]
+                                         [--jitter-brightness yes no] [--shading 0 0.3]
+                                         [--looks train held_out held_out_light ...] [--updates 2500] [--json FILE]
 
 Prints per option and look: the mean absolute error, and for a blood fraction under 0.15 the mean error, the mean
 absolute error and the error's 1st and 99th percentiles.
@@ -31,7 +31,8 @@ from dvrl_marl.training import pixel_seat
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--normalise", nargs="+", default=["none", "per_image"], choices=["none", "per_image", "brightness"])
+    parser.add_argument("--normalise", nargs="+", default=["none", "per_image"],
+                        choices=["none", "per_image", "brightness"])
     parser.add_argument("--colour-jitter", nargs="+", type=float, default=[0.0],
                         help="fit once per value too (each fitted image's channels times 1 +/- up to it)")
     parser.add_argument("--jitter-brightness", nargs="+", default=["yes"], choices=["yes", "no"],
