@@ -250,6 +250,27 @@ def test_the_shipped_configurations_read():
     name, per_image = pixel_seat.load_config(resolve_config("suction_pixels_estimates_per_image"))
     assert name == "suction_pixels_estimates_per_image" and per_image.normalise == "per_image"
     assert per_image.model_dump() == {**config.model_dump(), "normalise": "per_image"}
+    # every pixel seat's file reads, each a change of the one it extends
+    import tomllib
+    from pathlib import Path
+
+    from dvrl_marl.files import read_extended_toml
+
+    folder = Path(pixel_seat.__file__).parents[2] / "baselines" / "configs"
+    pixel_files = [path for path in sorted(folder.glob("*.toml"))
+                   if read_extended_toml(path).get("run", {}).get("algorithm") == "pixel-dagger"]
+    assert {path.stem for path in pixel_files} >= {"suction_pixels_dagger", "suction_pixels_estimates_shading",
+                                                    "suction_pixels_estimates_exposure"}
+    for path in pixel_files:
+        name, read = pixel_seat.load_config(path)
+        assert name == path.stem
+        base = tomllib.loads(path.read_text())["run"].get("extends")
+        if base is not None:
+            _, extended = pixel_seat.load_config(folder / base)
+            assert read != extended, f"{path.name} changes nothing of {base}"
+    _, exposure = pixel_seat.load_config(resolve_config("suction_pixels_estimates_exposure"))
+    assert (exposure.normalise, exposure.colour_jitter, exposure.jitter_brightness, exposure.shading) == \
+        ("brightness", 0.4, False, 0.3)
 
 
 def test_a_bad_configuration_names_the_field(tmp_path):
