@@ -9,7 +9,7 @@ trained in; ``"held_out"``, outside it; ``"held_out_light"`` and the like, one q
 seat sees no image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
-                                    [--looks train held_out scene] [--json FILE]
+                                    [--looks train held_out scene] [--raise-blood 0.02] [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
 privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
@@ -28,6 +28,16 @@ from partner_zoo import PARTNERS, evaluate
 
 from dvrl_marl import policies
 from dvrl_marl.envs.endoscope import APPEARANCES
+
+
+def raised(policy, amount: float):
+    """``--raise-blood``: the seat's blood estimates (those it keeps at their lowest) raised by ``amount`` more than
+    its ``estimate_margin``: a larger margin tried without training again."""
+    if policy.encoder is None or policy.encoder.keep_lowest is None:
+        raise ValueError("--raise-blood: the pixel seat keeps no estimate at its lowest (no blood estimates named)")
+    weights, bias = policy.encoder.readout
+    policy.encoder.readout = (weights, bias + np.float32(amount) * policy.encoder.keep_lowest)
+    return policy
 
 
 def keeping_lowest(folder):
@@ -54,6 +64,8 @@ def main() -> None:
     parser.add_argument("--keep-lowest", action="store_true",
                         help="the pixel seat keeps the lowest of each estimate in its episode (a policy exported "
                              "without image.fills.keep_lowest, tried with it)")
+    parser.add_argument("--raise-blood", type=float, default=0.0,
+                        help="add this to the seat's blood estimates, beyond the margin it was exported with")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
@@ -68,9 +80,12 @@ def main() -> None:
         for look in args.looks:
             began = time.perf_counter()
             pixel = keeping_lowest(args.pixel) if args.keep_lowest else args.pixel
+            if args.raise_blood:
+                pixel = raised(policies.load(pixel) if isinstance(pixel, (str, Path)) else pixel, args.raise_blood)
             row = evaluate("suction", pixel, partner, args.episodes, False,
                            **({} if look == "scene" else {"image_appearance": look}))
-            row["player"] = str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
+            row["player"] = (str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
+                             + (f" (blood raised {args.raise_blood:+.3f})" if args.raise_blood else ""))
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
             rows.append(row)
