@@ -2,7 +2,8 @@
 
 The pixel suction (``--pixel``, a seat that fills its teacher's observation from the image and keeps each cavity's
 blood estimate at its lowest) plays ``--episodes`` test seeds on one look; at every step its raw estimates of the
-blood left, the lowest it keeps (what its teacher reads, the margin included) and the truth are recorded.
+blood left, the lowest it keeps (what its teacher reads) and the truth are recorded. Both estimates carry the margin
+the seat was exported with (it is in the read-out's bias), and ``--raise-blood``'s.
 
     python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--raise-blood 0.02]
 
@@ -29,7 +30,7 @@ class Traced:
     def __init__(self, policy):
         self.policy = policy
         self.image_options = policy.image_options
-        template, estimates_at = policy.encoder.fills
+        _, estimates_at = policy.encoder.fills
         self.blood = policy.encoder.keep_lowest  # over the read-out's outputs
         self.truth_at = np.asarray(estimates_at)[self.blood]  # the observation's indices of the blood left
         self.raw, self.kept, self.truth = [], [], []
@@ -39,6 +40,7 @@ class Traced:
 
     def __call__(self, observation):
         action = self.policy(observation)
+        # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step)
         self.raw.append(self.policy.encoder(observation["image"])[:, self.blood])
         self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
         self.truth.append(np.asarray(observation["observation"])[:, self.truth_at])
@@ -57,7 +59,7 @@ def main() -> None:
     policy = policies.load(args.pixel)
     if policy.encoder is None or policy.encoder.keep_lowest is None:
         parser.error(f"--pixel {args.pixel}: the seat keeps no blood estimate at its lowest (image.fills.keep_lowest)")
-    seat = Traced(raised(policy, args.raise_blood) if args.raise_blood else policy)
+    seat = Traced(raised(policy, args.raise_blood))
     result = teams.evaluate_team_batched({"suction": seat, "grasper": teams.seat("scripted", "grasper")},
                                          args.episodes, max_cycles=6000, image_appearance=args.look)
     raw, kept, truth = (np.stack(part) for part in (seat.raw, seat.kept, seat.truth))
