@@ -9,7 +9,8 @@ trained in; ``"held_out"``, outside it; ``"held_out_light"`` and the like, one q
 seat sees no image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
-                                    [--looks train held_out scene] [--raise-blood 0.02] [--json FILE]
+                                    [--looks train held_out scene] [--raise-blood 0.02]
+                                    [--acting marl-suction-yielding] [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
 privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
@@ -40,6 +41,18 @@ def raised(policy, amount: float):
     return policy
 
 
+def acting_as(policy, name: str):
+    """``--acting``: the pixel seat's estimates read by another privileged seat (its network in place of the teacher's,
+    the image's read-out kept): what a different teacher would make of the same estimates, without training again."""
+    acting = policies.load(name)
+    if acting.encoder is not None or acting.spec.get("features") != policy.spec.get("features") \
+            or [w.shape for w, _ in acting.weights] != [w.shape for w, _ in policy.weights]:
+        raise ValueError(f"--acting {name}: not a privileged seat reading the observation the pixel seat fills "
+                         f"({policy.spec.get('teacher')}'s)")
+    policy.weights = acting.weights
+    return policy
+
+
 def keeping_lowest(folder):
     """``--keep-lowest``: a pixel seat exported before ``image.fills.keep_lowest`` existed, tried with it (each
     estimate the lowest its episode has seen, world by world; the evaluation starts the episodes)."""
@@ -66,6 +79,8 @@ def main() -> None:
                              "without image.fills.keep_lowest, tried with it)")
     parser.add_argument("--raise-blood", type=float, default=0.0,
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
+    parser.add_argument("--acting", help="another privileged seat acting on the pixel seat's estimates (a policy "
+                                          "name or folder reading the same observation as its teacher)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
@@ -82,10 +97,13 @@ def main() -> None:
             pixel = keeping_lowest(args.pixel) if args.keep_lowest else args.pixel
             if args.raise_blood:
                 pixel = raised(policies.load(pixel) if isinstance(pixel, (str, Path)) else pixel, args.raise_blood)
+            if args.acting:
+                pixel = acting_as(policies.load(pixel) if isinstance(pixel, (str, Path)) else pixel, args.acting)
             row = evaluate("suction", pixel, partner, args.episodes, False,
                            **({} if look == "scene" else {"image_appearance": look}))
             row["player"] = (str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
-                             + (f" (blood raised {args.raise_blood:+.3f})" if args.raise_blood else ""))
+                             + (f" (blood raised {args.raise_blood:+.3f})" if args.raise_blood else "")
+                             + (f" (acting: {args.acting})" if args.acting else ""))
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
             rows.append(row)
