@@ -1,0 +1,65 @@
+"""benchmarks/pixel_seat.py's ways to try a pixel seat without training again: another privileged seat acting on its
+estimates (``--acting``) and its blood estimates raised (``--raise-blood``); each refuses what it cannot do."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dvrl_marl import policies
+
+BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(BENCHMARKS))  # it imports partner_zoo beside it, as when run from there
+    try:
+        spec = importlib.util.spec_from_file_location("pixel_seat_benchmark", BENCHMARKS / "pixel_seat.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def _observation(count=5, seed=0):
+    rng = np.random.default_rng(seed)
+    return {"observation": rng.uniform(-1, 1, (count, 30)),
+            "image": rng.integers(0, 256, (count, 64, 64, 3), dtype=np.uint8)}
+
+
+def test_another_seat_acts_on_the_same_estimates(bench):
+    pixel = policies.load("marl-suction-pixels")
+    yielding = policies.load("marl-suction-yielding")
+    observation = _observation()
+    estimated = pixel.features(observation)  # the teacher's observation, filled from the image
+    acting = bench.acting_as(policies.load("marl-suction-pixels"), "marl-suction-yielding")
+    acting.reset()
+    np.testing.assert_allclose(acting(observation), yielding(estimated), atol=1e-6)
+    assert not np.allclose(acting(observation), pixel(observation), atol=1e-3)
+
+
+@pytest.mark.parametrize("name", ["marl-grasper", "marl-suction-pixels", "reach-lnd"])
+def test_acting_refuses_a_seat_that_reads_another_observation(bench, name):
+    with pytest.raises(ValueError, match=f"--acting {name}: not a privileged seat"):
+        bench.acting_as(policies.load("marl-suction-pixels"), name)
+
+
+def test_raising_the_blood_moves_only_the_estimates_kept_lowest(bench):
+    pixel = policies.load("marl-suction-pixels")
+    observation = _observation()
+    before = pixel.features(observation)
+    pixel.reset()
+    after = bench.raised(policies.load("marl-suction-pixels"), 0.05).features(observation)
+    kept = np.zeros(before.shape[-1], dtype=bool)
+    kept[7:9] = True  # the blood left per cavity, the estimates it keeps at their lowest
+    np.testing.assert_allclose(after[:, kept], before[:, kept] + 0.05, atol=1e-5)
+    np.testing.assert_allclose(after[:, ~kept], before[:, ~kept], atol=1e-6)
+
+
+def test_raising_refuses_a_seat_without_blood_estimates(bench):
+    with pytest.raises(ValueError, match="keeps no estimate at its lowest"):
+        bench.raised(policies.load("marl-suction"), 0.02)
