@@ -35,16 +35,20 @@ def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, *
     """One row: ``player`` in ``seat`` beside ``partner`` (``env_kwargs``: the evaluation env's options, such as
     ``image_appearance`` for a seat that sees the endoscope)."""
     other = other_seat(seat)
-    env = suction_debris_v8.parallel_env()
-    filler = (zoo_partner(partner, other, env) if partner not in ("scripted", "pipeline")
-              else teams.seat(partner, other))
     team = {seat: teams.seat(player, seat, noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
-            other: filler}
+            other: partner_seat(partner, other)}
     result = teams.evaluate_team_batched(team, episodes, max_cycles=6000, **env_kwargs)
     return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
             "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
             "mean_contact_steps": result["mean_contact_steps"], "tip_path_mm": result["mean_tip_path_mm"][seat],
             "action_change": result["mean_action_change"][seat]}
+
+
+def partner_seat(partner: str, seat: str):
+    """The partner kind ``partner`` (one of :data:`PARTNERS`) filling ``seat``."""
+    if partner in ("scripted", "pipeline"):
+        return teams.seat(partner, seat)
+    return zoo_partner(partner, seat, suction_debris_v8.parallel_env())
 
 
 def other_seat(seat: str) -> str:

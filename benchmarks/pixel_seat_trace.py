@@ -1,15 +1,20 @@
-"""Why a pixel seat fails: its blood estimates against the truth, world by world, beside the scripted surgeon.
+"""Why a pixel seat fails: its blood estimates against the truth, world by world, beside a partner.
 
 The pixel suction (``--pixel``, a seat that fills its teacher's observation from the image and keeps each cavity's
-blood estimate at its lowest) plays ``--episodes`` test seeds on one look; at every step its raw estimates of the
-blood left, the lowest it keeps (what its teacher reads) and the truth are recorded. Both estimates carry the margin
-the seat was exported with (it is in the read-out's bias), and ``--raise-blood``'s.
+blood estimate at its lowest) plays ``--episodes`` test seeds on one look beside ``--partner`` (the scripted surgeon
+unless named); at every step its raw estimates of the blood left, the lowest it keeps (what its teacher reads) and
+the truth are recorded. Both estimates carry the margin the seat was exported with (it is in the read-out's bias),
+and ``--raise-blood``'s.
 
-    python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--raise-blood 0.02]
+    python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--partner in-the-way]
+                                          [--raise-blood 0.02]
 
 Prints per world: success and steps; the truth and the kept estimate per cavity at its end; the kept estimate's
 least and greatest error over its episode, and the raw estimate's 1st and 99th percentile of error. A seat that left
-a cavity early shows a kept estimate under the task's threshold beside a truth above it.
+a cavity early shows a kept estimate under the task's threshold beside a truth above it. Then the other estimates'
+error (the other arm's tip: the largest of its coordinates' errors, in the observation's units) and how far the
+seat's action is from its teacher's given the truth in the estimates' place: a seat that goes elsewhere than its
+teacher would, its blood estimates right, was led there by the rest.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from partner_zoo import PARTNERS, partner_seat
 from pixel_seat import raised
 
 from dvrl_marl import policies
@@ -33,7 +39,9 @@ class Traced:
         _, estimates_at = policy.encoder.fills
         self.blood = policy.encoder.keep_lowest  # over the read-out's outputs
         self.truth_at = np.asarray(estimates_at)[self.blood]  # the observation's indices of the blood left
-        self.raw, self.kept, self.truth = [], [], []
+        self.other_at = np.asarray(estimates_at)[~self.blood]  # the rest it estimates (the other arm's tip)
+        self.teacher = policies.load(policy.spec["teacher"])
+        self.raw, self.kept, self.truth, self.other_error, self.action_gap = [], [], [], [], []
 
     def reset(self, worlds=None):
         self.policy.reset(worlds)
@@ -43,7 +51,19 @@ class Traced:
         # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step)
         self.raw.append(self.policy.encoder(observation["image"])[:, self.blood])
         self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
-        self.truth.append(np.asarray(observation["observation"])[:, self.truth_at])
+        state = np.asarray(observation["observation"])
+        self.truth.append(state[:, self.truth_at])
+        estimates = self.policy.encoder(observation["image"])
+        self.other_error.append(np.abs(estimates[:, ~self.blood] - state[:, self.other_at]).max(axis=1)
+                                if self.other_at.size else np.zeros(len(state)))
+        # what its teacher does given the truth where the seat has estimates (the rest as the seat fills it): where
+        # the two part, the estimates led the seat elsewhere
+        template, estimates_at = self.policy.encoder.fills
+        truthful = np.broadcast_to(template, (len(state), template.size)).copy()
+        own = self.policy.encoder.proprioception
+        truthful[:, own] = state[:, own]
+        truthful[:, estimates_at] = state[:, estimates_at]
+        self.action_gap.append(np.abs(action - self.teacher(truthful)).max(axis=1))
         return action
 
 
@@ -53,6 +73,7 @@ def main() -> None:
     parser.add_argument("--pixel", required=True, help="the pixel seat's policy folder")
     parser.add_argument("--look", default="held_out", choices=sorted(APPEARANCES))
     parser.add_argument("--episodes", type=int, default=20, help="test seeds")
+    parser.add_argument("--partner", default="scripted", choices=PARTNERS, help="the partner kind at the LND")
     parser.add_argument("--raise-blood", type=float, default=0.0,
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
     args = parser.parse_args()
@@ -60,10 +81,12 @@ def main() -> None:
     if policy.encoder is None or policy.encoder.keep_lowest is None:
         parser.error(f"--pixel {args.pixel}: the seat keeps no blood estimate at its lowest (image.fills.keep_lowest)")
     seat = Traced(raised(policy, args.raise_blood))
-    result = teams.evaluate_team_batched({"suction": seat, "grasper": teams.seat("scripted", "grasper")},
+    result = teams.evaluate_team_batched({"suction": seat, "grasper": partner_seat(args.partner, "grasper")},
                                          args.episodes, max_cycles=6000, image_appearance=args.look)
-    raw, kept, truth = (np.stack(part) for part in (seat.raw, seat.kept, seat.truth))
-    print(f"success {result['success_rate']:.2f} ({args.look} looks, {args.episodes} episodes)")
+    raw, kept, truth, other_error, gap = (np.stack(part) for part in (seat.raw, seat.kept, seat.truth,
+                                                                      seat.other_error, seat.action_gap))
+    print(f"success {result['success_rate']:.2f} ({args.look} looks, beside {args.partner}, {args.episodes} episodes), "
+          f"contact steps {result['mean_contact_steps']:.1f}")
     for world in range(args.episodes):
         end = result["steps"][world]
         error, raw_error = kept[:end, world] - truth[:end, world], raw[:end, world] - truth[:end, world]
@@ -71,7 +94,11 @@ def main() -> None:
               f"end: truth {np.round(truth[end - 1, world], 3)} kept {np.round(kept[end - 1, world], 3)}  "
               f"kept - truth: least {np.round(error.min(0), 3)} most {np.round(error.max(0), 3)}  "
               f"raw - truth: 1st / 99th pct {np.round(np.percentile(raw_error, 1, axis=0), 3)} "
-              f"{np.round(np.percentile(raw_error, 99, axis=0), 3)}")
+              f"{np.round(np.percentile(raw_error, 99, axis=0), 3)}  "
+              f"other tip's error: median {np.median(other_error[:end, world]):.3f} "
+              f"99th pct {np.percentile(other_error[:end, world], 99):.3f}  "
+              f"|action - teacher's|: mean {gap[:end, world].mean():.2f} > 0.5 in "
+              f"{(gap[:end, world] > 0.5).mean():.0%} of steps")
 
 
 if __name__ == "__main__":
