@@ -6,7 +6,8 @@ unless named); at every step its raw estimates of the blood left, the lowest it 
 the truth are recorded. Both estimates carry the margin the seat was exported with (it is in the read-out's bias),
 and ``--raise-blood``'s.
 
-    python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--partner in-the-way]
+    python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--first 0]
+                                          [--partner in-the-way]
                                           [--raise-blood 0.02]
 
 Prints per world: success and steps; the truth and the kept estimate per cavity at its end; the kept estimate's
@@ -14,7 +15,8 @@ least and greatest error over its episode, and the raw estimate's 1st and 99th p
 a cavity early shows a kept estimate under the task's threshold beside a truth above it. Then the other estimates'
 error (the other arm's tip: the largest of its coordinates' errors, in the observation's units) and how far the
 seat's action is from its teacher's given the truth in the estimates' place: a seat that goes elsewhere than its
-teacher would, its blood estimates right, was led there by the rest.
+teacher would, its blood estimates right, was led there by the rest (and the distance again given the true
+blood alone, the rest as estimated: small where the rest made the seat's action).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ class Traced:
         self.other_at = np.asarray(estimates_at)[~self.blood]  # the rest it estimates (the other arm's tip)
         self.teacher = policies.load(policy.spec["teacher"])
         self.raw, self.kept, self.truth, self.other_error, self.action_gap = [], [], [], [], []
+        self.blood_only_gap = []
 
     def reset(self, worlds=None):
         self.policy.reset(worlds)
@@ -64,6 +67,10 @@ class Traced:
         truthful[:, own] = state[:, own]
         truthful[:, estimates_at] = state[:, estimates_at]
         self.action_gap.append(np.abs(action - self.teacher(truthful)).max(axis=1))
+        # the same with the true blood alone (the rest as estimated): small where the rest made the seat's action
+        blood_only = self.policy.encoder.observation(observation["image"], state)
+        blood_only[:, self.truth_at] = state[:, self.truth_at]
+        self.blood_only_gap.append(np.abs(action - self.teacher(blood_only)).max(axis=1))
         return action
 
 
@@ -73,6 +80,7 @@ def main() -> None:
     parser.add_argument("--pixel", required=True, help="the pixel seat's policy folder")
     parser.add_argument("--look", default="held_out", choices=sorted(APPEARANCES))
     parser.add_argument("--episodes", type=int, default=20, help="test seeds")
+    parser.add_argument("--first", type=int, default=0, help="the first test seed (world j plays seed first + j)")
     parser.add_argument("--partner", default="scripted", choices=PARTNERS, help="the partner kind at the LND")
     parser.add_argument("--raise-blood", type=float, default=0.0,
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
@@ -82,15 +90,17 @@ def main() -> None:
         parser.error(f"--pixel {args.pixel}: the seat keeps no blood estimate at its lowest (image.fills.keep_lowest)")
     seat = Traced(raised(policy, args.raise_blood))
     result = teams.evaluate_team_batched({"suction": seat, "grasper": partner_seat(args.partner, "grasper")},
-                                         args.episodes, max_cycles=6000, image_appearance=args.look)
-    raw, kept, truth, other_error, gap = (np.stack(part) for part in (seat.raw, seat.kept, seat.truth,
-                                                                      seat.other_error, seat.action_gap))
+                                         args.episodes, seed=teams.EVAL_SEED + args.first, max_cycles=6000,
+                                         image_appearance=args.look)
+    raw, kept, truth, other_error, gap, blood_only_gap = (
+        np.stack(part) for part in (seat.raw, seat.kept, seat.truth, seat.other_error, seat.action_gap,
+                                    seat.blood_only_gap))
     print(f"success {result['success_rate']:.2f} ({args.look} looks, beside {args.partner}, {args.episodes} episodes), "
           f"contact steps {result['mean_contact_steps']:.1f}")
     for world in range(args.episodes):
         end = result["steps"][world]
         error, raw_error = kept[:end, world] - truth[:end, world], raw[:end, world] - truth[:end, world]
-        print(f"world {world:3d} {'ok  ' if result['success'][world] else 'FAIL'} steps {end:5d}  "
+        print(f"world {args.first + world:3d} {'ok  ' if result['success'][world] else 'FAIL'} steps {end:5d}  "
               f"end: truth {np.round(truth[end - 1, world], 3)} kept {np.round(kept[end - 1, world], 3)}  "
               f"kept - truth: least {np.round(error.min(0), 3)} most {np.round(error.max(0), 3)}  "
               f"raw - truth: 1st / 99th pct {np.round(np.percentile(raw_error, 1, axis=0), 3)} "
@@ -98,7 +108,8 @@ def main() -> None:
               f"other tip's error: median {np.median(other_error[:end, world]):.3f} "
               f"99th pct {np.percentile(other_error[:end, world], 99):.3f}  "
               f"|action - teacher's|: mean {gap[:end, world].mean():.2f} > 0.5 in "
-              f"{(gap[:end, world] > 0.5).mean():.0%} of steps")
+              f"{(gap[:end, world] > 0.5).mean():.0%} of steps, given the true blood alone: mean "
+              f"{blood_only_gap[:end, world].mean():.2f}")
 
 
 if __name__ == "__main__":
