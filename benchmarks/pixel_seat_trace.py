@@ -78,7 +78,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--pixel", required=True, help="the pixel seat's policy folder")
-    parser.add_argument("--look", default="held_out", choices=sorted(APPEARANCES))
+    parser.add_argument("--look", default="held_out", choices=[*sorted(APPEARANCES), "scene"],
+                        help="scene: the scene's own look (no image_appearance), as a person's view draws it")
     parser.add_argument("--episodes", type=int, default=20, help="test seeds")
     parser.add_argument("--first", type=int, default=0, help="the first test seed (world j plays seed first + j)")
     parser.add_argument("--partner", default="scripted", choices=PARTNERS, help="the partner kind at the LND")
@@ -91,7 +92,7 @@ def main() -> None:
     seat = Traced(raised(policy, args.raise_blood))
     result = teams.evaluate_team_batched({"suction": seat, "grasper": partner_seat(args.partner, "grasper")},
                                          args.episodes, seed=teams.EVAL_SEED + args.first, max_cycles=6000,
-                                         image_appearance=args.look)
+                                         **({} if args.look == "scene" else {"image_appearance": args.look}))
     raw, kept, truth, other_error, gap, blood_only_gap = (
         np.stack(part) for part in (seat.raw, seat.kept, seat.truth, seat.other_error, seat.action_gap,
                                     seat.blood_only_gap))
