@@ -131,10 +131,11 @@ def test_the_pixel_suction_loads_with_numpy_alone_and_reads_the_endoscope():
         policies.load("marl-suction-pixels")(np.zeros(30))
 
 
-@pytest.mark.parametrize("look", [None, "train"])
+@pytest.mark.parametrize("look", [None, "train", "held_out"])
 def test_the_pixel_suction_clears_the_field_from_the_endoscope_beside_the_scripted_surgeon(look):
     """By its default call, reading only the endoscope's image and its own tip and valve, on held-out seeds of the
-    task's 1,500 steps: the scene's own look (as a person's view draws it) and looks of the training range."""
+    task's 1,500 steps: the scene's own look (as a person's view draws it), looks of the training range and looks
+    outside it."""
     options = {} if look is None else {"image_appearance": look}
     team = {"suction": teams.seat("marl-suction-pixels", "suction"), "grasper": teams.seat("scripted", "grasper")}
     result = teams.evaluate_team_batched(team, episodes=8, **options)
