@@ -10,7 +10,7 @@ seat sees no image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
                                     [--looks train held_out scene] [--raise-blood 0.02]
-                                    [--acting marl-suction-yielding] [--json FILE]
+                                    [--acting marl-suction-yielding] [--exact] [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
 privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
@@ -53,6 +53,31 @@ def acting_as(policy, name: str):
     return policy
 
 
+def exactly_filled(policy, state: np.ndarray) -> np.ndarray:
+    """The observation a pixel seat fills for its teacher (the scene's constants, its own tip and valve, zero for what
+    it is not given) with the truth from ``state`` where it has estimates."""
+    template, estimates_at = policy.encoder.fills
+    filled = np.broadcast_to(template, (len(state), template.size)).copy()
+    own = policy.encoder.proprioception
+    filled[:, own] = state[:, own]
+    filled[:, estimates_at] = state[:, estimates_at]
+    return filled
+
+
+class ExactEstimates:
+    """``--exact``: the pixel seat's teacher on what the seat fills, its estimates exact (no image drawn): the most a
+    perfect read-out of the image could give that seat."""
+
+    def __init__(self, folder):
+        self.pixel = policies.load(folder)
+        if self.pixel.encoder is None or self.pixel.encoder.fills is None:
+            raise ValueError(f"--exact: {folder} does not fill its teacher's observation from the image")
+        self.teacher = policies.load(self.pixel.spec["teacher"])
+
+    def __call__(self, observation) -> np.ndarray:
+        return self.teacher(exactly_filled(self.pixel, np.asarray(observation, dtype=np.float64)))
+
+
 def keeping_lowest(folder):
     """``--keep-lowest``: a pixel seat exported before ``image.fills.keep_lowest`` existed, tried with it (each
     estimate the lowest its episode has seen, world by world; the evaluation starts the episodes)."""
@@ -71,9 +96,9 @@ def main() -> None:
                         help="the seat that sees the endoscope: a policy folder (runs/<name>-seed<N>/policies/<name>)")
     parser.add_argument("--privileged", default="marl-suction", help="the seat it was distilled from")
     parser.add_argument("--partners", nargs="+", default=list(PARTNERS), choices=PARTNERS)
-    parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=[*APPEARANCES, "scene"],
+    parser.add_argument("--looks", nargs="*", default=["train", "held_out"], choices=[*APPEARANCES, "scene"],
                         help="scene: the scene's own look (no image_appearance), as a person's view draws it; "
-                             "held_out_light (colour, camera, noise): that quantity alone held out")
+                             "held_out_light (colour, camera, noise): that quantity alone held out; none: no pixel row")
     parser.add_argument("--keep-lowest", action="store_true",
                         help="the pixel seat keeps the lowest of each estimate in its episode (a policy exported "
                              "without image.fills.keep_lowest, tried with it)")
@@ -81,6 +106,8 @@ def main() -> None:
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
     parser.add_argument("--acting", help="another privileged seat acting on the pixel seat's estimates (a policy "
                                           "name or folder reading the same observation as its teacher)")
+    parser.add_argument("--exact", action="store_true",
+                        help="also a row of its teacher on what the seat fills, the estimates exact (no image)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
@@ -92,6 +119,13 @@ def main() -> None:
         privileged.update(look=None, seconds=round(time.perf_counter() - began, 1))
         rows.append(privileged)
         runs = [(privileged, "-")]
+        if args.exact:
+            began = time.perf_counter()
+            exact = evaluate("suction", ExactEstimates(args.pixel), partner, args.episodes, False)
+            exact.update(player="exact estimates", look=None, seconds=round(time.perf_counter() - began, 1),
+                         gap=round(exact["success_rate"] - privileged["success_rate"], 3))
+            rows.append(exact)
+            runs.append((exact, "-"))
         for look in args.looks:
             began = time.perf_counter()
             pixel = keeping_lowest(args.pixel) if args.keep_lowest else args.pixel

@@ -25,7 +25,7 @@ import argparse
 
 import numpy as np
 from partner_zoo import PARTNERS, partner_seat
-from pixel_seat import raised
+from pixel_seat import exactly_filled, raised
 
 from dvrl_marl import policies
 from dvrl_marl.envs.endoscope import APPEARANCES
@@ -61,12 +61,7 @@ class Traced:
                                 if self.other_at.size else np.zeros(len(state)))
         # what its teacher does given the truth where the seat has estimates (the rest as the seat fills it): where
         # the two part, the estimates led the seat elsewhere
-        template, estimates_at = self.policy.encoder.fills
-        truthful = np.broadcast_to(template, (len(state), template.size)).copy()
-        own = self.policy.encoder.proprioception
-        truthful[:, own] = state[:, own]
-        truthful[:, estimates_at] = state[:, estimates_at]
-        self.action_gap.append(np.abs(action - self.teacher(truthful)).max(axis=1))
+        self.action_gap.append(np.abs(action - self.teacher(exactly_filled(self.policy, state))).max(axis=1))
         # the same with the true blood alone (the rest as estimated): small where the rest made the seat's action
         blood_only = self.policy.encoder.observation(observation["image"], state)
         blood_only[:, self.truth_at] = state[:, self.truth_at]

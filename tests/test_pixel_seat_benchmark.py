@@ -62,3 +62,19 @@ def test_raising_the_blood_moves_only_the_estimates_kept_lowest(bench):
 def test_raising_refuses_a_seat_without_blood_estimates(bench):
     with pytest.raises(ValueError, match="keeps no estimate at its lowest"):
         bench.raised(policies.load("marl-suction"), 0.02)
+
+
+def test_exact_estimates_are_the_teacher_on_the_truth_where_the_seat_estimates(bench):
+    pixel = policies.load("marl-suction-pixels")
+    template, estimates_at = pixel.encoder.fills
+    state = np.random.default_rng(1).uniform(-1, 1, (6, 30))
+    filled = bench.exactly_filled(pixel, state)
+    given = np.zeros(30, dtype=bool)
+    given[pixel.encoder.proprioception] = True
+    given[estimates_at] = True
+    np.testing.assert_array_equal(filled[:, given], state[:, given])  # its own tip and valve, the estimated truth
+    np.testing.assert_array_equal(filled[:, ~given], np.broadcast_to(template, state.shape)[:, ~given])
+    exact = bench.ExactEstimates("marl-suction-pixels")
+    np.testing.assert_allclose(exact(state), policies.load(pixel.spec["teacher"])(filled))
+    with pytest.raises(ValueError, match="--exact: marl-suction does not fill"):
+        bench.ExactEstimates("marl-suction")
