@@ -54,14 +54,8 @@ def acting_as(policy, name: str):
 
 
 def exactly_filled(policy, state: np.ndarray) -> np.ndarray:
-    """The observation a pixel seat fills for its teacher (the scene's constants, its own tip and valve, zero for what
-    it is not given) with the truth from ``state`` where it has estimates."""
-    template, estimates_at = policy.encoder.fills
-    filled = np.broadcast_to(template, (len(state), template.size)).copy()
-    own = policy.encoder.proprioception
-    filled[:, own] = state[:, own]
-    filled[:, estimates_at] = state[:, estimates_at]
-    return filled
+    """The observation a pixel seat fills for its teacher with the truth from ``state`` where it has estimates."""
+    return policy.encoder.filled(state[..., policy.encoder.proprioception], state[..., policy.encoder.fills[1]])
 
 
 class ExactEstimates:
@@ -128,11 +122,11 @@ def main() -> None:
             runs.append((exact, "-"))
         for look in args.looks:
             began = time.perf_counter()
-            pixel = keeping_lowest(args.pixel) if args.keep_lowest else args.pixel
+            pixel = keeping_lowest(args.pixel) if args.keep_lowest else policies.load(args.pixel)  # fresh per look
             if args.raise_blood:
-                pixel = raised(policies.load(pixel) if isinstance(pixel, (str, Path)) else pixel, args.raise_blood)
+                pixel = raised(pixel, args.raise_blood)
             if args.acting:
-                pixel = acting_as(policies.load(pixel) if isinstance(pixel, (str, Path)) else pixel, args.acting)
+                pixel = acting_as(pixel, args.acting)
             row = evaluate("suction", pixel, partner, args.episodes, False,
                            **({} if look == "scene" else {"image_appearance": look}))
             row["player"] = (str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")

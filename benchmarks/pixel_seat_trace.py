@@ -52,20 +52,20 @@ class Traced:
     def __call__(self, observation):
         action = self.policy(observation)
         # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step)
-        self.raw.append(self.policy.encoder(observation["image"])[:, self.blood])
-        self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
-        state = np.asarray(observation["observation"])
-        self.truth.append(state[:, self.truth_at])
         estimates = self.policy.encoder(observation["image"])
+        self.raw.append(estimates[:, self.blood])
+        self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
+        state = np.asarray(observation["observation"], dtype=np.float64)
+        self.truth.append(state[:, self.truth_at])
         self.other_error.append(np.abs(estimates[:, ~self.blood] - state[:, self.other_at]).max(axis=1)
                                 if self.other_at.size else np.zeros(len(state)))
         # what its teacher does given the truth where the seat has estimates (the rest as the seat fills it): where
         # the two part, the estimates led the seat elsewhere
-        self.action_gap.append(np.abs(action - self.teacher(exactly_filled(self.policy, state))).max(axis=1))
+        exact = exactly_filled(self.policy, state)
+        self.action_gap.append(np.abs(action - self.teacher(exact)).max(axis=1))
         # the same with the true blood alone (the rest as estimated): small where the rest made the seat's action
-        blood_only = self.policy.encoder.observation(observation["image"], state)
-        blood_only[:, self.truth_at] = state[:, self.truth_at]
-        self.blood_only_gap.append(np.abs(action - self.teacher(blood_only)).max(axis=1))
+        exact[:, self.other_at] = estimates[:, ~self.blood]
+        self.blood_only_gap.append(np.abs(action - self.teacher(exact)).max(axis=1))
         return action
 
 
@@ -76,7 +76,10 @@ def main() -> None:
     parser.add_argument("--look", default="held_out", choices=[*sorted(APPEARANCES), "scene"],
                         help="scene: the scene's own look (no image_appearance), as a person's view draws it")
     parser.add_argument("--episodes", type=int, default=20, help="test seeds")
-    parser.add_argument("--first", type=int, default=0, help="the first test seed (world j plays seed first + j)")
+    parser.add_argument("--first", type=int, default=0,
+                        help="the first test seed (world j plays seed first + j; a partner kind drawn per world, such "
+                             "as in-the-way, fills world j with its member j, so only the scripted and pipeline "
+                             "partners replay a world of a longer run)")
     parser.add_argument("--partner", default="scripted", choices=PARTNERS, help="the partner kind at the LND")
     parser.add_argument("--raise-blood", type=float, default=0.0,
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")

@@ -1,5 +1,6 @@
 """benchmarks/pixel_seat.py's ways to try a pixel seat without training again: another privileged seat acting on its
-estimates (``--acting``) and its blood estimates raised (``--raise-blood``); each refuses what it cannot do."""
+estimates (``--acting``), its blood estimates raised (``--raise-blood``), its teacher given exact estimates
+(``--exact``); each refuses what it cannot do."""
 
 import importlib.util
 import sys

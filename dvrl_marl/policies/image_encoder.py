@@ -62,12 +62,17 @@ class ImageEncoder:
         encoded = self(images).astype(np.float64)
         if self.fills is None:
             return np.concatenate([encoded, own], axis=-1)
+        if self.keep_lowest is not None:
+            encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
+        return self.filled(own, encoded)
+
+    def filled(self, own: np.ndarray, estimates: np.ndarray) -> np.ndarray:
+        """The teacher's observation (``fills``): the scene's constants, ``own`` (the proprioception) at its indices,
+        ``estimates`` at theirs (the read-out's, or the truth's to ask what exact estimates would give)."""
         template, estimates_at = self.fills
         filled = np.broadcast_to(template, own.shape[:-1] + template.shape).copy()
         filled[..., self.proprioception] = own
-        if self.keep_lowest is not None:
-            encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
-        filled[..., estimates_at] = encoded
+        filled[..., estimates_at] = estimates
         return filled
 
     def reset(self, worlds=None) -> None:
