@@ -242,12 +242,15 @@ class PolicyImageFill(BaseModel):
     """How a pixel policy fills the observation of the state policy it acts with: ``template`` (the scene's constants,
     zero for what the image does not give), its proprioception at the same indices as in the env's observation, its
     read-out's estimates at ``estimates_at``; at the indices ``keep_lowest`` names (some of ``estimates_at``), each
-    estimate the lowest its episode has seen (the policy then keeps state per world: ``reset`` starts an episode)."""
+    estimate the lowest its episode has seen (the policy then keeps state per world: ``reset`` starts an episode).
+    ``relative`` pairs ``[estimated, own]``: the read-out estimates ``observation[estimated] - observation[own]``, an
+    index of the proprioception, which is added back (the other arm's tip read as its offset from the own tip)."""
 
     model_config = STRICT
     template: Annotated[list[Finite], Field(min_length=1)]
     estimates_at: Annotated[list[NonNegativeInt], Field(min_length=1)]
     keep_lowest: list[NonNegativeInt] = []
+    relative: list[Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]] = []
 
 
 class PolicyImage(BaseModel):
@@ -280,6 +283,13 @@ class PolicyImage(BaseModel):
             if not set(self.fills.keep_lowest) <= set(at):
                 raise ValueError(f"fills.keep_lowest {self.fills.keep_lowest} names indices that are not estimated "
                                  f"(estimates_at {at})")
+            relative = [estimated for estimated, _ in self.fills.relative]
+            if not set(relative) <= set(at) - set(self.fills.keep_lowest) or len(set(relative)) != len(relative):
+                raise ValueError(f"fills.relative {self.fills.relative}: each pair's first index must be estimated "
+                                 f"(estimates_at {at}), once, and not kept at its lowest")
+            if any(not start <= own < stop for _, own in self.fills.relative):
+                raise ValueError(f"fills.relative {self.fills.relative}: each pair's second index must be of the "
+                                 f"proprioception {self.proprioception}")
         return self
 
     def policy_input_size(self) -> int:

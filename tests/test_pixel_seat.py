@@ -384,6 +384,60 @@ def test_a_seat_estimating_the_other_tip_raises_and_keeps_lowest_only_the_blood(
     np.testing.assert_allclose(later[:, 7:9], np.minimum(raw[0], raw[1])[:, 3:] + 0.02, atol=1e-5)  # the blood: lowest
 
 
+def test_a_seat_reading_the_other_tip_as_an_offset_adds_its_own_tip_back(tmp_path):
+    """other_tip_relative: the read-out estimates the other tip minus the own tip; the policy adds its own tip (the
+    proprioception) back before the teacher reads it, and the trainer's targets are those offsets."""
+    config = _config(acts_by="teacher", estimated=[4, 9], estimate_margin=0.02, keep_lowest=True,
+                     other_tip_relative=True, convolutions=[[8, 8, 4]])
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-offset", {}, np.full(30, np.nan))
+    policy = policies.load(folder)
+    assert policy.spec["image"]["fills"]["relative"] == [[4, 0], [5, 1], [6, 2]]
+    observation = _observation(3, seed=1)
+    with torch.no_grad():
+        raw = model.features(torch.from_numpy(observation["image"])).numpy()
+    seen = policy.encoder.observation(observation["image"], observation["observation"])
+    np.testing.assert_allclose(seen[:, 4:7], raw[:, :3] + observation["observation"][:, 0:3], atol=1e-5)
+    np.testing.assert_allclose(seen[:, 7:9], raw[:, 3:] + 0.02, atol=1e-5)  # the blood: as it is read
+    np.testing.assert_allclose(policy.encoder.estimates(observation["image"], observation["observation"][:, :4]),
+                               seen[:, 4:9], atol=1e-5)  # (the margin is the read-out's; the first lowest kept)
+    # the trainer's targets: the other tip's offset from the own tip, the blood as it is
+    small = config.model_copy(update={"worlds": 2, "max_cycles": 6, "record_every": 2, "partners": ["scripted"]})
+    offsets = pixel_seat.collect(small, None, seed=3, noise_seed=3)["targets"]
+    absolute = pixel_seat.collect(small.model_copy(update={"other_tip_relative": False}), None, seed=3,
+                                  noise_seed=3)
+    np.testing.assert_allclose(offsets[:, :3], absolute["targets"][:, :3] - absolute["proprioception"][:, :3],
+                               atol=1e-6)
+    np.testing.assert_array_equal(offsets[:, 3:], absolute["targets"][:, 3:])
+
+
+@pytest.mark.parametrize("relative, message", [
+    ([[9, 0]], "first index must be estimated"),
+    ([[7, 0]], "not kept at its lowest"),
+    ([[4, 0], [4, 1]], "once"),
+    ([[4, 5]], "second index must be of the proprioception"),
+])
+def test_an_offset_that_does_not_fit_is_refused_by_name(tmp_path, relative, message):
+    config = _config(acts_by="teacher", estimated=[4, 9], keep_lowest=True, convolutions=[[8, 8, 4]])
+    folder = pixel_seat.export(pixel_seat.PixelActor(config, 4), config, tmp_path / "policy", "test-offset", {},
+                               np.full(30, np.nan))
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["image"]["fills"]["relative"] = relative
+    (folder / "policy.json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=message):
+        policies.load(folder)
+
+
+@pytest.mark.parametrize("settings", ['other_tip_relative = true\n',
+                                      'acts_by = "teacher"\nestimated = [7, 9]\nother_tip_relative = true\n'])
+def test_reading_the_other_tip_as_an_offset_needs_it_estimated(tmp_path, settings):
+    path = tmp_path / "seat.toml"
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\n' + settings)
+    with pytest.raises(ValueError, match="other_tip_relative reads the other arm's tip as an offset"):
+        pixel_seat.load_config(path)
+
+
 def test_fitting_the_other_tip_weighs_the_blood_towards_empty_and_the_tip_by_its_spread():
     config = _config(acts_by="teacher", estimated=[4, 9], convolutions=[[4, 8, 4]], batch_size=8)
     rng = np.random.default_rng(0)

@@ -11,7 +11,8 @@ read-out's estimates fill a state policy's observation (a template of the scene'
 its own indices), which the policy reads as it would the env's (its ``features`` computed from it): a privileged
 policy acting on what the image tells it. ``fills.keep_lowest`` names the estimates (observation indices) kept, world
 by world, at their lowest value since the episode began (the policy's ``reset(worlds)`` starts episodes; the
-evaluations and the seats call it).
+evaluations and the seats call it). ``fills.relative`` names estimates read as offsets from the arm's own values
+(the other arm's tip from the own tip): the proprioception is added back before they fill the observation.
 """
 
 from __future__ import annotations
@@ -48,9 +49,15 @@ class ImageEncoder:
             kept = np.isin(checked.fills.estimates_at, checked.fills.keep_lowest)
             self.keep_lowest = kept if kept.any() else None
         self._lowest = None  # keep_lowest: the lowest estimates of each world's episode so far
+        # fills.relative: the read-out's outputs that are offsets, and the proprioception's entries added to them
+        self.relative = None
+        if checked.fills is not None and checked.fills.relative:
+            at, start = list(checked.fills.estimates_at), checked.proprioception[0]
+            self.relative = (np.array([at.index(estimated) for estimated, _ in checked.fills.relative]),
+                             np.array([own - start for _, own in checked.fills.relative]))
         if (self.readout is None) != (checked.readout is None):
-            raise ValueError("policy.json's image names a readout of "
-                             f"{checked.readout} outputs, {'without' if self.readout is None else 'with'} weights for it")
+            raise ValueError(f"policy.json's image names a readout of {checked.readout} outputs, "
+                             f"{'without' if self.readout is None else 'with'} weights for it")
 
     def observation(self, images, observation) -> np.ndarray:
         """What the policy's layers read: the filled observation (the template, the env observation's
@@ -59,12 +66,21 @@ class ImageEncoder:
         # a network of its own trained on float32 proprioception; a teacher's layers read the float64 observation
         own = np.asarray(observation, dtype=np.float32 if self.fills is None else np.float64)[..., self.proprioception]
         own = own.astype(np.float64)
-        encoded = self(images).astype(np.float64)
         if self.fills is None:
-            return np.concatenate([encoded, own], axis=-1)
+            return np.concatenate([self(images).astype(np.float64), own], axis=-1)
+        encoded = self.estimates(images, own)
         if self.keep_lowest is not None:
             encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
         return self.filled(own, encoded)
+
+    def estimates(self, images, own) -> np.ndarray:
+        """The read-out's estimates in the observation's terms (a ``fills`` policy): the offsets ``fills.relative``
+        names with ``own`` (the proprioception) added back; none kept at its lowest."""
+        estimates = self(images).astype(np.float64)
+        if self.relative is not None:
+            outputs, entries = self.relative
+            estimates[..., outputs] += np.asarray(own, dtype=np.float64)[..., entries]
+        return estimates
 
     def filled(self, own: np.ndarray, estimates: np.ndarray) -> np.ndarray:
         """The teacher's observation (``fills``): the scene's constants, ``own`` (the proprioception) at its indices,

@@ -86,6 +86,9 @@ class PixelSeatConfig(BaseModel):
     # acts_by = "teacher": the estimates other than the blood (the other arm's tip) weigh their squared error in units
     # of their spread times this, beside the blood's weighted error (about 1e-5 once fitted: measured)
     other_estimate_weight: NonNegative = 1.0
+    # acts_by = "teacher": the other arm's tip (where estimated) read as its offset from the arm's own tip, which the
+    # seat knows exactly (image.fills.relative): an image moved or turned moves both tips alike
+    other_tip_relative: Flag = False
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
@@ -124,6 +127,10 @@ def load_config(path) -> tuple[str, PixelSeatConfig]:
     if config.keep_lowest and config.acts_by != "teacher":
         raise ValueError(f"{path}: [run] keep_lowest is for acts_by = 'teacher' (the estimates filling its teacher's "
                          f"observation), got acts_by = {config.acts_by!r}")
+    if config.other_tip_relative and (config.acts_by != "teacher" or not _relative(config)):
+        raise ValueError(f"{path}: [run] other_tip_relative reads the other arm's tip as an offset: it needs acts_by = "
+                         f"'teacher' and the tip among the estimated indices, got acts_by = {config.acts_by!r}, "
+                         f"estimated = {config.estimated}")
     return path.stem, config
 
 
@@ -213,6 +220,20 @@ def _env(config: PixelSeatConfig, worlds: int):
                                          else config.image_appearance, **options)
 
 
+def _relative(config: PixelSeatConfig) -> list[list[int]]:
+    """``image.fills.relative``'s pairs ``[estimated, own]``: each estimated coordinate of the other arm's tip and the
+    own tip's same coordinate (none unless ``other_tip_relative``)."""
+    from dvrl_marl.envs import suction_debris_v8
+
+    if not config.other_tip_relative:
+        return []
+    env = suction_debris_v8.batched_env(num_envs=1)
+    other, own = (range(*env.observation_layout[name].indices(10**6)) for name in ("other_tip", "own_tip"))
+    env.close()
+    estimated = range(*config.estimated)
+    return [[index, own_index] for index, own_index in zip(other, own) if index in estimated]
+
+
 def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dict:
     """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
     (the teacher with DART noise when ``student`` is None, and in the first ``teacher_share`` of the worlds), the
@@ -236,6 +257,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     success = np.zeros(config.worlds, dtype=bool)
     images, proprioception, labels, targets, cleared = [], [], [], [], []
     aux = slice(*(config.estimated if config.acts_by == "teacher" else config.auxiliary))
+    # targets read as offsets (other_tip_relative): columns of the targets, and the observation's indices subtracted
+    relative = np.array([[index - aux.start, own_index] for index, own_index in _relative(config)], dtype=np.int64)
     low = high = observations[agent]["observation"][0]
     cleared_at = _cleared_levels()
     step = 0
@@ -253,7 +276,10 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
             images.append(seen["image"][live].copy())
             proprioception.append(seen["observation"][live, own].astype(np.float32))
             labels.append(label[live])
-            targets.append(seen["observation"][live, aux].astype(np.float32))
+            target = seen["observation"][live, aux].astype(np.float64)
+            if len(relative):
+                target[:, relative[:, 0]] -= seen["observation"][live][:, relative[:, 1]]
+            targets.append(target.astype(np.float32))
             cleared.append(np.stack([seen["observation"][live, index] < level for index, level in cleared_at], 1))
             low = np.minimum(low, seen["observation"][live].min(0))
             high = np.maximum(high, seen["observation"][live].max(0))
@@ -419,7 +445,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
                  "normalise": config.normalise,
                  "fills": {"template": [float(value) for value in template], "estimates_at": estimated,
                            "keep_lowest": [index for index, kept in zip(estimated, blood) if kept and
-                                           config.keep_lowest]}}
+                                           config.keep_lowest], "relative": _relative(config)}}
         # the margin and the lowest kept are the blood's: a cavity only empties, and an estimate too low ends it
         readout = (model.readout.weight.detach().numpy().astype(np.float32),
                    model.readout.bias.detach().numpy().astype(np.float32)
@@ -442,7 +468,8 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
                model.readout.bias.detach().numpy().astype(np.float32))
     return write_policy(directory, layers, name=name, env_id="suction_debris_v8", algorithm="DAgger (pixels)",
                         observation_keys=["observation", "image"], action_low=[-1.0] * 4, action_high=[1.0] * 4,
-                        kernels=kernels, readout=readout, image=image, agent=config.agent, switch_dimensions=[3], **metadata)
+                        kernels=kernels, readout=readout, image=image, agent=config.agent, switch_dimensions=[3],
+                        **metadata)
 
 
 def validate(policy, config: PixelSeatConfig) -> dict:
