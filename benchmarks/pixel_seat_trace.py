@@ -51,11 +51,12 @@ class Traced:
 
     def __call__(self, observation):
         action = self.policy(observation)
-        # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step)
-        estimates = self.policy.encoder(observation["image"])
+        # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step); an offset read
+        # (fills.relative) is in the observation's terms here
+        state = np.asarray(observation["observation"], dtype=np.float64)
+        estimates = self.policy.encoder.estimates(observation["image"], state[:, self.policy.encoder.proprioception])
         self.raw.append(estimates[:, self.blood])
         self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
-        state = np.asarray(observation["observation"], dtype=np.float64)
         self.truth.append(state[:, self.truth_at])
         self.other_error.append(np.abs(estimates[:, ~self.blood] - state[:, self.other_at]).max(axis=1)
                                 if self.other_at.size else np.zeros(len(state)))
