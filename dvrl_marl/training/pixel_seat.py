@@ -227,8 +227,9 @@ def _relative(config: PixelSeatConfig) -> list[list[int]]:
 
     if not config.other_tip_relative:
         return []
-    env = suction_debris_v8.batched_env(num_envs=1)
-    other, own = (range(*env.observation_layout[name].indices(10**6)) for name in ("other_tip", "own_tip"))
+    env = suction_debris_v8.batched_env(num_envs=1)  # (the layout is the env's; one world reads it in milliseconds)
+    other, own = (range(env.observation_layout[name].start, env.observation_layout[name].stop)
+                  for name in ("other_tip", "own_tip"))
     env.close()
     estimated = range(*config.estimated)
     return [[index, own_index] for index, own_index in zip(other, own) if index in estimated]
