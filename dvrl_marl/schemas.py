@@ -264,6 +264,9 @@ class PolicyImage(BaseModel):
     readout: PositiveInt | None = None
     fills: PolicyImageFill | None = None
     normalise: Literal["none", "per_image", "brightness"] = "none"
+    # the read-out reads, after the convolutions' output, two keypoints per channel of the last convolution and the
+    # proprioception (dvrl_marl.policies.image_encoder)
+    keypoints: StrictBool = False
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -271,6 +274,8 @@ class PolicyImage(BaseModel):
         if not start < stop:
             raise ValueError(f"proprioception must be [start, stop) with start < stop, got {self.proprioception}")
         self.encoded_size()
+        if self.keypoints and self.readout is None:
+            raise ValueError("keypoints are read by the read-out: give a readout size")
         if self.fills is not None:
             size, at = len(self.fills.template), self.fills.estimates_at
             if self.readout != len(at):
@@ -312,6 +317,14 @@ class PolicyImage(BaseModel):
     def encoded_size(self) -> int:
         """Length of what the encoder gives the perceptron: the read-out's, or the convolutions' output."""
         return self.readout or self.convolved_size()
+
+    def readout_input_size(self) -> int:
+        """Length of what the read-out reads: the convolutions' output, then (``keypoints``) two keypoints per
+        channel of the last convolution and the proprioception."""
+        if not self.keypoints:
+            return self.convolved_size()
+        start, stop = self.proprioception
+        return self.convolved_size() + 2 * self.convolutions[-1][0] + stop - start
 
 
 class PolicyFile(BaseModel):

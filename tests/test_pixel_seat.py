@@ -474,3 +474,56 @@ def test_the_other_estimates_weight_scales_their_share_of_the_loss():
     near, far = rng.normal(0, 0.1, (count, 3)), rng.normal(0, 0.1, (count, 3)) * 50
     assert loss(0.0, near) == pytest.approx(loss(0.0, far), rel=1e-5)
     assert loss(1.0, near) != pytest.approx(loss(1.0, far), rel=1e-2)
+
+
+def test_a_seat_reading_keypoints_is_the_network_it_was_trained_as_and_reads_them_where_it_says(tmp_path):
+    """keypoints: the numpy read-out equals the torch one; the other tip reads only the keypoints and the own
+    proprioception, the blood only the flattened convolutions; a keypoint follows what it peaks on."""
+    config = _config(acts_by="teacher", estimated=[4, 9], keep_lowest=True, keypoints=True,
+                     convolutions=[[8, 5, 2], [6, 3, 2]])
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    with torch.no_grad():
+        model.gains.copy_(torch.linspace(0.5, 3.0, 6))
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-keypoints", {}, np.full(30, np.nan))
+    policy = policies.load(folder)
+    assert policy.spec["image"]["keypoints"] is True
+    observation = _observation(4, seed=2)
+    own = observation["observation"][:, :4]
+    with torch.no_grad():
+        expected = model.features(torch.from_numpy(observation["image"]),
+                                  torch.from_numpy(own.astype(np.float32))).numpy()
+    np.testing.assert_allclose(policy.encoder.estimates(observation["image"], own)[:, :3], expected[:, :3], atol=1e-4)
+    np.testing.assert_allclose(policy.encoder.estimates(observation["image"], own)[:, 3:], expected[:, 3:] + 0.02,
+                               atol=1e-4)  # (the margin is the blood's)
+    # the own tip moves the other tip's estimates, never the blood's
+    moved = own + np.array([0.3, -0.2, 0.1, 0.0])
+    before, after = (policy.encoder.estimates(observation["image"], o) for o in (own, moved))
+    assert not np.allclose(before[:, :3], after[:, :3])
+    np.testing.assert_array_equal(before[:, 3:], after[:, 3:])
+    weight = np.load(folder / "policy.npz")["R"]
+    flat = policy.encoder.readout[0].shape[1] - 2 * 6 - 4
+    assert not weight[:3, :flat].any() and not weight[3:, flat:].any() and weight[:3, flat:].all()
+    with pytest.raises(ValueError, match="proprioception"):
+        policy.encoder(observation["image"])
+    # a spatial softmax's keypoint is where its channel peaks: a peak moved right and down moves it by as much
+    from dvrl_marl.policies.image_encoder import keypoints
+
+    field = np.zeros((1, 9, 9, 1), np.float32)
+    field[0, 2, 3, 0] = 50.0
+    np.testing.assert_allclose(keypoints(field, np.ones(1, np.float32)), [[-0.25, -0.5]], atol=1e-6)
+    field = np.roll(field, (2, 4), axis=(1, 2))
+    np.testing.assert_allclose(keypoints(field, np.ones(1, np.float32)), [[0.75, 0.0]], atol=1e-6)
+    # a file without its gains is refused by name
+    arrays = dict(np.load(folder / "policy.npz"))
+    del arrays["G"]
+    np.savez(folder / "policy.npz", **arrays)
+    with pytest.raises(ValueError, match="'G'"):
+        policies.load(folder)
+
+
+def test_keypoints_are_for_a_seat_acting_by_its_teacher(tmp_path):
+    path = tmp_path / "seat.toml"
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\nkeypoints = true\n')
+    with pytest.raises(ValueError, match="keypoints reads the other arm's tip from keypoints"):
+        pixel_seat.load_config(path)

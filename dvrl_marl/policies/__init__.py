@@ -53,7 +53,7 @@ class NumpyPolicy:
 
     def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]], spec: dict,
                  kernels: list[tuple[np.ndarray, np.ndarray]] | None = None,
-                 readout: tuple[np.ndarray, np.ndarray] | None = None):
+                 readout: tuple[np.ndarray, np.ndarray] | None = None, keypoint_gains: np.ndarray | None = None):
         if spec.get("format") != POLICY_FORMAT:
             raise ValueError(f"not a {POLICY_FORMAT} policy (format {spec.get('format')!r})")
         activations = spec["activations"]
@@ -73,7 +73,7 @@ class NumpyPolicy:
         if spec.get("image") is not None:
             from dvrl_marl.policies.image_encoder import ImageEncoder
 
-            self.encoder = ImageEncoder(spec["image"], kernels or [], readout)
+            self.encoder = ImageEncoder(spec["image"], kernels or [], readout, keypoint_gains)
         self._feature_count = 0
         if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
             from dvrl_marl.envs import features
@@ -208,8 +208,8 @@ def load(name_or_path) -> NumpyPolicy:
             path = shipped_dir() / str(name_or_path)
         else:
             raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
-    spec, weights, kernels, readout = _read_policy_folder(path)
-    return NumpyPolicy(weights, spec, kernels, readout)
+    spec, weights, kernels, readout, gains = _read_policy_folder(path)
+    return NumpyPolicy(weights, spec, kernels, readout, gains)
 
 
 def load_seat(name_or_path, agent: str, who: str = "partner") -> NumpyPolicy:
@@ -255,7 +255,7 @@ def _read_policy_folder(path: Path):
                 raise ValueError(f"{npz_path}: array {name!r} must hold finite floats")
             layer.append(array)
         weights.append(tuple(layer))
-    kernels, readout = [], None
+    kernels, readout, gains = [], None, None
     if checked.image is not None:  # a pixel policy's convolutions and read-out (the schema checked their sizes)
         def image_array(name, shape):
             if name not in arrays:
@@ -271,6 +271,8 @@ def _read_policy_folder(path: Path):
             kernels.append((image_array(f"K{index}", (out, channels, kernel, kernel)), image_array(f"k{index}", (out,))))
             channels = out
         if checked.image.readout is not None:
-            size = (checked.image.readout, checked.image.convolved_size())
+            size = (checked.image.readout, checked.image.readout_input_size())
             readout = (image_array("R", size), image_array("r", size[:1]))
-    return spec, weights, kernels, readout
+        if checked.image.keypoints:  # the keypoints' softmax gains, one per channel of the last convolution
+            gains = image_array("G", (checked.image.convolutions[-1][0],))
+    return spec, weights, kernels, readout, gains

@@ -13,6 +13,13 @@ policy acting on what the image tells it. ``fills.keep_lowest`` names the estima
 by world, at their lowest value since the episode began (the policy's ``reset(worlds)`` starts episodes; the
 evaluations and the seats call it). ``fills.relative`` names estimates read as offsets from the arm's own values
 (the other arm's tip from the own tip): the proprioception is added back before they fill the observation.
+
+With ``keypoints`` the read-out reads more than the convolutions' output: after it, two keypoints per channel of the
+last convolution (a spatial softmax, Levine et al. 2016: each channel's softmax over its positions, its logits the
+channel times a gain of its own, ``policy.npz``'s ``G``; the expected column of every channel, then the expected row,
+each from -1 at the image's left or top to 1), then the proprioception. A view moved or turned moves a keypoint by
+as much, which a linear read-out of keypoints can take away (the phantom's and the own instrument's keypoints tell
+how far it moved); a read-out of the flattened output meets such a move only as far as training showed it.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from dvrl_marl.schemas import PolicyImage, validated
 
-__all__ = ["ImageEncoder", "NORMALISE_FLOOR"]
+__all__ = ["ImageEncoder", "NORMALISE_FLOOR", "keypoints"]
 
 #: ``normalise = "per_image"``: added to a channel's spread (``"brightness"``: to an image's mean), so that a flat
 #: (or black) image is not blown up.
@@ -30,10 +37,11 @@ NORMALISE_FLOOR = 0.02
 
 
 class ImageEncoder:
-    """``encoder(images)``: uint8 images ``(..., S, S, 3)`` -> float32 features ``(..., encoded_size)``."""
+    """``encoder(images, own)``: uint8 images ``(..., S, S, 3)`` and the proprioception ``(..., p)`` (read only with
+    ``keypoints``) -> float32 features ``(..., encoded_size)``."""
 
     def __init__(self, image: dict, kernels: list[tuple[np.ndarray, np.ndarray]],
-                 readout: tuple[np.ndarray, np.ndarray] | None = None):
+                 readout: tuple[np.ndarray, np.ndarray] | None = None, keypoint_gains: np.ndarray | None = None):
         checked = validated(PolicyImage, image, "policy.json's image")
         self.key, self.size, self.normalise = checked.key, checked.size, checked.normalise
         self.convolutions = [tuple(layer) for layer in checked.convolutions]
@@ -41,6 +49,13 @@ class ImageEncoder:
         self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
         self.output_size = checked.encoded_size()
         self.readout = None if readout is None else tuple(part.astype(np.float32) for part in readout)
+        self.keypoint_gains = None
+        if checked.keypoints:
+            if keypoint_gains is None or np.shape(keypoint_gains) != (self.convolutions[-1][0],):
+                raise ValueError(f"policy.json's image reads keypoints: it needs one softmax gain per channel of the "
+                                 f"last convolution ({self.convolutions[-1][0]}), got "
+                                 f"{None if keypoint_gains is None else np.shape(keypoint_gains)}")
+            self.keypoint_gains = np.asarray(keypoint_gains, dtype=np.float32)
         # a state policy's observation to fill (the scene's constants), or None: the encoding then the proprioception
         self.fills = None
         self.keep_lowest = None  # the read-out's outputs kept at their lowest (a boolean mask), or None
@@ -67,7 +82,7 @@ class ImageEncoder:
         own = np.asarray(observation, dtype=np.float32 if self.fills is None else np.float64)[..., self.proprioception]
         own = own.astype(np.float64)
         if self.fills is None:
-            return np.concatenate([self(images).astype(np.float64), own], axis=-1)
+            return np.concatenate([self(images, own).astype(np.float64), own], axis=-1)
         encoded = self.estimates(images, own)
         if self.keep_lowest is not None:
             encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
@@ -76,7 +91,7 @@ class ImageEncoder:
     def estimates(self, images, own) -> np.ndarray:
         """The read-out's estimates in the observation's terms (a ``fills`` policy): the offsets ``fills.relative``
         names with ``own`` (the proprioception) added back; none kept at its lowest."""
-        estimates = self(images).astype(np.float64)
+        estimates = self(images, own).astype(np.float64)
         if self.relative is not None:
             outputs, entries = self.relative
             estimates[..., outputs] += np.asarray(own, dtype=np.float64)[..., entries]
@@ -111,7 +126,7 @@ class ImageEncoder:
             self._lowest = np.minimum(self._lowest, estimates)
         return self._lowest  # (the caller writes it into its filled observation: a copy)
 
-    def __call__(self, images) -> np.ndarray:
+    def __call__(self, images, own=None) -> np.ndarray:
         images = np.asarray(images)
         if images.shape[-3:] != (self.size, self.size, 3):
             raise ValueError(f"the policy sees {self.size} x {self.size} RGB images (make the env with "
@@ -128,7 +143,26 @@ class ImageEncoder:
             windows = sliding_window_view(x, (kernel, kernel), axis=(1, 2))[:, ::stride, ::stride]
             # windows: (N, H', W', in, k, k) against torch's (out, in, k, k)
             x = np.maximum(np.tensordot(windows, weight, axes=([3, 4, 5], [1, 2, 3])) + bias, 0.0)
+        points = None if self.keypoint_gains is None else keypoints(x, self.keypoint_gains)
         x = x.transpose(0, 3, 1, 2).reshape(len(x), -1)
+        if points is not None:
+            if own is None:
+                raise ValueError("this encoder's read-out reads the proprioception beside the image's keypoints: "
+                                 "call it with the observation's proprioception")
+            own = np.asarray(own, dtype=np.float32).reshape(len(x), -1)
+            x = np.concatenate([x, points, own], axis=1)
         if self.readout is not None:
             x = x @ self.readout[0].T + self.readout[1]
         return x.reshape(lead + (-1,))
+
+
+def keypoints(x: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """A spatial softmax: ``x`` ``(N, H, W, C)`` -> ``(N, 2 C)``, each channel's expected column (all channels), then
+    its expected row, from -1 at the left or top to 1, under the softmax of the channel times its gain."""
+    count, height, width, channels = x.shape
+    logits = (x * gains).reshape(count, height * width, channels)
+    weights = np.exp(logits - logits.max(axis=1, keepdims=True))
+    weights = (weights / weights.sum(axis=1, keepdims=True)).reshape(count, height, width, channels)
+    columns = np.einsum("nhwc,w->nc", weights, np.linspace(-1.0, 1.0, width, dtype=np.float32))
+    rows = np.einsum("nhwc,h->nc", weights, np.linspace(-1.0, 1.0, height, dtype=np.float32))
+    return np.concatenate([columns, rows], axis=1).astype(np.float32)

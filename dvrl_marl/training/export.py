@@ -60,10 +60,10 @@ def export_policy(model, directory, *, name: str, env_id: str, **metadata) -> Pa
 
 
 def write_policy(directory, layers, *, name: str, env_id: str, algorithm: str, observation_keys, action_low,
-                 action_high, kernels=(), readout=None, **metadata) -> Path:
-    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``; ``kernels``
-    and ``readout``: a pixel policy's convolutions and read-out (weight, bias), whose ``image`` table goes in
-    ``metadata``."""
+                 action_high, kernels=(), readout=None, keypoint_gains=None, **metadata) -> Path:
+    """Write (weight, bias, activation) layers as ``policy.npz`` + ``policy.json`` in ``directory``; ``kernels``,
+    ``readout`` and ``keypoint_gains``: a pixel policy's convolutions, read-out (weight, bias) and keypoints' softmax
+    gains, whose ``image`` table goes in ``metadata``."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     arrays = {}
@@ -73,6 +73,8 @@ def write_policy(directory, layers, *, name: str, env_id: str, algorithm: str, o
         arrays[f"K{index}"], arrays[f"k{index}"] = weight, bias
     if readout is not None:
         arrays["R"], arrays["r"] = readout
+    if keypoint_gains is not None:
+        arrays["G"] = keypoint_gains
     with (directory / "policy.npz").open("wb") as handle:
         np.savez(handle, **arrays)
     spec = {

@@ -89,6 +89,10 @@ class PixelSeatConfig(BaseModel):
     # acts_by = "teacher": the other arm's tip (where estimated) read as its offset from the arm's own tip, which the
     # seat knows exactly (image.fills.relative): an image moved or turned moves both tips alike
     other_tip_relative: Flag = False
+    # acts_by = "teacher": the other arm's tip read from keypoints of the last convolution (a spatial softmax) and the
+    # own proprioception alone, the blood from the flattened convolutions alone (image.keypoints): a linear read-out
+    # of keypoints can take away a move of the view, which images moved in training (shift_px) show it
+    keypoints: Flag = False
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
@@ -131,6 +135,10 @@ def load_config(path) -> tuple[str, PixelSeatConfig]:
         raise ValueError(f"{path}: [run] other_tip_relative reads the other arm's tip as an offset: it needs acts_by = "
                          f"'teacher' and the tip among the estimated indices, got acts_by = {config.acts_by!r}, "
                          f"estimated = {config.estimated}")
+    if config.keypoints and config.acts_by != "teacher":
+        raise ValueError(f"{path}: [run] keypoints reads the other arm's tip from keypoints and the blood from the "
+                         f"flattened convolutions, the estimates of acts_by = 'teacher', got acts_by = "
+                         f"{config.acts_by!r}")
     return path.stem, config
 
 
@@ -156,13 +164,21 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
             for out, kernel, stride in config.convolutions:
                 layers += [nn.Conv2d(channels, out, kernel, stride), nn.ReLU()]
                 channels = out
-            self.encoder = nn.Sequential(*layers, nn.Flatten())
+            self.encoder = nn.Sequential(*layers)
             with torch.no_grad():
-                size = self.encoder(torch.zeros(1, 3, config.image_size, config.image_size)).shape[1]
+                size = self.encoder(torch.zeros(1, 3, config.image_size, config.image_size)).flatten(1).shape[1]
+            self.gains = None
+            self.register_buffer("mask", None)
             if config.acts_by == "teacher":
                 start, stop = config.estimated
                 self.estimates = stop - start
-                self.readout, self.head = nn.Linear(size, self.estimates), None
+                reads = size + (2 * channels + proprioception if config.keypoints else 0)
+                self.readout, self.head = nn.Linear(reads, self.estimates), None
+                if config.keypoints:  # the tip reads the keypoints and the proprioception, the blood the rest
+                    self.gains = nn.Parameter(torch.ones(channels))
+                    blood = torch.from_numpy(_blood_columns(config))[:, None]
+                    flat = torch.arange(reads)[None, :] < size
+                    self.mask = (blood == flat).float()
                 return
             aux = config.auxiliary
             self.estimates = aux[1] - aux[0]
@@ -175,7 +191,7 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
                     head.append(nn.ReLU())
             self.head = nn.Sequential(*head)
 
-        def features(self, images):
+        def features(self, images, own=None):
             x = images.permute(0, 3, 1, 2).float() / 255.0
             if config.normalise == "per_image":  # as the numpy encoder does (its docstring)
                 x = (x - x.mean(dim=(2, 3), keepdim=True)) / (x.std(dim=(2, 3), keepdim=True, correction=0)
@@ -184,10 +200,24 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
                 x = x * (0.5 / (x.mean(dim=(1, 2, 3), keepdim=True) + NORMALISE_FLOOR)) - 0.5
             else:
                 x = x - 0.5
-            return self.readout(self.encoder(x))
+            x = self.encoder(x)
+            if self.gains is None:
+                return self.readout(x.flatten(1))
+            # a spatial softmax per channel (as the numpy encoder's keypoints)
+            logits = (x * self.gains[:, None, None]).flatten(2)
+            weights = torch.softmax(logits, dim=2).view_as(x)
+            columns = (weights.sum(2) * torch.linspace(-1.0, 1.0, x.shape[3])).sum(2)
+            rows = (weights.sum(3) * torch.linspace(-1.0, 1.0, x.shape[2])).sum(2)
+            inputs = torch.cat([x.flatten(1), columns, rows, own], dim=1)
+            return torch.nn.functional.linear(inputs, self.readout.weight * self.mask, self.readout.bias)
+
+        def readout_weight(self):
+            """The read-out's weight as the numpy encoder reads it (what the mask keeps)."""
+            weight = self.readout.weight.detach()
+            return (weight if self.mask is None else weight * self.mask).numpy().astype(np.float32)
 
         def forward(self, images, own):  # images: (B, S, S, 3) uint8
-            return self.head(torch.cat([self.features(images), own], dim=1))
+            return self.head(torch.cat([self.features(images, own), own], dim=1))
 
     return Actor()
 
@@ -380,7 +410,7 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
         seen = _jittered(torch, _shifted(torch, images[batch], config.shift_px, generator), config.colour_jitter,
                          generator, config.jitter_brightness)
         seen = _shaded(torch, seen, config.shading, generator)
-        loss = batch_loss(batch, model.features(seen))
+        loss = batch_loss(batch, model.features(seen, own[batch]))
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -396,9 +426,11 @@ def estimate_errors(model, data: dict, small: float = 0.15, blood: np.ndarray | 
     too early, one far above keeps it in an empty cavity). ``blood`` marks the targets' columns that are blood (None:
     all); the others' mean absolute error is ``other_mean_absolute``."""
     torch = _torch()
+    chunks = max(1, len(data["images"]) // 1024)
     with torch.no_grad():
-        estimates = np.concatenate([model.features(torch.from_numpy(chunk)).numpy()
-                                    for chunk in np.array_split(data["images"], max(1, len(data["images"]) // 1024))])
+        estimates = np.concatenate([model.features(torch.from_numpy(images), torch.from_numpy(own)).numpy()
+                                    for images, own in zip(np.array_split(data["images"], chunks),
+                                                           np.array_split(data["proprioception"], chunks))])
     errors = estimates[:, :data["targets"].shape[1]] - data["targets"]
     blood = np.ones(errors.shape[1], dtype=bool) if blood is None else blood
     error, near = errors[:, blood], data["targets"][:, blood] < small
@@ -443,14 +475,14 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         estimated = list(range(start, stop))
         image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
                  "convolutions": [list(layer) for layer in config.convolutions], "readout": stop - start,
-                 "normalise": config.normalise,
+                 "normalise": config.normalise, "keypoints": config.keypoints,
                  "fills": {"template": [float(value) for value in template], "estimates_at": estimated,
                            "keep_lowest": [index for index, kept in zip(estimated, blood) if kept and
                                            config.keep_lowest], "relative": _relative(config)}}
         # the margin and the lowest kept are the blood's: a cavity only empties, and an estimate too low ends it
-        readout = (model.readout.weight.detach().numpy().astype(np.float32),
-                   model.readout.bias.detach().numpy().astype(np.float32)
+        readout = (model.readout_weight(), model.readout.bias.detach().numpy().astype(np.float32)
                    + np.float32(config.estimate_margin) * blood.astype(np.float32))
+        gains = {} if model.gains is None else {"keypoint_gains": model.gains.detach().numpy().astype(np.float32)}
         layers = [(weight, bias, activation) for (weight, bias), activation
                   in zip(teacher.weights, teacher.spec["activations"])]
         extra = {"features": teacher.spec["features"]} if teacher.spec.get("features") else {}
@@ -458,7 +490,8 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
                             algorithm=f"DAgger (pixels: estimates for {teacher.name})",
                             observation_keys=["observation", "image"], action_low=teacher.action_low.tolist(),
                             action_high=teacher.action_high.tolist(), kernels=kernels, readout=readout, image=image,
-                            agent=config.agent, switch_dimensions=teacher.switch_dimensions, **extra, **metadata)
+                            agent=config.agent, switch_dimensions=teacher.switch_dimensions, **gains, **extra,
+                            **metadata)
     linear = [layer for layer in model.head if hasattr(layer, "weight")]
     layers = [(layer.weight.detach().numpy().astype(np.float32), layer.bias.detach().numpy().astype(np.float32),
                "clip" if index == len(linear) - 1 else "relu") for index, layer in enumerate(linear)]
