@@ -1,6 +1,6 @@
 """Image observations' speed: frames/s of the endoscope's view through the batched env (step, draw, read back), per
-image size and number of worlds, beside a bare ``mujoco.Renderer`` of the same scene drawing one world's state again and again
-(no shadows, reflections or multisampling; no state written, no step: its best case) in the same run.
+image size and number of worlds, beside a bare ``mujoco.Renderer`` of the same scene drawing one world's state again and
+again (no shadows, reflections or multisampling; no state written, no step: its best case) in the same run.
 
 A frame is one world's image. The env's figure is a step of every world with random actions plus their images
 (``observations()``), minus nothing: the step is counted in. Each figure is the best of ``--repeats`` timed blocks.
@@ -47,9 +47,10 @@ def env_frames_per_second(size: int, worlds: int, repeats: int, steps: int) -> f
 
 
 def bare_frames_per_second(size: int, repeats: int, frames: int) -> float:
-    import mujoco
-
+    # dvrl_marl first: importing it sets MUJOCO_GL=egl on a headless machine, before mujoco loads
     from dvrl_marl.envs import suction_debris_v8
+
+    import mujoco  # noqa: I001
 
     env = suction_debris_v8.batched_env(num_envs=1)
     env.reset(seed=0)
