@@ -225,6 +225,25 @@ def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["selected_round"] == result["selected_round"]
 
 
+def test_a_run_stopped_after_a_round_keeps_the_record_of_its_rounds(tmp_path, monkeypatch):
+    config = _config(worlds=2, rounds=3, max_cycles=10, updates=2, first_updates=2, validation_episodes=2,
+                     convolutions=[[4, 8, 4]], hidden=[8], partners=["scripted"])
+    validated = []
+
+    def validate_then_stop(policy, config):
+        if validated:
+            raise KeyboardInterrupt  # (the run stopped during its second round)
+        validated.append(policy)
+        return {"success_rate": 0.5, "mean_contact_steps": 1.0, "median_steps_to_completion": 7.0}
+
+    monkeypatch.setattr(pixel_seat, "validate", validate_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        pixel_seat.train("tiny-pixels", config, 0, tmp_path, progress=False)
+    record = json.loads((tmp_path / "result.json").read_text())
+    assert [row["round"] for row in record["rounds"]] == [0] and record["selected_round"] is None
+    assert record["rounds"][0]["validation"]["success_rate"] == 0.5 and record["config"]["rounds"] == 3
+
+
 def test_the_kept_round_is_the_best_validated_and_a_tie_goes_to_the_later(tmp_path):
     for index in range(4):
         folder = pixel_seat.round_folder(tmp_path, index)

@@ -522,7 +522,8 @@ def validate(policy, config: PixelSeatConfig) -> dict:
 
 def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = True) -> dict:
     """Collect, fit, validate for ``config.rounds`` rounds; the best validated round is the policy
-    (``<out>/policies/<name>``, :func:`keep_best`); ``<out>/result.json`` records every round."""
+    (``<out>/policies/<name>``, :func:`keep_best`); ``<out>/result.json`` records every round (rewritten after each,
+    ``selected_round`` null until the last)."""
     from dvrl_marl import policies
 
     torch = _torch()
@@ -558,6 +559,9 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
                **({"estimate_errors_before_fit": errors} if errors else {}),
                "wall_seconds": round(time.perf_counter() - began, 1)}
         rounds.append(row)
+        # each round's row as it comes: a run stopped early keeps its record (no round selected yet)
+        (out / "result.json").write_text(json.dumps({"name": name, "seed": seed, "config": config.model_dump(),
+                                                     "rounds": rounds, "selected_round": None}, indent=2) + "\n")
         if progress:
             print(f"round {index}: {row['driver']} drove ({driven:.0%}), {row['frames']:,d} frames, loss "
                   f"{row['loss']:.4f}, validation {validation['success_rate']:.0%} "
