@@ -151,7 +151,9 @@ def _torch():
 def PixelActor(config: PixelSeatConfig, proprioception: int):
     """The student: convolutions (ReLU) over the image in [-0.5, 0.5], flattened, a linear read-out of the
     estimates; by ``acts_by = "perceptron"``, the estimates and the proprioception through ReLU layers to 4 outputs
-    (the motion, the valve's logit); by ``"teacher"``, the read-out alone (the teacher acts on its estimates)."""
+    (the motion, the valve's logit); by ``"teacher"``, the read-out alone (the teacher acts on its estimates), with
+    ``keypoints`` reading a spatial softmax's keypoints and the proprioception (``features(images, own)``) for the
+    other arm's tip, the flattened convolutions for the blood (a fixed mask over the read-out's weight)."""
     from dvrl_marl.policies.image_encoder import NORMALISE_FLOOR
 
     torch = _torch()
