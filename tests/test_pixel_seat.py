@@ -73,11 +73,16 @@ def test_a_pixel_policy_refuses_what_it_cannot_read(tmp_path):
     with pytest.raises(ValueError, match="size"):
         policies.load(broken)
     (broken / "policy.json").write_text(json.dumps(spec))
-    arrays = dict(np.load(folder / "policy.npz"))
-    del arrays["K1"]
-    np.savez(broken / "policy.npz", **arrays)
+    _drop_array(folder, broken, "K1")
     with pytest.raises(ValueError, match="K1"):
         policies.load(broken)
+
+
+def _drop_array(folder, into, name):
+    """``folder``'s ``policy.npz`` without the array ``name``, written into ``into``."""
+    arrays = dict(np.load(folder / "policy.npz"))
+    del arrays[name]
+    np.savez(into / "policy.npz", **arrays)
 
 
 def test_a_seat_acting_by_the_teacher_is_the_teacher_on_what_the_image_tells_it(tmp_path):
@@ -533,10 +538,12 @@ def test_a_seat_reading_keypoints_is_the_network_it_was_trained_as_and_reads_the
     np.testing.assert_allclose(keypoints(field, np.ones(1, np.float32)), [[-0.25, -0.5]], atol=1e-6)
     field = np.roll(field, (2, 4), axis=(1, 2))
     np.testing.assert_allclose(keypoints(field, np.ones(1, np.float32)), [[0.75, 0.0]], atol=1e-6)
-    # a file without its gains is refused by name
-    arrays = dict(np.load(folder / "policy.npz"))
-    del arrays["G"]
-    np.savez(folder / "policy.npz", **arrays)
+    # keypoints without a read-out, and a file without its gains, are refused by name
+    from dvrl_marl.schemas import PolicyImage, validated
+
+    with pytest.raises(ValueError, match="keypoints are read by the read-out"):
+        validated(PolicyImage, {**policy.spec["image"], "readout": None, "fills": None}, "policy.json's image")
+    _drop_array(folder, folder, "G")
     with pytest.raises(ValueError, match="'G'"):
         policies.load(folder)
 
