@@ -256,9 +256,13 @@ def test_a_person_drives_the_surgeon_in_real_time(desktop, tmp_path):
     assert process.poll() is None, process.communicate()[0]
     _xdotool(desktop, "key", "Return")
     time.sleep(0.3)
+    pressing = time.monotonic()
     _xdotool(desktop, "keydown", "d")
+    pressed = time.monotonic()
     time.sleep(1.0)
+    releasing = time.monotonic()
     _xdotool(desktop, "keyup", "d")
+    released = time.monotonic()
     _, metrics = _finish(process, tmp_path)
     assert metrics["steps"] == 150 and metrics["surgeon"] == "keyboard"
     assert metrics["wall_seconds"] >= metrics["sim_seconds"] == 3.0
@@ -269,7 +273,14 @@ def test_a_person_drives_the_surgeon_in_real_time(desktop, tmp_path):
     observations, actions, metadata = load_demonstration(tmp_path / "seat.npz")
     assert metadata["surgeon"] == "keyboard" and actions.shape == (150, 4)
     moving = np.flatnonzero(np.any(actions[:, :3] != 0, axis=1))
-    assert 40 <= len(moving) <= 60, f"D held for 1 s moved the tip for {len(moving)} steps (about 50 expected)"
+    # The steps a 1 s hold moves the tip: 50 at the control rate; fewer when a loaded machine ran the episode slower
+    # than real time (the pacer never rushes to catch up), so the floor is set by the episode's own measured pace.
+    steps_per_second = realtime["paced_steps"] / realtime["paced_wall_seconds"]
+    fewest = int(0.7 * (releasing - pressed) * steps_per_second)
+    most = int(np.ceil((released - pressing) * 50)) + 2
+    assert fewest <= len(moving) <= most, (f"D held for {releasing - pressed:.2f}-{released - pressing:.2f} s moved "
+                                           f"the tip for {len(moving)} steps ({fewest}-{most} expected at "
+                                           f"{steps_per_second:.1f} steps/s)")
     assert np.all(actions[moving, 0] == 1.0) and np.all(actions[moving, 1:3] == 0.0)  # +x only
     assert np.all(np.diff(moving) == 1)  # one continuous hold, no pulses
     assert actions[0, :3].tolist() == [0.0, 0.0, 0.0]  # ENTER started it; D came after
