@@ -548,8 +548,38 @@ def test_a_seat_reading_keypoints_is_the_network_it_was_trained_as_and_reads_the
         policies.load(folder)
 
 
+def test_a_tip_reading_the_convolutions_beside_the_keypoints_is_exported_as_trained(tmp_path):
+    """tip_reads_convolutions: the other tip reads the flattened convolutions, the keypoints and the proprioception;
+    the blood still the flattened convolutions alone; the numpy read-out is the torch one."""
+    config = _config(acts_by="teacher", estimated=[4, 9], keep_lowest=True, keypoints=True,
+                     tip_reads_convolutions=True, convolutions=[[8, 5, 2], [6, 3, 2]])
+    torch.manual_seed(1)
+    model = pixel_seat.PixelActor(config, 4)
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-beside", {}, np.full(30, np.nan))
+    policy = policies.load(folder)
+    observation = _observation(4, seed=3)
+    own = observation["observation"][:, :4]
+    with torch.no_grad():
+        expected = model.features(torch.from_numpy(observation["image"]),
+                                  torch.from_numpy(own.astype(np.float32))).numpy()
+    np.testing.assert_allclose(policy.encoder.estimates(observation["image"], own)[:, :3], expected[:, :3], atol=1e-4)
+    weight = np.load(folder / "policy.npz")["R"]
+    flat = weight.shape[1] - 2 * 6 - 4
+    assert weight[:3].all() and weight[3:, :flat].all() and not weight[3:, flat:].any()
+    # the tip's estimates move with the flattened convolutions' features, not only the keypoints': a seat without
+    # the option reads different numbers from the same weights
+    alone = pixel_seat.PixelActor(config.model_copy(update={"tip_reads_convolutions": False}), 4)
+    alone.load_state_dict({key: value for key, value in model.state_dict().items() if key != "mask"}, strict=False)
+    with torch.no_grad():
+        other = alone.features(torch.from_numpy(observation["image"]), torch.from_numpy(own.astype(np.float32)))
+    assert not np.allclose(other.numpy()[:, :3], expected[:, :3]) and np.allclose(other.numpy()[:, 3:], expected[:, 3:])
+
+
 def test_keypoints_are_for_a_seat_acting_by_its_teacher(tmp_path):
     path = tmp_path / "seat.toml"
     path.write_text('[run]\nalgorithm = "pixel-dagger"\nkeypoints = true\n')
     with pytest.raises(ValueError, match="keypoints reads the other arm's tip from keypoints"):
+        pixel_seat.load_config(path)
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\ntip_reads_convolutions = true\n')
+    with pytest.raises(ValueError, match="tip_reads_convolutions .* needs keypoints = true"):
         pixel_seat.load_config(path)

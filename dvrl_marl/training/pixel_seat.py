@@ -93,6 +93,9 @@ class PixelSeatConfig(BaseModel):
     # own proprioception alone, the blood from the flattened convolutions alone (image.keypoints): a linear read-out
     # of keypoints can take away a move of the view, which images moved in training (shift_px) show it
     keypoints: Flag = False
+    # with keypoints: the other arm's tip reads the flattened convolutions too (the blood still not the keypoints), the
+    # precision of the one beside what the other takes away of a moved view
+    tip_reads_convolutions: Flag = False
     auxiliary: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)] = [4, 9]
     auxiliary_weight: NonNegative = 1.0
     cleared_weight: NonNegative = 1.0
@@ -139,6 +142,9 @@ def load_config(path) -> tuple[str, PixelSeatConfig]:
         raise ValueError(f"{path}: [run] keypoints reads the other arm's tip from keypoints and the blood from the "
                          f"flattened convolutions, the estimates of acts_by = 'teacher', got acts_by = "
                          f"{config.acts_by!r}")
+    if config.tip_reads_convolutions and not config.keypoints:
+        raise ValueError(f"{path}: [run] tip_reads_convolutions has the other arm's tip read the flattened "
+                         f"convolutions beside the keypoints: it needs keypoints = true")
     return path.stem, config
 
 
@@ -153,7 +159,8 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
     estimates; by ``acts_by = "perceptron"``, the estimates and the proprioception through ReLU layers to 4 outputs
     (the motion, the valve's logit); by ``"teacher"``, the read-out alone (the teacher acts on its estimates), with
     ``keypoints`` reading a spatial softmax's keypoints and the proprioception (``features(images, own)``) for the
-    other arm's tip, the flattened convolutions for the blood (a fixed mask over the read-out's weight)."""
+    other arm's tip (and the flattened convolutions too by ``tip_reads_convolutions``), the flattened convolutions
+    for the blood (a fixed mask over the read-out's weight)."""
     from dvrl_marl.policies.image_encoder import NORMALISE_FLOOR
 
     torch = _torch()
@@ -180,7 +187,7 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
                     self.gains = nn.Parameter(torch.ones(channels))
                     blood = torch.from_numpy(_blood_columns(config))[:, None]
                     flat = torch.arange(reads)[None, :] < size
-                    self.mask = (blood == flat).float()
+                    self.mask = ((blood == flat) | (~blood & flat & config.tip_reads_convolutions)).float()
                 return
             aux = config.auxiliary
             self.estimates = aux[1] - aux[0]
