@@ -500,11 +500,22 @@ def test_the_other_estimates_weight_scales_their_share_of_the_loss():
     assert loss(1.0, near) != pytest.approx(loss(1.0, far), rel=1e-2)
 
 
+def _keypoint_config(**overrides):
+    """A small seat reading the other tip (observation 4-6) from keypoints, the blood (7-8) from the convolutions."""
+    return _config(acts_by="teacher", estimated=[4, 9], keep_lowest=True, keypoints=True,
+                   convolutions=[[8, 5, 2], [6, 3, 2]], **overrides)
+
+
+def _torch_estimates(model, observation, own):
+    """What the torch student's read-out gives for an observation's images and the own proprioception."""
+    with torch.no_grad():
+        return model.features(torch.from_numpy(observation["image"]), torch.from_numpy(own.astype(np.float32))).numpy()
+
+
 def test_a_seat_reading_keypoints_is_the_network_it_was_trained_as_and_reads_them_where_it_says(tmp_path):
     """keypoints: the numpy read-out equals the torch one; the other tip reads only the keypoints and the own
     proprioception, the blood only the flattened convolutions; a keypoint follows what it peaks on."""
-    config = _config(acts_by="teacher", estimated=[4, 9], keep_lowest=True, keypoints=True,
-                     convolutions=[[8, 5, 2], [6, 3, 2]])
+    config = _keypoint_config()
     torch.manual_seed(0)
     model = pixel_seat.PixelActor(config, 4)
     with torch.no_grad():
@@ -514,9 +525,7 @@ def test_a_seat_reading_keypoints_is_the_network_it_was_trained_as_and_reads_the
     assert policy.spec["image"]["keypoints"] is True
     observation = _observation(4, seed=2)
     own = observation["observation"][:, :4]
-    with torch.no_grad():
-        expected = model.features(torch.from_numpy(observation["image"]),
-                                  torch.from_numpy(own.astype(np.float32))).numpy()
+    expected = _torch_estimates(model, observation, own)
     np.testing.assert_allclose(policy.encoder.estimates(observation["image"], own)[:, :3], expected[:, :3], atol=1e-4)
     np.testing.assert_allclose(policy.encoder.estimates(observation["image"], own)[:, 3:], expected[:, 3:] + 0.02,
                                atol=1e-4)  # (the margin is the blood's)
@@ -551,17 +560,14 @@ def test_a_seat_reading_keypoints_is_the_network_it_was_trained_as_and_reads_the
 def test_a_tip_reading_the_convolutions_beside_the_keypoints_is_exported_as_trained(tmp_path):
     """tip_reads_convolutions: the other tip reads the flattened convolutions, the keypoints and the proprioception;
     the blood still the flattened convolutions alone; the numpy read-out is the torch one."""
-    config = _config(acts_by="teacher", estimated=[4, 9], keep_lowest=True, keypoints=True,
-                     tip_reads_convolutions=True, convolutions=[[8, 5, 2], [6, 3, 2]])
+    config = _keypoint_config(tip_reads_convolutions=True)
     torch.manual_seed(1)
     model = pixel_seat.PixelActor(config, 4)
     folder = pixel_seat.export(model, config, tmp_path / "policy", "test-beside", {}, np.full(30, np.nan))
     policy = policies.load(folder)
     observation = _observation(4, seed=3)
     own = observation["observation"][:, :4]
-    with torch.no_grad():
-        expected = model.features(torch.from_numpy(observation["image"]),
-                                  torch.from_numpy(own.astype(np.float32))).numpy()
+    expected = _torch_estimates(model, observation, own)
     np.testing.assert_allclose(policy.encoder.estimates(observation["image"], own)[:, :3], expected[:, :3], atol=1e-4)
     weight = np.load(folder / "policy.npz")["R"]
     flat = weight.shape[1] - 2 * 6 - 4
@@ -570,9 +576,8 @@ def test_a_tip_reading_the_convolutions_beside_the_keypoints_is_exported_as_trai
     # the option reads different numbers from the same weights
     alone = pixel_seat.PixelActor(config.model_copy(update={"tip_reads_convolutions": False}), 4)
     alone.load_state_dict({key: value for key, value in model.state_dict().items() if key != "mask"}, strict=False)
-    with torch.no_grad():
-        other = alone.features(torch.from_numpy(observation["image"]), torch.from_numpy(own.astype(np.float32)))
-    assert not np.allclose(other.numpy()[:, :3], expected[:, :3]) and np.allclose(other.numpy()[:, 3:], expected[:, 3:])
+    other = _torch_estimates(alone, observation, own)
+    assert not np.allclose(other[:, :3], expected[:, :3]) and np.allclose(other[:, 3:], expected[:, 3:])
 
 
 def test_keypoints_are_for_a_seat_acting_by_its_teacher(tmp_path):

@@ -187,7 +187,8 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
                     self.gains = nn.Parameter(torch.ones(channels))
                     blood = torch.from_numpy(_blood_columns(config))[:, None]
                     flat = torch.arange(reads)[None, :] < size
-                    self.mask = ((blood == flat) | (~blood & flat & config.tip_reads_convolutions)).float()
+                    tip_reads = ~flat | config.tip_reads_convolutions
+                    self.mask = torch.where(blood, flat, tip_reads).float()
                 return
             aux = config.auxiliary
             self.estimates = aux[1] - aux[0]
