@@ -283,8 +283,10 @@ def test_a_person_like_operator_finishes_from_what_the_page_shows(browser, serve
         if len(seen["heights"]) < 5:
             seen["heights"].add(page.inner_text("#height"))
 
-    final = drive_page(page, PersonLikeOperator(seed=4), timeout_s=120.0, on_view=read_cues)
-    final = wait_status(page, "s.state === 'over'")
+    # judged in the seat's time: a busy machine steps the seat slower than the clock (CI's ran at about half pace)
+    final = drive_page(page, PersonLikeOperator(seed=4), time_limit_s=90.0, on_view=read_cues)
+    assert final["state"] == "over", f"not over after {final['time_s']} s of the seat's time: {final}"
+    final = status(page)
     assert final["success"] and final["debris_delivered"] == final["debris_total"], final
     assert final["time_s"] <= 90.0
     assert page.inner_text("#badge") == "SUCCESS" and "SUCCESS" in page.inner_text("#banner")

@@ -212,26 +212,41 @@ def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partne
             "seconds": round(steps * dt, 2) if success else None, "presses": operator.presses}
 
 
-def drive_page(page, operator: PersonLikeOperator, *, reaction_s: float = 0.2, timeout_s: float = 120.0,
-               on_view=None) -> dict:
+def drive_page(page, operator: PersonLikeOperator, *, reaction_s: float = 0.2, time_limit_s: float | None = None,
+               stall_s: float = 30.0, on_view=None) -> dict:
     """Work the seat in an open page (a Playwright ``Page`` showing ``dvrl-marl teleop``) until the episode is over:
     start it, then look at the status the page drew ``reaction_s`` ago and press the page's keys. ``on_view(status,
-    page)`` runs at every look (a test reads the page's cues there). Returns the page's last status."""
+    page)`` runs at every look (a test reads the page's cues there). Returns the page's last status.
+
+    It stops early, its keys released, once the episode has run ``time_limit_s`` of the seat's time (the status's
+    ``time_s``; a busy machine steps the seat slower than the clock, so a limit on the clock would judge the machine)
+    or when the seat has not stepped for ``stall_s`` seconds of the clock (the server stopped); the status it returns
+    then says ``running``.
+    """
     import time
 
+    if time_limit_s is not None and not time_limit_s > 0:
+        raise ValueError(f"drive_page: time_limit_s must be positive, got {time_limit_s!r}")
+    if not stall_s > 0:
+        raise ValueError(f"drive_page: stall_s must be positive, got {stall_s!r}")
     keyboard = page.keyboard
     page.keyboard.press("Enter")
     seen: deque = deque()
     began = time.monotonic()
     status = page.evaluate("window.dvrl.status")
-    while time.monotonic() - began < timeout_s:
+    last_step, stepped_at = status["step"], 0.0
+    while True:
         now = time.monotonic() - began
         status = page.evaluate("window.dvrl.status")
+        if status["step"] != last_step:
+            last_step, stepped_at = status["step"], now
+        if status["state"] == "over" or now - stepped_at > stall_s:
+            break
+        if time_limit_s is not None and status["time_s"] >= time_limit_s:
+            break
         seen.append((now, status))
         while len(seen) > 1 and seen[1][0] <= now - reaction_s:
             seen.popleft()
-        if status["state"] == "over":
-            break
         if status["state"] != "running":
             time.sleep(0.02)
             continue
