@@ -71,6 +71,7 @@ def assert_matches_single_envs(env_id, num_envs, seed, steps, action_seed, **kwa
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.slow
 def test_vector_env_equals_single_envs_over_1000_steps(env_id):
     assert_matches_single_envs(env_id, num_envs=3, seed=5, steps=1000, action_seed=0)
 
@@ -83,6 +84,7 @@ def test_suction_irrigation_tool_vector_env_equals_single_envs():
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(num_envs=st.integers(1, 5), seed=st.integers(0, 2**31 - 1), action_seed=st.integers(0, 1000),
        env_id=st.sampled_from(["dvrl_marl/PSMReach-v1", "dvrl_marl/PSMPickDense-v1"]))
+@pytest.mark.slow
 def test_vector_env_equivalence_property(num_envs, seed, action_seed, env_id):
     assert_matches_single_envs(env_id, num_envs=num_envs, seed=seed, steps=250, action_seed=action_seed)
 
@@ -226,6 +228,7 @@ def assert_batched_collaborative_matches(num_envs, seed, steps, action_seed, sur
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(num_envs=st.integers(1, 4), seed=st.integers(0, 2**31 - 1), action_seed=st.integers(0, 1000))
+@pytest.mark.slow
 def test_world_i_of_a_batch_is_the_single_env_seeded_s_plus_i(num_envs, seed, action_seed):
     # One step implementation serves both forms (the golden trajectories hold it still); what is left to hold here is
     # the seeding: world i draws the single env's episodes, automatic resets included.
@@ -233,6 +236,7 @@ def test_world_i_of_a_batch_is_the_single_env_seeded_s_plus_i(num_envs, seed, ac
                                          max_cycles=90)
 
 
+@pytest.mark.slow
 def test_scripted_team_succeeds_batched_as_often_as_single():
     env = suction_debris_v8.batched_env(num_envs=16, surgeon="scripted")
     suction = ScriptedSuction.for_env(env)
@@ -297,6 +301,7 @@ def test_teleop_devices_are_refused_by_the_batched_env():
         suction_debris_v8.batched_env(num_envs=2, surgeon=ReplayDevice([np.zeros(4)]))
 
 
+@pytest.mark.slow
 def test_batched_experts_act_as_the_single_experts_on_every_row():
     # Observations met along noisy team episodes (all phases: suction, reveal, grasp, carry, park).
     env = suction_debris_v8.batched_env(num_envs=16, reward_type="dense")

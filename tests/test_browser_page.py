@@ -260,6 +260,7 @@ def test_the_cli_prints_a_url_that_opens_the_page_and_a_stop_writes_the_dataset(
     assert (damaged / "metadata.json").read_text() == "{ truncated"
 
 
+@pytest.mark.slow
 def test_a_person_like_operator_finishes_from_what_the_page_shows(browser, served):
     """A stand-in for a person: it reads only what the page shows (its status, 200 ms old), decides at a person's pace
     and presses the page's keys in real time (dvrl_marl.teleop.person). On the way the page's cues must say what the

@@ -89,6 +89,7 @@ def _collaborative():
                                                        vectorization_mode="vector_entry_point")],
                          ids=["reach", "pick", "collaborative", "batched", "vector"])
 @pytest.mark.parametrize("copier", [lambda e: pickle.loads(pickle.dumps(e)), copy.deepcopy], ids=["pickle", "deepcopy"])
+@pytest.mark.slow
 def test_envs_copy_after_rendering(make, copier):
     env = make()
     env.reset(seed=3)
@@ -141,6 +142,7 @@ def test_train_without_the_extra_prints_one_line_and_exits_2(tmp_path):
 
 
 @pytest.mark.parametrize("blocked", [("minari",), ("starlette", "uvicorn"), ("ray",)])
+@pytest.mark.slow
 def test_commands_without_their_extra_print_one_line_and_exit_2(tmp_path, blocked):
     if blocked == ("ray",):
         pytest.importorskip("torch")  # (without torch, train names the [train] extra first)

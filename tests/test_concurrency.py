@@ -8,6 +8,7 @@ import threading
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import dvrl_marl  # noqa: F401
 from dvrl_marl.envs import suction_debris_v8
@@ -60,6 +61,7 @@ def test_pick_envs_in_two_threads_match_sequential_runs():
         np.testing.assert_array_equal(parallel[seed], _pick_trajectory(seed))
 
 
+@pytest.mark.slow
 def test_collaborative_envs_with_device_seats_in_two_threads_match_sequential_runs():
     parallel = _in_threads(_collaborative_trajectory, [3, 4])
     for seed in (3, 4):

@@ -52,6 +52,7 @@ def test_the_seat_env_passes_gymnasiums_checker_and_refuses_bad_arguments():
             gym.make("dvrl_marl/SurgeonSeat-v8", **bad)
 
 
+@pytest.mark.slow
 def test_a_recorded_dataset_is_a_minari_dataset_with_everything_needed(recorded):
     assert recorded.total_episodes == 2 and recorded.spec.env_spec.id == "dvrl_marl/SurgeonSeat-v8"
     assert recorded.spec.env_spec.kwargs["partner"] == "scripted"
@@ -70,6 +71,7 @@ def test_a_recorded_dataset_is_a_minari_dataset_with_everything_needed(recorded)
     assert len(observations) == len(actions) == recorded.total_steps
 
 
+@pytest.mark.slow
 def test_an_episode_replays_exactly(recorded):
     for index in range(2):
         result = datasets.replay(recorded, index)
@@ -123,6 +125,7 @@ def test_behaviour_cloning_learns_and_seats_its_clone(recorded, tmp_path):
     env.step({"suction": np.zeros(4)})  # the clone fills the seat like any policy
 
 
+@pytest.mark.slow
 def test_train_command_records_clones_and_evaluates(tmp_path, capsys):
     pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.cli import main
@@ -138,6 +141,7 @@ def test_train_command_records_clones_and_evaluates(tmp_path, capsys):
     assert "dvrl_marl/surgeon-tiny-v1" in minari.list_local_datasets()
 
 
+@pytest.mark.slow
 def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
     pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.agents.collaborative import ScriptedSurgeon
@@ -191,6 +195,7 @@ def test_clone_options_sharp_cleared_inputs_weights_and_annealing(recorded, tmp_
     assert action.shape == (4,) and np.all(np.abs(action) <= 1.0) and len(losses) == 4
 
 
+@pytest.mark.slow
 def test_the_shipped_clone_fills_the_seat_and_finishes_the_task(capsys):
     from dvrl_marl.cli import main
 

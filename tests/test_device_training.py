@@ -104,6 +104,7 @@ def test_collect_bootstraps_from_the_state_each_step_ended_on():
 
 
 @pytest.mark.parametrize("beside", [True, False])
+@pytest.mark.slow
 def test_a_run_stops_at_its_first_validation_that_reaches_the_target(tmp_path, beside):
     """Validations score beside the learner or in its process alike: the run stops at the first that reaches
     ``stop_at``, keeps the policies that validation scored and leaves no half-validated folder."""
@@ -119,6 +120,7 @@ def test_a_run_stops_at_its_first_validation_that_reaches_the_target(tmp_path, b
     assert not (tmp_path / "run" / "validating").exists()
 
 
+@pytest.mark.slow
 def test_a_run_with_its_worlds_in_a_worker_process_validates_as_the_inline_one(tmp_path):
     """collector="process": the worlds step in a worker while the learner updates; the run's rows and policies are
     as the inline run's, and what it cannot do is refused by name."""

@@ -56,6 +56,7 @@ def test_the_composite_is_the_whole_scene_drawn_at_once():
     renderer.close()
 
 
+@pytest.mark.slow
 def test_image_observations_in_the_parallel_and_batched_env():
     from pettingzoo.test import parallel_api_test
 
@@ -115,6 +116,7 @@ def test_images_without_the_option_say_how_to_ask_for_them():
         suction_debris_v8.batched_env(num_envs=1).images()
 
 
+@pytest.mark.slow
 def test_the_segmentation_is_mujocos_own_of_the_whole_scene_in_classes():
     from dvrl_marl.envs.endoscope import SEGMENT_CLASSES
 
@@ -155,6 +157,7 @@ def test_appearance_draws_lie_in_their_ranges_and_the_held_out_range_outside_the
     assert abs(np.mean(kept) - train.scene_colours) < 0.1 and 0.0 < train.scene_colours < 1.0
 
 
+@pytest.mark.slow
 def test_each_world_wears_its_own_look_for_its_episode_seeded_like_everything_else():
     options = dict(image_size=48, image_appearance="train")
     first, _ = suction_debris_v8.batched_env(num_envs=4, **options).reset(seed=7)

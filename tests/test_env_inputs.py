@@ -107,6 +107,7 @@ def test_a_shipped_configuration_is_found_by_name():
     assert '"baselines/configs" = "dvrl_marl/configs"' in (ROOT / "pyproject.toml").read_text()  # in the wheel
 
 
+@pytest.mark.slow
 def test_evaluate_takes_a_learned_seat_by_its_shipped_name():
     import json
 

@@ -45,6 +45,7 @@ def _run_side_by_side(levels, steps, num_envs=3, seed=10, **kwargs):
     return worst_observation, worst_reward, ended
 
 
+@pytest.mark.slow
 def test_single_and_batched_start_the_same_episodes_at_every_level():
     """Easy starts (300-step episodes, autoreset at their level) with the guided reward and features: the batched
     worlds are the single envs, seeded seed + i, bit for bit (rewards to float rounding)."""
@@ -396,6 +397,7 @@ def test_normalize_observations_maps_what_the_agents_read_and_nothing_else():
         np.testing.assert_array_equal(normalized.state()[layout[f"{agent}_observation"]], b[agent])
 
 
+@pytest.mark.slow
 def test_normalize_observations_gives_the_scripted_team_unit_scale_inputs():
     """What the option is for: over the scripted team's episode, every dimension that varies reads at about unit
     scale (no spread left 25-100 times below the rest, as the plain pins' y and carry offsets are)."""
@@ -447,6 +449,7 @@ def test_normalize_observations_keeps_the_seat_plain_and_checks_its_value():
         ObservationScaling.for_env("env", "no_such_features", ("suction",), 62, 31, False)
 
 
+@pytest.mark.slow
 def test_shipped_observation_scales_are_what_measure_gives():
     """The shipped centres and spreads are the measurement's (deterministic): rerunning it for the benchmark's feature
     set gives the file's numbers."""

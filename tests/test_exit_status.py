@@ -17,6 +17,7 @@ def test_probe():
 
 
 @pytest.mark.parametrize("probe,status", [("pass", 0), ("fail", 1)])
+@pytest.mark.slow
 def test_the_exit_status_is_pytests_own(probe, status):
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                              f"{Path(__file__)}::test_probe"], capture_output=True, text=True, timeout=120,

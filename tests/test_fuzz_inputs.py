@@ -305,6 +305,7 @@ def torch_save_bytes(value) -> bytes:
     (["evaluate", "reach-lnd", "--episodes", "0"], "--episodes"),
     (["render", "--width", "abc"], "--width"),
 ])
+@pytest.mark.slow
 def test_a_bad_flag_is_named_and_nothing_runs(tmp_path, arguments, flag):
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", *arguments], capture_output=True, text=True,
                             timeout=120, cwd=tmp_path if arguments[0] != "train" else ROOT)

@@ -59,6 +59,7 @@ def steps():
     return dict(np.load(GOLDEN / "steps_v8.npz"))
 
 
+@pytest.mark.slow
 def test_every_recorded_step_gives_its_recorded_outcome(steps):
     from dvrl_marl.envs import suction_debris_v8
 

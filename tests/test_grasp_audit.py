@@ -4,6 +4,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from dvrl_marl.agents.collaborative import ScriptedSurgeon
 from dvrl_marl.envs import suction_debris_v8
@@ -28,6 +29,7 @@ def test_the_scripted_surgeon_grasps_every_pin_by_its_centre():
         assert side["grasped"] == side["delivered"] == side["pins"]
 
 
+@pytest.mark.slow
 def test_a_grasper_that_opens_mid_carry_is_counted_dropping():
     """The scripted surgeon with its jaw forced open for one step in every 20 while it carries: drops are counted,
     and the pins it lets go of are not delivered on those steps."""

@@ -54,6 +54,7 @@ def test_a_switch_jaw_moves_towards_the_commands_sign(speed, seed):
         assert np.allclose(observations["grasper"][:, 3], 2.0 * jaw.jaw - 1.0)
 
 
+@pytest.mark.slow
 def test_a_held_pin_is_never_dropped_and_its_jaw_stays_shut():
     """Noisy scripted experts whose jaw command is replaced by a coin flip: every pin the grasper takes stays in its
     jaws, the jaw unmoved, until it is handed off; the pins are still grasped and delivered."""
@@ -101,6 +102,7 @@ def test_the_jaw_follows_the_command_again_after_the_handoff():
     assert env.arms["grasper"].jaw == 1.0  # free again: open on the next step's command
 
 
+@pytest.mark.slow
 def test_the_scripted_team_with_a_noisy_tool_succeeds_with_the_grasp_options():
     """Scale-1 tanh-Gaussian noise on both tools, the paper's instant tool: the pin is dropped on the first unlucky
     sample without the hold (tests/test_tool_speed.py), kept with it."""
@@ -119,6 +121,7 @@ def test_bad_grasp_options_are_refused_by_name(key, value):
         suction_debris_v8.batched_env(num_envs=2, **{key: value})
 
 
+@pytest.mark.slow
 def test_single_and_batched_agree_with_the_grasp_options():
     """Noisy scripted experts that drop now and then (the hold keeps the pin), a slow tool, the guided reward and
     features: the batched worlds are the single envs bit for bit (tests/test_batched.py's comparison)."""

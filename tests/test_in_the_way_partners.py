@@ -11,6 +11,8 @@ from dvrl_marl.agents.partners import zoo_partner
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
+pytestmark = pytest.mark.slow  # whole episodes of seats beside their partners (CI runs them)
+
 
 def _still(observations):
     return np.zeros((len(observations), 4))

@@ -66,6 +66,7 @@ def _rows(run):
 
 
 @pytest.mark.parametrize("algorithm", ["mappo", "ippo"])
+@pytest.mark.slow
 def test_trainer_runs_logs_checkpoints_and_exports(tmp_path, algorithm):
     run = tmp_path / "run"
     final = mappo.train(mappo.load_config(_config(tmp_path, algorithm)), 0, run, progress=False, log=lambda *_: None)
@@ -85,6 +86,7 @@ def test_trainer_runs_logs_checkpoints_and_exports(tmp_path, algorithm):
         assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
 
 
+@pytest.mark.slow
 def test_exported_policy_is_numpy_only(tmp_path):
     run = tmp_path / "run"
     mappo.train(mappo.load_config(_config(tmp_path)), 0, run, progress=False, log=lambda *_: None)
@@ -235,6 +237,7 @@ def test_partner_seat_runs(tmp_path):
         assert sorted(p.name for p in (run / "policies").iterdir()) == [f"marl-{learner}"]
 
 
+@pytest.mark.slow
 def test_cli_train_mappo(tmp_path):
     config = _config(tmp_path)
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "train", str(config), "--out", str(tmp_path / "r"),
@@ -734,6 +737,7 @@ def _pin_along_x(seeds=range(40)):
     raise AssertionError("no pin along x in the seeds tried")
 
 
+@pytest.mark.slow
 def test_centred_grasps_charge_a_grasp_that_can_never_be_delivered():
     """A pin taken by its +x end is held so far behind the tip that the tip would have to leave the workspace to
     bring it onto the hand-off point: the scripted carry never delivers it, while the same pin taken by its centre

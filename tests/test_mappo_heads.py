@@ -112,6 +112,7 @@ def _routes_reference(obs, targets14):
 @settings(max_examples=300, deadline=None)
 @given(tip=point, other=point, handoff=point, slots=st.lists(slot, min_size=3, max_size=3),
        levels=st.tuples(st.sampled_from([0.0, 0.03, 0.0625, 0.07, 1.0]), st.floats(0.0, 1.0)))
+@pytest.mark.slow
 def test_routes_name_the_cavity_to_clear_and_the_rims_in_the_way(tip, other, handoff, slots, levels):
     tip = tip * [1.0, 1.0, 0.4] + [0.0, 0.0, -0.45]  # about the phantom, inside and outside its cavities
     floors = [np.array([*c, z]) for c, z in zip(GEOMETRY["cavity_centres"], GEOMETRY["cavity_targets_z"])]
@@ -277,6 +278,7 @@ def test_switch_head_samples_open_or_closed_with_its_log_probability():
     {"tool_head": "switch", "initial_tool_logit": {"grasper": -4.0, "suction": 1.0}, "hidden": []},
     {"tool_head": "switch", "observation_features": "suction_debris_cleared_pins_zoom"},
 ])
+@pytest.mark.slow
 def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
     """The numpy policy (features computed, normalisation folded, the switch as a sign) acts as the torch actor's
     most likely action."""
@@ -389,6 +391,7 @@ def test_exported_policy_acts_with_its_recorded_noise(tmp_path):
         policies.load(plain).with_noise(0)
 
 
+@pytest.mark.slow
 def test_evaluate_team_with_noise_from_the_cli(tmp_path):
     import subprocess
     import sys
@@ -458,6 +461,7 @@ def test_bounds_loss_penalises_only_means_beyond_the_action_box():
     assert float(mappo.bounds_loss(torch.zeros(5, 4))) == 0.0
 
 
+@pytest.mark.slow
 def test_bounds_loss_pulls_saturated_means_back_in_training(tmp_path):
     """A tiny run whose actors start saturated (output bias 3): with the bounds loss the exported policy's means
     come back toward the box, without it they stay out."""

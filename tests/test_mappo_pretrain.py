@@ -108,6 +108,7 @@ def test_the_clone_acts_like_the_expert(tmp_path):
     assert actor_net.norm.count > len(observations)  # the normaliser saw the demonstrations first
 
 
+@pytest.mark.slow
 def test_run_clones_evaluates_the_clone_and_warms_up_the_critic(tmp_path):
     config = _config(tmp_path, rounds=1)  # the demonstrations, then one DAgger round
     run = tmp_path / "run"

@@ -15,6 +15,8 @@ import pytest
 from dvrl_marl import policies
 from dvrl_marl.training import teams
 
+pytestmark = pytest.mark.slow  # whole episodes of seats beside their partners (CI runs them)
+
 
 @pytest.mark.parametrize("name, agent, feature_set", [
     ("marl-suction", "suction", "suction_debris_routes"),

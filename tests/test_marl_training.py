@@ -4,6 +4,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from dvrl_marl.training.marl import TeamPolicy, evaluate_team, make_vec_env, train_ppo
 
@@ -23,6 +24,7 @@ def test_vector_env_has_one_slot_per_learning_agent_with_an_agent_indicator():
     single.close()
 
 
+@pytest.mark.slow
 def test_ppo_trains_both_arms_and_the_suction_arm_with_the_scripted_surgeon(tmp_path):
     for config in ("suction_debris_ppo", "suction_debris_ppo_scripted_surgeon"):
         result = train_ppo(CONFIGS / f"{config}.toml", seed=0, out_dir=tmp_path / config, total_timesteps=1024,
@@ -32,6 +34,7 @@ def test_ppo_trains_both_arms_and_the_suction_arm_with_the_scripted_surgeon(tmp_
         assert 0.0 <= result["success_rate"] <= 1.0 and result["mean_steps"] > 0
 
 
+@pytest.mark.slow
 def test_evaluate_team_reports_the_scripted_team():
     from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
     from dvrl_marl.envs import suction_debris_v8

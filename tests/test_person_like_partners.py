@@ -10,6 +10,8 @@ from dvrl_marl.agents.partners import (HELD_OUT, PERSON, TRAINING_RANGES, Person
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
+pytestmark = pytest.mark.slow  # whole episodes of seats beside their partners (CI runs them)
+
 ENV = suction_debris_v8.parallel_env()
 
 

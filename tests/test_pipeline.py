@@ -110,12 +110,14 @@ def test_recentred_frame_gives_the_same_behaviour_relative_to_the_goal():
     np.testing.assert_allclose(frame.normalise([0.15, 0.2, 0.25]), [1.0, 0.0, -1.0])
 
 
+@pytest.mark.slow
 def test_scripted_pipeline_team_completes_the_task():
     for seed in range(3):
         info, suction, grasper = run_team("scripted_team", seed)
         assert info["is_success"], (seed, suction.log[-5:], grasper.log[-5:])
 
 
+@pytest.mark.slow
 def test_a_pipeline_fills_the_surgeon_seat():
     probe = suction_debris_v8.parallel_env()
     surgeon = ArmPipeline.from_file("scripted_team", "grasper", probe)
@@ -129,11 +131,13 @@ def test_a_pipeline_fills_the_surgeon_seat():
 
 @pytest.mark.skipif(not pipeline_policies("learned_team") <= set(policies.available()),
                     reason="the learned policies are not shipped")
+@pytest.mark.slow
 def test_learned_pipeline_team_completes_the_task():
     results = [run_team("learned_team", seed)[0]["is_success"] for seed in range(3)]
     assert sum(results) >= 2, results
 
 
+@pytest.mark.slow
 def test_demo_command_writes_a_playable_video_and_metrics(tmp_path, capsys):
     out = tmp_path / "demo"
     assert cli_main(["demo", "--surgeon", "scripted", "--max-cycles", "40", "--out", str(out), "--no-progress"]) == 0

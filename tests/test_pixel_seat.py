@@ -218,6 +218,7 @@ def test_the_teacher_drives_its_share_of_the_worlds():
     np.testing.assert_array_equal(mixed[:, 2:, :3], np.broadcast_to(mixed[:1, 2:, :3], (10, 2, 3)))  # still
 
 
+@pytest.mark.slow
 def test_the_trainer_runs_end_to_end_and_keeps_its_best_round(tmp_path):
     config = _config(worlds=4, rounds=2, max_cycles=30, updates=3, first_updates=5, validation_episodes=2,
                      convolutions=[[8, 8, 4]], hidden=[16], partners=["scripted"])

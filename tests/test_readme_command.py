@@ -1,5 +1,6 @@
 """The README's test command: its second pytest run names the real-time files (collecting the rest would import the
-whole suite again), and .ci/run runs the command as the README writes it."""
+whole suite again), .ci/run runs the command as the README writes it, and then what it leaves out (the tests marked
+slow), so that CI runs every test."""
 
 import re
 from pathlib import Path
@@ -9,9 +10,25 @@ from conftest import REAL_TIME_FILES
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _marks(command: str) -> list[str]:
+    return re.findall(r'-m "([^"]+)"', command)
+
+
 def test_the_readmes_test_command_runs_every_real_time_file_and_ci_runs_that_command():
     readme = (ROOT / "README.md").read_text()
     command = next(line for line in readme.splitlines() if line.startswith("python3 -m venv .venv && ") and "pytest" in line)
-    realtime = command.split("-m realtime", 1)[1]
+    assert _marks(command) == ["not realtime and not slow", "realtime and not slow"]
+    realtime = command.split('-m "realtime and not slow"', 1)[1]
     assert {Path(name).name for name in re.findall(r"tests/\S+\.py", realtime)} == REAL_TIME_FILES
-    assert command in (ROOT / ".ci" / "run").read_text()
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert command in ci
+
+
+def test_ci_runs_what_the_quick_run_leaves_out_after_it():
+    ci = (ROOT / ".ci" / "run").read_text()
+    readme_at = ci.index('-m "realtime and not slow"')
+    slow = next(line for line in ci.splitlines() if '-m "slow and not realtime"' in line)
+    assert ci.index(slow) > readme_at and _marks(slow) == ["slow and not realtime", "slow and realtime"]
+    assert slow.rstrip().endswith("$REAL_TIME")
+    real_time = re.search(r'^REAL_TIME="([^"]+)"', ci, re.M).group(1).split()
+    assert {Path(name).name for name in real_time} == REAL_TIME_FILES

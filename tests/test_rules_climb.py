@@ -2,6 +2,7 @@
 was."""
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
@@ -10,6 +11,8 @@ import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
 from rule_sets import v4_rules, v5_rules
+
+pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
 
 # The suction on the wall of the left cavity near its rim, heading for the other cavity: out and down, into the
 # bowl (the measured end of issue 37's failed mean-action episodes on v4).

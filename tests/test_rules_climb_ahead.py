@@ -2,6 +2,7 @@
 along the wall's normal keeps climbing (v5's tip cycled in place); v5 stays as it was."""
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
@@ -11,6 +12,8 @@ from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
 from rule_sets import v5_rules, v6_rules
 from test_rules_climb import move_over_the_surface, suction_on_the_wall, suction_path
+
+pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
 
 # The suction on the wall of the left cavity near its rim (tests/test_suction_debris_v5.py's place), heading for the
 # other cavity and down, almost along the wall's normal: the command a learnt BenchMARL suction sent there, by its

@@ -11,6 +11,8 @@ from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon, ScriptedSuction
 from dvrl_marl.core.collaborative import GRAVITY, PIN_RADIUS
 from rule_sets import v0_rules, v1_rules
 
+pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+
 
 def test_pettingzoo_api_with_bleeding():
     parallel_api_test(v1_rules.parallel_env(bleeding_ml_s=0.3, max_cycles=200), num_cycles=300)

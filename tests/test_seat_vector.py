@@ -12,6 +12,7 @@ import dvrl_marl  # noqa: F401  (registration)
 
 
 @pytest.mark.parametrize("seat", ["suction", "grasper"])
+@pytest.mark.slow
 def test_the_batched_seats_follow_the_seat_env_world_by_world(seat):
     kwargs = {"partner": "scripted", "seat": seat, "max_cycles": 60}
     with warnings.catch_warnings():
@@ -66,6 +67,7 @@ def test_the_pipeline_partner_gets_a_sync_vector_and_bad_arguments_are_named():
        bleeding=st.sampled_from([0.0, 0.3]),
        level=st.sampled_from(["default", "easy", 0.5]),
        seed=st.integers(0, 10_000))
+@pytest.mark.slow
 def test_random_option_combinations_give_the_same_worlds_in_the_seat_env_and_its_vector_form(
         seat, preset, tool_speed, jaw_command, hold, features, normalize, bleeding, level, seed):
     """Any combination of the scene's options: the vector form's world i is the seat env seeded s + i, step by step

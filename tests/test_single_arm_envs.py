@@ -346,6 +346,7 @@ def test_rendering_from_the_endoscope(env_id, mode):
     env.close()
 
 
+@pytest.mark.slow
 def test_vector_envs_and_sb3_her_smoke():
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import SAC, HerReplayBuffer

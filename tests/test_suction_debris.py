@@ -319,6 +319,7 @@ def test_out_of_range_actions_are_clipped_and_invalid_arguments_raise():
     assert env.blood.remaining_ml == [2.0, 0.0]
 
 
+@pytest.mark.slow
 def test_tips_never_enter_the_phantom_and_instruments_never_pass_through_each_other():
     env = suction_debris_v8.parallel_env()
     rng = np.random.default_rng(7)

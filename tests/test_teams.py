@@ -11,6 +11,8 @@ import pytest
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
+pytestmark = pytest.mark.slow  # whole episodes of seats beside their partners (CI runs them)
+
 
 def test_scripted_team_wins_on_held_out_seeds():
     result = teams.evaluate_team_batched(teams.seats("scripted", "scripted"), episodes=6)

@@ -36,6 +36,7 @@ def test_q_filter_keeps_only_demonstrations_the_critic_prefers():
     assert q_filter_mask(q_demo, q_policy).tolist() == [1.0, 0.0, 0.0, 1.0]
 
 
+@pytest.mark.slow
 def test_bc_gradient_pulls_the_actor_towards_the_demonstrations():
     from stable_baselines3 import HerReplayBuffer
 
@@ -94,6 +95,7 @@ def _tiny(config):
 
 
 @pytest.mark.parametrize("config_path", CONFIGS, ids=lambda p: p.stem)
+@pytest.mark.slow
 def test_every_configuration_trains_end_to_end(config_path, tmp_path):
     config = _tiny(load_config(config_path))
     if config.algorithm not in sb3_algorithms():
@@ -130,6 +132,7 @@ def test_tensorboard_without_the_package_is_a_clear_error(tmp_path, monkeypatch)
 
 
 @pytest.mark.parametrize("stem", ["reach_lnd_ddpg_her", "pick_lnd_ppo_scratch"])
+@pytest.mark.slow
 def test_resume_continues_from_the_checkpoint(tmp_path, stem):
     config = _tiny(load_config(next(p for p in CONFIGS if p.stem == stem)))
     train(config, seed=0, out_dir=tmp_path, progress=False)
@@ -210,6 +213,7 @@ def test_load_rejects_unknown_names():
 
 
 @pytest.mark.parametrize("name", ["reach-lnd", "reach-suction-irrigation", "pick-lnd", "pick-lnd-scratch"])
+@pytest.mark.slow
 def test_shipped_policies_reach_their_stated_success_rate(name):
     assert name in policies.available()
     policy = policies.load(name)

@@ -34,6 +34,7 @@ def test_the_page_has_a_block_per_library():
 
 
 @pytest.mark.parametrize("code", _blocks())
+@pytest.mark.slow
 def test_block_runs(code, tmp_path):
     first = code.splitlines()[0]
     if first.startswith("# requires:"):
