@@ -387,6 +387,22 @@ def test_shading_is_a_gradient_across_each_image_within_its_bound():
     assert bright.max() <= 255.0
 
 
+def test_image_noise_is_zero_mean_with_a_spread_drawn_per_image_up_to_its_bound():
+    import torch
+
+    images = torch.full((256, 16, 16, 3), 128, dtype=torch.uint8)
+    assert pixel_seat._noised(torch, images, 0.0, torch.Generator().manual_seed(0)) is images
+    noised = pixel_seat._noised(torch, images, 8.0, torch.Generator().manual_seed(0)) - 128.0
+    spreads = noised.flatten(1).std(dim=1)
+    assert abs(float(noised.mean())) < 0.1  # zero mean: no brightness comes with it
+    assert spreads.max() < 8.0 * 1.1 and spreads.min() < 1.0 and spreads.max() > 7.0  # drawn per image, up to 8
+    again = pixel_seat._noised(torch, images, 8.0, torch.Generator().manual_seed(0)) - 128.0
+    assert torch.equal(noised, again)  # the fit's generator alone draws it
+    dark = pixel_seat._noised(torch, torch.zeros((8, 4, 4, 3), dtype=torch.uint8), 8.0,
+                              torch.Generator().manual_seed(1))
+    assert dark.min() >= 0.0
+
+
 def test_a_seat_estimating_the_other_tip_raises_and_keeps_lowest_only_the_blood(tmp_path):
     """estimated = [4, 9] (the other arm's tip and the blood left): the margin and the lowest kept are the blood's;
     the tip's estimates fill the teacher's observation as they are, image by image."""

@@ -111,6 +111,9 @@ class PixelSeatConfig(BaseModel):
     # each fitted image times a gradient of light across it, 1 +/- up to this at its corners, any direction: the
     # light's direction changes what falls where, which a gain over the whole image never draws
     shading: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
+    # each fitted image plus Gaussian noise of a spread drawn per image up to this (of 255), beyond the look's own:
+    # the held-out looks' noise reaches twice the training range's
+    image_noise: Annotated[float, Field(ge=0.0, le=32.0)] = 0.0
     # per_image: each channel of each image at zero mean and unit spread; brightness: each image scaled to one mean
     # (an exposure: a gain over the whole image changes nothing the network reads)
     normalise: Literal["none", "per_image", "brightness"] = "none"
@@ -375,6 +378,15 @@ def _shaded(torch, images, shading: float, generator):
     return (images.float() * field[..., None]).clamp(0.0, 255.0)
 
 
+def _noised(torch, images, noise: float, generator):
+    """Each image plus Gaussian noise whose standard deviation is drawn per image, uniform in [0, ``noise``] (pixel
+    values kept in 0..255)."""
+    if noise == 0.0:
+        return images
+    spread = noise * torch.rand((images.shape[0], 1, 1, 1), generator=generator)
+    return (images.float() + spread * torch.randn(images.shape, generator=generator)).clamp(0.0, 255.0)
+
+
 def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> float:
     """``updates`` steps of Adam on minibatches drawn from ``data`` (images, proprioception, labels, targets);
     returns the mean loss of the last tenth of them."""
@@ -419,7 +431,7 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
         batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
         seen = _jittered(torch, _shifted(torch, images[batch], config.shift_px, generator), config.colour_jitter,
                          generator, config.jitter_brightness)
-        seen = _shaded(torch, seen, config.shading, generator)
+        seen = _noised(torch, _shaded(torch, seen, config.shading, generator), config.image_noise, generator)
         loss = batch_loss(batch, model.features(seen, own[batch]))
         optimiser.zero_grad()
         loss.backward()
