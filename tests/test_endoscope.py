@@ -263,5 +263,11 @@ def test_one_quantity_held_out_draws_it_from_the_held_out_range_and_the_rest_fro
         drawn = [look.draw(rng.uniform(size=Appearance.UNIFORMS)) for _ in range(50)]
         light = np.array([d["light"] for d in drawn])
         assert (np.abs(light - 1.0) >= 0.2 - 1e-12).all() == (quantity == "light")
-    with pytest.raises(ValueError, match="quantity must be one of"):
-        held_out_only("blood")
+    together = held_out_only("colour", "light")  # several at once: each from the held-out range, the rest not
+    assert (together.colour, together.light, together.light_degrees) == (held_out.colour, held_out.light,
+                                                                        held_out.light_degrees)
+    assert (together.camera_mm, together.noise, together.low.camera_mm) == (train.camera_mm, train.noise, 0.0)
+    assert together.low.colour == held_out.low.colour and together.low.light == held_out.low.light
+    for wrong in [("blood",), ("colour", "blood"), ()]:
+        with pytest.raises(ValueError, match="quantities must be among"):
+            held_out_only(*wrong)

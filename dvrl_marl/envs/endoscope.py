@@ -92,13 +92,15 @@ QUANTITIES = {"colour": ("colour",), "light": ("light", "light_degrees"), "camer
               "noise": ("noise",)}
 
 
-def held_out_only(quantity: str) -> Appearance:
-    """The training range with one quantity (a key of :data:`QUANTITIES`) drawn from the held-out range instead:
-    which of the held-out range's quantities a pixel policy fails on. No world keeps the scene's own colours."""
-    if quantity not in QUANTITIES:
-        raise ValueError(f"held_out_only: quantity must be one of {sorted(QUANTITIES)}, got {quantity!r}")
+def held_out_only(*quantities: str) -> Appearance:
+    """The training range with the named quantities (keys of :data:`QUANTITIES`) drawn from the held-out range
+    instead: which of the held-out range's quantities, alone or together, a pixel policy fails on. No world keeps the
+    scene's own colours."""
+    unknown = [quantity for quantity in quantities if quantity not in QUANTITIES]
+    if not quantities or unknown:
+        raise ValueError(f"held_out_only: quantities must be among {sorted(QUANTITIES)}, got {list(quantities)!r}")
     train, held_out = APPEARANCES["train"], APPEARANCES["held_out"]
-    fields = QUANTITIES[quantity]
+    fields = {name for quantity in quantities for name in QUANTITIES[quantity]}
     low = Appearance(**{name: getattr(held_out.low, name) if name in fields else 0.0
                         for names in QUANTITIES.values() for name in names})
     return Appearance(**{**vars(train), **{name: getattr(held_out, name) for name in fields}, "low": low,
