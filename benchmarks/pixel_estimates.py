@@ -10,7 +10,7 @@ are those where the cavity is nearly empty.
 
     python benchmarks/pixel_estimates.py [--config suction_pixels_estimates] [--normalise none per_image brightness]
                                          [--colour-jitter 0 0.3] [--jitter-brightness yes no] [--shading 0 0.3]
-                                         [--image-noise 0 8]
+                                         [--image-noise 0 8] [--class-jitter 0 0.3]
                                          [--looks train held_out held_out_light ...] [--updates 2500] [--json FILE]
 
 Prints per option and look: the mean absolute error, and for a blood fraction under 0.15 the mean error, the mean
@@ -46,6 +46,9 @@ def main() -> None:
     parser.add_argument("--image-noise", nargs="+", type=float, default=None,
                         help="fit once per value too (each fitted image plus Gaussian noise of a spread up to it); "
                              "default: the configuration's")
+    parser.add_argument("--class-jitter", nargs="+", type=float, default=None,
+                        help="fit once per value too (each class of each fitted image times its own gain per channel, "
+                             "the frames collected with their segmentation); default: the configuration's")
     parser.add_argument("--config", default="suction_pixels_estimates",
                         help="the pixel seat's configuration (a name under baselines/configs or a file)")
     parser.add_argument("--looks", nargs="+", default=["train", "held_out"], choices=sorted(APPEARANCES),
@@ -56,6 +59,8 @@ def main() -> None:
     _, config = pixel_seat.load_config(resolve_config(args.config))
     blood = pixel_seat._blood_columns(config)
     noises = args.image_noise if args.image_noise is not None else [config.image_noise]
+    class_jitters = args.class_jitter if args.class_jitter is not None else [config.class_jitter]
+    config = config.model_copy(update={"class_jitter": max(class_jitters)})  # (collects the segmentation if any)
     began = time.perf_counter()
     fitted_on = pixel_seat.collect(config.model_copy(update={"worlds": 32}), None, 12345, 12345)
     # model_copy skips validation: the held-out looks are for scoring only, never for a fit
@@ -65,23 +70,23 @@ def main() -> None:
     print(f"frames: {len(fitted_on['targets']):,d} to fit, {scored:,d} to score per look "
           f"({time.perf_counter() - began:.0f} s)", flush=True)
     rows = []
-    fits = [(normalise, jitter, brightness == "yes", shading, noise) for normalise in args.normalise
+    fits = [(normalise, jitter, brightness == "yes", shading, noise, by_class) for normalise in args.normalise
             for jitter in args.colour_jitter for brightness in args.jitter_brightness for shading in args.shading
-            for noise in noises if jitter > 0 or brightness == args.jitter_brightness[0]]
-    for normalise, jitter, brightness, shading, noise in fits:
+            for noise in noises for by_class in class_jitters if jitter > 0 or brightness == args.jitter_brightness[0]]
+    for normalise, jitter, brightness, shading, noise, by_class in fits:
         options = pixel_seat.PixelSeatConfig(**{**config.model_dump(), "normalise": normalise,
                                                 "colour_jitter": jitter, "jitter_brightness": brightness,
-                                                "shading": shading, "image_noise": noise})
+                                                "shading": shading, "image_noise": noise, "class_jitter": by_class})
         torch.manual_seed(0)
         model = pixel_seat.PixelActor(options, 4)
         pixel_seat.fit(model, fitted_on, options, args.updates, 0)
         for look, data in scored_on.items():
             row = {"normalise": normalise, "colour_jitter": jitter, "jitter_brightness": brightness,
-                   "shading": shading, "image_noise": noise, "look": look,
+                   "shading": shading, "image_noise": noise, "class_jitter": by_class, "look": look,
                    **pixel_seat.estimate_errors(model, data, blood=blood)}
             rows.append(row)
             kind = (f"jitter {jitter:.2f}" + ("" if brightness else " (colour)") + f" shading {shading:.2f}"
-                    f" noise {noise:.0f}")
+                    f" noise {noise:.0f} class {by_class:.2f}")
             other = (f"; the other tip's |error| {row['other_mean_absolute']:.4f}" if "other_mean_absolute" in row
                      else "")
             print(f"{normalise:10s} {kind:32s} {look:16s} mean |error| {row['mean_absolute']:.4f}; nearly "

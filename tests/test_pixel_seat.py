@@ -201,6 +201,31 @@ def test_collect_labels_every_recorded_state_with_the_teachers_action():
     env.step({"suction": teacher(observations["suction"]), "grasper": partner(observations["grasper"])})
 
 
+def test_class_jitter_colours_each_class_apart_and_its_fit_needs_the_frames_segmentation():
+    images = torch.full((32, 8, 8, 3), 100, dtype=torch.uint8)
+    segmentation = torch.zeros((32, 8, 8), dtype=torch.uint8)
+    segmentation[:, :4, :4], segmentation[:, :4, 4:], segmentation[:, 4:, :4], segmentation[:, 4:, 4:] = 1, 2, 3, 4
+    assert pixel_seat._class_jittered(torch, images, segmentation, 0.0, torch.Generator().manual_seed(0)) is images
+    gains = pixel_seat._class_jittered(torch, images, segmentation, 0.3, torch.Generator().manual_seed(0)) / 100.0
+    assert torch.all((gains >= 0.7 - 1e-5) & (gains <= 1.3 + 1e-5))
+    quadrants = [gains[:, :4, :4], gains[:, :4, 4:], gains[:, 4:, :4], gains[:, 4:, 4:]]
+    for quadrant in quadrants:  # one gain per image, class and channel
+        assert torch.allclose(quadrant, quadrant[:, :1, :1].expand_as(quadrant))
+    tissue, blood = quadrants[0][:, 0, 0], quadrants[1][:, 0, 0]
+    assert (tissue - blood).abs().max() > 0.2 and (tissue[:, 0] - tissue[:, 1]).abs().max() > 0.2  # apart
+    # collected with the option, the frames carry the env's segmentation; a fit with it refuses frames without one
+    config = _config(worlds=2, max_cycles=4, record_every=2, action_noise=0.0, partners=["scripted"],
+                     class_jitter=0.3, convolutions=[[8, 8, 4]])
+    batch = pixel_seat.collect(config, None, seed=3, noise_seed=3)
+    assert batch["segmentation"].shape == batch["images"].shape[:3] and batch["segmentation"].dtype == np.uint8
+    assert {1, 4} <= set(np.unique(batch["segmentation"]))  # the tissue and the instruments are in view
+    model = pixel_seat.PixelActor(config, 4)
+    assert np.isfinite(pixel_seat.fit(model, batch, config, 2, 0))
+    without = {key: value for key, value in batch.items() if key != "segmentation"}
+    with pytest.raises(ValueError, match="class_jitter needs the frames' segmentation"):
+        pixel_seat.fit(pixel_seat.PixelActor(config, 4), without, config, 2, 0)
+
+
 def test_the_teacher_drives_its_share_of_the_worlds():
     config = _config(worlds=4, max_cycles=10, record_every=1, action_noise=0.2, partners=["scripted"])
     by_teacher = pixel_seat.collect(config, None, seed=7, noise_seed=7)

@@ -114,6 +114,10 @@ class PixelSeatConfig(BaseModel):
     # each fitted image plus Gaussian noise of a spread drawn per image up to this (of 255), beyond the look's own:
     # the held-out looks' noise reaches twice the training range's
     image_noise: Annotated[float, Field(ge=0.0, le=32.0)] = 0.0
+    # each fitted image's classes (tissue, blood, pin, instrument, background: the env's segmentation, recorded with
+    # the frames) times their own gain per channel, 1 +/- up to this: the looks colour the tissue, the blood and the
+    # instruments apart, which a gain over the whole image never draws
+    class_jitter: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
     # per_image: each channel of each image at zero mean and unit spread; brightness: each image scaled to one mean
     # (an exposure: a gain over the whole image changes nothing the network reads)
     normalise: Literal["none", "per_image", "brightness"] = "none"
@@ -258,6 +262,8 @@ def _env(config: PixelSeatConfig, worlds: int):
     from dvrl_marl.envs import suction_debris_v8
 
     options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
+    if config.class_jitter > 0:  # the classes the fit colours apart
+        options["image_segmentation"] = True
     return suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", image_size=config.image_size,
                                          image_appearance=None if config.image_appearance == "none"
                                          else config.image_appearance, **options)
@@ -299,7 +305,7 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         student.reset()
     done = np.zeros(config.worlds, dtype=bool)
     success = np.zeros(config.worlds, dtype=bool)
-    images, proprioception, labels, targets, cleared = [], [], [], [], []
+    images, proprioception, labels, targets, cleared, segments = [], [], [], [], [], []
     aux = slice(*(config.estimated if config.acts_by == "teacher" else config.auxiliary))
     # targets read as offsets (other_tip_relative): columns of the targets, and the observation's indices subtracted
     relative = np.array([[index - aux.start, own_index] for index, own_index in _relative(config)], dtype=np.int64)
@@ -318,6 +324,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         if step % config.record_every == 0:
             live = ~done
             images.append(seen["image"][live].copy())
+            if "segmentation" in seen:
+                segments.append(seen["segmentation"][live].copy())
             proprioception.append(seen["observation"][live, own].astype(np.float32))
             labels.append(label[live])
             target = seen["observation"][live, aux].astype(np.float64)
@@ -336,7 +344,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     return {"images": np.concatenate(images), "proprioception": np.concatenate(proprioception),
             "labels": np.concatenate(labels), "targets": np.concatenate(targets),
             "cleared": np.concatenate(cleared).astype(np.float32), "success_rate": float(success.mean()), "steps": step,
-            "constants": np.where(low == high, low, np.nan)}
+            "constants": np.where(low == high, low, np.nan),
+            **({"segmentation": np.concatenate(segments)} if segments else {})}
 
 
 def _shifted(torch, images, shift: int, generator):
@@ -378,6 +387,19 @@ def _shaded(torch, images, shading: float, generator):
     return (images.float() * field[..., None]).clamp(0.0, 255.0)
 
 
+def _class_jittered(torch, images, segmentation, jitter: float, generator):
+    """Each image's classes (``segmentation``'s indices) times their own gain per channel in 1 +/- ``jitter`` (pixel
+    values kept in 0..255)."""
+    if jitter == 0.0:
+        return images
+    from dvrl_marl.envs.endoscope import SEGMENT_CLASSES
+
+    count = images.shape[0]
+    gains = 1.0 + jitter * (2.0 * torch.rand((count, len(SEGMENT_CLASSES), images.shape[3]), generator=generator) - 1.0)
+    per_pixel = gains[torch.arange(count)[:, None, None], segmentation.long()]  # (count, S, S, channels)
+    return (images.float() * per_pixel).clamp(0.0, 255.0)
+
+
 def _noised(torch, images, noise: float, generator):
     """Each image plus Gaussian noise whose standard deviation is drawn per image, uniform in [0, ``noise``] (pixel
     values kept in 0..255)."""
@@ -396,6 +418,9 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     if optimiser is None:  # one optimiser across rounds: its moments carry on as the data grows
         optimiser = model._optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     images = torch.from_numpy(data["images"])
+    if config.class_jitter > 0 and "segmentation" not in data:
+        raise ValueError("fit: class_jitter needs the frames' segmentation (collect with the same configuration)")
+    segmentation = torch.from_numpy(data["segmentation"]) if config.class_jitter > 0 else None
     own = torch.from_numpy(data["proprioception"])
     labels = torch.from_numpy(data["labels"])
     targets = torch.from_numpy(data["targets"])
@@ -429,7 +454,9 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     losses = []
     for _ in range(updates):
         batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
-        seen = _jittered(torch, _shifted(torch, images[batch], config.shift_px, generator), config.colour_jitter,
+        seen = images[batch] if segmentation is None else _class_jittered(torch, images[batch], segmentation[batch],
+                                                                          config.class_jitter, generator)
+        seen = _jittered(torch, _shifted(torch, seen, config.shift_px, generator), config.colour_jitter,
                          generator, config.jitter_brightness)
         seen = _noised(torch, _shaded(torch, seen, config.shading, generator), config.image_noise, generator)
         loss = batch_loss(batch, model.features(seen, own[batch]))
