@@ -22,18 +22,13 @@ from partner_zoo import partner_seat
 from pixel_seat_trace import Traced
 
 from dvrl_marl import policies
-from dvrl_marl.envs.endoscope import APPEARANCES, QUANTITIES, held_out_only
+from dvrl_marl.envs.endoscope import APPEARANCES, held_out_only
 from dvrl_marl.training import teams
 
 
 def appearance(look: str):
-    if look in ("train", "held_out"):
-        return APPEARANCES[look]
-    quantities = look.split("+")
-    if any(quantity not in QUANTITIES for quantity in quantities):
-        raise argparse.ArgumentTypeError(f"a look is train, held_out or quantities among {sorted(QUANTITIES)} joined "
-                                         f"by '+', got {look!r}")
-    return held_out_only(*quantities)
+    """``train``, ``held_out``, or held-out quantities joined by ``+`` (held_out_only names a wrong one)."""
+    return APPEARANCES[look] if look in ("train", "held_out") else held_out_only(*look.split("+"))
 
 
 def main() -> None:
@@ -46,8 +41,8 @@ def main() -> None:
     args = parser.parse_args()
     try:
         looks = {look: appearance(look) for look in args.looks}
-    except argparse.ArgumentTypeError as error:
-        parser.error(f"--looks: {error}")
+    except ValueError as error:
+        parser.error(f"--looks: a look is train, held_out or held-out quantities joined by '+': {error}")
     policy = policies.load(args.pixel)
     if policy.encoder is None or policy.encoder.keep_lowest is None or policy.encoder.keep_lowest.all():
         parser.error(f"--pixel {args.pixel}: the seat estimates no other arm's tip")
