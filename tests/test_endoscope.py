@@ -136,6 +136,31 @@ def test_the_segmentation_is_mujocos_own_of_the_whole_scene_in_classes():
     whole.close()
 
 
+@pytest.mark.parametrize("appearance", [None, "train"])
+def test_a_part_asked_alone_is_the_part_the_observations_carry(appearance):
+    """``images(parts=...)`` draws a part on request (a segmentation for the steps a dataset records), the same as an
+    env made to carry it in every observation, look and noise included; an unknown part is refused by name."""
+    options = dict(image_size=32, image_depth=True, image_segmentation=True, image_appearance=appearance)
+    carrying = _stepped(4, 0, seed=6, **options)
+    asking = _stepped(4, 0, seed=6, image_size=32, image_appearance=appearance)
+    rng = np.random.default_rng(6)
+    for step in range(12):
+        if step % 3 == 0:  # the segmentation first (a still layer drawn without it), then the rest
+            whole = carrying.images()
+            np.testing.assert_array_equal(asking.images(parts="segmentation")["segmentation"], whole["segmentation"])
+            alone = asking.images(parts=["depth", "image"])
+            np.testing.assert_array_equal(alone["image"], whole["image"])
+            np.testing.assert_array_equal(alone["depth"], whole["depth"])
+            assert set(alone) == {"image", "depth"}
+            assert set(asking.images()) == {"image"}  # the env's own parts unchanged
+        actions = {agent: rng.uniform(-1, 1, (4, 4)) for agent in carrying.possible_agents}
+        carrying.step(actions)
+        asking.step(actions)
+    for bad in ("rgb", [], ["image", "colour"]):
+        with pytest.raises(ValueError, match="parts must be some of"):
+            asking.images(parts=bad)
+
+
 def test_appearance_draws_lie_in_their_ranges_and_the_held_out_range_outside_the_training_one():
     from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
 

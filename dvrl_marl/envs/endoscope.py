@@ -21,8 +21,8 @@ import numpy as np
 
 from dvrl_marl.envs.scene_mirror import SceneMirror
 
-__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "SEGMENT_CLASSES", "Appearance", "APPEARANCES", "QUANTITIES",
-           "held_out_only"]
+__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "RENDER_PARTS", "SEGMENT_CLASSES", "Appearance", "APPEARANCES",
+           "QUANTITIES", "held_out_only"]
 
 #: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
 #: tissue, blood, a debris pin, an instrument (the arms' and the assistant's).
@@ -30,6 +30,8 @@ SEGMENT_CLASSES = ("background", "tissue", "blood", "pin", "instrument")
 
 #: Image sizes (square, pixels) an image observation may have.
 IMAGE_SIZES = (32, 256)
+#: What :meth:`EndoscopeRenderer.render` can draw of a view.
+RENDER_PARTS = ("rgb", "depth", "segmentation")
 #: MuJoCo geom groups of this renderer's own model copy: what never moves, and what a world's state moves.
 _STILL, _MOVING = 0, 1
 
@@ -176,8 +178,8 @@ class EndoscopeRenderer:
         self._near, self._far = model.vis.map.znear * extent, model.vis.map.zfar * extent
         self._frame_rgb = np.empty((size * self.rows, size * self.columns, 3), np.uint8)
         self._frame_depth = np.empty((size * self.rows, size * self.columns), np.float32)
-        #: the scene's own still layer (rgb, raw depth, segments or None), drawn once
-        self._still = self._draw_still()
+        #: the scene's own still layer (rgb, raw depth, segments or None), drawn once (its segments when first asked)
+        self._still = self._draw_still(self.segmentation)
         # Which way the depth buffer runs (MuJoCo 3.x reverses it: 1 near, an empty pixel 0; else an empty pixel is 1).
         self._reversed = float(self._still[1].max()) < 0.5
 
@@ -204,13 +206,13 @@ class EndoscopeRenderer:
         self._gl.make_current()
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
 
-    def _draw_still(self) -> tuple:
-        """The still layer in the look worn now: rgb, raw depth and (with segmentation) classes, rows bottom up."""
+    def _draw_still(self, segmentation: bool) -> tuple:
+        """The still layer in the look worn now: rgb, raw depth and (with ``segmentation``) classes, rows bottom up."""
         self._bind()
         self._draw(_STILL, 0)
         rgb, depth = self._read(1)
         segments = None
-        if self.segmentation:
+        if segmentation:
             self._set_segmenting(True)
             self._draw(_STILL, 0)
             segments = self._classes(self._read(1)[0], [self._scene_classes()])[0]
@@ -264,31 +266,47 @@ class EndoscopeRenderer:
         data.cam_xpos[camera] = base["cam_xpos"][camera] + look["camera_shift"]
         data.cam_xmat[camera] = (_turn(*look["camera_turn"]) @ base["cam_xmat"][camera].reshape(3, 3)).ravel()
 
+    def parts(self, parts=None) -> tuple[str, ...]:
+        """``parts`` checked (any of :data:`RENDER_PARTS`); None: the renderer's own (rgb, and depth and segmentation
+        when made with them)."""
+        if parts is None:
+            return tuple(part for part, on in zip(RENDER_PARTS, (True, self.depth, self.segmentation)) if on)
+        parts = (parts,) if isinstance(parts, str) else tuple(parts)
+        unknown = [part for part in parts if part not in RENDER_PARTS]
+        if unknown or not parts:
+            raise ValueError(f"render: parts must be some of {RENDER_PARTS}, got {list(parts)}")
+        return tuple(part for part in RENDER_PARTS if part in parts)
+
     def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
-               frames=None) -> dict:
+               frames=None, parts=None) -> dict:
         """The view of each world in ``states`` (the core's ``world_state`` dicts); with ``looks`` (one
         :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
         world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
-        (each world's step in its episode) seed its image noise."""
+        (each world's step in its episode) seed its image noise. ``parts`` (:meth:`parts`) draws only those: a
+        segmentation alone costs one drawing of what moves, not two."""
         count, s = len(states), self.size
+        parts = self.parts(parts)
+        segmentation, colour = "segmentation" in parts, "rgb" in parts or "depth" in parts
         if looks is not None:
             if keys is None or len(keys) != count or len(looks) != count:
                 raise ValueError("render: one look and one key per world")
             frames = np.zeros(count, np.int64) if frames is None else np.asarray(frames, np.int64)
             for world, (look, key) in enumerate(zip(looks, keys)):
-                if self._still_looks.get(world, (None,))[0] != key:
+                entry = self._still_looks.get(world)
+                if entry is None or entry[0] != key or (segmentation and entry[3] is None):
                     self._wear(look)
-                    self._still_looks[world] = (key, *self._draw_still())
-        out = {"rgb": np.empty((count, s, s, 3), np.uint8)}
-        if self.depth:
-            out["depth"] = np.empty((count, s, s), np.float32)
-        if self.segmentation:
-            out["segmentation"] = np.empty((count, s, s), np.uint8)
+                    self._still_looks[world] = (key, *self._draw_still(segmentation or self.segmentation))
+        elif segmentation and self._still[2] is None:
+            self._still = self._draw_still(True)
+        out = {part: np.empty((count, s, s, 3) if part == "rgb" else (count, s, s),
+                              {"rgb": np.uint8, "depth": np.float32, "segmentation": np.uint8}[part])
+               for part in parts}
         model, data = self.mirror.model, self.mirror.data
         for start in range(0, count, self.tiles):
             worlds = range(start, min(count, start + self.tiles))
             drawn = {}
-            for segmenting in ((False, True) if self.segmentation else (False,)):  # (segments: what moves, again)
+            # what moves, drawn in colour and (for segments) again by geom ids; the depth of either places it
+            for segmenting in (False,) * colour + (True,) * segmentation:
                 self._bind()
                 self._set_segmenting(segmenting)
                 lookups = []
@@ -305,24 +323,27 @@ class EndoscopeRenderer:
             # the still layers: the scene's own one, or each world's in its look
             still = [self._still] if looks is None else [self._still_looks[world][1:] for world in worlds]
             still_rgb, still_depth = np.stack([entry[0] for entry in still]), np.stack([entry[1] for entry in still])
-            moving_rgb, moving_depth, _ = drawn[False]
+            moving_rgb, moving_depth, _ = drawn[not colour]  # (either drawing's depth: the same geometry)
             nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth
             rows = slice(worlds.start, worlds.stop)
-            image = np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1]
-            if looks is not None:  # the image noise: seeded by the world's look and its frame
-                image = image.astype(np.float32)
-                for index, world in enumerate(worlds):
-                    if looks[world]["noise"] > 0.0:
-                        rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
-                        image[index] += rng.normal(0.0, looks[world]["noise"], image[index].shape).astype(np.float32)
-                image = np.clip(np.rint(image), 0, 255)
-            out["rgb"][rows] = image
-            if self.depth:
+            if "rgb" in parts:
+                image = np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1]
+                if looks is not None:  # the image noise: seeded by the world's look and its frame
+                    image = image.astype(np.float32)
+                    for index, world in enumerate(worlds):
+                        if looks[world]["noise"] > 0.0:
+                            rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
+                            image[index] += rng.normal(0.0, looks[world]["noise"],
+                                                       image[index].shape).astype(np.float32)
+                    image = np.clip(np.rint(image), 0, 255)
+                out["rgb"][rows] = image
+            if "depth" in parts:
                 out["depth"][rows] = self._metres(np.where(nearer, moving_depth, still_depth)[:, ::-1])
-            if self.segmentation:
+            if segmentation:
                 segment_rgb, _, lookups = drawn[True]
                 still_segments = np.stack([entry[2] for entry in still])
-                out["segmentation"][rows] = np.where(nearer, self._classes(segment_rgb, lookups), still_segments)[:, ::-1]
+                classes = self._classes(segment_rgb, lookups)
+                out["segmentation"][rows] = np.where(nearer, classes, still_segments)[:, ::-1]
         if looks is not None:
             self._wear(None)
         return out

@@ -268,8 +268,11 @@ class SuctionDebrisBatchedEnv:
         self._observation_spaces = {agent: spaces.Dict({"observation": space, **parts})
                                     for agent, space in self._observation_spaces.items()}
 
-    def images(self) -> dict:
-        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "depth", "segmentation"]}``."""
+    def images(self, parts=None) -> dict:
+        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "depth", "segmentation"]}``.
+        ``parts`` draws only those of ``"image"``, ``"depth"`` and ``"segmentation"`` (default: what the observations
+        carry), whether or not the observations carry them: a dataset may take the segmentation on the steps it
+        records alone, at the cost of one drawing of what moves each time."""
         if not self.image_size:
             raise ValueError(f"{self.name}: images need image_size (made with image_size=84, say)")
         if self._endoscope is None:
@@ -277,9 +280,16 @@ class SuctionDebrisBatchedEnv:
 
             self._endoscope = EndoscopeRenderer(self.params, self.image_size, depth=self.image_depth,
                                                 segmentation=self.image_segmentation)
+        if parts is not None:
+            named = (parts,) if isinstance(parts, str) else tuple(parts)
+            unknown = [part for part in named if part not in ("image", "depth", "segmentation")]
+            if unknown or not named:
+                raise ValueError(f"{self.name}: images' parts must be some of 'image', 'depth', 'segmentation', "
+                                 f"got {list(named)}")
+            parts = ["rgb" if part == "image" else part for part in named]
         states = [self.core.world_state(world) for world in range(self.num_envs)]
         if self.image_appearance is None:
-            drawn = self._endoscope.render(states)
+            drawn = self._endoscope.render(states, parts=parts)
         else:  # each world's look for its episode, from its own stream (a function of its seed and episode)
             from dvrl_marl.core.streams import STREAMS, uniforms
             from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
@@ -292,7 +302,7 @@ class SuctionDebrisBatchedEnv:
             keys = list(zip(np.asarray(streams.key_low).tolist(), np.asarray(streams.key_high).tolist(),
                             episode.tolist()))
             drawn = self._endoscope.render(states, [appearance.draw(row) for row in np.asarray(draws)], keys,
-                                           np.asarray(self.core.elapsed))
+                                           np.asarray(self.core.elapsed), parts=parts)
         return {"image" if key == "rgb" else key: value for key, value in drawn.items()}
 
     def _check_scene_fits(self) -> None:

@@ -262,8 +262,6 @@ def _env(config: PixelSeatConfig, worlds: int):
     from dvrl_marl.envs import suction_debris_v8
 
     options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
-    if config.class_jitter > 0:  # the classes the fit colours apart
-        options["image_segmentation"] = True
     return suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", image_size=config.image_size,
                                          image_appearance=None if config.image_appearance == "none"
                                          else config.image_appearance, **options)
@@ -324,8 +322,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         if step % config.record_every == 0:
             live = ~done
             images.append(seen["image"][live].copy())
-            if "segmentation" in seen:
-                segments.append(seen["segmentation"][live].copy())
+            if config.class_jitter > 0:  # the classes the fit colours apart, drawn for the recorded steps alone
+                segments.append(env.images(parts="segmentation")["segmentation"][live])
             proprioception.append(seen["observation"][live, own].astype(np.float32))
             labels.append(label[live])
             target = seen["observation"][live, aux].astype(np.float64)
