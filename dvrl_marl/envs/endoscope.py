@@ -193,14 +193,18 @@ class EndoscopeRenderer:
         mujoco.mjr_render(mujoco.MjrRect((tile % self.columns) * s, (tile // self.columns) * s, s, s), scene, context)
 
     def _read(self, count: int) -> tuple[np.ndarray, np.ndarray]:
-        """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth, rows bottom to top."""
-        context = self._context
-        height, width = self._frame_depth.shape
-        mujoco.mjr_readPixels(self._frame_rgb, self._frame_depth, mujoco.MjrRect(0, 0, width, height), context)
-        s, rows, columns = self.size, self.rows, self.columns
-        rgb = self._frame_rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)
-        depth = self._frame_depth.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)
-        return rgb[:count], depth[:count]
+        """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth, rows bottom to top. Only the
+        framebuffer's rows of tiles that hold them are read back (a few worlds in a framebuffer for 256: a strip)."""
+        s, columns = self.size, self.columns
+        rows = -(-count // columns)
+        width = s * columns
+        rgb, depth = self._frame_rgb[:rows * s], self._frame_depth[:rows * s]  # (the first rows: contiguous views)
+        mujoco.mjr_readPixels(rgb, depth, mujoco.MjrRect(0, 0, width, rows * s), self._context)
+        rgb = rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)[:count]
+        depth = depth.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)[:count]
+        # one row of tiles reshapes to a view of the framebuffer, which the next read overwrites: copied then
+        return tuple(part.copy() if np.may_share_memory(part, frame) else part
+                     for part, frame in ((rgb, self._frame_rgb), (depth, self._frame_depth)))
 
     def _bind(self) -> None:
         self._gl.make_current()
