@@ -37,10 +37,13 @@ def _whole_scene(renderer, size):
     return whole, draw
 
 
-def test_the_composite_is_the_whole_scene_drawn_at_once():
-    env = _stepped(12, 80)
+@pytest.mark.parametrize("worlds, tiles", [(12, 5), (20, None)])
+def test_the_composite_is_the_whole_scene_drawn_at_once(worlds, tiles):
+    """Three framebuffers' worth of one row each, the last partial; then one framebuffer of 16 x 16 tiles of which two
+    rows are read back, the second partial."""
+    env = _stepped(worlds, 80)
     states = [env.core.world_state(world) for world in range(env.num_envs)]
-    renderer = EndoscopeRenderer(env.params, 64, depth=True, tiles=5)  # three framebuffers' worth, the last partial
+    renderer = EndoscopeRenderer(env.params, 64, depth=True, tiles=tiles)
     drawn = renderer.render(states)
     whole, draw = _whole_scene(renderer, 64)
     for world in range(env.num_envs):
