@@ -41,7 +41,9 @@ def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, *
     return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
             "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
             "mean_contact_steps": result["mean_contact_steps"], "tip_path_mm": result["mean_tip_path_mm"][seat],
-            "action_change": result["mean_action_change"][seat]}
+            "action_change": result["mean_action_change"][seat],
+            # per episode (test seed), in order: where the contact steps and the failures fall
+            "success": result["success"], "contact_steps": result["contact_steps"]}
 
 
 def partner_seat(partner: str, seat: str):

@@ -92,6 +92,8 @@ def test_the_scripted_suction_finishes_beside_them_by_pushing_into_them():
         result = teams.evaluate_team_batched({"suction": teams.seat("scripted", "suction"), "grasper": partner},
                                              16, max_cycles=3000)
         assert result["success_rate"] == 1.0 and result["mean_contact_steps"] > 10.0, result
+        # each episode's contact steps, whose mean is the figure
+        assert len(result["contact_steps"]) == 16 and np.mean(result["contact_steps"]) == result["mean_contact_steps"]
 
 
 def test_the_held_out_kind_lies_outside_the_training_ranges_and_is_the_zoos():

@@ -137,7 +137,7 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     Returns success rate, blood removed, debris delivered, median steps to completion (over successes),
     instrument-contact steps per episode and, per seat, the tip's path (mm per episode) and the mean absolute change
     of its action between steps (how smoothly it moved; a real PSM is servoed through IK at 50 Hz), with the
-    per-episode outcomes.
+    per-episode outcomes (success, steps, contact steps).
     """
     # No reward is read here: the sparse one costs nothing, where a preset's guided one computes its potentials (and
     # the guided terms' settings go with it).
@@ -208,7 +208,7 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
             "mean_tip_path_mm": {agent: float(1000.0 * env.workspace_range * path[agent].mean()) for agent in path},
             "mean_action_change": {agent: float((change[agent] / np.maximum(steps - 1, 1)).mean())
                                    for agent in change},
-            "success": success.tolist(), "steps": steps.tolist()}
+            "success": success.tolist(), "steps": steps.tolist(), "contact_steps": contacts.tolist()}
 
 
 def cross_play(suctions, graspers, episodes: int = 100, seed: int = EVAL_SEED, noise: bool = False,
