@@ -95,10 +95,11 @@ frames/s at 84 x 84 with 64 worlds or more on a 2-core CPU, 7x a bare ``mujoco.R
 (``benchmarks/endoscope_speed.py``). ``image_segmentation=True`` adds ``"segmentation"`` (``(S, S) uint8``: 0
 background, 1 tissue, 2 blood, 3 pin, 4 instrument). The batched env's ``images(parts=...)`` draws any of
 ``"image"``, ``"depth"`` and ``"segmentation"`` of every world now, whether or not the observations carry it: a
-dataset takes the segmentation on the steps it records alone (a segmentation alone is one drawing of what moves). ``image_appearance`` randomises each world's look per episode
-(domain randomisation, from the world's own stream: a function of its seed and episode, like every reset draw):
-``"train"`` draws within the training range below, ``"held_out"`` outside it (up to the second column), to test a
-pixel policy on looks it never met, ``"held_out_colour"`` (``_light``, ``_camera``, ``_noise``) that one quantity
+dataset takes the segmentation on the steps it records alone (a segmentation alone is one drawing of what moves).
+``image_appearance`` randomises each world's look per episode (domain randomisation, from the world's own stream:
+a function of its seed and episode, like every reset draw): ``"train"`` draws within the training range below,
+``"held_out"`` outside it (up to the second column), to test a pixel policy on looks it never met,
+``"held_out_colour"`` (``_light``, ``_camera``, ``_noise``) that one quantity
 held out and the rest drawn as in training; an ``endoscope.Appearance`` is a range of one's own:
 
 | quantity | ``"train"``: at most | ``"held_out"``: between |
