@@ -319,7 +319,9 @@ def test_closing_the_window_ends_the_episode_and_keeps_the_metrics(desktop, tmp_
     output, metrics = _finish(process, tmp_path)
     _xdotool(desktop, "keyup", "w")  # the virtual screen's keyboard is shared with the next test
     assert metrics["viewer_closed"] and "the window was closed" in output, output
-    assert metrics["viewer_closed"] and 10 < metrics["steps"] < 1500 and not metrics["success"]
+    # However few steps a loaded machine paced in the second W was held (5 in CI once), the episode ran with W down and
+    # ended at the close, long before its 1,500 steps.
+    assert metrics["viewer_closed"] and 0 < metrics["steps"] < 1500 and not metrics["success"]
     _, actions, _ = load_demonstration(tmp_path / "seat.npz")
     assert len(actions) == metrics["steps"] and actions[:, 1].max() == 1.0
 
