@@ -88,10 +88,13 @@ def test_each_world_acts_as_one_partner_alone_and_restarts_alone():
 def test_the_scripted_suction_finishes_beside_them_by_pushing_into_them():
     """The premise of a seat that yields: the scripted suction gets through only by pushing (every kind)."""
     env = suction_debris_v8.parallel_env()
-    for partner in (training_obstructors("grasper", env), held_out_obstructors("grasper", env)):
-        result = teams.evaluate_team_batched({"suction": teams.seat("scripted", "suction"), "grasper": partner},
-                                             16, max_cycles=3000)
-        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] > 10.0, result
+    results = teams.evaluate_beside("suction", teams.seat("scripted", "suction"),
+                                    {"training": training_obstructors("grasper", env),
+                                     "held out": held_out_obstructors("grasper", env)}, 16, max_cycles=3000)
+    for kind, result in results.items():
+        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] > 10.0, (kind, result)
+        # each episode's contact steps, whose mean is the figure
+        assert len(result["contact_steps"]) == 16 and np.mean(result["contact_steps"]) == result["mean_contact_steps"]
         # each episode's contact steps, whose mean is the figure
         assert len(result["contact_steps"]) == 16 and np.mean(result["contact_steps"]) == result["mean_contact_steps"]
 
@@ -128,10 +131,11 @@ def test_the_yielding_script_passes_them_without_a_contact_and_otherwise_is_the_
     from dvrl_marl.agents.collaborative import ScriptedSuction, YieldingSuction
 
     env = suction_debris_v8.parallel_env()
-    for partner in (training_obstructors("grasper", env), held_out_obstructors("grasper", env)):
-        result = teams.evaluate_team_batched({"suction": YieldingSuction.for_env(env), "grasper": partner}, 16,
-                                             max_cycles=3000)
-        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, result
+    results = teams.evaluate_beside("suction", YieldingSuction.for_env(env),
+                                    {"training": training_obstructors("grasper", env),
+                                     "held out": held_out_obstructors("grasper", env)}, 16, max_cycles=3000)
+    for kind, result in results.items():
+        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, (kind, result)
     batched = suction_debris_v8.batched_env(num_envs=4, surgeon="scripted", surgeon_seat="grasper")
     observations, _ = batched.reset(seed=8)
     yielding, scripted = YieldingSuction.for_env(batched), ScriptedSuction.for_env(batched)

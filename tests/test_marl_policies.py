@@ -57,12 +57,14 @@ def test_the_yielding_suction_waits_for_a_surgeon_in_its_way_and_finishes_beside
 
     env = suction_debris_v8.parallel_env()
     seat = teams.seat("marl-suction-yielding", "suction")
-    in_the_way = teams.evaluate_team_batched({"suction": seat, "grasper": zoo_partner("in-the-way", "grasper", env)},
-                                             episodes=16, max_cycles=6000)
+    results = teams.evaluate_beside("suction", seat, {"in-the-way": zoo_partner("in-the-way", "grasper", env),
+                                                      "scripted": teams.seat("scripted", "grasper"),
+                                                      "person": zoo_partner("person", "grasper", env)},
+                                    episodes=16, max_cycles=6000)
+    in_the_way = results.pop("in-the-way")
     assert in_the_way["success_rate"] == 1.0 and in_the_way["mean_contact_steps"] <= 5.0, in_the_way
-    for partner in (teams.seat("scripted", "grasper"), zoo_partner("person", "grasper", env)):
-        result = teams.evaluate_team_batched({"suction": seat, "grasper": partner}, episodes=16, max_cycles=6000)
-        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, result
+    for partner, result in results.items():
+        assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, (partner, result)
 
 
 def test_the_bleeding_team_finishes_where_the_keep_clear_team_runs_out_of_steps():

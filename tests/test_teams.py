@@ -51,6 +51,35 @@ def test_a_seat_that_keeps_state_plays_a_second_evaluation_as_its_first(grasper)
         assert result["mean_action_change"] == first["mean_action_change"]
 
 
+def test_beside_several_partners_each_partners_worlds_are_its_own_evaluation():
+    """evaluate_beside's one batch: partner k of K plays worlds k, k + K... each as evaluate_team_batched plays that
+    world's seed beside it alone (a person-like partner's noise and reaction ring kept per world)."""
+    from dvrl_marl.agents.partners import PersonLikePartner, Profile
+
+    env = suction_debris_v8.parallel_env()
+    made = {"scripted": lambda: teams.seat("scripted", "grasper"),
+            "person-like": lambda: PersonLikePartner("grasper", env, Profile(5, 0.6, 0.2, 0.05, 0.01, 20), seed=3),
+            "keep-clear": lambda: teams.seat("keep-clear", "grasper")}
+    results = teams.evaluate_beside("suction", teams.seat("scripted", "suction"),
+                                    {name: make() for name, make in made.items()}, episodes=2, max_cycles=150)
+    assert list(results) == list(made)
+    for k, (name, result) in enumerate(results.items()):
+        assert result["episodes"] == 2 and result["seeds"] == [teams.EVAL_SEED + k, teams.EVAL_SEED + k + 3]
+        alone = [teams.evaluate_team_batched({"suction": teams.seat("scripted", "suction"), "grasper": made[name]()},
+                                             1, seed, max_cycles=150) for seed in result["seeds"]]
+        assert result["steps"] == [r["steps"][0] for r in alone]
+        assert result["success"] == [r["success"][0] for r in alone]
+        for figure in ("mean_blood_removed_ml", "mean_contact_steps"):
+            np.testing.assert_allclose(result[figure], np.mean([r[figure] for r in alone]))
+        for agent in ("suction", "grasper"):
+            np.testing.assert_allclose(result["mean_tip_path_mm"][agent],
+                                       np.mean([r["mean_tip_path_mm"][agent] for r in alone]))
+    with pytest.raises(ValueError, match="agent must be"):
+        teams.evaluate_beside("surgeon", teams.seat("scripted", "suction"), made)
+    with pytest.raises(ValueError, match="no partner"):
+        teams.evaluate_beside("suction", teams.seat("scripted", "suction"), {})
+
+
 def test_a_lazy_team_fails_and_is_reported_as_such():
     still = lambda obs: np.zeros((len(obs), 4))  # noqa: E731
     result = teams.evaluate_team_batched({"suction": still, "grasper": still}, episodes=2, max_cycles=50)

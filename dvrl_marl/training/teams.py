@@ -5,12 +5,14 @@ Numpy only (no torch): the shipped multi-agent policies are evaluated as users g
 ```python
 from dvrl_marl.training import teams
 result = teams.evaluate_team_batched(teams.seats("marl-suction", "marl-grasper"), episodes=100)
+beside = teams.evaluate_beside("suction", teams.seat("marl-suction", "suction"),
+                               {name: teams.seat(name, "grasper") for name in ("scripted", "pipeline")})
 matrix = teams.cross_play(["marl-suction", "scripted"], ["marl-grasper", "scripted", "pipeline"])
 ```
 
 A seat is named by ``"scripted"`` (the built-in expert), ``"keep-clear"`` and ``"sweeping"`` (the cooperative
-experts for a bleeding field), ``"yielding"`` (the suction seat only: the scripted suction that holds its place rather than push into the
-other instrument), ``"person-like"`` (eight person-like partners drawn from the training ranges,
+experts for a bleeding field), ``"yielding"`` (the suction seat only: the scripted suction that holds its place rather
+than push into the other instrument), ``"person-like"`` (eight person-like partners drawn from the training ranges,
 :mod:`dvrl_marl.agents.partners`), ``"in-the-way"`` (the LND seat only: eight surgeons that rest over the suction's
 route until it has waited near them, :mod:`dvrl_marl.agents.in_the_way`), ``"pipeline"`` (the ``learned_team``
 pipeline: the single-arm Reach and Pick policies composed, one pipeline per world), a shipped policy name
@@ -24,8 +26,8 @@ import numpy as np
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.agents.partners import Partners
 
-__all__ = ["evaluate_team_batched", "seat", "seats", "partner", "Partners", "cross_play", "EVAL_SEED",
-           "VALIDATION_SEED"]
+__all__ = ["evaluate_team_batched", "evaluate_beside", "seat", "seats", "partner", "Partners", "cross_play",
+           "EVAL_SEED", "VALIDATION_SEED"]
 
 #: Reported evaluations use seeds EVAL_SEED, EVAL_SEED + 1, ...: no training world ever draws them.
 EVAL_SEED = 900_000_000
@@ -139,6 +141,31 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
     of its action between steps (how smoothly it moved; a real PSM is servoed through IK at 50 Hz), with the
     per-episode outcomes (success, steps, contact steps).
     """
+    return _summary(_play(team, episodes, seed, env_kwargs), np.arange(episodes), seed)
+
+
+def evaluate_beside(agent: str, policy, partners: dict, episodes: int = 100, seed: int = EVAL_SEED,
+                    **env_kwargs) -> dict:
+    """``policy`` in ``agent``'s seat beside each of ``partners`` (``{name: policy}`` in the other seat), in one batch
+    of ``episodes`` worlds per partner: partner k of K plays worlds k, k + K, k + 2K... (world j seeded ``seed + j``).
+    One batch steps several partners' episodes for about the price of one partner's (a step's cost hardly grows with
+    its worlds). Returns ``{name: evaluate_team_batched's figures over that partner's worlds}``, each with its
+    ``seeds``."""
+    other = {"suction": "grasper", "grasper": "suction"}.get(agent)
+    if other is None:
+        raise ValueError(f"evaluate_beside: agent must be 'suction' or 'grasper', got {agent!r}")
+    if not partners:
+        raise ValueError("evaluate_beside: no partner given")
+    names = list(partners)
+    team = {agent: policy, other: Partners(list(partners.values()), names)}
+    played = _play(team, episodes * len(names), seed, env_kwargs)
+    return {name: {**_summary(played, np.arange(k, episodes * len(names), len(names)), seed),
+                   "seeds": [seed + int(j) for j in range(k, episodes * len(names), len(names))]}
+            for k, name in enumerate(names)}
+
+
+def _play(team: dict, episodes: int, seed: int, env_kwargs: dict) -> dict:
+    """Every world's episode played to its end: per-world outcomes (arrays of ``episodes`` rows)."""
     # No reward is read here: the sparse one costs nothing, where a preset's guided one computes its potentials (and
     # the guided terms' settings go with it).
     env_kwargs = {**{k: v for k, v in env_kwargs.items() if k != "guidance"}, "reward_type": "sparse"}
@@ -199,15 +226,25 @@ def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED
         success |= live & info["is_success"]
         done |= terminations[first] | truncations[first]
     env.close()
-    return {"episodes": episodes, "seed": seed, "success_rate": float(success.mean()),
-            "mean_blood_removed_ml": float((initial - remaining).mean()),  # net of any bleeding
+    return {"success": success, "steps": steps, "contacts": contacts, "initial": initial, "remaining": remaining,
+            "delivered": delivered, "path_mm": {agent: 1000.0 * env.workspace_range * value
+                                                for agent, value in path.items()},
+            "action_change": {agent: value / np.maximum(steps - 1, 1) for agent, value in change.items()}}
+
+
+def _summary(played: dict, worlds: np.ndarray, seed: int) -> dict:
+    """evaluate_team_batched's figures over ``worlds`` (indices) of what :func:`_play` played."""
+    success, steps, contacts = played["success"][worlds], played["steps"][worlds], played["contacts"][worlds]
+    remaining = played["remaining"][worlds]
+    return {"episodes": len(worlds), "seed": seed, "success_rate": float(success.mean()),
+            "mean_blood_removed_ml": float((played["initial"][worlds] - remaining).mean()),  # net of any bleeding
             "mean_blood_left_ml": float(remaining.mean()),
-            "mean_debris_delivered": float(delivered.mean()),
+            "mean_debris_delivered": float(played["delivered"][worlds].mean()),
             "median_steps_to_completion": float(np.median(steps[success])) if success.any() else None,
             "mean_contact_steps": float(contacts.mean()),
-            "mean_tip_path_mm": {agent: float(1000.0 * env.workspace_range * path[agent].mean()) for agent in path},
-            "mean_action_change": {agent: float((change[agent] / np.maximum(steps - 1, 1)).mean())
-                                   for agent in change},
+            "mean_tip_path_mm": {agent: float(value[worlds].mean()) for agent, value in played["path_mm"].items()},
+            "mean_action_change": {agent: float(value[worlds].mean())
+                                   for agent, value in played["action_change"].items()},
             "success": success.tolist(), "steps": steps.tolist(), "contact_steps": contacts.tolist()}
 
 
