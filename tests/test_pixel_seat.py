@@ -226,6 +226,27 @@ def test_class_jitter_colours_each_class_apart_and_its_fit_needs_the_frames_segm
         pixel_seat.fit(pixel_seat.PixelActor(config, 4), without, config, 2, 0)
 
 
+def test_frames_where_the_tips_are_near_are_drawn_more_often_when_asked():
+    config = _config(worlds=2, max_cycles=40, record_every=1, action_noise=0.0, partners=["scripted"],
+                     acts_by="teacher", estimated=[4, 9], convolutions=[[8, 8, 4]])
+    batch = pixel_seat.collect(config, None, seed=3, noise_seed=3)
+    # how far apart the tips are, frame by frame: the own tip (proprioception) and the other's (the estimates' first)
+    expected = 80.0 * np.linalg.norm(batch["proprioception"][:, :3] - batch["targets"][:, :3], axis=1)
+    np.testing.assert_allclose(batch["tips_apart_mm"], expected, rtol=1e-5)
+    assert pixel_seat.draw_chances(batch, config) is None  # (by default every frame alike)
+    near = config.model_copy(update={"near_weight": 3.0, "near_mm": float(np.median(expected))})
+    chances = pixel_seat.draw_chances(batch, near).numpy()
+    np.testing.assert_array_equal(chances, np.where(expected < near.near_mm, 4.0, 1.0))
+    assert 0 < (chances == 4.0).sum() < len(chances)
+    assert np.isfinite(pixel_seat.fit(pixel_seat.PixelActor(near, 4), batch, near, 2, 0))
+    errors = pixel_seat.estimate_errors(pixel_seat.PixelActor(near, 4), batch, blood=pixel_seat._blood_columns(near),
+                                        near_mm=near.near_mm)
+    assert errors["other_near_mean_absolute"] > 0.0
+    without = {key: value for key, value in batch.items() if key != "tips_apart_mm"}
+    with pytest.raises(ValueError, match="near_weight needs the frames' tips_apart_mm"):
+        pixel_seat.fit(pixel_seat.PixelActor(near, 4), without, near, 2, 0)
+
+
 def test_the_teacher_drives_its_share_of_the_worlds():
     config = _config(worlds=4, max_cycles=10, record_every=1, action_noise=0.2, partners=["scripted"])
     by_teacher = pixel_seat.collect(config, None, seed=7, noise_seed=7)

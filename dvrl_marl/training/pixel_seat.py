@@ -121,6 +121,11 @@ class PixelSeatConfig(BaseModel):
     # per_image: each channel of each image at zero mean and unit spread; brightness: each image scaled to one mean
     # (an exposure: a gain over the whole image changes nothing the network reads)
     normalise: Literal["none", "per_image", "brightness"] = "none"
+    # frames where the other arm's tip is within near_mm of the arm's own are drawn into the fits' minibatches
+    # (1 + near_weight) times as often as the others: where a seat must wait for the other instrument is a few frames
+    # of an episode (about 14 % of them within 15 mm beside the surgeons in its way, fewer beside the others: measured)
+    near_weight: NonNegative = 0.0
+    near_mm: Positive = 15.0
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
     max_cycles: PositiveInt | None = None
@@ -286,8 +291,9 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     """One episode in each of ``config.worlds`` worlds (seeded ``seed``, ``seed + 1``...): the student drives
     (the teacher with DART noise when ``student`` is None, and in the first ``teacher_share`` of the worlds), the
     teacher labels. Returns the recorded images ``(M, S, S, 3)``, proprioception ``(M, p)``, labels ``(M, 4)``,
-    auxiliary targets ``(M, a)`` (the estimates, by ``acts_by = "teacher"``), "cleared" per cavity ``(M, C)``, the
-    episodes' success rate and the observation's constants (NaN where a value varied)."""
+    auxiliary targets ``(M, a)`` (the estimates, by ``acts_by = "teacher"``), "cleared" per cavity ``(M, C)``, how far
+    apart the two arms' tips are ``(M,)`` mm, the episodes' success rate and the observation's constants (NaN where a
+    value varied)."""
     from dvrl_marl.training import teams
 
     agent, other = config.agent, _other(config)
@@ -303,7 +309,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         student.reset()
     done = np.zeros(config.worlds, dtype=bool)
     success = np.zeros(config.worlds, dtype=bool)
-    images, proprioception, labels, targets, cleared, segments = [], [], [], [], [], []
+    images, proprioception, labels, targets, cleared, segments, apart = [], [], [], [], [], [], []
+    own_tip, other_tip = env.observation_layout["own_tip"], env.observation_layout["other_tip"]
     aux = slice(*(config.estimated if config.acts_by == "teacher" else config.auxiliary))
     # targets read as offsets (other_tip_relative): columns of the targets, and the observation's indices subtracted
     relative = np.array([[index - aux.start, own_index] for index, own_index in _relative(config)], dtype=np.int64)
@@ -331,6 +338,9 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
                 target[:, relative[:, 0]] -= seen["observation"][live][:, relative[:, 1]]
             targets.append(target.astype(np.float32))
             cleared.append(np.stack([seen["observation"][live, index] < level for index, level in cleared_at], 1))
+            tips = seen["observation"][live]
+            apart.append((1000.0 * env.workspace_range
+                          * np.linalg.norm(tips[:, own_tip] - tips[:, other_tip], axis=1)).astype(np.float32))
             low = np.minimum(low, seen["observation"][live].min(0))
             high = np.maximum(high, seen["observation"][live].max(0))
         observations, _, terminations, truncations, infos = env.step(
@@ -341,7 +351,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     env.close()
     return {"images": np.concatenate(images), "proprioception": np.concatenate(proprioception),
             "labels": np.concatenate(labels), "targets": np.concatenate(targets),
-            "cleared": np.concatenate(cleared).astype(np.float32), "success_rate": float(success.mean()), "steps": step,
+            "cleared": np.concatenate(cleared).astype(np.float32), "tips_apart_mm": np.concatenate(apart),
+            "success_rate": float(success.mean()), "steps": step,
             "constants": np.where(low == high, low, np.nan),
             **({"segmentation": np.concatenate(segments)} if segments else {})}
 
@@ -419,6 +430,7 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     if config.class_jitter > 0 and "segmentation" not in data:
         raise ValueError("fit: class_jitter needs the frames' segmentation (collect with the same configuration)")
     segmentation = torch.from_numpy(data["segmentation"]) if config.class_jitter > 0 else None
+    chances = draw_chances(data, config)
     own = torch.from_numpy(data["proprioception"])
     labels = torch.from_numpy(data["labels"])
     targets = torch.from_numpy(data["targets"])
@@ -451,7 +463,8 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     model.train()
     losses = []
     for _ in range(updates):
-        batch = torch.randint(0, len(targets), (config.batch_size,), generator=generator)
+        batch = (torch.randint(0, len(targets), (config.batch_size,), generator=generator) if chances is None else
+                 torch.multinomial(chances, config.batch_size, replacement=True, generator=generator))
         seen = images[batch] if segmentation is None else _class_jittered(torch, images[batch], segmentation[batch],
                                                                           config.class_jitter, generator)
         seen = _jittered(torch, _shifted(torch, seen, config.shift_px, generator), config.colour_jitter,
@@ -466,12 +479,25 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
     return float(np.mean(losses[-max(1, updates // 10):]))
 
 
-def estimate_errors(model, data: dict, small: float = 0.15, blood: np.ndarray | None = None) -> dict:
+def draw_chances(data: dict, config: PixelSeatConfig):
+    """Each frame's relative chance of a minibatch's draw in :func:`fit`: ``1 + near_weight`` where the two tips are
+    within ``near_mm``, 1 elsewhere (a float64 tensor); None without ``near_weight`` (every frame alike, drawn
+    uniformly)."""
+    if config.near_weight == 0:
+        return None
+    if "tips_apart_mm" not in data:
+        raise ValueError("fit: near_weight needs the frames' tips_apart_mm (collect with this version)")
+    return 1.0 + config.near_weight * _torch().from_numpy(data["tips_apart_mm"] < config.near_mm).double()
+
+
+def estimate_errors(model, data: dict, small: float = 0.15, blood: np.ndarray | None = None,
+                    near_mm: float = 15.0) -> dict:
     """How the read-out's estimates of the blood left miss ``data``'s targets (frames it has not fitted yet, to be
     fair): the mean absolute error, and where a target is under ``small`` (a cavity near empty) the mean error, the
     mean absolute error and the error's 1st and 99th percentiles (an estimate below the truth makes the teacher leave
     too early, one far above keeps it in an empty cavity). ``blood`` marks the targets' columns that are blood (None:
-    all); the others' mean absolute error is ``other_mean_absolute``."""
+    all); the others' mean absolute error is ``other_mean_absolute``, and ``other_near_mean_absolute`` on the frames
+    whose tips are within ``near_mm`` of each other (where the seat must wait for the other instrument)."""
     torch = _torch()
     chunks = max(1, len(data["images"]) // 1024)
     with torch.no_grad():
@@ -482,6 +508,9 @@ def estimate_errors(model, data: dict, small: float = 0.15, blood: np.ndarray | 
     blood = np.ones(errors.shape[1], dtype=bool) if blood is None else blood
     error, near = errors[:, blood], data["targets"][:, blood] < small
     other = ({"other_mean_absolute": round(float(np.abs(errors[:, ~blood]).mean()), 4)} if not blood.all() else {})
+    close = data["tips_apart_mm"] < near_mm if "tips_apart_mm" in data else np.zeros(len(errors), dtype=bool)
+    if other and close.any():
+        other["other_near_mean_absolute"] = round(float(np.abs(errors[close][:, ~blood]).mean()), 4)
     if not near.any():
         return {"mean_absolute": round(float(np.abs(error).mean()), 4), "small_mean": None,
                 "small_mean_absolute": None, "small_first_percentile": None, "small_99th_percentile": None, **other}
@@ -589,8 +618,8 @@ def train(name: str, config: PixelSeatConfig, seed: int, out, progress: bool = T
         driven = batch.pop("success_rate")
         batch.pop("steps")
         seen_constants = batch.pop("constants")
-        errors = (estimate_errors(model, batch, blood=_blood_columns(config)) if config.acts_by == "teacher"
-                  and index > 0 else None)
+        errors = (estimate_errors(model, batch, blood=_blood_columns(config), near_mm=config.near_mm)
+                  if config.acts_by == "teacher" and index > 0 else None)
         constants = (seen_constants if constants is None  # (NaN where a value varied, in any round)
                      else np.where(constants == seen_constants, constants, np.nan))
         data = batch if data is None else {k: np.concatenate([data[k], batch[k]]) for k in data}
