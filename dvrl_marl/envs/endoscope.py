@@ -148,6 +148,7 @@ class EndoscopeRenderer:
         self._base = {"mat_rgba": model.mat_rgba.copy(), "geom_rgba": model.geom_rgba.copy(),
                       "light_diffuse": model.light_diffuse.copy(), "light_specular": model.light_specular.copy()}
         self._still_looks: dict[int, tuple] = {}  # world -> (its look's key, still rgb, depth, segments)
+        self._dressings: dict[int, tuple] = {}  # world -> (its look's key, its look's dressing)
         per_side = max(1, min(1024 // size, 16))
         self.columns = per_side
         self.rows = per_side if tiles is None else max(1, -(-validated(PositiveInt, tiles, "tiles") // per_side))
@@ -243,32 +244,33 @@ class EndoscopeRenderer:
         ids = rgb[..., 0].astype(np.int64) | (rgb[..., 1].astype(np.int64) << 8) | (rgb[..., 2].astype(np.int64) << 16)
         return np.stack([lookup[np.minimum(tile_ids, len(lookup) - 1)] for tile_ids, lookup in zip(ids, lookups)])
 
-    def _wear(self, look: dict | None) -> None:
-        """Dress the model and the camera in ``look`` (:meth:`Appearance.draw`'s), or in the scene's own (None)."""
-        model, data, base = self.mirror.model, self.mirror.data, self._base
-        model.mat_rgba[:] = base["mat_rgba"]
-        model.geom_rgba[:] = base["geom_rgba"]
-        model.light_diffuse[:] = base["light_diffuse"]
-        model.light_specular[:] = base["light_specular"]
-        for name in ("cam_xpos", "cam_xmat", "light_xdir", "light_xpos"):
-            getattr(data, name)[:] = base[name]
+    def _dressing(self, look: dict | None) -> dict:
+        """The model's colours and lights and the camera's pose in ``look`` (:meth:`Appearance.draw`'s; None: the
+        scene's own), as :meth:`_wear` puts them on: worked out once per look, worn every frame."""
+        base = self._base
         if look is None:
-            return
-        for material in self._tissue_materials:
-            model.mat_rgba[material, :3] = np.clip(base["mat_rgba"][material, :3] * look["tissue"], 0.0, 1.0)
-        for material in self._blood_materials:
-            model.mat_rgba[material, :3] = np.clip(base["mat_rgba"][material, :3] * look["blood"], 0.0, 1.0)
-        for material in self._instrument_materials:
-            model.mat_rgba[material, :3] = np.clip(base["mat_rgba"][material, :3] * look["instrument"], 0.0, 1.0)
-        for geom in self._instrument_geoms:  # (those without a material: their own colour)
-            model.geom_rgba[geom, :3] = np.clip(base["geom_rgba"][geom, :3] * look["instrument"], 0.0, 1.0)
-        model.light_diffuse[:] = np.clip(base["light_diffuse"] * look["light"], 0.0, 1.0)
-        model.light_specular[:] = np.clip(base["light_specular"] * look["light"], 0.0, 1.0)
-        turn = _turn(*look["light_turn"])
-        data.light_xdir[:] = base["light_xdir"] @ turn.T
+            return base
+        dressing = {name: value.copy() for name, value in base.items()}
+        for materials, gain in ((self._tissue_materials, look["tissue"]), (self._blood_materials, look["blood"]),
+                                (self._instrument_materials, look["instrument"])):
+            dressing["mat_rgba"][materials, :3] = np.clip(base["mat_rgba"][materials, :3] * gain, 0.0, 1.0)
+        geoms = self._instrument_geoms  # (those without a material: their own colour)
+        dressing["geom_rgba"][geoms, :3] = np.clip(base["geom_rgba"][geoms, :3] * look["instrument"], 0.0, 1.0)
+        dressing["light_diffuse"] = np.clip(base["light_diffuse"] * look["light"], 0.0, 1.0)
+        dressing["light_specular"] = np.clip(base["light_specular"] * look["light"], 0.0, 1.0)
+        dressing["light_xdir"] = base["light_xdir"] @ _turn(*look["light_turn"]).T
         camera = self._camera.fixedcamid
-        data.cam_xpos[camera] = base["cam_xpos"][camera] + look["camera_shift"]
-        data.cam_xmat[camera] = (_turn(*look["camera_turn"]) @ base["cam_xmat"][camera].reshape(3, 3)).ravel()
+        dressing["cam_xpos"][camera] = base["cam_xpos"][camera] + look["camera_shift"]
+        dressing["cam_xmat"][camera] = (_turn(*look["camera_turn"]) @ base["cam_xmat"][camera].reshape(3, 3)).ravel()
+        return dressing
+
+    def _wear(self, dressing: dict) -> None:
+        """Dress the model and the camera in ``dressing`` (:meth:`_dressing`'s)."""
+        model, data = self.mirror.model, self.mirror.data
+        for name in ("mat_rgba", "geom_rgba", "light_diffuse", "light_specular"):
+            getattr(model, name)[:] = dressing[name]
+        for name in ("cam_xpos", "cam_xmat", "light_xdir", "light_xpos"):
+            getattr(data, name)[:] = dressing[name]
 
     def parts(self, parts=None) -> tuple[str, ...]:
         """``parts`` checked (any of :data:`RENDER_PARTS`); None: the renderer's own (rgb, and depth and segmentation
@@ -296,9 +298,12 @@ class EndoscopeRenderer:
                 raise ValueError("render: one look and one key per world")
             frames = np.zeros(count, np.int64) if frames is None else np.asarray(frames, np.int64)
             for world, (look, key) in enumerate(zip(looks, keys)):
+                dressed = self._dressings.get(world)
+                if dressed is None or dressed[0] != key:
+                    self._dressings[world] = dressed = (key, self._dressing(look))
                 entry = self._still_looks.get(world)
                 if entry is None or entry[0] != key or (segmentation and entry[3] is None):
-                    self._wear(look)
+                    self._wear(dressed[1])
                     self._still_looks[world] = (key, *self._draw_still(segmentation or self.segmentation))
         elif segmentation and self._still[2] is None:
             self._still = self._draw_still(True)
@@ -316,7 +321,7 @@ class EndoscopeRenderer:
                 lookups = []
                 for tile, world in enumerate(worlds):
                     if looks is not None:
-                        self._wear(looks[world])
+                        self._wear(self._dressings[world][1])
                     self.mirror.show(states[world])
                     mujoco.mj_kinematics(model, data)
                     self._draw(_MOVING, tile)
@@ -349,7 +354,7 @@ class EndoscopeRenderer:
                 classes = self._classes(segment_rgb, lookups)
                 out["segmentation"][rows] = np.where(nearer, classes, still_segments)[:, ::-1]
         if looks is not None:
-            self._wear(None)
+            self._wear(self._base)
         return out
 
     def _metres(self, raw: np.ndarray) -> np.ndarray:
