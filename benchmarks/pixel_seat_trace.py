@@ -8,7 +8,7 @@ and ``--raise-blood``'s.
 
     python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--first 0]
                                           [--partner in-the-way]
-                                          [--raise-blood 0.02]
+                                          [--raise-blood 0.02] [--near-mm 15]
 
 Prints per world: success and steps; the truth and the kept estimate per cavity at its end; the kept estimate's
 least and greatest error over its episode, and the raw estimate's 1st and 99th percentile of error. A seat that left
@@ -16,7 +16,9 @@ a cavity early shows a kept estimate under the task's threshold beside a truth a
 error (the other arm's tip: the largest of its coordinates' errors, in the observation's units) and how far the
 seat's action is from its teacher's given the truth in the estimates' place: a seat that goes elsewhere than its
 teacher would, its blood estimates right, was led there by the rest (and the distance again given the true
-blood alone, the rest as estimated: small where the rest made the seat's action).
+blood alone, the rest as estimated: small where the rest made the seat's action). Where the two tips came within
+``--near-mm`` of each other (where it must wait for the other instrument): the world's contact steps, the other tip's
+error there and how far its action was from its teacher's given the truth.
 """
 
 from __future__ import annotations
@@ -28,8 +30,13 @@ from partner_zoo import PARTNERS, partner_seat
 from pixel_seat import exactly_filled, raised
 
 from dvrl_marl import policies
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.envs.endoscope import APPEARANCES
 from dvrl_marl.training import teams
+
+
+_ENV = suction_debris_v8.parallel_env()
+LAYOUT, WORKSPACE_RANGE = _ENV.observation_layout, _ENV.workspace_range  # (the tips in the observation's units)
 
 
 class Traced:
@@ -44,7 +51,7 @@ class Traced:
         self.other_at = np.asarray(estimates_at)[~self.blood]  # the rest it estimates (the other arm's tip)
         self.teacher = policies.load(policy.spec["teacher"])
         self.raw, self.kept, self.truth, self.other_error, self.action_gap = [], [], [], [], []
-        self.blood_only_gap = []
+        self.blood_only_gap, self.apart_mm = [], []
 
     def reset(self, worlds=None):
         self.policy.reset(worlds)
@@ -54,6 +61,8 @@ class Traced:
         # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step); an offset read
         # (fills.relative) is in the observation's terms here
         state = np.asarray(observation["observation"], dtype=np.float64)
+        own, other = LAYOUT["own_tip"], LAYOUT["other_tip"]
+        self.apart_mm.append(1000.0 * WORKSPACE_RANGE * np.linalg.norm(state[:, own] - state[:, other], axis=1))
         estimates = self.policy.encoder.estimates(observation["image"], state[:, self.policy.encoder.proprioception])
         self.raw.append(estimates[:, self.blood])
         self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
@@ -84,6 +93,9 @@ def main() -> None:
     parser.add_argument("--partner", default="scripted", choices=PARTNERS, help="the partner kind at the LND")
     parser.add_argument("--raise-blood", type=float, default=0.0,
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
+    parser.add_argument("--near-mm", type=float, default=15.0,
+                        help="the steps where the two tips are within this: the other tip's error and the action's "
+                             "gap from the teacher's there")
     args = parser.parse_args()
     policy = policies.load(args.pixel)
     if policy.encoder is None or policy.encoder.keep_lowest is None:
@@ -92,9 +104,9 @@ def main() -> None:
     result = teams.evaluate_team_batched({"suction": seat, "grasper": partner_seat(args.partner, "grasper")},
                                          args.episodes, seed=teams.EVAL_SEED + args.first, max_cycles=6000,
                                          **({} if args.look == "scene" else {"image_appearance": args.look}))
-    raw, kept, truth, other_error, gap, blood_only_gap = (
+    raw, kept, truth, other_error, gap, blood_only_gap, apart = (
         np.stack(part) for part in (seat.raw, seat.kept, seat.truth, seat.other_error, seat.action_gap,
-                                    seat.blood_only_gap))
+                                    seat.blood_only_gap, seat.apart_mm))
     print(f"success {result['success_rate']:.2f} ({args.look} looks, beside {args.partner}, {args.episodes} episodes), "
           f"contact steps {result['mean_contact_steps']:.1f}")
     for world in range(args.episodes):
@@ -110,6 +122,12 @@ def main() -> None:
               f"|action - teacher's|: mean {gap[:end, world].mean():.2f} > 0.5 in "
               f"{(gap[:end, world] > 0.5).mean():.0%} of steps, given the true blood alone: mean "
               f"{blood_only_gap[:end, world].mean():.2f}")
+        near = apart[:end, world] < args.near_mm
+        if near.any():  # where it must wait for the other instrument: what it read and did there
+            print(f"          contact steps {result['contact_steps'][world]:4d}; tips within {args.near_mm:g} mm in "
+                  f"{near.sum():4d} steps: other tip's error median {np.median(other_error[:end, world][near]):.3f}, "
+                  f"|action - teacher's| mean {gap[:end, world][near].mean():.2f} (> 0.5 in "
+                  f"{(gap[:end, world][near] > 0.5).mean():.0%})")
 
 
 if __name__ == "__main__":
