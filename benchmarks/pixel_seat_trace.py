@@ -35,10 +35,6 @@ from dvrl_marl.envs.endoscope import APPEARANCES
 from dvrl_marl.training import teams
 
 
-_ENV = suction_debris_v8.parallel_env()
-LAYOUT, WORKSPACE_RANGE = _ENV.observation_layout, _ENV.workspace_range  # (the tips in the observation's units)
-
-
 class Traced:
     """The pixel seat, recording its raw and kept blood estimates and the truth at every call."""
 
@@ -52,6 +48,10 @@ class Traced:
         self.teacher = policies.load(policy.spec["teacher"])
         self.raw, self.kept, self.truth, self.other_error, self.action_gap = [], [], [], [], []
         self.blood_only_gap, self.apart_mm = [], []
+        env = suction_debris_v8.parallel_env()  # where the tips are in the observation, and its unit
+        self.own_tip, self.other_tip = env.observation_layout["own_tip"], env.observation_layout["other_tip"]
+        self.mm_per_unit = 1000.0 * env.workspace_range
+        env.close()
 
     def reset(self, worlds=None):
         self.policy.reset(worlds)
@@ -61,8 +61,8 @@ class Traced:
         # encoded a second time: the policy keeps only the lowest (a diagnostic, not a seat's step); an offset read
         # (fills.relative) is in the observation's terms here
         state = np.asarray(observation["observation"], dtype=np.float64)
-        own, other = LAYOUT["own_tip"], LAYOUT["other_tip"]
-        self.apart_mm.append(1000.0 * WORKSPACE_RANGE * np.linalg.norm(state[:, own] - state[:, other], axis=1))
+        self.apart_mm.append(self.mm_per_unit * np.linalg.norm(state[:, self.own_tip] - state[:, self.other_tip],
+                                                               axis=1))
         estimates = self.policy.encoder.estimates(observation["image"], state[:, self.policy.encoder.proprioception])
         self.raw.append(estimates[:, self.blood])
         self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())

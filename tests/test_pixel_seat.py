@@ -238,7 +238,18 @@ def test_frames_where_the_tips_are_near_are_drawn_more_often_when_asked():
     chances = pixel_seat.draw_chances(batch, near).numpy()
     np.testing.assert_array_equal(chances, np.where(expected < near.near_mm, 4.0, 1.0))
     assert 0 < (chances == 4.0).sum() < len(chances)
-    assert np.isfinite(pixel_seat.fit(pixel_seat.PixelActor(near, 4), batch, near, 2, 0))
+    # what the fit draws: with the near frames' weight overwhelming, every minibatch row is a near frame's
+    near_rows = {tuple(row) for row in batch["proprioception"][expected < near.near_mm].tolist()}
+
+    def drawn_rows(config):
+        model, rows = pixel_seat.PixelActor(config, 4), []
+        features = model.features
+        model.features = lambda images, own=None: rows.extend(map(tuple, own.tolist())) or features(images, own)
+        assert np.isfinite(pixel_seat.fit(model, batch, config, 3, 0))
+        return rows
+
+    assert set(drawn_rows(near.model_copy(update={"near_weight": 1e9}))) <= near_rows
+    assert not set(drawn_rows(config)) <= near_rows  # (drawn alike, the far frames come too)
     errors = pixel_seat.estimate_errors(pixel_seat.PixelActor(near, 4), batch, blood=pixel_seat._blood_columns(near),
                                         near_mm=near.near_mm)
     assert errors["other_near_mean_absolute"] > 0.0

@@ -159,9 +159,11 @@ def evaluate_beside(agent: str, policy, partners: dict, episodes: int = 100, see
     names = list(partners)
     team = {agent: policy, other: Partners(list(partners.values()), names)}
     played = _play(team, episodes * len(names), seed, env_kwargs)
-    return {name: {**_summary(played, np.arange(k, episodes * len(names), len(names)), seed),
-                   "seeds": [seed + int(j) for j in range(k, episodes * len(names), len(names))]}
-            for k, name in enumerate(names)}
+    results = {}
+    for k, name in enumerate(names):
+        worlds = np.arange(k, episodes * len(names), len(names))
+        results[name] = {**_summary(played, worlds, seed), "seeds": (seed + worlds).tolist()}
+    return results
 
 
 def _play(team: dict, episodes: int, seed: int, env_kwargs: dict) -> dict:
