@@ -10,7 +10,8 @@ seat sees no image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
                                     [--looks train held_out scene] [--raise-blood 0.02]
-                                    [--acting marl-suction-yielding] [--exact] [--json FILE]
+                                    [--acting marl-suction-yielding] [--keep-clear-mm 12] [--exact]
+                                    [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
 privileged seat (the target: within 5 points on the training looks, at least 90 % on held-out ones, contacts at most
@@ -28,6 +29,8 @@ import numpy as np
 from partner_zoo import PARTNERS, evaluate
 
 from dvrl_marl import policies
+from dvrl_marl.agents.collaborative import YieldingSuction
+from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.envs.endoscope import APPEARANCES
 
 
@@ -50,6 +53,17 @@ def acting_as(policy, name: str):
         raise ValueError(f"--acting {name}: not a privileged seat reading the observation the pixel seat fills "
                          f"({policy.spec.get('teacher')}'s)")
     policy.weights = acting.weights
+    return policy
+
+
+def keeping_clear(policy, keep_mm: float):
+    """``--keep-clear-mm``: the pixel seat withholding the moves that would bring its instrument within ``keep_mm``
+    of the other's, the yielding suction's rule on its own estimate of the other tip, without training again."""
+    if policy.encoder is None or policy.encoder.fills is None:
+        raise ValueError("--keep-clear-mm: the pixel seat does not fill an observation with the other tip to read")
+    env = suction_debris_v8.parallel_env()
+    policy.keep_clear = YieldingSuction(env.layout(), env.observation_layout, env.workspace_range, keep_mm).rule
+    env.close()
     return policy
 
 
@@ -100,6 +114,9 @@ def main() -> None:
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
     parser.add_argument("--acting", help="another privileged seat acting on the pixel seat's estimates (a policy "
                                           "name or folder reading the same observation as its teacher)")
+    parser.add_argument("--keep-clear-mm", type=float,
+                        help="the pixel seat withholds the moves that would bring its instrument within this of the "
+                             "other's (the yielding suction's rule, on its estimate of the other tip)")
     parser.add_argument("--exact", action="store_true",
                         help="also a row of its teacher on what the seat fills, the estimates exact (no image)")
     parser.add_argument("--json", type=Path, help="write the rows here")
@@ -127,11 +144,14 @@ def main() -> None:
                 pixel = raised(pixel, args.raise_blood)
             if args.acting:
                 pixel = acting_as(pixel, args.acting)
+            if args.keep_clear_mm:
+                pixel = keeping_clear(pixel, args.keep_clear_mm)
             row = evaluate("suction", pixel, partner, args.episodes, False,
                            **({} if look == "scene" else {"image_appearance": look}))
             row["player"] = (str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
                              + (f" (blood raised {args.raise_blood:+.3f})" if args.raise_blood else "")
-                             + (f" (acting: {args.acting})" if args.acting else ""))
+                             + (f" (acting: {args.acting})" if args.acting else "")
+                             + (f" (keeping {args.keep_clear_mm:g} mm clear)" if args.keep_clear_mm else ""))
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
             rows.append(row)

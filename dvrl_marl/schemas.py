@@ -327,6 +327,31 @@ class PolicyImage(BaseModel):
         return self.convolved_size() + 2 * self.convolutions[-1][0] + stop - start
 
 
+class PolicyKeepClear(BaseModel):
+    """A policy's ``keep_clear`` (:mod:`dvrl_marl.policies`): its motion withheld where it would bring its instrument
+    within ``keep`` of the other's and nearer, in the observation's coordinates (``keep_mm`` as read by a person).
+    ``own_tip`` and ``other_tip`` are ``[start, stop)`` of three observation values each; ``gain`` turns an action
+    into the tip's move (``move = action / gain``); the centres are the two arms' remote centres of motion."""
+
+    model_config = STRICT
+    keep_mm: Positive
+    keep: Positive
+    gain: Positive
+    own_tip: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]
+    other_tip: Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]
+    own_centre: Annotated[list[Finite], Field(min_length=3, max_length=3)]
+    other_centre: Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+    @model_validator(mode="after")
+    def _three_values_each(self):
+        for name in ("own_tip", "other_tip"):
+            start, stop = getattr(self, name)
+            if stop - start != 3:
+                raise ValueError(f"{name} must span three observation values, [start, start + 3), got "
+                                 f"{getattr(self, name)}")
+        return self
+
+
 class PolicyFile(BaseModel):
     """What ``policy.json`` must hold (:mod:`dvrl_marl.policies`; its other keys record how it was trained): the
     layer sizes, one activation per layer, the observation's keys and finite action bounds, each low below its
@@ -341,9 +366,22 @@ class PolicyFile(BaseModel):
     action_high: list[Finite]
     switch_dimensions: list[NonNegativeInt] = []
     image: PolicyImage | None = None
+    keep_clear: PolicyKeepClear | None = None
 
     @model_validator(mode="after")
     def _consistent(self):
+        if self.keep_clear is not None:
+            if self.image is not None and self.image.fills is None:
+                raise ValueError("keep_clear reads the two tips from the observation: a pixel policy has them only "
+                                 "with image.fills")
+            width = len(self.image.fills.template) if self.image is not None else self.layer_sizes[0]
+            for name in ("own_tip", "other_tip"):  # (the features a state policy computes: dvrl_marl.policies)
+                if getattr(self.keep_clear, name)[1] > width:
+                    raise ValueError(f"keep_clear.{name} {getattr(self.keep_clear, name)} lies beyond the "
+                                     f"{width} observation values the policy reads")
+            if self.layer_sizes[-1] < 3:
+                raise ValueError("keep_clear withholds the first three action values (the motion); the policy has "
+                                 f"{self.layer_sizes[-1]}")
         if self.image is not None and self.image.fills is not None:  # (features of its own may follow the fill)
             if self.layer_sizes[0] < len(self.image.fills.template):
                 raise ValueError(f"layer_sizes[0] must be at least {len(self.image.fills.template)} (the filled "

@@ -662,3 +662,47 @@ def test_keypoints_are_for_a_seat_acting_by_its_teacher(tmp_path):
     path.write_text('[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\ntip_reads_convolutions = true\n')
     with pytest.raises(ValueError, match="tip_reads_convolutions .* needs keypoints = true"):
         pixel_seat.load_config(path)
+
+
+def test_a_seat_keeping_clear_acts_by_the_yielding_rule_on_its_estimate_of_the_other_tip(tmp_path):
+    """keep_clear_mm: the exported seat names the yielding suction's rule, which reads the other tip it estimates and
+    its own tip it knows; the teacher drives the collection by the same rule."""
+    from dvrl_marl.agents.collaborative import YieldingSuction
+    from dvrl_marl.core.instruments import keep_clear
+    from dvrl_marl.envs import suction_debris_v8
+
+    config = _config(acts_by="teacher", estimated=[4, 9], keep_clear_mm=12.0, convolutions=[[8, 8, 4]])
+    torch.manual_seed(0)
+    folder = pixel_seat.export(pixel_seat.PixelActor(config, 4), config, tmp_path / "policy", "test-clear", {},
+                               np.full(30, np.nan))
+    env = suction_debris_v8.batched_env(num_envs=1)
+    rule = YieldingSuction(env.layout(), env.observation_layout, env.workspace_range, 12.0).rule
+    env.close()
+    policy = policies.load(folder)
+    assert policy.spec["keep_clear"] == rule
+    observation = _observation(16, seed=4)
+    seen = policy.encoder.observation(observation["image"], observation["observation"])
+    # the own tip beside the other tip as the seat reads it: the rule has moves to withhold
+    observation["observation"][:, 0:3] = seen[:, 4:7] + np.random.default_rng(5).uniform(-0.1, 0.1, (16, 3))
+    filled = policy.encoder.observation(observation["image"], observation["observation"])
+    acted = policy(observation)
+    policy.keep_clear = None
+    plain = policy(observation)
+    np.testing.assert_array_equal(acted, keep_clear(plain, filled, rule))
+    assert (acted != plain).any()
+    # the teacher drives by the rule: the scripted suction kept clear is the yielding suction, step for step
+    small = config.model_copy(update={"worlds": 2, "max_cycles": 160, "partners": ["in-the-way"], "action_noise": 0.0,
+                                      "teacher": "scripted", "record_every": 1})
+    driven = [pixel_seat.collect(small.model_copy(update=update), None, seed=3, noise_seed=3)["proprioception"]
+              for update in ({}, {"teacher": "yielding", "keep_clear_mm": None}, {"keep_clear_mm": None})]
+    np.testing.assert_array_equal(driven[0], driven[1])
+    assert driven[0].shape != driven[2].shape or not np.array_equal(driven[0], driven[2])  # the rule withheld moves
+
+
+@pytest.mark.parametrize("settings", ['keep_clear_mm = 12.0\n',
+                                      'acts_by = "teacher"\nestimated = [7, 9]\nkeep_clear_mm = 12.0\n'])
+def test_keeping_clear_needs_the_other_tip_estimated(tmp_path, settings):
+    path = tmp_path / "seat.toml"
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\n' + settings)
+    with pytest.raises(ValueError, match="keep_clear_mm reads the other arm's tip"):
+        pixel_seat.load_config(path)

@@ -16,7 +16,7 @@ from dvrl_marl import assets
 from dvrl_marl.core.backend import namespace
 
 __all__ = ["SHAFT_RADIUS", "WRIST_RADIUS", "segment_distance", "segment_offset", "instrument_clearance",
-           "contact_normal"]
+           "contact_normal", "withheld_moves", "keep_clear"]
 
 #: Radii used for instrument-instrument contact: the 8.5 mm shaft and the wrist/tube segment beyond it.
 SHAFT_RADIUS = assets.SHAFT_RADIUS
@@ -48,6 +48,27 @@ def segment_distance(p1, q1, p2, q2, xp=None):
     xp = xp or namespace(p1, q1, p2, q2)
     difference = segment_offset(p1, q1, p2, q2, xp)
     return xp.sqrt(_dot(difference, difference))
+
+
+def withheld_moves(tip, step, other, own_centre, other_centre, keep: float):
+    """The moves a seat that waits does not make: moving its tip by ``step`` would bring its instrument (the axis from
+    its remote centre of motion to its tip) within ``keep`` of the other's and nearer than it is now; ``(...,)``
+    bools. The scripted yielding suction's rule, and a policy's ``keep_clear`` (:mod:`dvrl_marl.policies`)."""
+    now = segment_distance(tip, own_centre, other, other_centre)
+    after = segment_distance(tip + step, own_centre, other, other_centre)
+    return (after < keep) & (after < now)
+
+
+def keep_clear(action, observation, rule: dict):
+    """``action`` ``(..., A)`` with its motion (the first three values) withheld by :func:`withheld_moves` where
+    ``rule`` (a policy's ``keep_clear`` table: :func:`dvrl_marl.envs.scripted_team.keep_clear_rule`) says so, the
+    tips read from ``observation`` ``(..., d)``; numpy, a new array."""
+    tip, other = observation[..., slice(*rule["own_tip"])], observation[..., slice(*rule["other_tip"])]
+    withheld = withheld_moves(tip, action[..., :3] / rule["gain"], other, np.asarray(rule["own_centre"]),
+                              np.asarray(rule["other_centre"]), rule["keep"])
+    action = np.array(action, copy=True)
+    action[..., :3] = np.where(withheld[..., None], 0.0, action[..., :3])
+    return action
 
 
 def segment_offset(p1, q1, p2, q2, xp=None):

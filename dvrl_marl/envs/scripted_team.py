@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.core.instruments import segment_distance
+from dvrl_marl.core.instruments import keep_clear
 from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
 
 __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "SweepingSuction",
-           "SweepingSurgeon", "YieldingSuction"]
+           "SweepingSurgeon", "YieldingSuction", "keep_clear_rule"]
 
 
 
@@ -152,23 +152,32 @@ class YieldingSuction(ScriptedSuction):
     """The scripted suction that waits instead of pushing: a move that would bring its instrument within ``keep_mm``
     of the other's (their axes, each from its remote centre of motion to its tip), and nearer than it is, is not made;
     it holds its place, the valve as planned, until the way clears. A surgeon resting in its way that moves off once
-    the suction has waited beside it (:mod:`dvrl_marl.agents.in_the_way`) lets it through without a contact."""
+    the suction has waited beside it (:mod:`dvrl_marl.agents.in_the_way`) lets it through without a contact.
+    ``rule`` is that rule as a policy's ``keep_clear`` table (:mod:`dvrl_marl.policies`)."""
 
     def __init__(self, layout, observation_layout, workspace_range: float, keep_mm: float = 12.0):
         super().__init__(layout, observation_layout, workspace_range)
-        self.keep = keep_mm / 1000.0 / workspace_range
-        self.centres = [np.asarray(layout.base_positions[agent], dtype=np.float64) for agent in ("suction", "grasper")]
+        self.rule = keep_clear_rule(layout, observation_layout, workspace_range, "suction", keep_mm)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        action = super().act(obs)
-        tip, other = obs[:, self.slices["own_tip"]], obs[:, self.slices["other_tip"]]
-        now = segment_distance(tip, self.centres[0], other, self.centres[1])
-        after = segment_distance(tip + action[:, :3] / self.gain, self.centres[0], other, self.centres[1])
-        action[(after < self.keep) & (after < now), :3] = 0.0
-        return action
+        return keep_clear(super().act(obs), obs, self.rule)
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:
         return self.act(np.asarray(obs, dtype=np.float64)[None])[0]
+
+
+def keep_clear_rule(layout, observation_layout, workspace_range: float, agent: str, keep_mm: float) -> dict:
+    """The rule by which a seat waits rather than push, for ``agent`` (its moves withheld that would bring its
+    instrument within ``keep_mm`` of the other's and nearer), in the observation's coordinates: a policy's
+    ``keep_clear`` table (:mod:`dvrl_marl.policies`)."""
+    if keep_mm <= 0.0:
+        raise ValueError(f"keep_mm must be positive, got {keep_mm}")
+    other = {"suction": "grasper", "grasper": "suction"}[agent]
+    span = [observation_layout["own_tip"], observation_layout["other_tip"]]
+    return {"keep_mm": float(keep_mm), "keep": keep_mm / 1000.0 / workspace_range, "gain": float(layout.gain),
+            "own_tip": [span[0].start, span[0].stop], "other_tip": [span[1].start, span[1].stop],
+            "own_centre": [float(v) for v in layout.base_positions[agent]],
+            "other_centre": [float(v) for v in layout.base_positions[other]]}
 
 
 class ScriptedSurgeon(_Scripted):

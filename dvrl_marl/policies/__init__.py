@@ -69,6 +69,7 @@ class NumpyPolicy:
         self.action_low = np.asarray(spec["action_low"], dtype=np.float64)
         self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
         self.switch_dimensions = list(spec.get("switch_dimensions", []))
+        self.keep_clear = spec.get("keep_clear")
         self.encoder = None
         if spec.get("image") is not None:
             from dvrl_marl.policies.image_encoder import ImageEncoder
@@ -79,6 +80,13 @@ class NumpyPolicy:
             from dvrl_marl.envs import features
 
             self._feature_count = features.feature_count((spec["features"] or {}).get("name"))
+        if self.keep_clear is not None:
+            width = (len(self.encoder.fills[0]) if self.encoder is not None and self.encoder.fills is not None
+                     else weights[0][0].shape[1] - self._feature_count)
+            for name in ("own_tip", "other_tip"):
+                if self.keep_clear[name][1] > width:
+                    raise ValueError(f"policy {self.name!r}: keep_clear.{name} {self.keep_clear[name]} lies beyond "
+                                     f"the {width} observation values it reads")
 
     @property
     def name(self) -> str:
@@ -98,11 +106,18 @@ class NumpyPolicy:
         return self.encoder.observation(observation[self.encoder.key], observation["observation"])
 
     def features(self, observation) -> np.ndarray:
+        return self._features(self._observed(observation))
+
+    def _observed(self, observation):
+        """What the network reads before its own features: the observation, or a pixel policy's encoding (its
+        filled observation, with ``fills``)."""
         if self.encoder is not None:
-            seen = self._seen(observation)
-            if self.encoder.fills is None:
-                return seen
-            observation = seen  # a state policy's observation, filled from the image: on as for any vector
+            return self._seen(observation)
+        return observation
+
+    def _features(self, observation) -> np.ndarray:
+        if self.encoder is not None and self.encoder.fills is None:
+            return observation
         if isinstance(observation, dict):
             missing = [key for key in self.observation_keys if key not in observation]
             if missing:
@@ -125,7 +140,9 @@ class NumpyPolicy:
         return x
 
     def _forward(self, observation, clip_last: bool) -> np.ndarray:
-        x = self.features(observation)
+        return self._network(self.features(observation), clip_last)
+
+    def _network(self, x: np.ndarray, clip_last: bool) -> np.ndarray:
         last = len(self.weights) - 1
         for index, ((weight, bias), activation) in enumerate(zip(self.weights, self._activations)):
             x = x @ weight.T + bias
@@ -144,12 +161,23 @@ class NumpyPolicy:
         return NoisyPolicy(self, seed)
 
     def __call__(self, observation) -> np.ndarray:
-        x = self._forward(observation, clip_last=True)
+        observed = self._observed(observation)
+        x = self._network(self._features(observed), clip_last=True)
         if self.switch_dimensions:  # (the switch's rule: open when positive, else closed)
             x[..., self.switch_dimensions] = np.where(x[..., self.switch_dimensions] > 0.0, 1.0, -1.0)
         # Networks act in [-1, 1]; map to the action space (identity for the dvrl-marl envs).
         action = self.action_low + (x + 1.0) * 0.5 * (self.action_high - self.action_low)
+        if self.keep_clear is not None:
+            action = self._kept_clear(action, observed)
         return action.astype(np.float32)
+
+    def _kept_clear(self, action: np.ndarray, observed) -> np.ndarray:
+        """``keep_clear``: the motion withheld where it would bring the instrument within ``keep`` of the other's
+        and nearer (the scripted yielding suction's rule, on what this policy reads of the two tips)."""
+        from dvrl_marl.core.instruments import keep_clear
+
+        x = observed["observation"] if isinstance(observed, dict) else observed
+        return keep_clear(action, np.asarray(x, dtype=np.float64), self.keep_clear)
 
 
 class NoisyPolicy:
@@ -183,10 +211,14 @@ class NoisyPolicy:
 
     def __call__(self, observation) -> np.ndarray:
         # the Gaussian's mean before the clip (as in training: sample, then the env clips)
-        mean = self.policy._forward(observation, clip_last=False)
+        policy = self.policy
+        observed = policy._observed(observation)
+        mean = policy._network(policy._features(observed), clip_last=False)
         action = np.clip(mean + self.std * self.rng.standard_normal(mean.shape), -1.0, 1.0)
-        low, high = self.policy.action_low, self.policy.action_high
-        return (low + (action + 1.0) * 0.5 * (high - low)).astype(np.float32)
+        action = policy.action_low + (action + 1.0) * 0.5 * (policy.action_high - policy.action_low)
+        if policy.keep_clear is not None:
+            action = policy._kept_clear(action, observed)
+        return action.astype(np.float32)
 
 
 def available() -> list[str]:

@@ -126,6 +126,11 @@ class PixelSeatConfig(BaseModel):
     # of an episode (about 14 % of them within 15 mm beside the surgeons in its way, fewer beside the others: measured)
     near_weight: NonNegative = 0.0
     near_mm: Positive = 15.0
+    # acts_by = "teacher", the other arm's tip estimated: the seat withholds the moves that would bring its instrument
+    # within this of the other's and nearer (the scripted yielding suction's rule, policy.json's keep_clear), on its
+    # estimate of the other tip; the teacher drives by it too. A learned teacher waits from the states its own way
+    # leads to, not from every state a student arrives in (docs/results.md)
+    keep_clear_mm: Positive | None = None
     valve_weight: Positive = 1.0
     validation_episodes: PositiveInt = 48
     max_cycles: PositiveInt | None = None
@@ -150,6 +155,10 @@ def load_config(path) -> tuple[str, PixelSeatConfig]:
         raise ValueError(f"{path}: [run] other_tip_relative reads the other arm's tip as an offset: it needs acts_by = "
                          f"'teacher' and the tip among the estimated indices, got acts_by = {config.acts_by!r}, "
                          f"estimated = {config.estimated}")
+    if config.keep_clear_mm is not None and (config.acts_by != "teacher" or not _estimates_other_tip(config)):
+        raise ValueError(f"{path}: [run] keep_clear_mm reads the other arm's tip from the seat's estimates: it needs "
+                         f"acts_by = 'teacher' and the tip among the estimated indices, got acts_by = "
+                         f"{config.acts_by!r}, estimated = {config.estimated}")
     if config.keypoints and config.acts_by != "teacher":
         raise ValueError(f"{path}: [run] keypoints reads the other arm's tip from keypoints and the blood from the "
                          f"flattened convolutions, the estimates of acts_by = 'teacher', got acts_by = "
@@ -272,6 +281,31 @@ def _env(config: PixelSeatConfig, worlds: int):
                                          else config.image_appearance, **options)
 
 
+def _estimates_other_tip(config: PixelSeatConfig) -> bool:
+    """Whether the seat's estimates hold all of the other arm's tip."""
+    from dvrl_marl.envs import suction_debris_v8
+
+    env = suction_debris_v8.batched_env(num_envs=1)
+    tip = env.observation_layout["other_tip"]
+    env.close()
+    return config.estimated[0] <= tip.start and tip.stop <= config.estimated[1]
+
+
+def _keep_clear_table(config: PixelSeatConfig) -> dict | None:
+    """The seat's ``keep_clear`` table (``keep_clear_mm``: the yielding suction's rule for ``config.agent``), or
+    None."""
+    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs.scripted_team import keep_clear_rule
+
+    if config.keep_clear_mm is None:
+        return None
+    env = suction_debris_v8.batched_env(num_envs=1)
+    table = keep_clear_rule(env.layout(), env.observation_layout, env.workspace_range, config.agent,
+                            config.keep_clear_mm)
+    env.close()
+    return table
+
+
 def _relative(config: PixelSeatConfig) -> list[list[int]]:
     """``image.fills.relative``'s pairs ``[estimated, own]``: each estimated coordinate of the other arm's tip and the
     own tip's same coordinate (none unless ``other_tip_relative``)."""
@@ -294,11 +328,13 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     auxiliary targets ``(M, a)`` (the estimates, by ``acts_by = "teacher"``), "cleared" per cavity ``(M, C)``, how far
     apart the two arms' tips are ``(M,)`` mm, the episodes' success rate and the observation's constants (NaN where a
     value varied)."""
+    from dvrl_marl.core.instruments import keep_clear
     from dvrl_marl.training import teams
 
     agent, other = config.agent, _other(config)
     env = _env(config, config.worlds)
     teacher = teams.seat(config.teacher, agent)
+    rule = _keep_clear_table(config)
     partner = _partner(config, noise_from=seed)
     rng = np.random.default_rng(noise_seed)
     taught = np.arange(config.worlds) < (config.worlds if student is None else
@@ -323,6 +359,8 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         action = label.copy()
         action[:, :3] = np.clip(action[:, :3] + config.action_noise * rng.standard_normal((len(action), 3)),
                                 -1.0, 1.0)
+        if rule is not None:  # the teacher drives by the seat's rule too (on the truth: it reads the other tip)
+            action = keep_clear(action, seen["observation"], rule)
         if not taught.all():
             action[~taught] = np.asarray(student({key: value[~taught] for key, value in seen.items()}),
                                          dtype=np.float32)
@@ -562,6 +600,8 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         layers = [(weight, bias, activation) for (weight, bias), activation
                   in zip(teacher.weights, teacher.spec["activations"])]
         extra = {"features": teacher.spec["features"]} if teacher.spec.get("features") else {}
+        if config.keep_clear_mm is not None:
+            extra["keep_clear"] = _keep_clear_table(config)
         return write_policy(directory, layers, name=name, env_id="suction_debris_v8",
                             algorithm=f"DAgger (pixels: estimates for {teacher.name})",
                             observation_keys=["observation", "image"], action_low=teacher.action_low.tolist(),
