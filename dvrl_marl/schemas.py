@@ -374,6 +374,11 @@ class PolicyFile(BaseModel):
             if self.image is not None and self.image.fills is None:
                 raise ValueError("keep_clear reads the two tips from the observation: a pixel policy has them only "
                                  "with image.fills")
+            if self.image is not None and not set(range(*self.keep_clear.other_tip)) <= set(
+                    self.image.fills.estimates_at):
+                raise ValueError(f"keep_clear.other_tip {self.keep_clear.other_tip} must be estimated from the image "
+                                 f"(image.fills.estimates_at {self.image.fills.estimates_at}): the rest of what a "
+                                 f"pixel policy fills is constant")
             width = len(self.image.fills.template) if self.image is not None else self.layer_sizes[0]
             for name in ("own_tip", "other_tip"):  # (the features a state policy computes: dvrl_marl.policies)
                 if getattr(self.keep_clear, name)[1] > width:

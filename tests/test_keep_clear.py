@@ -106,3 +106,14 @@ def test_a_rule_that_does_not_fit_is_refused_by_name(env, tmp_path, change, mess
 def test_a_rule_keep_mm_must_be_positive(env):
     with pytest.raises(ValueError, match="keep_mm must be positive"):
         YieldingSuction(env.layout(), env.observation_layout, env.workspace_range, 0.0)
+
+
+def test_a_pixel_policy_keeps_clear_only_of_a_tip_it_estimates(env, tmp_path):
+    folder = _with_rule(tmp_path, _rule(env), name="marl-suction-pixels")
+    assert policies.load(folder).keep_clear == _rule(env)
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["image"]["fills"]["estimates_at"] = [7, 8]
+    spec["image"]["readout"] = 2
+    (folder / "policy.json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=r"keep_clear.other_tip \[4, 7\] must be estimated from the image"):
+        policies.load(folder)

@@ -79,3 +79,17 @@ def test_exact_estimates_are_the_teacher_on_the_truth_where_the_seat_estimates(b
     np.testing.assert_allclose(exact(state), policies.load(pixel.spec["teacher"])(filled))
     with pytest.raises(ValueError, match="--exact: marl-suction does not fill"):
         bench.ExactEstimates("marl-suction")
+
+
+def test_keeping_clear_gives_the_seat_the_yielding_rule_on_what_it_fills(bench):
+    from dvrl_marl.core.instruments import keep_clear
+
+    pixel = bench.keeping_clear(policies.load("marl-suction-pixels"), 15.0)
+    assert pixel.keep_clear["keep_mm"] == 15.0
+    observation = _observation(32)
+    filled = policies.load("marl-suction-pixels").features(observation)
+    np.testing.assert_array_equal(pixel(observation),
+                                  keep_clear(policies.load("marl-suction-pixels")(observation), filled,
+                                             pixel.keep_clear))
+    with pytest.raises(ValueError, match="--keep-clear-mm: the pixel seat does not fill"):
+        bench.keeping_clear(policies.load("marl-suction"), 12.0)
