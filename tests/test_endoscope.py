@@ -100,6 +100,45 @@ def test_an_episode_end_hands_back_the_final_image_and_the_next_episodes_first()
     np.testing.assert_array_equal(final["image"], twin.images()["image"])  # the episode's last view, not the next's
 
 
+@pytest.mark.parametrize("appearance", [None, "train"])
+def test_a_world_whose_episode_ended_keeps_its_last_images_and_the_others_are_drawn_as_ever(appearance):
+    """autoreset_mode="disabled": an ended world is not drawn again until it is reset (an evaluation's finished worlds
+    cost nothing); it keeps its episode's last images, and the worlds still playing get what drawing every world
+    gives them, look by look."""
+    options = dict(num_envs=4, image_size=32, max_cycles=6, autoreset_mode="disabled", image_depth=True,
+                   image_segmentation=True, image_appearance=appearance)
+    env, twin = suction_debris_v8.batched_env(**options), suction_debris_v8.batched_env(**options)
+    for each in (env, twin):
+        each.reset(seed=2)
+    drawn = []
+    env.images()  # (the renderer made)
+    render = env._endoscope.render
+    env._endoscope.render = lambda states, *args, **kwargs: drawn.append(len(states)) or render(states, *args,
+                                                                                                    **kwargs)
+    rng = np.random.default_rng(0)
+    ended, last = np.zeros(4, dtype=bool), {}
+    for step in range(10):
+        if step == 3:  # worlds 0 and 1 start again: they end three steps after the others
+            for each in (env, twin):
+                each.reset(options={"reset_mask": np.array([True, True, False, False])})
+        actions = {agent: rng.uniform(-1, 1, (4, 4)) for agent in env.possible_agents}
+        seen, _, _, truncations, _ = env.step(actions)
+        twin._ended[:] = False  # the twin draws every world at every step
+        expected = twin.step(actions)[0]
+        for part in ("image", "depth", "segmentation"):
+            got, want = seen["suction"][part], expected["suction"][part]
+            np.testing.assert_array_equal(got[~ended], want[~ended])
+            for world in np.flatnonzero(ended):
+                np.testing.assert_array_equal(got[world], last[part][world])
+        for part in ("image", "depth", "segmentation"):
+            last[part] = {world: seen["suction"][part][world].copy() for world in range(4)} | {
+                world: last[part][world] for world in np.flatnonzero(ended)}
+        ended |= truncations["suction"]
+    # drawn: three steps, the reset of two worlds (every world's observation), three steps, then the two still playing
+    # for three steps, then none
+    assert ended.all() and drawn == [4] * 7 + [2] * 3
+
+
 def test_images_are_deterministic_per_seed():
     first = _stepped(3, 20, seed=4, image_size=32).observations()["suction"]["image"]
     second = _stepped(3, 20, seed=4, image_size=32).observations()["suction"]["image"]

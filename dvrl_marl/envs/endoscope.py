@@ -284,20 +284,22 @@ class EndoscopeRenderer:
         return tuple(part for part in RENDER_PARTS if part in parts)
 
     def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
-               frames=None, parts=None) -> dict:
+               frames=None, parts=None, worlds=None) -> dict:
         """The view of each world in ``states`` (the core's ``world_state`` dicts); with ``looks`` (one
         :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
         world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
         (each world's step in its episode) seed its image noise. ``parts`` (:meth:`parts`) draws only those: a
-        segmentation alone costs one drawing of what moves, not two."""
+        segmentation alone costs one drawing of what moves, not two. ``worlds``: which worlds ``states`` are (their
+        looks' layers kept apart), when they are some of a batch (default: 0, 1, ...)."""
         count, s = len(states), self.size
+        ids = list(range(count)) if worlds is None else [int(world) for world in worlds]
         parts = self.parts(parts)
         segmentation, colour = "segmentation" in parts, "rgb" in parts or "depth" in parts
         if looks is not None:
             if keys is None or len(keys) != count or len(looks) != count:
                 raise ValueError("render: one look and one key per world")
             frames = np.zeros(count, np.int64) if frames is None else np.asarray(frames, np.int64)
-            for world, (look, key) in enumerate(zip(looks, keys)):
+            for world, look, key in zip(ids, looks, keys):
                 dressed = self._dressings.get(world)
                 if dressed is None or dressed[0] != key:
                     self._dressings[world] = dressed = (key, self._dressing(look))
@@ -321,7 +323,7 @@ class EndoscopeRenderer:
                 lookups = []
                 for tile, world in enumerate(worlds):
                     if looks is not None:
-                        self._wear(self._dressings[world][1])
+                        self._wear(self._dressings[ids[world]][1])
                     self.mirror.show(states[world])
                     mujoco.mj_kinematics(model, data)
                     self._draw(_MOVING, tile)
@@ -330,7 +332,7 @@ class EndoscopeRenderer:
                 drawn[segmenting] = (*self._read(len(worlds)), lookups)
             self._set_segmenting(False)
             # the still layers: the scene's own one, or each world's in its look
-            still = [self._still] if looks is None else [self._still_looks[world][1:] for world in worlds]
+            still = [self._still] if looks is None else [self._still_looks[ids[world]][1:] for world in worlds]
             still_rgb, still_depth = np.stack([entry[0] for entry in still]), np.stack([entry[1] for entry in still])
             moving_rgb, moving_depth, _ = drawn[not colour]  # (either drawing's depth: the same geometry)
             nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth

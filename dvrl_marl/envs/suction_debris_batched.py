@@ -20,7 +20,9 @@ keys: ``blood_remaining``, ``blood_remaining_per_cavity``, ``debris_delivered``,
 episode inside the same ``step``; the returned observation is the new episode's first, and the ended episode's last
 observation and state are in ``infos[agent]["final_observation"]`` / ``infos[agent]["final_state"]``, rows valid
 where ``infos[agent]["_final"]`` is True (what PPO needs to bootstrap a truncated episode). ``"disabled"``: worlds
-are never reset for you; ``reset(options={"reset_mask": mask})`` resets some. Agents never leave ``agents``.
+are never reset for you; ``reset(options={"reset_mask": mask})`` resets some; a world whose episode ended keeps its
+last images until it is reset (it is not drawn again: an evaluation's finished worlds cost nothing while the others
+play on). Agents never leave ``agents``.
 
 ## Start-state options (for curricula)
 Besides ``blood_ml`` ((C,) or one row per world), ``reset(options=...)`` takes ``debris_count`` (an int or
@@ -258,6 +260,10 @@ class SuctionDebrisBatchedEnv:
         #: the image observations' size (0: none) and whether they carry depth and a segmentation mask
         self.image_size, self.image_depth, self.image_segmentation = size, depth, segmentation
         self._endoscope = None
+        # autoreset_mode="disabled": the worlds whose episode ended (not drawn again until reset) and each part's
+        # last images, which an ended world keeps
+        self._ended = np.zeros(self.num_envs, dtype=bool)
+        self._last_images: dict = {}
         if not size:
             return
         parts = {"image": spaces.Box(0, 255, shape=(size, size, 3), dtype=np.uint8)}
@@ -287,23 +293,41 @@ class SuctionDebrisBatchedEnv:
                 raise ValueError(f"{self.name}: images' parts must be some of 'image', 'depth', 'segmentation', "
                                  f"got {list(named)}")
             parts = ["rgb" if part == "image" else part for part in named]
-        states = [self.core.world_state(world) for world in range(self.num_envs)]
-        if self.image_appearance is None:
-            drawn = self._endoscope.render(states, parts=parts)
-        else:  # each world's look for its episode, from its own stream (a function of its seed and episode)
-            from dvrl_marl.core.streams import STREAMS, uniforms
-            from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
-
-            streams = self.core.random
-            episode = np.maximum(np.asarray(streams.episode) - 1, 0)  # (the episode under way)
-            draws = uniforms(streams.key_low, streams.key_high, episode, STREAMS["appearance"], Appearance.UNIFORMS)
-            appearance = (self.image_appearance if isinstance(self.image_appearance, Appearance)
-                          else APPEARANCES[self.image_appearance])
-            keys = list(zip(np.asarray(streams.key_low).tolist(), np.asarray(streams.key_high).tolist(),
-                            episode.tolist()))
-            drawn = self._endoscope.render(states, [appearance.draw(row) for row in np.asarray(draws)], keys,
-                                           np.asarray(self.core.elapsed), parts=parts)
+        named = self._endoscope.parts(parts)
+        # an ended episode's world keeps its last images (autoreset_mode="disabled": nothing is drawn for it until it
+        # is reset; an evaluation's worlds that finished early cost nothing while the others play on)
+        kept = self._ended.any() and all(part in self._last_images for part in named)
+        worlds = np.flatnonzero(~self._ended) if kept else np.arange(self.num_envs)
+        drawn = self._draw(worlds, parts) if len(worlds) else {}
+        if self.autoreset_mode == "disabled":
+            for part in named:
+                if kept:
+                    if len(worlds):
+                        self._last_images[part][worlds] = drawn[part]
+                else:
+                    self._last_images[part] = drawn[part]
+            drawn = {part: self._last_images[part].copy() for part in named}
         return {"image" if key == "rgb" else key: value for key, value in drawn.items()}
+
+    def _draw(self, worlds: np.ndarray, parts) -> dict:
+        """The endoscope's view of ``worlds`` (indices of the batch), ``{part: (len(worlds), ...)}``."""
+        states = [self.core.world_state(world) for world in worlds]
+        if self.image_appearance is None:
+            return self._endoscope.render(states, parts=parts)
+        # each world's look for its episode, from its own stream (a function of its seed and episode)
+        from dvrl_marl.core.streams import STREAMS, uniforms
+        from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
+
+        streams = self.core.random
+        episode = np.maximum(np.asarray(streams.episode)[worlds] - 1, 0)  # (the episode under way)
+        draws = uniforms(np.asarray(streams.key_low)[worlds], np.asarray(streams.key_high)[worlds], episode,
+                         STREAMS["appearance"], Appearance.UNIFORMS)
+        appearance = (self.image_appearance if isinstance(self.image_appearance, Appearance)
+                      else APPEARANCES[self.image_appearance])
+        keys = list(zip(np.asarray(streams.key_low)[worlds].tolist(), np.asarray(streams.key_high)[worlds].tolist(),
+                        episode.tolist()))
+        return self._endoscope.render(states, [appearance.draw(row) for row in np.asarray(draws)], keys,
+                                      np.asarray(self.core.elapsed)[worlds], parts=parts, worlds=worlds)
 
     def _check_scene_fits(self) -> None:
         """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
@@ -416,6 +440,7 @@ class SuctionDebrisBatchedEnv:
         self._reset_surgeon(None if mask is None else worlds)
         self._restart_potential()
         self._started = True
+        self._ended[worlds] = False
         info = self.core.info()
         return self.observations(), {agent: dict(info) for agent in self.agents}
 
@@ -566,6 +591,8 @@ class SuctionDebrisBatchedEnv:
         info = core.info()
         infos = {agent: dict(info) for agent in self.agents}
         done = terminated | truncated
+        if self.autoreset_mode == "disabled":
+            self._ended |= done
         if self.autoreset_mode == "same_step" and done.any():
             final_state = self.state()
             for agent in self.agents:
