@@ -24,9 +24,8 @@ def env():
     env.close()
 
 
-def _rule(env, keep_mm=12.0, agent="suction"):
-    return YieldingSuction(env.layout(), env.observation_layout, env.workspace_range, keep_mm).rule \
-        if agent == "suction" else None
+def _rule(env, keep_mm=12.0):
+    return YieldingSuction(env.layout(), env.observation_layout, env.workspace_range, keep_mm).rule
 
 
 _coordinates = arrays(np.float64, (16, 3), elements=st.floats(-1.0, 1.0))

@@ -40,7 +40,8 @@ def test_the_numpy_policy_is_the_network_it_was_trained_as(tmp_path, normalise):
     with torch.no_grad():
         expected = model(torch.from_numpy(observation["image"]),
                          torch.from_numpy(observation["observation"][:, :4].astype(np.float32))).numpy()
-    np.testing.assert_allclose(policy._forward(observation, clip_last=False), expected, rtol=0, atol=1e-5)
+    unclipped = policy._network(policy.features(observation), clip_last=False)
+    np.testing.assert_allclose(unclipped, expected, rtol=0, atol=1e-5)
     action = policy(observation)
     assert action.shape == (7, 4) and set(np.unique(action[:, 3])) <= {-1.0, 1.0}  # the valve is a switch
     np.testing.assert_allclose(action[:, :3], np.clip(expected[:, :3], -1, 1), atol=1e-5)
@@ -527,12 +528,14 @@ def test_an_offset_that_does_not_fit_is_refused_by_name(tmp_path, relative, mess
         policies.load(folder)
 
 
-@pytest.mark.parametrize("settings", ['other_tip_relative = true\n',
-                                      'acts_by = "teacher"\nestimated = [7, 9]\nother_tip_relative = true\n'])
-def test_reading_the_other_tip_as_an_offset_needs_it_estimated(tmp_path, settings):
+@pytest.mark.parametrize("option, message", [("other_tip_relative = true", "other_tip_relative reads the other "
+                                                "arm's tip as an offset"),
+                                             ("keep_clear_mm = 12.0", "keep_clear_mm reads the other arm's tip")])
+@pytest.mark.parametrize("settings", ['', 'acts_by = "teacher"\nestimated = [7, 9]\n'])
+def test_reading_the_other_tip_needs_it_estimated(tmp_path, settings, option, message):
     path = tmp_path / "seat.toml"
-    path.write_text('[run]\nalgorithm = "pixel-dagger"\n' + settings)
-    with pytest.raises(ValueError, match="other_tip_relative reads the other arm's tip as an offset"):
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\n' + settings + option + "\n")
+    with pytest.raises(ValueError, match=message):
         pixel_seat.load_config(path)
 
 
@@ -697,12 +700,3 @@ def test_a_seat_keeping_clear_acts_by_the_yielding_rule_on_its_estimate_of_the_o
               for update in ({}, {"teacher": "yielding", "keep_clear_mm": None}, {"keep_clear_mm": None})]
     np.testing.assert_array_equal(driven[0], driven[1])
     assert driven[0].shape != driven[2].shape or not np.array_equal(driven[0], driven[2])  # the rule withheld moves
-
-
-@pytest.mark.parametrize("settings", ['keep_clear_mm = 12.0\n',
-                                      'acts_by = "teacher"\nestimated = [7, 9]\nkeep_clear_mm = 12.0\n'])
-def test_keeping_clear_needs_the_other_tip_estimated(tmp_path, settings):
-    path = tmp_path / "seat.toml"
-    path.write_text('[run]\nalgorithm = "pixel-dagger"\n' + settings)
-    with pytest.raises(ValueError, match="keep_clear_mm reads the other arm's tip"):
-        pixel_seat.load_config(path)

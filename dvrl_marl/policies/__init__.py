@@ -139,9 +139,6 @@ class NumpyPolicy:
                              f"observation features, got {x.shape[-1]}")
         return x
 
-    def _forward(self, observation, clip_last: bool) -> np.ndarray:
-        return self._network(self.features(observation), clip_last)
-
     def _network(self, x: np.ndarray, clip_last: bool) -> np.ndarray:
         last = len(self.weights) - 1
         for index, ((weight, bias), activation) in enumerate(zip(self.weights, self._activations)):

@@ -281,42 +281,40 @@ def _env(config: PixelSeatConfig, worlds: int):
                                          else config.image_appearance, **options)
 
 
-def _estimates_other_tip(config: PixelSeatConfig) -> bool:
-    """Whether the seat's estimates hold all of the other arm's tip."""
+def _scene():
+    """The scene's layout, observation layout and workspace range (the env's; one world reads them in
+    milliseconds)."""
     from dvrl_marl.envs import suction_debris_v8
 
     env = suction_debris_v8.batched_env(num_envs=1)
-    tip = env.observation_layout["other_tip"]
+    facts = env.layout(), env.observation_layout, env.workspace_range
     env.close()
+    return facts
+
+
+def _estimates_other_tip(config: PixelSeatConfig) -> bool:
+    """Whether the seat's estimates hold all of the other arm's tip."""
+    tip = _scene()[1]["other_tip"]
     return config.estimated[0] <= tip.start and tip.stop <= config.estimated[1]
 
 
 def _keep_clear_table(config: PixelSeatConfig) -> dict | None:
     """The seat's ``keep_clear`` table (``keep_clear_mm``: the yielding suction's rule for ``config.agent``), or
     None."""
-    from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.envs.scripted_team import keep_clear_rule
 
     if config.keep_clear_mm is None:
         return None
-    env = suction_debris_v8.batched_env(num_envs=1)
-    table = keep_clear_rule(env.layout(), env.observation_layout, env.workspace_range, config.agent,
-                            config.keep_clear_mm)
-    env.close()
-    return table
+    return keep_clear_rule(*_scene(), config.agent, config.keep_clear_mm)
 
 
 def _relative(config: PixelSeatConfig) -> list[list[int]]:
     """``image.fills.relative``'s pairs ``[estimated, own]``: each estimated coordinate of the other arm's tip and the
     own tip's same coordinate (none unless ``other_tip_relative``)."""
-    from dvrl_marl.envs import suction_debris_v8
-
     if not config.other_tip_relative:
         return []
-    env = suction_debris_v8.batched_env(num_envs=1)  # (the layout is the env's; one world reads it in milliseconds)
-    other, own = (range(env.observation_layout[name].start, env.observation_layout[name].stop)
-                  for name in ("other_tip", "own_tip"))
-    env.close()
+    layout = _scene()[1]
+    other, own = (range(layout[name].start, layout[name].stop) for name in ("other_tip", "own_tip"))
     estimated = range(*config.estimated)
     return [[index, own_index] for index, own_index in zip(other, own) if index in estimated]
 
