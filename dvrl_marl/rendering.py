@@ -2,17 +2,33 @@
 
 from __future__ import annotations
 
+import gc
 import time
+from contextlib import contextmanager
 
 import mujoco
 import numpy as np
 
 from dvrl_marl.display import DisplayUnavailableError, display_available, render_modes_here, require_display
 
-__all__ = ["SceneRenderer", "RENDER_MODES", "DisplayUnavailableError", "require_display", "display_available",
-           "render_modes_here"]
+__all__ = ["SceneRenderer", "RENDER_MODES", "uncollected", "DisplayUnavailableError", "require_display",
+           "display_available", "render_modes_here"]
 
 RENDER_MODES = ("human", "rgb_array", "depth_array")
+
+
+@contextmanager
+def uncollected():
+    """No automatic garbage collection inside: for drawing with a bound GL context. MuJoCo 3.3's EGL context, when
+    freed (say, a dropped env's, collected), releases whichever context the thread holds, and a collection between
+    binding ours and reading it back would leave the drawings in between undone: wrong images, no error."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 class SceneRenderer:
@@ -57,7 +73,8 @@ class SceneRenderer:
             self.decorate(self._renderer.scene)
         if not self.shadows:
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-        frame = self._renderer.render()
+        with uncollected():
+            frame = self._renderer.render()
         if self.frame_budget is not None:
             self._degrade_if_slow(time.perf_counter() - began)
         return frame

@@ -1,6 +1,8 @@
 """Image observations: the endoscope's view drawn for learning (dvrl_marl.envs.endoscope) is exactly what one drawing
 of the whole scene gives, in every world of a batch; the option's spaces, checks, determinism and bad input."""
 
+import gc
+
 import mujoco
 import numpy as np
 import pytest
@@ -137,6 +139,39 @@ def test_a_world_whose_episode_ended_keeps_its_last_images_and_the_others_are_dr
     # drawn: three steps, the reset of two worlds (every world's observation), three steps, then the two still playing
     # for three steps, then none
     assert ended.all() and drawn == [4] * 7 + [2] * 3
+
+
+def test_another_gl_context_collected_while_drawing_leaves_the_images_as_they_are():
+    """MuJoCo 3.3 (the floor) frees a collected GL context by releasing whichever context the thread holds: a dropped
+    env collected between binding the renderer's context and reading it back would leave its drawings undone. Here
+    every world's drawing leaves such garbage behind, with a collection at nearly every allocation."""
+    env = _stepped(3, 20, image_size=32, image_depth=True, image_segmentation=True)
+    states = [env.core.world_state(world) for world in range(env.num_envs)]
+    renderer = env._endoscope
+    expected = renderer.render(states)
+    show, held = renderer.mirror.show, []
+    for _ in range(2 * len(states)):  # (each world is shown twice: in colour, then by geom ids)
+        cycle = {"context": mujoco.GLContext(8, 8)}
+        cycle["itself"] = cycle
+        held.append(cycle)
+    del cycle
+    renderer._bind()
+
+    def show_leaving_garbage(state):
+        held.pop()  # (a cycle: only a collection frees it)
+        show(state)
+
+    renderer.mirror.show = show_leaving_garbage
+    thresholds = gc.get_threshold()
+    gc.set_threshold(1)
+    try:
+        drawn = renderer.render(states)
+    finally:
+        gc.set_threshold(*thresholds)
+        renderer.mirror.show = show
+        gc.collect()
+    for part in expected:
+        np.testing.assert_array_equal(drawn[part], expected[part], err_msg=part)
 
 
 def test_images_are_deterministic_per_seed():

@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from dvrl_marl.envs.scene_mirror import SceneMirror
+from dvrl_marl.rendering import uncollected
 
 __all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "RENDER_PARTS", "SEGMENT_CLASSES", "Appearance", "APPEARANCES",
            "QUANTITIES", "held_out_only"]
@@ -157,6 +158,11 @@ class EndoscopeRenderer:
         model.vis.quality.offsamples = 0
         model.vis.global_.offwidth, model.vis.global_.offheight = width, height
         self._gl = mujoco.GLContext(width, height)
+        with uncollected():
+            self._set_up(model, data, size)
+
+    def _set_up(self, model, data, size: int) -> None:
+        """The GL context's resources, the scene and its still layer (the context bound throughout)."""
         self._gl.make_current()
         self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         self._scene = mujoco.MjvScene(model, maxgeom=1000)
@@ -285,6 +291,10 @@ class EndoscopeRenderer:
 
     def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
                frames=None, parts=None, worlds=None) -> dict:
+        with uncollected():
+            return self._render(states, looks, keys, frames, parts, worlds)
+
+    def _render(self, states, looks, keys, frames, parts, worlds) -> dict:
         """The view of each world in ``states`` (the core's ``world_state`` dicts); with ``looks`` (one
         :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
         world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
