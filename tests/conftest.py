@@ -74,5 +74,7 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.path.name in REAL_TIME_FILES:
             item.add_marker(pytest.mark.realtime)
+        if item.get_closest_marker("extended") is not None:  # (what .ci/extended runs, nothing quicker runs)
+            item.add_marker(pytest.mark.slow)
     # (a stable sort: within each group, the collection's order)
     items.sort(key=lambda item: not f"{item.path.name}::{item.name}".startswith(LONG_FIRST))

@@ -141,7 +141,7 @@ def test_train_command_records_clones_and_evaluates(tmp_path, capsys):
     assert "dvrl_marl/surgeon-tiny-v1" in minari.list_local_datasets()
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_dagger_rounds_relabel_the_clones_own_states_with_the_expert(tmp_path):
     pytest.importorskip("torch")  # the clone trains in torch
     from dvrl_marl.agents.collaborative import ScriptedSurgeon

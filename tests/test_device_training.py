@@ -148,6 +148,7 @@ def test_steps_become_a_rollout_whose_values_are_the_critics_of_each_step():
             assert torch.allclose(rollout.values[t], models["critic"](taken.states[t], taken.observations[t]))
 
 
+@pytest.mark.extended
 def test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give(tmp_path):
     """backend="jax" (a GPU's default; ``DVRL_MARL_TEST_DEVICE`` picks the device, the CPU here): env, policy and
     buffers on one device; its first rollout is the numpy env's, step by step, and the run exports policies that

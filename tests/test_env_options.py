@@ -45,7 +45,7 @@ def _run_side_by_side(levels, steps, num_envs=3, seed=10, **kwargs):
     return worst_observation, worst_reward, ended
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_single_and_batched_start_the_same_episodes_at_every_level():
     """Easy starts (300-step episodes, autoreset at their level) with the guided reward and features: the batched
     worlds are the single envs, seeded seed + i, bit for bit (rewards to float rounding)."""
@@ -449,7 +449,7 @@ def test_normalize_observations_keeps_the_seat_plain_and_checks_its_value():
         ObservationScaling.for_env("env", "no_such_features", ("suction",), 62, 31, False)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_shipped_observation_scales_are_what_measure_gives():
     """The shipped centres and spreads are the measurement's (deterministic): rerunning it for the benchmark's feature
     set gives the file's numbers."""

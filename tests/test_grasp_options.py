@@ -121,7 +121,7 @@ def test_bad_grasp_options_are_refused_by_name(key, value):
         suction_debris_v8.batched_env(num_envs=2, **{key: value})
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_single_and_batched_agree_with_the_grasp_options():
     """Noisy scripted experts that drop now and then (the hold keeps the pin), a slow tool, the guided reward and
     features: the batched worlds are the single envs bit for bit (tests/test_batched.py's comparison)."""

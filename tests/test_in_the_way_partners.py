@@ -85,6 +85,7 @@ def test_each_world_acts_as_one_partner_alone_and_restarts_alone():
     assert not member._yielded.any() and member._fresh.all()
 
 
+@pytest.mark.extended
 def test_the_scripted_suction_finishes_beside_them_by_pushing_into_them():
     """The premise of a seat that yields: the scripted suction gets through only by pushing (every kind)."""
     env = suction_debris_v8.parallel_env()
@@ -127,6 +128,7 @@ def test_bad_settings_are_named(make, message):
         make(suction_debris_v8.parallel_env())
 
 
+@pytest.mark.extended
 def test_the_yielding_script_passes_them_without_a_contact_and_otherwise_is_the_scripted_suction():
     from dvrl_marl.agents.collaborative import ScriptedSuction, YieldingSuction
 

@@ -182,6 +182,7 @@ def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
         assert mine.spec["exploration"] == theirs.spec["exploration"]
 
 
+@pytest.mark.extended
 def test_the_compiled_cycle_is_deterministic_over_many_steps():
     """Two runs of eight cycles (1,024 world steps) from the same seed give the same parameters bit for bit (on
     ``DVRL_MARL_TEST_DEVICE``, the CPU here)."""
@@ -207,6 +208,7 @@ def test_what_it_does_not_do_is_refused_by_name(tmp_path):
         jax_mappo.train(replace(TINY, surgeon="scripted"), 0, tmp_path / "b", cache=None)
 
 
+@pytest.mark.extended
 def test_the_command_line_trains_with_it(tmp_path, capsys, monkeypatch):
     from dvrl_marl.cli import main
 

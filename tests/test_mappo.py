@@ -237,7 +237,7 @@ def test_partner_seat_runs(tmp_path):
         assert sorted(p.name for p in (run / "policies").iterdir()) == [f"marl-{learner}"]
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_cli_train_mappo(tmp_path):
     config = _config(tmp_path)
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "train", str(config), "--out", str(tmp_path / "r"),

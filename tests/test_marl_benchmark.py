@@ -126,8 +126,8 @@ def test_bad_flags_are_named():
     assert result.returncode == 2 and "--frames" in result.stderr
 
 
+@pytest.mark.extended
 @pytest.mark.parametrize("library", ["dvrl-marl", "benchmarl", "rllib"])
-@pytest.mark.slow
 def test_a_tiny_run_writes_its_record(tmp_path, library):
     pytest.importorskip("torchrl")
     if library == "benchmarl":

@@ -48,6 +48,7 @@ def test_marl_suction_clears_the_field_beside_the_scripted_surgeon():
     assert plain["mean_blood_removed_ml"] > 12.0
 
 
+@pytest.mark.extended
 def test_the_yielding_suction_waits_for_a_surgeon_in_its_way_and_finishes_beside_the_others():
     """By its default call (the mean action), on held-out seeds: beside the held-out surgeons that rest in its way
     (they wait longer than any it met in training) it finishes without pushing, where the scripted suction pushes
@@ -67,6 +68,7 @@ def test_the_yielding_suction_waits_for_a_surgeon_in_its_way_and_finishes_beside
         assert result["success_rate"] == 1.0 and result["mean_contact_steps"] == 0.0, (partner, result)
 
 
+@pytest.mark.extended
 def test_the_bleeding_team_finishes_where_the_keep_clear_team_runs_out_of_steps():
     """By their default call (the mean action), on held-out seeds of the task's own 1,500 steps: the sweeping experts
     cloned finish a bleeding field the keep-clear scripted team mostly leaves unfinished, without a contact."""
@@ -135,7 +137,8 @@ def test_the_pixel_suction_loads_with_numpy_alone_and_reads_the_endoscope():
         policies.load("marl-suction-pixels")(np.zeros(30))
 
 
-@pytest.mark.parametrize("look", [None, "train", "held_out"])
+@pytest.mark.parametrize("look", [None, pytest.param("train", marks=pytest.mark.extended),
+                                  pytest.param("held_out", marks=pytest.mark.extended)])
 def test_the_pixel_suction_clears_the_field_from_the_endoscope_beside_the_scripted_surgeon(look):
     """By its default call, reading only the endoscope's image and its own tip and valve, on held-out seeds of the
     task's 1,500 steps: the scene's own look (as a person's view draws it), looks of the training range and looks

@@ -24,7 +24,7 @@ def test_vector_env_has_one_slot_per_learning_agent_with_an_agent_indicator():
     single.close()
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_ppo_trains_both_arms_and_the_suction_arm_with_the_scripted_surgeon(tmp_path):
     for config in ("suction_debris_ppo", "suction_debris_ppo_scripted_surgeon"):
         result = train_ppo(CONFIGS / f"{config}.toml", seed=0, out_dir=tmp_path / config, total_timesteps=1024,

@@ -10,7 +10,7 @@ from dvrl_marl.agents.partners import (HELD_OUT, PERSON, TRAINING_RANGES, Person
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.training import teams
 
-pytestmark = pytest.mark.slow  # whole episodes of seats beside their partners (CI runs them)
+pytestmark = pytest.mark.extended  # whole episodes of seats beside their partners (.ci/extended runs them)
 
 ENV = suction_debris_v8.parallel_env()
 

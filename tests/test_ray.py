@@ -81,6 +81,7 @@ def test_two_collectors_return_what_one_collector_of_all_the_worlds_returns(tmp_
         np.testing.assert_allclose(whole[key], parts[key], atol=1e-5, err_msg=key)
 
 
+@pytest.mark.extended
 def test_training_on_two_nodes_survives_a_killed_collector_checkpoints_resumes_and_exports(cluster, tmp_path):
     # (one run for all of it: each run starts collectors on both nodes, the slowest part here)
     run, messages, seen = tmp_path / "run", [], {}

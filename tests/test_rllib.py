@@ -48,6 +48,7 @@ def test_the_adapter_renders_where_rllibs_own_wrapper_cannot():
     env.close()
 
 
+@pytest.mark.extended
 @pytest.mark.parametrize("shared", [False, True])
 def test_multi_agent_recipe_trains_saves_and_films_a_team(tmp_path, local_ray, shared):
     recipe = load("rllib_suction_debris")
@@ -108,6 +109,7 @@ def test_recipe_refuses_sizes_below_one(flag, capsys):
     assert flag in capsys.readouterr().err
 
 
+@pytest.mark.extended
 def test_single_arm_recipe_runs_a_vector_of_envs_per_runner(tmp_path, local_ray):
     recipe = load("rllib_single_arm")
     summary = recipe.main([*TINY, "--envs-per-runner", "4", "--episodes", "2", "--video", str(tmp_path / "reach.mp4")])

@@ -12,7 +12,7 @@ from dvrl_marl.core import sliding
 from dvrl_marl.core.collaborative import Cavities
 from rule_sets import v4_rules, v5_rules
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 # The suction on the wall of the left cavity near its rim, heading for the other cavity: out and down, into the
 # bowl (the measured end of issue 37's failed mean-action episodes on v4).

@@ -13,7 +13,7 @@ from dvrl_marl.core.collaborative import Cavities
 from rule_sets import v5_rules, v6_rules
 from test_rules_climb import move_over_the_surface, suction_on_the_wall, suction_path
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 # The suction on the wall of the left cavity near its rim (tests/test_suction_debris_v5.py's place), heading for the
 # other cavity and down, almost along the wall's normal: the command a learnt BenchMARL suction sent there, by its

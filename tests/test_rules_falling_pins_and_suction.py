@@ -11,7 +11,7 @@ from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon, ScriptedSuction
 from dvrl_marl.core.collaborative import GRAVITY, PIN_RADIUS
 from rule_sets import v0_rules, v1_rules
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 
 def test_pettingzoo_api_with_bleeding():

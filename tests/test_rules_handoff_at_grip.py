@@ -13,7 +13,7 @@ from dvrl_marl.core.collaborative import PHANTOM_EDGE_MARGIN, PIN_RADIUS, PIN_SE
 from rule_sets import v1_rules, v2_rules
 from dvrl_marl.teleop.person import run_episode
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 HOLD = np.zeros(4)
 

@@ -12,7 +12,7 @@ from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.core.collaborative import PIN_HALF_LENGTH, PIN_RADIUS, PIN_SENSOR_RANGE
 from rule_sets import v3_rules, v4_rules
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 CLOSE_JAW = np.array([0.0, 0.0, 0.0, -1.0])
 STILL = np.array([0.0, 0.0, 0.0, -1.0])  # (the suction's valve closed: no blood to draw)

@@ -14,7 +14,7 @@ from dvrl_marl.envs import suction_debris_v8
 from rule_sets import v6_rules
 from test_rules_climb import move_over_the_surface, suction_on_the_wall, suction_path
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 # Where a learnt BenchMARL suction (seed 0, by its mean action) rested on v6 for the rest of its failed test episodes:
 # on the left cavity's slope, toward the ridge, a few millimetres above the last half millilitre, pressing straight down

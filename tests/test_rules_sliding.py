@@ -12,7 +12,7 @@ from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.envs import suction_debris_v8
 from rule_sets import v2_rules, v3_rules, v4_rules, v5_rules, v6_rules
 
-pytestmark = pytest.mark.slow  # each rule against the one it replaced, over whole episodes (CI runs them)
+pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
 
 PUSH_SUCTION_PAST_GRASPER = np.array([1.0, 0.0, -0.1, 1.0])
 

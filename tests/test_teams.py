@@ -98,6 +98,7 @@ def test_cross_play_rows_and_seat_errors():
         teams.evaluate_team_batched({"suction": teams.seat("scripted", "suction")}, episodes=1)
 
 
+@pytest.mark.extended
 def test_the_named_scripted_seats_are_their_experts():
     from dvrl_marl.agents.collaborative import (KeepClearSuction, KeepClearSurgeon, SweepingSuction, SweepingSurgeon,
                                                 YieldingSuction)
@@ -114,6 +115,7 @@ def test_the_named_scripted_seats_are_their_experts():
     assert result["success_rate"] >= 0.75 and result["mean_contact_steps"] == 0.0, result
 
 
+@pytest.mark.extended
 def test_the_sweeping_team_clears_once_waits_and_sweeps_at_the_last_hand_off():
     team = teams.seats("sweeping", "sweeping")
     plain = teams.evaluate_team_batched(team, episodes=4)

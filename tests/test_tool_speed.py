@@ -73,7 +73,7 @@ def test_a_steady_command_opens_the_valve_and_closes_the_jaw_after_a_stroke():
     assert instant.valve_open and instant.arms["grasper"].jaw == 0.0  # the paper's: at once
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_single_and_batched_agree_with_a_slow_tool():
     """Random commands (the tool's half-strokes included), easy and default starts, guided reward and features:
     the batched worlds are the single envs bit for bit."""
@@ -113,7 +113,7 @@ def test_bad_tool_speeds_are_refused_by_name(value, message):
         suction_debris_v8.batched_env(num_envs=2, tool_speed=value)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_a_slow_tool_averages_out_the_noise_of_a_gaussian_tool_dimension():
     """The scripted team, its tool command sampled from a tanh-Gaussian of scale 1 (a Gaussian policy's start):
     with the paper's instant jaw one sample past the threshold drops the pin; at 0.05 of a stroke per step the
