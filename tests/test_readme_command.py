@@ -1,6 +1,6 @@
 """The README's test command: its second pytest run names the real-time files (collecting the rest would import the
 whole suite again), .ci/run runs the command as the README writes it, and then what it leaves out (the tests marked
-slow), so that CI runs every test."""
+slow) but the longest (marked extended), which .ci/extended runs: every test is run by one of them."""
 
 import re
 from pathlib import Path
@@ -24,11 +24,15 @@ def test_the_readmes_test_command_runs_every_real_time_file_and_ci_runs_that_com
     assert command in ci
 
 
-def test_ci_runs_what_the_quick_run_leaves_out_after_it():
+def test_ci_runs_what_the_quick_run_leaves_out_after_it_and_ci_extended_the_rest():
     ci = (ROOT / ".ci" / "run").read_text()
     readme_at = ci.index('-m "realtime and not slow"')
-    slow = next(line for line in ci.splitlines() if '-m "slow and not realtime"' in line)
-    assert ci.index(slow) > readme_at and _marks(slow) == ["slow and not realtime", "slow and realtime"]
+    slow_at = ci.index('-m "slow and not realtime and not extended"')
+    slow = ci[slow_at:].split("\ncpu ", 1)[0]  # (the command, over its continued lines)
+    assert slow_at > readme_at and _marks(slow) == ["slow and not realtime and not extended",
+                                                    "slow and realtime and not extended"]
     assert slow.rstrip().endswith("$REAL_TIME")
     real_time = re.search(r'^REAL_TIME="([^"]+)"', ci, re.M).group(1).split()
     assert {Path(name).name for name in real_time} == REAL_TIME_FILES
+    extended = (ROOT / ".ci" / "extended").read_text()
+    assert '-m "extended and not realtime"' in extended and "-m extended tests/" in extended
