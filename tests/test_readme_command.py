@@ -31,7 +31,8 @@ def test_ci_runs_what_the_quick_run_leaves_out_after_it_and_ci_extended_the_rest
     slow = ci[slow_at:].split("\ncpu ", 1)[0]  # (the command, over its continued lines)
     assert slow_at > readme_at and _marks(slow) == ["slow and not realtime and not extended",
                                                     "slow and realtime and not extended"]
-    assert slow.rstrip().endswith("$REAL_TIME")
+    assert slow.rstrip().endswith("$REAL_TIME || slow_status=1")
+    assert "exit $(( readme_status | slow_status" in ci  # (a failure inside an && list does not stop the script)
     real_time = re.search(r'^REAL_TIME="([^"]+)"', ci, re.M).group(1).split()
     assert {Path(name).name for name in real_time} == REAL_TIME_FILES
     extended = (ROOT / ".ci" / "extended").read_text()
