@@ -10,7 +10,8 @@ seat sees no image, so one row per partner.
 
     python benchmarks/pixel_seat.py --pixel FOLDER [--episodes 50] [--partners scripted pipeline ...]
                                     [--looks train held_out scene] [--raise-blood 0.02]
-                                    [--acting marl-suction-yielding] [--keep-clear-mm 12] [--exact]
+                                    [--acting marl-suction-yielding] [--keep-clear-mm 12] [--full-above 0.85]
+                                    [--exact]
                                     [--json FILE]
 
 Prints per partner and look: success, median steps, contact steps, tip path; and the pixel seat's gap to the
@@ -67,6 +68,17 @@ def keeping_clear(policy, keep_mm: float):
     return policy
 
 
+def reading_full_above(policy, threshold: float):
+    """``--full-above``: the pixel seat's blood estimates (those it keeps at their lowest) at ``threshold`` or more read
+    as full (``image.fills.full_above``), without training again."""
+    if policy.encoder is None or policy.encoder.keep_lowest is None:
+        raise ValueError("--full-above: the pixel seat keeps no estimate at its lowest (no blood estimates named)")
+    if not 0.0 < threshold <= 1.0:
+        raise ValueError(f"--full-above: a share of a cavity's blood in (0, 1], got {threshold}")
+    policy.encoder.full_above = threshold
+    return policy
+
+
 def exactly_filled(policy, state: np.ndarray) -> np.ndarray:
     """The observation a pixel seat fills for its teacher with the truth from ``state`` where it has estimates."""
     return policy.encoder.filled(state[..., policy.encoder.proprioception], state[..., policy.encoder.fills[1]])
@@ -117,6 +129,8 @@ def main() -> None:
     parser.add_argument("--keep-clear-mm", type=float,
                         help="the pixel seat withholds the moves that would bring its instrument within this of the "
                              "other's (the yielding suction's rule, on its estimate of the other tip)")
+    parser.add_argument("--full-above", type=float,
+                        help="the seat's blood estimates at this or more read as full (image.fills.full_above)")
     parser.add_argument("--exact", action="store_true",
                         help="also a row of its teacher on what the seat fills, the estimates exact (no image)")
     parser.add_argument("--json", type=Path, help="write the rows here")
@@ -146,12 +160,15 @@ def main() -> None:
                 pixel = acting_as(pixel, args.acting)
             if args.keep_clear_mm:
                 pixel = keeping_clear(pixel, args.keep_clear_mm)
+            if args.full_above:
+                pixel = reading_full_above(pixel, args.full_above)
             row = evaluate("suction", pixel, partner, args.episodes, False,
                            **({} if look == "scene" else {"image_appearance": look}))
             row["player"] = (str(args.pixel) + (" (keeping the lowest)" if args.keep_lowest else "")
                              + (f" (blood raised {args.raise_blood:+.3f})" if args.raise_blood else "")
                              + (f" (acting: {args.acting})" if args.acting else "")
-                             + (f" (keeping {args.keep_clear_mm:g} mm clear)" if args.keep_clear_mm else ""))
+                             + (f" (keeping {args.keep_clear_mm:g} mm clear)" if args.keep_clear_mm else "")
+                             + (f" (full above {args.full_above:g})" if args.full_above else ""))
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
             rows.append(row)

@@ -244,13 +244,15 @@ class PolicyImageFill(BaseModel):
     read-out's estimates at ``estimates_at``; at the indices ``keep_lowest`` names (some of ``estimates_at``), each
     estimate the lowest its episode has seen (the policy then keeps state per world: ``reset`` starts an episode).
     ``relative`` pairs ``[estimated, own]``: the read-out estimates ``observation[estimated] - observation[own]``, an
-    index of the proprioception, which is added back (the other arm's tip read as its offset from the own tip)."""
+    index of the proprioception, which is added back (the other arm's tip read as its offset from the own tip).
+    ``full_above``: an estimate kept at its lowest that is at least this reads as full (1, a cavity's whole blood)."""
 
     model_config = STRICT
     template: Annotated[list[Finite], Field(min_length=1)]
     estimates_at: Annotated[list[NonNegativeInt], Field(min_length=1)]
     keep_lowest: list[NonNegativeInt] = []
     relative: list[Annotated[list[NonNegativeInt], Field(min_length=2, max_length=2)]] = []
+    full_above: UnitInterval | None = None
 
 
 class PolicyImage(BaseModel):
@@ -288,6 +290,9 @@ class PolicyImage(BaseModel):
             if not set(self.fills.keep_lowest) <= set(at):
                 raise ValueError(f"fills.keep_lowest {self.fills.keep_lowest} names indices that are not estimated "
                                  f"(estimates_at {at})")
+            if self.fills.full_above is not None and not self.fills.keep_lowest:
+                raise ValueError(f"fills.full_above {self.fills.full_above} reads the estimates kept at their lowest "
+                                 f"as full: name them in fills.keep_lowest")
             relative = [estimated for estimated, _ in self.fills.relative]
             if not set(relative) <= set(at) - set(self.fills.keep_lowest) or len(set(relative)) != len(relative):
                 raise ValueError(f"fills.relative {self.fills.relative}: each pair's first index must be estimated "

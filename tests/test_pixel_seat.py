@@ -146,6 +146,39 @@ def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its
     np.testing.assert_array_equal(policy(bright), plain(bright))
 
 
+def test_a_seat_reads_its_kept_blood_estimates_at_full_above_or_more_as_full(tmp_path):
+    """full_above: a blood estimate kept at its lowest reads as full (1) at the threshold or more, and as it is under
+    it; the lowest is kept of the estimates themselves, so a cavity read under the threshold once stays so read."""
+    config = _config(acts_by="teacher", estimated=[7, 9], keep_lowest=True, full_above=0.9, convolutions=[[8, 8, 4]])
+    torch.manual_seed(0)
+    folder = pixel_seat.export(pixel_seat.PixelActor(config, 4), config, tmp_path / "policy", "test-full", {},
+                               np.full(30, np.nan))
+    policy, plain = policies.load(folder), policies.load(folder)
+    assert policy.spec["image"]["fills"]["full_above"] == 0.9 and policy.encoder.full_above == 0.9
+    weights = np.zeros_like(policy.encoder.readout[0])
+    observation = _observation(3, seed=1)
+    for estimates, read in [((0.95, 0.5), (1.0, 0.5)), ((0.905, 0.6), (1.0, 0.5)), ((0.92, 0.7), (1.0, 0.5)),
+                            ((0.85, 0.6), (0.85, 0.5)), ((0.97, 0.4), (0.85, 0.4))]:
+        policy.encoder.readout = (weights, np.array(estimates, np.float32))
+        seen = policy.encoder.observation(observation["image"], observation["observation"])[:, 7:9]
+        np.testing.assert_allclose(seen, np.broadcast_to(read, (3, 2)), atol=1e-6, err_msg=str(estimates))
+    # reading 0.95 as full acts as reading exactly 1
+    policy.reset()
+    policy.encoder.readout = (weights, np.array([0.95, 0.5], np.float32))
+    plain.encoder.full_above, plain.encoder.readout = None, (weights, np.array([1.0, 0.5], np.float32))
+    np.testing.assert_array_equal(policy(observation), plain(observation))
+
+
+def test_full_above_reads_the_estimates_kept_at_their_lowest(tmp_path):
+    path = tmp_path / "seat.toml"
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\nfull_above = 0.9\n')
+    with pytest.raises(ValueError, match="full_above .* needs keep_lowest = true"):
+        pixel_seat.load_config(path)
+    path.write_text('[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\nkeep_lowest = true\nfull_above = 1.5\n')
+    with pytest.raises(ValueError, match="full_above"):
+        pixel_seat.load_config(path)
+
+
 def test_keep_lowest_is_the_teacher_actings_alone(tmp_path):
     path = tmp_path / "seat.toml"
     path.write_text('[run]\nalgorithm = "pixel-dagger"\nkeep_lowest = true\n')
@@ -154,6 +187,8 @@ def test_keep_lowest_is_the_teacher_actings_alone(tmp_path):
 
 
 @pytest.mark.parametrize("fills, message", [
+    ({"template": [0.0] * 30, "estimates_at": [7, 8], "full_above": 0.9}, "name them in fills.keep_lowest"),
+    ({"template": [0.0] * 30, "estimates_at": [7, 8], "keep_lowest": [7, 8], "full_above": 0.0}, "full_above"),
     ({"template": [0.0] * 30, "estimates_at": [7]}, "1 indices for a read-out of 2"),
     ({"template": [0.0] * 30, "estimates_at": [3, 8]}, "overlaps the proprioception"),
     ({"template": [0.0] * 8, "estimates_at": [7, 8]}, "8-long template"),

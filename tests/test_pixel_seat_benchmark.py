@@ -1,6 +1,6 @@
 """benchmarks/pixel_seat.py's ways to try a pixel seat without training again: another privileged seat acting on its
 estimates (``--acting``), its blood estimates raised (``--raise-blood``), its teacher given exact estimates
-(``--exact``); each refuses what it cannot do."""
+(``--exact``), its blood estimates near full read as full (``--full-above``); each refuses what it cannot do."""
 
 import importlib.util
 import sys
@@ -93,3 +93,17 @@ def test_keeping_clear_gives_the_seat_the_yielding_rule_on_what_it_fills(bench):
                                              pixel.keep_clear))
     with pytest.raises(ValueError, match="--keep-clear-mm: the pixel seat does not fill"):
         bench.keeping_clear(policies.load("marl-suction"), 12.0)
+
+
+def test_reading_full_above_reads_only_the_kept_estimates_at_the_threshold_or_more_as_full(bench):
+    observation = _observation()
+    before = policies.load("marl-suction-pixels").features(observation)
+    after = bench.reading_full_above(policies.load("marl-suction-pixels"), 0.5).features(observation)
+    kept = np.zeros(before.shape[-1], dtype=bool)
+    kept[7:9] = True  # the blood left per cavity
+    np.testing.assert_allclose(after[:, kept], np.where(before[:, kept] >= 0.5, 1.0, before[:, kept]), atol=1e-6)
+    np.testing.assert_allclose(after[:, ~kept], before[:, ~kept], atol=1e-6)
+    with pytest.raises(ValueError, match="keeps no estimate at its lowest"):
+        bench.reading_full_above(policies.load("marl-suction"), 0.9)
+    with pytest.raises(ValueError, match=r"in \(0, 1\]"):
+        bench.reading_full_above(policies.load("marl-suction-pixels"), 1.5)

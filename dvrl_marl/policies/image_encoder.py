@@ -11,8 +11,10 @@ read-out's estimates fill a state policy's observation (a template of the scene'
 its own indices), which the policy reads as it would the env's (its ``features`` computed from it): a privileged
 policy acting on what the image tells it. ``fills.keep_lowest`` names the estimates (observation indices) kept, world
 by world, at their lowest value since the episode began (the policy's ``reset(worlds)`` starts episodes; the
-evaluations and the seats call it). ``fills.relative`` names estimates read as offsets from the arm's own values
-(the other arm's tip from the own tip): the proprioception is added back before they fill the observation.
+evaluations and the seats call it); with ``fills.full_above`` those kept at that or more read as full (1: a
+cavity's whole blood, all its teacher ever read of a cavity not yet touched). ``fills.relative`` names estimates
+read as offsets from the arm's own values (the other arm's tip from the own tip): the proprioception is added back
+before they fill the observation.
 
 With ``keypoints`` the read-out reads more than the convolutions' output: after it, two keypoints per channel of the
 last convolution (a spatial softmax, Levine et al. 2016: each channel's softmax over its positions, its logits the
@@ -29,11 +31,15 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from dvrl_marl.schemas import PolicyImage, validated
 
-__all__ = ["ImageEncoder", "NORMALISE_FLOOR", "keypoints"]
+__all__ = ["ImageEncoder", "NORMALISE_FLOOR", "FULL", "keypoints"]
 
 #: ``normalise = "per_image"``: added to a channel's spread (``"brightness"``: to an image's mean), so that a flat
 #: (or black) image is not blown up.
 NORMALISE_FLOOR = 0.02
+
+#: A cavity's blood left when it is full, in the observation's terms (its share of the cavity's start): what
+#: ``fills.full_above`` reads an estimate as.
+FULL = 1.0
 
 
 class ImageEncoder:
@@ -64,6 +70,8 @@ class ImageEncoder:
             kept = np.isin(checked.fills.estimates_at, checked.fills.keep_lowest)
             self.keep_lowest = kept if kept.any() else None
         self._lowest = None  # keep_lowest: the lowest estimates of each world's episode so far
+        # keep_lowest's estimates at this or more read as full (1), or None
+        self.full_above = None if checked.fills is None else checked.fills.full_above
         # fills.relative: the read-out's outputs that are offsets, and the proprioception's entries added to them
         self.relative = None
         if checked.fills is not None and checked.fills.relative:
@@ -86,6 +94,8 @@ class ImageEncoder:
         encoded = self.estimates(images, own)
         if self.keep_lowest is not None:
             encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
+            if self.full_above is not None:
+                encoded = np.where(self.keep_lowest & (encoded >= self.full_above), FULL, encoded)
         return self.filled(own, encoded)
 
     def estimates(self, images, own) -> np.ndarray:

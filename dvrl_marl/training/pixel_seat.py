@@ -45,7 +45,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from dvrl_marl.schemas import (STRICT, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
-                               validated)
+                               UnitInterval, validated)
 
 __all__ = ["PixelSeatConfig", "load_config", "PixelActor", "collect", "fit", "validate", "export", "train",
            "PIXEL_SEED"]
@@ -82,6 +82,9 @@ class PixelSeatConfig(BaseModel):
     # acts_by = "teacher": the policy keeps each cavity's blood estimate at the lowest of its episode
     # (image.fills.keep_lowest); estimate_margin is added to those estimates alone too
     keep_lowest: Flag = False
+    # with keep_lowest: the blood estimates at this or more read as full (image.fills.full_above), as every cavity
+    # the teacher met untouched read: a full cavity read a little low stalled it (docs/results.md)
+    full_above: UnitInterval | None = None
     estimate_floor: Positive = 0.05
     # acts_by = "teacher": the estimates other than the blood (the other arm's tip) weigh their squared error in units
     # of their spread times this, beside the blood's weighted error (about 1e-5 once fitted: measured)
@@ -151,6 +154,9 @@ def load_config(path) -> tuple[str, PixelSeatConfig]:
     if config.keep_lowest and config.acts_by != "teacher":
         raise ValueError(f"{path}: [run] keep_lowest is for acts_by = 'teacher' (the estimates filling its teacher's "
                          f"observation), got acts_by = {config.acts_by!r}")
+    if config.full_above is not None and not config.keep_lowest:
+        raise ValueError(f"{path}: [run] full_above reads the blood estimates kept at their lowest as full: it needs "
+                         f"keep_lowest = true")
     if config.other_tip_relative and (config.acts_by != "teacher" or not _relative(config)):
         raise ValueError(f"{path}: [run] other_tip_relative reads the other arm's tip as an offset: it needs acts_by = "
                          f"'teacher' and the tip among the estimated indices, got acts_by = {config.acts_by!r}, "
@@ -590,7 +596,8 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
                  "normalise": config.normalise, "keypoints": config.keypoints,
                  "fills": {"template": [float(value) for value in template], "estimates_at": estimated,
                            "keep_lowest": [index for index, kept in zip(estimated, blood) if kept and
-                                           config.keep_lowest], "relative": _relative(config)}}
+                                           config.keep_lowest], "relative": _relative(config),
+                           "full_above": config.full_above}}
         # the margin and the lowest kept are the blood's: a cavity only empties, and an estimate too low ends it
         readout = (model.readout_weight(), model.readout.bias.detach().numpy().astype(np.float32)
                    + np.float32(config.estimate_margin) * blood.astype(np.float32))
