@@ -81,6 +81,7 @@ def test_bad_input_on_the_device_names_what_was_wrong(pair):
         suction_debris_v8.batched_env(num_envs=2, device=DEVICE, surgeon="scripted")
 
 
+@pytest.mark.extended
 def test_the_torchrl_env_steps_on_the_device_as_on_the_host():
     """TorchRL's adapter with backend="jax" (the default on a GPU): the same rollout, masked resets included, as the
     host's, within float32."""

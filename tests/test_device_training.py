@@ -187,7 +187,7 @@ def _batched_env(backend: str, device: str):
     return device_mappo._TorchView(suction_debris_v8.batched_env(num_envs=8, **TINY.env), torch)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
+@pytest.mark.parametrize("backend", ["numpy", pytest.param("jax", marks=pytest.mark.extended)])
 def test_diverged_actors_stop_the_run_by_name(tmp_path, monkeypatch, backend):
     """Diverged networks (NaN motions) stop the run at that step with an error that says so, on numpy's env and on
     the compiled one alike (which checks every step's actions: unchecked, a NaN motion reaches the next

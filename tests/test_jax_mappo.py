@@ -141,6 +141,7 @@ def tiny_run(tmp_path_factory):
     return folder / "run", last
 
 
+@pytest.mark.extended
 def test_a_tiny_run_validates_and_exports_policies_that_act(tiny_run):
     folder, last = tiny_run
     rows = list(csv.DictReader((folder / "progress.csv").open()))
@@ -223,6 +224,7 @@ def test_the_command_line_trains_with_it(tmp_path, capsys, monkeypatch):
     assert policies.load(tmp_path / "exported" / "marl-grasper").spec["agent"] == "grasper"
 
 
+@pytest.mark.extended
 def test_the_device_env_gives_its_state_to_a_loop_of_its_own_and_takes_it_back():
     env = suction_debris_v8.batched_env(num_envs=4, device="cpu", arrays="jax", **TINY.env)
     env.reset(seed=1)

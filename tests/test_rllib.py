@@ -61,6 +61,7 @@ def test_multi_agent_recipe_trains_saves_and_films_a_team(tmp_path, local_ray, s
     assert Path(summary["checkpoint"]).is_dir()
 
 
+@pytest.mark.extended
 def test_multi_agent_recipe_takes_the_envs_learning_options(local_ray):
     """--guided --level easy: the guided reward, the observation features and easy starts reach RLlib's env and the
     test episodes (the policies read the features they trained on)."""
