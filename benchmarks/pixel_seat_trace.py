@@ -9,6 +9,7 @@ and ``--raise-blood``'s.
     python benchmarks/pixel_seat_trace.py --pixel FOLDER [--look held_out] [--episodes 20] [--first 0]
                                           [--partner in-the-way]
                                           [--raise-blood 0.02] [--near-mm 15]
+                                          [--keep-clear-mm 14] [--full-above 0.85]
 
 Prints per world: success and steps; the truth and the kept estimate per cavity at its end; the kept estimate's
 least and greatest error over its episode, and the raw estimate's 1st and 99th percentile of error. A seat that left
@@ -27,7 +28,7 @@ import argparse
 
 import numpy as np
 from partner_zoo import PARTNERS, partner_seat
-from pixel_seat import exactly_filled, raised
+from pixel_seat import exactly_filled, keeping_clear, raised, reading_full_above
 
 from dvrl_marl import policies
 from dvrl_marl.envs import suction_debris_v8
@@ -93,6 +94,10 @@ def main() -> None:
     parser.add_argument("--partner", default="scripted", choices=PARTNERS, help="the partner kind at the LND")
     parser.add_argument("--raise-blood", type=float, default=0.0,
                         help="add this to the seat's blood estimates, beyond the margin it was exported with")
+    parser.add_argument("--keep-clear-mm", type=float,
+                        help="the seat keeps this clear of the other instrument (benchmarks/pixel_seat.py's)")
+    parser.add_argument("--full-above", type=float,
+                        help="its blood estimates at this or more read as full (benchmarks/pixel_seat.py's)")
     parser.add_argument("--near-mm", type=float, default=15.0,
                         help="the steps where the two tips are within this: the other tip's error and the action's "
                              "gap from the teacher's there")
@@ -100,6 +105,10 @@ def main() -> None:
     policy = policies.load(args.pixel)
     if policy.encoder is None or policy.encoder.keep_lowest is None:
         parser.error(f"--pixel {args.pixel}: the seat keeps no blood estimate at its lowest (image.fills.keep_lowest)")
+    if args.keep_clear_mm:
+        policy = keeping_clear(policy, args.keep_clear_mm)
+    if args.full_above:
+        policy = reading_full_above(policy, args.full_above)
     seat = Traced(raised(policy, args.raise_blood))
     result = teams.evaluate_team_batched({"suction": seat, "grasper": partner_seat(args.partner, "grasper")},
                                          args.episodes, seed=teams.EVAL_SEED + args.first, max_cycles=6000,
