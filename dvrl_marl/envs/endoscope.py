@@ -378,10 +378,21 @@ class EndoscopeRenderer:
         return (near * far / (far - z * (far - near))).astype(np.float32)
 
     def close(self) -> None:
-        if self._gl is not None:
-            self._context.free()
-            self._gl.free()
+        if getattr(self, "_gl", None) is not None:
+            # MuJoCo frees the context's framebuffers and textures by their ids in whichever GL context is current:
+            # in another renderer's, ids it uses too (its images came back black). Its own, then.
+            with uncollected():
+                self._gl.make_current()
+                self._context.free()
+                self._gl.free()
             self._gl = None
+
+    def __del__(self):
+        # a dropped env's renderer, collected: freed in its own context (close), never in the one drawing now
+        try:
+            self.close()
+        except Exception:  # (at interpreter exit EGL may be gone before it)
+            pass
 
 
 def _segment_class(model, geom: int, blood: set) -> int:
