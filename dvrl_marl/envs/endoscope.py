@@ -291,16 +291,17 @@ class EndoscopeRenderer:
 
     def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
                frames=None, parts=None, worlds=None) -> dict:
-        with uncollected():
-            return self._render(states, looks, keys, frames, parts, worlds)
-
-    def _render(self, states, looks, keys, frames, parts, worlds) -> dict:
         """The view of each world in ``states`` (the core's ``world_state`` dicts); with ``looks`` (one
         :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
         world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
         (each world's step in its episode) seed its image noise. ``parts`` (:meth:`parts`) draws only those: a
         segmentation alone costs one drawing of what moves, not two. ``worlds``: which worlds ``states`` are (their
         looks' layers kept apart), when they are some of a batch (default: 0, 1, ...)."""
+        with uncollected():
+            return self._render(states, looks, keys, frames, parts, worlds)
+
+    def _render(self, states, looks, keys, frames, parts, worlds) -> dict:
+        """:meth:`render`, garbage collection held off."""
         count, s = len(states), self.size
         ids = list(range(count)) if worlds is None else [int(world) for world in worlds]
         parts = self.parts(parts)
