@@ -156,7 +156,8 @@ class _ReleasesTheThreadsContext:
 def test_another_gl_context_collected_while_drawing_leaves_the_images_as_they_are():
     """A dropped env collected between binding the renderer's context and reading it back would leave its drawings
     undone (MuJoCo 3.3, the floor: its freed context releases the thread's). Here every world's drawing leaves such
-    garbage behind, with a collection at nearly every allocation."""
+    garbage behind, with a collection at nearly every allocation. (Without the fix it fails on the floors; in the
+    README's environment the release leaves the context current, and it passes either way.)"""
     env = _stepped(3, 20, image_size=32, image_depth=True, image_segmentation=True)
     states = [env.core.world_state(world) for world in range(env.num_envs)]
     renderer = env._endoscope
@@ -179,6 +180,18 @@ def test_another_gl_context_collected_while_drawing_leaves_the_images_as_they_ar
         gc.collect()
     for part in expected:
         np.testing.assert_array_equal(drawn[part], expected[part], err_msg=part)
+
+
+def test_a_dropped_renderer_frees_its_gl_objects_and_never_another_renderers():
+    """MuJoCo frees a renderer's framebuffers by their ids in whichever GL context is current: a dropped env's
+    renderer, collected while another's context is current, must free its own (the other's images came back black)."""
+    dropped, kept = (_stepped(2, 5, seed=seed, image_size=32) for seed in (0, 1))
+    dropped.images()
+    states = [kept.core.world_state(world) for world in range(kept.num_envs)]
+    before = kept._endoscope.render(states)["rgb"]  # (the kept renderer's context is the current one now)
+    del dropped
+    gc.collect()
+    np.testing.assert_array_equal(kept._endoscope.render(states)["rgb"], before)
 
 
 def test_images_are_deterministic_per_seed():

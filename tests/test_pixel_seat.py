@@ -169,13 +169,12 @@ def test_a_seat_reads_its_kept_blood_estimates_at_full_above_or_more_as_full(tmp
     np.testing.assert_array_equal(policy(observation), plain(observation))
 
 
-def test_full_above_reads_the_estimates_kept_at_their_lowest(tmp_path):
+@pytest.mark.parametrize("settings, message", [("full_above = 0.9", "full_above .* needs keep_lowest = true"),
+                                               ("keep_lowest = true\nfull_above = 1.5", "full_above")])
+def test_full_above_reads_the_estimates_kept_at_their_lowest(tmp_path, settings, message):
     path = tmp_path / "seat.toml"
-    path.write_text('[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\nfull_above = 0.9\n')
-    with pytest.raises(ValueError, match="full_above .* needs keep_lowest = true"):
-        pixel_seat.load_config(path)
-    path.write_text('[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\nkeep_lowest = true\nfull_above = 1.5\n')
-    with pytest.raises(ValueError, match="full_above"):
+    path.write_text(f'[run]\nalgorithm = "pixel-dagger"\nacts_by = "teacher"\n{settings}\n')
+    with pytest.raises(ValueError, match=message):
         pixel_seat.load_config(path)
 
 
