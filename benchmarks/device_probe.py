@@ -29,8 +29,9 @@ Sections (each a process of its own with its own time limit; one that fails or r
    torch policy's inference, N = 1,048,576, then 1,024 to 262,144 with the defaults and 16,384 and 262,144 with the
    benchmark's setting, the numpy env beside it up to N = 4,096;
 5. ``endoscope``: ``benchmarks/endoscope_speed.py``, image observations at 84 x 84 through the batched step on the
-   GPU's EGL, 1 to 4,096 worlds, beside a bare ``mujoco.Renderer`` (the libraries EGL needs travel as ``.gl/``, the
-   device tool's README says how; MuJoCo's import needs them too, ``MUJOCO_GL=egl`` being set for every section).
+   GPU's EGL, 1,024 and 4,096 worlds drawn by 1 to 16 GL contexts in threads, beside a bare ``mujoco.Renderer``
+   (the libraries EGL needs travel as ``.gl/``, the device tool's README says how; MuJoCo's import needs them too,
+   ``MUJOCO_GL=egl`` being set for every section); ``endoscope_tests``: ``tests/test_endoscope.py`` there.
 
 ``benchmarks/device_trainer_profile.py`` (not a section) times the parts of the trainer's update cycle.
 
@@ -152,9 +153,14 @@ def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
         "speed": (speed + ["--sizes", *(["1024", "16384", "262144"] if gpu else ["64", "1024"])], 80, {}),
         "speed_benchmark": (speed + ["--preset", "benchmark", "--sizes", *(["16384", "262144"] if gpu else
                                                                            ["1024"])], 80, {}),
+        # (1 to 16 GL contexts, each in a thread of its own: the driver's CPU work per drawing bounds one)
         "endoscope": ([python, "benchmarks/endoscope_speed.py", "--sizes", "84", "--worlds",
-                       *(["1", "256", "1024", "4096"] if gpu else ["1", "16"]), "--repeats", "2", "--json",
-                       str(figures)], 60, {}),
+                       *(["1024", "4096"] if gpu else ["16"]), "--contexts", *(["1", "2", "4", "8", "16"] if gpu else
+                                                                               ["1", "2"]),
+                       "--frames", "8192" if gpu else "64", "--repeats", "2", "--json", str(figures)], 150, {}),
+        # the images' tests on the GPU's EGL (the composite is the whole scene drawn at once; the contexts' images)
+        "endoscope_tests": ([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_endoscope.py"], 150,
+                            {}),
     }
     unknown = sorted(set(only or ()) - set(sections))
     if unknown:

@@ -7,6 +7,7 @@ A frame is one world's image. The env's figure is a step of every world with ran
 
     python benchmarks/endoscope_speed.py                       # 84 px, 1 ... 256 worlds
     python benchmarks/endoscope_speed.py --sizes 64 84 128 --worlds 64 --json out.jsonl
+    python benchmarks/endoscope_speed.py --worlds 4096 --contexts 1 4 16   # GL contexts in threads (image_contexts)
 """
 
 from __future__ import annotations
@@ -28,10 +29,10 @@ def _commit() -> str:
     return result.stdout.strip() or "unknown"
 
 
-def env_frames_per_second(size: int, worlds: int, repeats: int, steps: int) -> float:
+def env_frames_per_second(size: int, worlds: int, repeats: int, steps: int, contexts: int = 1) -> float:
     from dvrl_marl.envs import suction_debris_v8
 
-    env = suction_debris_v8.batched_env(num_envs=worlds, image_size=size)
+    env = suction_debris_v8.batched_env(num_envs=worlds, image_size=size, image_contexts=contexts)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = [{agent: rng.uniform(-1, 1, (worlds, 4)) for agent in env.possible_agents} for _ in range(steps)]
@@ -77,12 +78,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[84])
     parser.add_argument("--worlds", type=int, nargs="+", default=[1, 16, 64, 256])
+    parser.add_argument("--contexts", type=int, nargs="+", default=[1],
+                        help="GL contexts drawing the images, each in a thread of its own (the env's image_contexts)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--frames", type=int, default=512, help="frames per timed block (about)")
     parser.add_argument("--json", help="append one JSON line per figure to this file")
     args = parser.parse_args(argv)
-    if min(args.sizes) < 1 or min(args.worlds) < 1 or args.repeats < 1 or args.frames < 1:
-        parser.error("--sizes, --worlds, --repeats and --frames must be positive")
+    if min(args.sizes) < 1 or min(args.worlds) < 1 or min(args.contexts) < 1 or args.repeats < 1 or args.frames < 1:
+        parser.error("--sizes, --worlds, --contexts, --repeats and --frames must be positive")
     machine = f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores"
     rows = []
     for size in args.sizes:
@@ -91,12 +94,14 @@ def main(argv=None) -> int:
                      "frames_per_second": round(bare, 1)})
         print(f"{size} px, bare renderer: {bare:,.0f} frames/s", flush=True)
         for worlds in args.worlds:
-            steps = max(2, args.frames // worlds)
-            fps = env_frames_per_second(size, worlds, args.repeats, steps)
-            rows.append({"what": "batched env step + image observations", "size": size, "worlds": worlds,
-                         "frames_per_second": round(fps, 1), "versus_bare": round(fps / bare, 2)})
-            print(f"{size} px, {worlds} worlds, step + images: {fps:,.0f} frames/s ({fps / bare:.2f}x the bare "
-                  "renderer)", flush=True)
+            for contexts in args.contexts:
+                steps = max(2, args.frames // worlds)
+                fps = env_frames_per_second(size, worlds, args.repeats, steps, contexts)
+                rows.append({"what": "batched env step + image observations", "size": size, "worlds": worlds,
+                             "contexts": contexts, "frames_per_second": round(fps, 1),
+                             "versus_bare": round(fps / bare, 2)})
+                print(f"{size} px, {worlds} worlds, {contexts} GL context(s), step + images: {fps:,.0f} frames/s "
+                      f"({fps / bare:.2f}x the bare renderer)", flush=True)
     if args.json:
         with open(args.json, "a") as handle:
             for row in rows:

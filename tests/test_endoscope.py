@@ -142,6 +142,32 @@ def test_a_world_whose_episode_ended_keeps_its_last_images_and_the_others_are_dr
     assert ended.all() and drawn == [4] * 7 + [2] * 3
 
 
+@pytest.mark.parametrize("appearance", [None, "train"])
+def test_gl_contexts_in_threads_draw_the_one_contexts_images(appearance):
+    """``image_contexts``: each world drawn by one of three GL contexts, each in a thread of its own, gives the images
+    one context gives, look by look, worlds that ended (not drawn again) among them. (A depth's last bits depend on
+    where in the framebuffer a world is drawn: 1e-6 m.)"""
+    options = dict(num_envs=7, image_size=32, image_depth=True, image_segmentation=True, image_appearance=appearance,
+                   max_cycles=9, autoreset_mode="disabled")
+    one, three = (suction_debris_v8.batched_env(**options, image_contexts=contexts) for contexts in (1, 3))
+    for env in (one, three):
+        env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for step in range(12):
+        if step == 4:  # worlds 0, 3 and 5 start again: the others end first
+            for env in (one, three):
+                env.reset(options={"reset_mask": np.isin(np.arange(7), [0, 3, 5])})
+        actions = {agent: rng.uniform(-1, 1, (7, 4)) for agent in one.possible_agents}
+        expected, drawn = one.step(actions)[0]["suction"], three.step(actions)[0]["suction"]
+        for part in ("image", "segmentation"):
+            np.testing.assert_array_equal(drawn[part], expected[part], err_msg=f"step {step}, {part}")
+        np.testing.assert_allclose(drawn["depth"], expected["depth"], rtol=0, atol=1e-6, err_msg=f"step {step}")
+    assert three._ended.any() and not three._ended.all()
+    assert three._endoscope.contexts == 3
+    for env in (one, three):
+        env.close()
+
+
 class _ReleasesTheThreadsContext:
     """What MuJoCo 3.3's GL context does when it is freed: ``eglReleaseThread()``, whichever context the thread
     holds (MuJoCo 4 releases only its own)."""
@@ -202,7 +228,10 @@ def test_images_are_deterministic_per_seed():
 
 @pytest.mark.parametrize("options, named", [({"image_size": 16}, "image_size"), ({"image_size": 300}, "image_size"),
                                             ({"image_size": "84"}, "image_size"), ({"image_depth": True}, "image_depth"),
-                                            ({"image_size": 84, "image_depth": 1}, "image_depth")])
+                                            ({"image_size": 84, "image_depth": 1}, "image_depth"),
+                                            ({"image_size": 84, "image_contexts": 0}, "image_contexts"),
+                                            ({"image_size": 84, "image_contexts": "2"}, "image_contexts"),
+                                            ({"image_contexts": 2}, "image_contexts")])
 def test_bad_image_options_are_refused_by_name(options, named):
     with pytest.raises(ValueError, match=named):
         suction_debris_v8.parallel_env(**options)

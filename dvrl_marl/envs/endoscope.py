@@ -14,6 +14,7 @@ camera is the scene's ``endoscope`` (``scenes/collaborative.xml``), fixed.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -22,7 +23,7 @@ import numpy as np
 from dvrl_marl.envs.scene_mirror import SceneMirror
 from dvrl_marl.rendering import uncollected
 
-__all__ = ["EndoscopeRenderer", "IMAGE_SIZES", "RENDER_PARTS", "SEGMENT_CLASSES", "Appearance", "APPEARANCES",
+__all__ = ["EndoscopeRenderer", "ThreadedEndoscopeRenderer", "endoscope_renderer", "IMAGE_SIZES", "RENDER_PARTS", "SEGMENT_CLASSES", "Appearance", "APPEARANCES",
            "QUANTITIES", "held_out_only"]
 
 #: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
@@ -394,6 +395,84 @@ class EndoscopeRenderer:
             self.close()
         except Exception:  # (at interpreter exit EGL may be gone before it)
             pass
+
+
+class ThreadedEndoscopeRenderer:
+    """:class:`EndoscopeRenderer`'s images drawn by ``contexts`` of them at once, each with a GL context of its own in
+    a thread of its own. Why: on a GPU the driver's work per drawing call, on the CPU, bounds one context, and MuJoCo
+    lets go of Python's lock while it draws. World ``w`` is always drawn by renderer ``w % contexts`` (its look's
+    still layer is kept there). The images are the one renderer's (``tests/test_endoscope.py``)."""
+
+    def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
+                 segmentation: bool = False, contexts: int = 2):
+        from dvrl_marl.schemas import PositiveInt, validated
+
+        contexts = validated(PositiveInt, contexts, "endoscope contexts")
+        self._threads = [ThreadPoolExecutor(1, thread_name_prefix=f"endoscope-{index}") for index in range(contexts)]
+        self._renderers = []
+        try:
+            with uncollected():  # (each renderer made in its own thread: its GL context is current there alone)
+                for thread in self._threads:
+                    self._renderers.append(thread.submit(EndoscopeRenderer, params, size, depth, tiles,
+                                                         segmentation).result())
+        except BaseException:
+            self.close()
+            raise
+        first = self._renderers[0]
+        self.size, self.depth, self.segmentation, self.contexts = first.size, first.depth, first.segmentation, contexts
+
+    def parts(self, parts=None) -> tuple[str, ...]:
+        """:meth:`EndoscopeRenderer.parts`."""
+        return self._renderers[0].parts(parts)
+
+    def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
+               frames=None, parts=None, worlds=None) -> dict:
+        """:meth:`EndoscopeRenderer.render`, each world drawn by its renderer, all of them at once."""
+        count, parts = len(states), self.parts(parts)
+        ids = np.arange(count) if worlds is None else np.asarray([int(world) for world in worlds], np.int64)
+        if looks is not None and (keys is None or len(keys) != count or len(looks) != count):
+            raise ValueError("render: one look and one key per world")
+
+        def some(values, rows):
+            return None if values is None else [values[row] for row in rows]
+
+        # garbage collection held off here, while the threads draw (each thread's own hold would end in another's)
+        with uncollected():
+            shares = [np.flatnonzero(ids % self.contexts == index) for index in range(self.contexts)]
+            pending = [(rows, thread.submit(renderer.render, some(states, rows), some(looks, rows), some(keys, rows),
+                                            None if frames is None else np.asarray(frames)[rows], parts, ids[rows]))
+                       for rows, thread, renderer in zip(shares, self._threads, self._renderers) if len(rows)]
+            drawn = [(rows, future.result()) for rows, future in pending]
+        out = {part: np.empty((count, *images.shape[1:]), images.dtype) for part, images in drawn[0][1].items()}
+        for rows, images in drawn:
+            for part, value in images.items():
+                out[part][rows] = value
+        return out
+
+    def close(self) -> None:
+        with uncollected():
+            for thread, renderer in zip(self._threads, self._renderers):
+                thread.submit(renderer.close).result()  # (in its own thread, where its context is current)
+        for thread in self._threads:
+            thread.shutdown()
+        self._renderers, self._threads = [], []
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # (at interpreter exit the threads may be gone before it)
+            pass
+
+
+def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation: bool = False, contexts: int = 1):
+    """The endoscope's renderer with ``contexts`` GL contexts: one, drawn in the calling thread
+    (:class:`EndoscopeRenderer`), or more, each in a thread of its own (:class:`ThreadedEndoscopeRenderer`)."""
+    from dvrl_marl.schemas import PositiveInt, validated
+
+    contexts = validated(PositiveInt, contexts, "endoscope contexts")
+    if contexts == 1:
+        return EndoscopeRenderer(params, size, depth=depth, segmentation=segmentation)
+    return ThreadedEndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, contexts=contexts)
 
 
 def _segment_class(model, geom: int, blood: set) -> int:

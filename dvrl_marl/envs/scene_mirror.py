@@ -33,6 +33,7 @@ class SceneMirror:
         self.cavities = self.geometry().phantom.cavities
         self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.cavities))]
         self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
+        self._blood_surfaces: dict[tuple[int, float], tuple[float, float]] = {}  # (cavity, ml) -> (depth, radius)
         bodies = [object_id(self.model, "body", f"debris_{i}") for i in range(params.debris_count)]
         self._debris_qpos = [int(self.model.jnt_qposadr[self.model.body_jntadr[b]]) for b in bodies]
         self.renderer = SceneRenderer(self.model, self.data, render_mode, **renderer_options)
@@ -58,10 +59,10 @@ class SceneMirror:
             if joints is None:
                 self.arms[agent].set_tip(*tip)
             else:
-                self.arms[agent].set_solved_tip(*tip, tuple(float(v) for v in joints[agent]))
+                self.arms[agent].set_solved_tip(*tip, tuple(np.asarray(joints[agent], dtype=np.float64).tolist()))
         self.arms["grasper"].set_jaw(float(state["jaw"]))
-        for index, (cavity, volume) in enumerate(zip(self.cavities, state["blood_ml"])):
-            self._show_blood(index, cavity, float(volume))
+        for index, volume in enumerate(np.asarray(state["blood_ml"], dtype=np.float64).tolist()):
+            self._show_blood(index, volume)
         for index, address in enumerate(self._debris_qpos):
             if state["delivered"][index]:  # handed to the assistant: out of the scene
                 self.data.qpos[address:address + 3] = (0.0, 0.0, -1.0)
@@ -84,16 +85,23 @@ class SceneMirror:
             if material >= 0:
                 self.model.mat_rgba[material][3] = 1.0
 
-    def _show_blood(self, index: int, cavity: Cavity, volume_ml: float) -> None:
+    def _show_blood(self, index: int, volume_ml: float) -> None:
         geom = self._blood_geoms[index]
-        depth = cavity.fill_depth(volume_ml)
-        radius = cavity.surface_radius(depth)
+        surface = self._blood_surfaces.get((index, volume_ml))
+        if surface is None:  # (Newton's method in Python: worked out once per volume; most cavities keep theirs)
+            cavity = self.cavities[index]
+            depth = cavity.fill_depth(volume_ml)
+            surface = (depth, cavity.surface_radius(depth))
+            if len(self._blood_surfaces) >= 65536:
+                self._blood_surfaces.clear()
+            self._blood_surfaces[index, volume_ml] = surface
+        depth, radius = surface
         if volume_ml <= 0.0 or radius <= 1e-4:
             self.model.geom_rgba[geom][3] = 0.0
             return
         self.model.geom_rgba[geom] = self._blood_rgba[index]
         self.model.geom_size[geom][0] = radius
-        self.model.geom_pos[geom][2] = cavity.floor_z + depth - self.model.geom_size[geom][1]
+        self.model.geom_pos[geom][2] = self.cavities[index].floor_z + depth - self.model.geom_size[geom][1]
 
     def blood_surface_height(self, index: int) -> float:
         """The drawn blood surface's height in cavity ``index`` (m)."""

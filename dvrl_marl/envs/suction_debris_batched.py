@@ -109,7 +109,7 @@ class SuctionDebrisBatchedEnv:
                  easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
                  state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
                  image_depth: bool = False, image_segmentation: bool = False,
-                 image_appearance: str | Appearance | None = None,
+                 image_appearance: str | Appearance | None = None, image_contexts: int = 1,
                  width: int = 640, height: int = 480, **params):
         from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
 
@@ -154,6 +154,10 @@ class SuctionDebrisBatchedEnv:
                      validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
         self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"),
                            validated(Flag, image_segmentation, f"{self.name}: image_segmentation"))
+        #: GL contexts that draw the images, each in a thread of its own (more pay on a GPU; endoscope_renderer)
+        self.image_contexts = validated(PositiveInt, image_contexts, f"{self.name}: image_contexts")
+        if self.image_contexts > 1 and not self.image_size:
+            raise ValueError(f"{self.name}: image_contexts needs image_size (they draw the images)")
         from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
 
         if not (image_appearance is None or isinstance(image_appearance, Appearance)
@@ -245,7 +249,7 @@ class SuctionDebrisBatchedEnv:
         """``image_size``: every agent's observation becomes ``{"observation": the observation above, "image": the
         endoscope's view (S, S, 3) uint8}`` (and ``"depth"``, (S, S) float32 metres, with ``image_depth``;
         ``"segmentation"``, (S, S) uint8 indices of :data:`~dvrl_marl.envs.endoscope.SEGMENT_CLASSES`, with
-        ``image_segmentation``), drawn by :class:`dvrl_marl.envs.endoscope.EndoscopeRenderer` (the first time an
+        ``image_segmentation``), drawn by :func:`dvrl_marl.envs.endoscope.endoscope_renderer` (the first time an
         observation is made)."""
         from dvrl_marl.envs.endoscope import IMAGE_SIZES, SEGMENT_CLASSES
         from dvrl_marl.schemas import NonNegativeInt, validated
@@ -282,10 +286,10 @@ class SuctionDebrisBatchedEnv:
         if not self.image_size:
             raise ValueError(f"{self.name}: images need image_size (made with image_size=84, say)")
         if self._endoscope is None:
-            from dvrl_marl.envs.endoscope import EndoscopeRenderer
+            from dvrl_marl.envs.endoscope import endoscope_renderer
 
-            self._endoscope = EndoscopeRenderer(self.params, self.image_size, depth=self.image_depth,
-                                                segmentation=self.image_segmentation)
+            self._endoscope = endoscope_renderer(self.params, self.image_size, depth=self.image_depth,
+                                                 segmentation=self.image_segmentation, contexts=self.image_contexts)
         if parts is not None:
             named = (parts,) if isinstance(parts, str) else tuple(parts)
             unknown = [part for part in named if part not in ("image", "depth", "segmentation")]
