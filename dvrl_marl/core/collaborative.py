@@ -781,6 +781,23 @@ class CollaborativeCore:
             "delivered": self.delivered[world].copy(),
         }
 
+    def world_states(self, worlds) -> dict:
+        """:meth:`world_state` of the worlds ``worlds`` at once: each value stacked along a first axis of
+        ``len(worlds)`` (what the endoscope's renderer draws from)."""
+        rows = np.asarray(worlds, dtype=np.int64)
+        return {
+            "tips": {agent: np.asarray(self.arms[agent].tip)[rows] for agent in AGENTS},
+            "joints": {agent: np.asarray(self.arms[agent].q)[rows] for agent in AGENTS},
+            "jaw": np.asarray(self.arms["grasper"].jaw, dtype=np.float64)[rows],
+            "valve_open": np.asarray(self.valve_open)[rows],
+            "valve_opening": np.asarray(self.valve_opening, dtype=np.float64)[rows],
+            "blood_ml": np.asarray(self.remaining_ml)[rows],
+            "debris_positions": np.asarray(self.debris_position)[rows],
+            "debris_yaws": np.asarray(self.debris_yaw)[rows],
+            "visible": np.asarray(self.visible)[rows],
+            "delivered": np.asarray(self.delivered)[rows],
+        }
+
     def set_world(self, world: int, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible,
                   delivered, valve_opening=None, joints=None) -> None:
         """Put world ``world`` in a given state (tips in each arm's base frame, metres; ``joints`` the arms' joint

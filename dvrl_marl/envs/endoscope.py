@@ -126,7 +126,7 @@ class EndoscopeRenderer:
     """
 
     def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
-                 segmentation: bool = False):
+                 segmentation: bool = False, layers: bool | None = None):
         from dvrl_marl.schemas import PositiveInt, validated
 
         size = validated(PositiveInt, size, "image size")
@@ -161,6 +161,10 @@ class EndoscopeRenderer:
         self._gl = mujoco.GLContext(width, height)
         with uncollected():
             self._set_up(model, data, size)
+            #: whether the still phantom is drawn once and each world's moving layer over it (a software renderer,
+            #: whose cost is the phantom's triangles per world), or each world's whole scene in its tile (a GPU, whose
+            #: cost is the calls per drawing, and no layers to put together on the CPU); None: by the GL renderer
+            self.layers = _software_renderer() if layers is None else bool(layers)
 
     def _set_up(self, model, data, size: int) -> None:
         """The GL context's resources, the scene and its still layer (the context bound throughout)."""
@@ -174,11 +178,11 @@ class EndoscopeRenderer:
         self._camera.fixedcamid = model.camera("endoscope").id
         self._perturb = mujoco.MjvPerturb()
         self._options = {}
-        for group in (_STILL, _MOVING):
+        for groups in ((_STILL,), (_MOVING,), (_STILL, _MOVING)):
             option = mujoco.MjvOption()
             option.geomgroup[:] = 0
-            option.geomgroup[group] = 1
-            self._options[group] = option
+            option.geomgroup[list(groups)] = 1
+            self._options[groups if len(groups) > 1 else groups[0]] = option
         mujoco.mj_forward(model, data)  # the camera and lights are fixed: placed once
         self._base.update(cam_xpos=data.cam_xpos.copy(), cam_xmat=data.cam_xmat.copy(),
                           light_xdir=data.light_xdir.copy(), light_xpos=data.light_xpos.copy())
@@ -192,7 +196,7 @@ class EndoscopeRenderer:
         self._reversed = float(self._still[1].max()) < 0.5
 
     # --- drawing -------------------------------------------------------------------------------------------
-    def _draw(self, group: int, tile: int) -> None:
+    def _draw(self, group, tile: int) -> None:
         model, data = self.mirror.model, self.mirror.data
         scene, context = self._scene, self._context
         mujoco.mjv_updateScene(model, data, self._options[group], self._perturb, self._camera,
@@ -200,19 +204,23 @@ class EndoscopeRenderer:
         s = self.size
         mujoco.mjr_render(mujoco.MjrRect((tile % self.columns) * s, (tile // self.columns) * s, s, s), scene, context)
 
-    def _read(self, count: int) -> tuple[np.ndarray, np.ndarray]:
-        """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth, rows bottom to top. Only the
-        framebuffer's rows of tiles that hold them are read back (a few worlds in a framebuffer for 256: a strip)."""
+    def _read(self, count: int, depth: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth (None without ``depth``), rows
+        bottom to top. Only the framebuffer's rows of tiles that hold them are read back (a few worlds in a
+        framebuffer for 256: a strip)."""
         s, columns = self.size, self.columns
         rows = -(-count // columns)
         width = s * columns
-        rgb, depth = self._frame_rgb[:rows * s], self._frame_depth[:rows * s]  # (the first rows: contiguous views)
-        mujoco.mjr_readPixels(rgb, depth, mujoco.MjrRect(0, 0, width, rows * s), self._context)
-        rgb = rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)[:count]
-        depth = depth.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)[:count]
+        rgb = self._frame_rgb[:rows * s]  # (the first rows: contiguous views)
+        raw = self._frame_depth[:rows * s] if depth else None
+        mujoco.mjr_readPixels(rgb, raw, mujoco.MjrRect(0, 0, width, rows * s), self._context)
+        tiles = [rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)[:count]]
+        if depth:
+            tiles.append(raw.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)[:count])
         # one row of tiles reshapes to a view of the framebuffer, which the next read overwrites: copied then
-        return tuple(part.copy() if np.may_share_memory(part, frame) else part
-                     for part, frame in ((rgb, self._frame_rgb), (depth, self._frame_depth)))
+        tiles = [part.copy() if np.may_share_memory(part, frame) else part
+                 for part, frame in zip(tiles, (self._frame_rgb, self._frame_depth))]
+        return tiles[0], tiles[1] if depth else None
 
     def _bind(self) -> None:
         self._gl.make_current()
@@ -292,7 +300,8 @@ class EndoscopeRenderer:
 
     def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
                frames=None, parts=None, worlds=None) -> dict:
-        """The view of each world in ``states`` (the core's ``world_state`` dicts); with ``looks`` (one
+        """The view of each world in ``states`` (the core's ``world_state`` dicts, or ``world_states``: one dict of
+        them stacked); with ``looks`` (one
         :meth:`Appearance.draw` per world) each world dressed in its own: ``keys`` (a tuple of non-negative ints per
         world) name each look (a world's still layer is drawn again only when its key changes) and with ``frames``
         (each world's step in its episode) seed its image noise. ``parts`` (:meth:`parts`) draws only those: a
@@ -303,7 +312,8 @@ class EndoscopeRenderer:
 
     def _render(self, states, looks, keys, frames, parts, worlds) -> dict:
         """:meth:`render`, garbage collection held off."""
-        count, s = len(states), self.size
+        poses = self.mirror.poses(states)
+        count, s = len(poses["qpos"]), self.size
         ids = list(range(count)) if worlds is None else [int(world) for world in worlds]
         parts = self.parts(parts)
         segmentation, colour = "segmentation" in parts, "rgb" in parts or "depth" in parts
@@ -316,19 +326,21 @@ class EndoscopeRenderer:
                 if dressed is None or dressed[0] != key:
                     self._dressings[world] = dressed = (key, self._dressing(look))
                 entry = self._still_looks.get(world)
-                if entry is None or entry[0] != key or (segmentation and entry[3] is None):
+                if self.layers and (entry is None or entry[0] != key or (segmentation and entry[3] is None)):
                     self._wear(dressed[1])
                     self._still_looks[world] = (key, *self._draw_still(segmentation or self.segmentation))
-        elif segmentation and self._still[2] is None:
+        elif self.layers and segmentation and self._still[2] is None:
             self._still = self._draw_still(True)
         out = {part: np.empty((count, s, s, 3) if part == "rgb" else (count, s, s),
                               {"rgb": np.uint8, "depth": np.float32, "segmentation": np.uint8}[part])
                for part in parts}
         model, data = self.mirror.model, self.mirror.data
+        # layers: what moves, drawn in colour and (for segments) again by geom ids, the depth of either placing it
+        # over the still layer; else each world's whole scene, its depth read only when asked for
+        drawing, read_depth = (_MOVING, True) if self.layers else ((_STILL, _MOVING), "depth" in parts)
         for start in range(0, count, self.tiles):
             worlds = range(start, min(count, start + self.tiles))
             drawn = {}
-            # what moves, drawn in colour and (for segments) again by geom ids; the depth of either places it
             for segmenting in (False,) * colour + (True,) * segmentation:
                 self._bind()
                 self._set_segmenting(segmenting)
@@ -336,30 +348,30 @@ class EndoscopeRenderer:
                 for tile, world in enumerate(worlds):
                     if looks is not None:
                         self._wear(self._dressings[ids[world]][1])
-                    self.mirror.show(states[world])
+                    self.mirror.put(poses, world)
                     mujoco.mj_kinematics(model, data)
-                    self._draw(_MOVING, tile)
+                    self._draw(drawing, tile)
                     if segmenting:
                         lookups.append(self._scene_classes())
-                drawn[segmenting] = (*self._read(len(worlds)), lookups)
+                # (the segments' depth: only where they place a layer that no colour drawing placed)
+                with_depth = (self.layers and not colour) if segmenting else read_depth
+                drawn[segmenting] = (*self._read(len(worlds), with_depth), lookups)
             self._set_segmenting(False)
+            rows = slice(worlds.start, worlds.stop)
+            if not self.layers:
+                if colour:
+                    self._put_whole(out, rows, drawn[False], parts, looks, keys, frames, worlds)
+                if segmentation:
+                    out["segmentation"][rows] = self._classes(drawn[True][0], drawn[True][2])[:, ::-1]
+                continue
             # the still layers: the scene's own one, or each world's in its look
             still = [self._still] if looks is None else [self._still_looks[ids[world]][1:] for world in worlds]
             still_rgb, still_depth = np.stack([entry[0] for entry in still]), np.stack([entry[1] for entry in still])
             moving_rgb, moving_depth, _ = drawn[not colour]  # (either drawing's depth: the same geometry)
             nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth
-            rows = slice(worlds.start, worlds.stop)
             if "rgb" in parts:
-                image = np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1]
-                if looks is not None:  # the image noise: seeded by the world's look and its frame
-                    image = image.astype(np.float32)
-                    for index, world in enumerate(worlds):
-                        if looks[world]["noise"] > 0.0:
-                            rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
-                            image[index] += rng.normal(0.0, looks[world]["noise"],
-                                                       image[index].shape).astype(np.float32)
-                    image = np.clip(np.rint(image), 0, 255)
-                out["rgb"][rows] = image
+                out["rgb"][rows] = self._noisy(np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1], looks,
+                                               keys, frames, worlds)
             if "depth" in parts:
                 out["depth"][rows] = self._metres(np.where(nearer, moving_depth, still_depth)[:, ::-1])
             if segmentation:
@@ -370,6 +382,26 @@ class EndoscopeRenderer:
         if looks is not None:
             self._wear(self._base)
         return out
+
+    def _put_whole(self, out: dict, rows: slice, drawn: tuple, parts, looks, keys, frames, worlds) -> None:
+        """Whole scenes' drawings (colour and raw depth) as the rows ``rows`` of ``out``."""
+        rgb, raw, _ = drawn
+        if "rgb" in parts:
+            out["rgb"][rows] = self._noisy(rgb[:, ::-1], looks, keys, frames, worlds)
+        if "depth" in parts:
+            out["depth"][rows] = self._metres(raw[:, ::-1])
+
+    @staticmethod
+    def _noisy(image: np.ndarray, looks, keys, frames, worlds) -> np.ndarray:
+        """The images with their looks' noise: seeded by each world's look and its frame."""
+        if looks is None:
+            return image
+        image = image.astype(np.float32)
+        for index, world in enumerate(worlds):
+            if looks[world]["noise"] > 0.0:
+                rng = np.random.default_rng([*(int(v) for v in keys[world]), int(frames[world])])
+                image[index] += rng.normal(0.0, looks[world]["noise"], image[index].shape).astype(np.float32)
+        return np.clip(np.rint(image), 0, 255)
 
     def _metres(self, raw: np.ndarray) -> np.ndarray:
         """OpenGL's perspective depth in metres along the camera's axis (either way the buffer runs)."""
@@ -404,7 +436,7 @@ class ThreadedEndoscopeRenderer:
     still layer is kept there). The images are the one renderer's (``tests/test_endoscope.py``)."""
 
     def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
-                 segmentation: bool = False, contexts: int = 2):
+                 segmentation: bool = False, contexts: int = 2, layers: bool | None = None):
         from dvrl_marl.schemas import PositiveInt, validated
 
         contexts = validated(PositiveInt, contexts, "endoscope contexts")
@@ -414,12 +446,13 @@ class ThreadedEndoscopeRenderer:
             with uncollected():  # (each renderer made in its own thread: its GL context is current there alone)
                 for thread in self._threads:
                     self._renderers.append(thread.submit(EndoscopeRenderer, params, size, depth, tiles,
-                                                         segmentation).result())
+                                                         segmentation, layers).result())
         except BaseException:
             self.close()
             raise
         first = self._renderers[0]
-        self.size, self.depth, self.segmentation, self.contexts = first.size, first.depth, first.segmentation, contexts
+        self.size, self.depth, self.segmentation, self.layers = first.size, first.depth, first.segmentation, first.layers
+        self.contexts = contexts
 
     def parts(self, parts=None) -> tuple[str, ...]:
         """:meth:`EndoscopeRenderer.parts`."""
@@ -428,12 +461,15 @@ class ThreadedEndoscopeRenderer:
     def render(self, states: list[dict], looks: list[dict] | None = None, keys: list | None = None,
                frames=None, parts=None, worlds=None) -> dict:
         """:meth:`EndoscopeRenderer.render`, each world drawn by its renderer, all of them at once."""
-        count, parts = len(states), self.parts(parts)
+        count, parts = len(states["jaw"] if isinstance(states, dict) else states), self.parts(parts)
         ids = np.arange(count) if worlds is None else np.asarray([int(world) for world in worlds], np.int64)
         if looks is not None and (keys is None or len(keys) != count or len(looks) != count):
             raise ValueError("render: one look and one key per world")
 
         def some(values, rows):
+            if isinstance(values, dict):  # (world_states: each array's rows)
+                return {key: some(value, rows) if isinstance(value, dict) else np.asarray(value)[rows]
+                        for key, value in values.items()}
             return None if values is None else [values[row] for row in rows]
 
         # garbage collection held off here, while the threads draw (each thread's own hold would end in another's)
@@ -473,6 +509,14 @@ def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation
     if contexts == 1:
         return EndoscopeRenderer(params, size, depth=depth, segmentation=segmentation)
     return ThreadedEndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, contexts=contexts)
+
+
+def _software_renderer() -> bool:
+    """Whether the current GL context is drawn by the CPU (Mesa's llvmpipe or softpipe, SwiftShader)."""
+    from OpenGL import GL
+
+    name = (GL.glGetString(GL.GL_RENDERER) or b"").decode(errors="replace").lower()
+    return any(word in name for word in ("llvmpipe", "softpipe", "swiftshader", "software"))
 
 
 def _segment_class(model, geom: int, blood: set) -> int:

@@ -13,6 +13,7 @@ import numpy as np
 
 from dvrl_marl import assets
 from dvrl_marl.arm import Arm
+from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
 from dvrl_marl.core.collaborative import AGENTS, TOOLS
 from dvrl_marl.core.phantom import Cavity, Phantom
 from dvrl_marl.core.scene_geometry import ARM_PREFIXES, SceneGeometry
@@ -73,6 +74,55 @@ class SceneMirror:
             self.data.qpos[address + 3:address + 7] = (c * math.cos(half_yaw), -c * math.sin(half_yaw),
                                                        c * math.cos(half_yaw), c * math.sin(half_yaw))
 
+    def poses(self, states) -> dict:
+        """What :meth:`show` writes for many worlds, worked out for all at once: ``states`` is a list of
+        :meth:`CollaborativeCore.world_state` dicts or one dict of them stacked (``world_states``); :meth:`put` then
+        writes world ``i``'s into the model. The same model as :meth:`show` gives (the arms' joints as the core
+        solved them)."""
+        if isinstance(states, dict):
+            stacked = states
+        else:
+            states = list(states)
+            if any(state.get("joints") is None for state in states):
+                raise ValueError("poses: each state needs the arms' joints (the core's world_state has them)")
+            stacked = {key: ({agent: np.stack([np.asarray(state[key][agent], np.float64) for state in states])
+                              for agent in AGENTS} if key in ("tips", "joints") else
+                             np.stack([np.asarray(state[key]) for state in states]))
+                       for key in ("joints", "jaw", "blood_ml", "debris_positions", "debris_yaws", "delivered")}
+        jaw = np.asarray(stacked["jaw"], np.float64)
+        count = len(jaw)
+        qpos = np.tile(self.data.qpos, (count, 1))
+        for agent in AGENTS:
+            qpos[:, self.arms[agent].joint_qpos_addresses] = np.asarray(stacked["joints"][agent], np.float64)
+        qpos[:, self.arms["grasper"].jaw_qpos_addresses] = (JAW_FINGER_OPEN_ANGLE * jaw)[:, None]
+        positions = np.asarray(stacked["debris_positions"], np.float64)
+        half_yaws, delivered = 0.5 * np.asarray(stacked["debris_yaws"], np.float64), np.asarray(stacked["delivered"])
+        c = math.sqrt(0.5)
+        for index, address in enumerate(self._debris_qpos):  # (as show: out of the scene once handed over)
+            qpos[:, address:address + 3] = np.where(delivered[:, index, None], (0.0, 0.0, -1.0), positions[:, index])
+            cos, sin = np.cos(half_yaws[:, index]), np.sin(half_yaws[:, index])
+            turned = np.stack([c * cos, -c * sin, c * cos, c * sin], axis=-1)
+            qpos[:, address + 3:address + 7] = np.where(delivered[:, index, None], qpos[:, address + 3:address + 7],
+                                                        turned)
+        volumes = np.asarray(stacked["blood_ml"], np.float64)
+        surfaces = np.array([[self._blood_surface(index, volume) for index, volume in enumerate(row)]
+                             for row in volumes.tolist()]).reshape(count, len(self.cavities), 2)
+        depth, radius = surfaces[..., 0], surfaces[..., 1]
+        shown = (volumes > 0.0) & (radius > 1e-4)
+        rgba = np.where(shown[..., None], np.array(self._blood_rgba), 0.0)
+        rgba[..., :3] = np.where(shown[..., None], rgba[..., :3], self.model.geom_rgba[self._blood_geoms, :3])
+        floors = np.array([cavity.floor_z for cavity in self.cavities])
+        heights = self.model.geom_size[self._blood_geoms, 1]
+        return {"qpos": qpos, "blood_rgba": rgba, "blood_radius": radius, "blood_z": floors + depth - heights}
+
+    def put(self, poses: dict, world: int) -> None:
+        """Write world ``world`` of :meth:`poses` into the model (what :meth:`show` would)."""
+        self.data.qpos[:] = poses["qpos"][world]
+        geoms = self._blood_geoms
+        self.model.geom_rgba[geoms] = poses["blood_rgba"][world]
+        self.model.geom_size[geoms, 0] = poses["blood_radius"][world]
+        self.model.geom_pos[geoms, 2] = poses["blood_z"][world]
+
     @property
     def blood_geoms(self) -> list[int]:
         """The geoms that draw each cavity's blood surface."""
@@ -85,8 +135,8 @@ class SceneMirror:
             if material >= 0:
                 self.model.mat_rgba[material][3] = 1.0
 
-    def _show_blood(self, index: int, volume_ml: float) -> None:
-        geom = self._blood_geoms[index]
+    def _blood_surface(self, index: int, volume_ml: float) -> tuple[float, float]:
+        """Cavity ``index``'s blood surface holding ``volume_ml``: its height above the floor and its radius."""
         surface = self._blood_surfaces.get((index, volume_ml))
         if surface is None:  # (Newton's method in Python: worked out once per volume; most cavities keep theirs)
             cavity = self.cavities[index]
@@ -95,7 +145,11 @@ class SceneMirror:
             if len(self._blood_surfaces) >= 65536:
                 self._blood_surfaces.clear()
             self._blood_surfaces[index, volume_ml] = surface
-        depth, radius = surface
+        return surface
+
+    def _show_blood(self, index: int, volume_ml: float) -> None:
+        geom = self._blood_geoms[index]
+        depth, radius = self._blood_surface(index, volume_ml)
         if volume_ml <= 0.0 or radius <= 1e-4:
             self.model.geom_rgba[geom][3] = 0.0
             return

@@ -315,7 +315,7 @@ class SuctionDebrisBatchedEnv:
 
     def _draw(self, worlds: np.ndarray, parts) -> dict:
         """The endoscope's view of ``worlds`` (indices of the batch), ``{part: (len(worlds), ...)}``."""
-        states = [self.core.world_state(world) for world in worlds]
+        states = self.core.world_states(worlds)
         if self.image_appearance is None:
             return self._endoscope.render(states, parts=parts)
         # each world's look for its episode, from its own stream (a function of its seed and episode)
