@@ -21,14 +21,16 @@ def _stepped(num_envs, steps, seed=0, **options):
     return env
 
 
-def _assert_drawn_alike(actual, expected, exact: bool, err_msg: str = "") -> None:
+def _assert_drawn_alike(actual, expected, exact: bool, err_msg: str = "", levels: int | None = 1) -> None:
     """Equal images; or, drawn elsewhere in a framebuffer (whole scenes in tiles) or by a GPU (whose depths of two
-    drawings compare otherwise at an edge), equal but for one level on at most one pixel in a thousand."""
+    drawings compare otherwise at an edge), equal but for ``levels`` (None: any, a segmentation's classes) on at most
+    one value in a thousand."""
     if exact:
         np.testing.assert_array_equal(actual, expected, err_msg=err_msg)
         return
     differ = actual != expected
-    assert np.abs(actual.astype(np.int64) - expected.astype(np.int64)).max() <= 1, err_msg
+    if levels is not None:
+        assert np.abs(actual.astype(np.int64) - expected.astype(np.int64)).max() <= levels, err_msg
     assert differ.mean() <= 1e-3, f"{err_msg}: {differ.mean():.2%} of the values differ"
 
 
@@ -94,9 +96,9 @@ def test_image_observations_in_the_parallel_and_batched_env():
     # world i of a batch sees what the single env seeded s + i sees
     batch = suction_debris_v8.batched_env(num_envs=3, image_size=48, image_depth=True)
     batched, _ = batch.reset(seed=1)
-    for world in range(3):
+    for world in range(3):  # (drawn in another tile: on a GPU, whole scenes, alike within a level at an edge)
         single, _ = suction_debris_v8.parallel_env(image_size=48, image_depth=True).reset(seed=1 + world)
-        np.testing.assert_array_equal(batched["grasper"]["image"][world], single["grasper"]["image"])
+        _assert_drawn_alike(batched["grasper"]["image"][world], single["grasper"]["image"], batch._endoscope.layers)
         np.testing.assert_array_equal(batched["grasper"]["observation"][world], single["grasper"]["observation"])
 
 
@@ -162,13 +164,17 @@ def test_whole_scenes_per_tile_give_the_layers_images_look_by_look(appearance):
     part, each world in its own look with its noise; and the renderer picks the layers on this software renderer."""
     env = _stepped(6, 30, seed=5, image_size=32, image_depth=True, image_segmentation=True,
                    image_appearance=appearance)
-    layered = env._endoscope
-    assert layered.layers  # (Mesa's llvmpipe: the phantom's triangles per world are its cost)
-    whole = EndoscopeRenderer(env.params, 32, depth=True, segmentation=True, layers=False)
+    chosen = env._endoscope
+    chosen._bind()
+    assert chosen.layers == _software_renderer()  # (Mesa's llvmpipe: the phantom's triangles per world its cost)
+    layered, whole = (EndoscopeRenderer(env.params, 32, depth=True, segmentation=True, layers=layers)
+                      for layers in (True, False))
     env._endoscope = whole
     drawn = env.images()
     env._endoscope = layered
     expected = env.images()
+    env._endoscope = chosen
+    layered.close()
     for part in ("image", "segmentation"):
         _assert_drawn_alike(drawn[part], expected[part], False, part)
     np.testing.assert_allclose(drawn["depth"], expected["depth"], rtol=0, atol=1e-5)
@@ -179,7 +185,7 @@ def test_whole_scenes_per_tile_give_the_layers_images_look_by_look(appearance):
 def test_gl_contexts_in_threads_draw_the_one_contexts_images(appearance):
     """``image_contexts``: each world drawn by one of three GL contexts, each in a thread of its own, gives the images
     one context gives, look by look, worlds that ended (not drawn again) among them. (A depth's last bits depend on
-    where in the framebuffer a world is drawn: 1e-6 m.)"""
+    where in the framebuffer a world is drawn: 1e-5 m.)"""
     options = dict(num_envs=7, image_size=32, image_depth=True, image_segmentation=True, image_appearance=appearance,
                    max_cycles=9, autoreset_mode="disabled")
     one, three = (suction_debris_v8.batched_env(**options, image_contexts=contexts) for contexts in (1, 3))
@@ -194,7 +200,7 @@ def test_gl_contexts_in_threads_draw_the_one_contexts_images(appearance):
         expected, drawn = one.step(actions)[0]["suction"], three.step(actions)[0]["suction"]
         for part in ("image", "segmentation"):  # (exact where layers are put together: a software renderer's)
             _assert_drawn_alike(drawn[part], expected[part], one._endoscope.layers, f"step {step}, {part}")
-        np.testing.assert_allclose(drawn["depth"], expected["depth"], rtol=0, atol=1e-6, err_msg=f"step {step}")
+        np.testing.assert_allclose(drawn["depth"], expected["depth"], rtol=0, atol=1e-5, err_msg=f"step {step}")
     assert three._ended.any() and not three._ended.all()
     assert three._endoscope.contexts == 3
     for env in (one, three):
@@ -289,7 +295,7 @@ def test_the_segmentation_is_mujocos_own_of_the_whole_scene_in_classes():
         ids = draw(states[world])  # (objid, objtype) per pixel
         geoms = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids[..., 0] >= 0)
         expected = np.where(geoms, renderer._geom_class[np.maximum(ids[..., 0], 0)], 0)
-        np.testing.assert_array_equal(observed[world], expected, err_msg=f"world {world}")
+        _assert_drawn_alike(observed[world], expected, renderer.layers, f"world {world}", levels=None)
     present = set(np.unique(observed).tolist())
     assert {SEGMENT_CLASSES.index(name) for name in ("tissue", "blood", "instrument")} <= present
     whole.close()
@@ -344,12 +350,13 @@ def test_appearance_draws_lie_in_their_ranges_and_the_held_out_range_outside_the
 @pytest.mark.slow
 def test_each_world_wears_its_own_look_for_its_episode_seeded_like_everything_else():
     options = dict(image_size=48, image_appearance="train")
-    first, _ = suction_debris_v8.batched_env(num_envs=4, **options).reset(seed=7)
+    batch = suction_debris_v8.batched_env(num_envs=4, **options)
+    first, _ = batch.reset(seed=7)
     again, _ = suction_debris_v8.batched_env(num_envs=4, **options).reset(seed=7)
     np.testing.assert_array_equal(first["suction"]["image"], again["suction"]["image"])
-    # world i of a batch looks as a single world seeded s + i
+    # world i of a batch looks as a single world seeded s + i (drawn in another tile: on a GPU, alike)
     single, _ = suction_debris_v8.parallel_env(**options).reset(seed=9)
-    np.testing.assert_array_equal(first["grasper"]["image"][2], single["grasper"]["image"])
+    _assert_drawn_alike(first["grasper"]["image"][2], single["grasper"]["image"], batch._endoscope.layers)
     plain, _ = suction_debris_v8.batched_env(num_envs=4, image_size=48).reset(seed=7)
     looks = first["suction"]["image"].astype(int)
     assert all(np.abs(looks[w] - plain["suction"]["image"][w]).mean() > 2.0 for w in range(4))
