@@ -37,3 +37,9 @@ def test_ci_runs_what_the_quick_run_leaves_out_after_it_and_ci_extended_the_rest
     assert {Path(name).name for name in real_time} == REAL_TIME_FILES
     extended = (ROOT / ".ci" / "extended").read_text()
     assert '-m "extended and not realtime"' in extended and "-m extended tests/" in extended
+    # the other libraries' tests: every one of them in .ci/extended's environment (at each stop they skip: the
+    # README's environment has not those libraries, JAX's runs the JAX files alone)
+    others = extended.split(".venv-benchmarl/bin/pytest", 1)[1].split("-m extended", 1)[0]
+    jax = ci.split(".venv-jax/bin/pytest", 1)[1].split('cpu "done"', 1)[0]
+    for name in ("test_benchmarl.py", "test_marl_benchmark.py", "test_ray.py", "test_rllib.py"):
+        assert f"tests/{name}" in others and f"tests/{name}" not in jax
