@@ -23,8 +23,8 @@ import numpy as np
 from dvrl_marl.envs.scene_mirror import SceneMirror
 from dvrl_marl.rendering import uncollected
 
-__all__ = ["EndoscopeRenderer", "ThreadedEndoscopeRenderer", "endoscope_renderer", "IMAGE_SIZES", "RENDER_PARTS", "SEGMENT_CLASSES", "Appearance", "APPEARANCES",
-           "QUANTITIES", "held_out_only"]
+__all__ = ["EndoscopeRenderer", "ThreadedEndoscopeRenderer", "endoscope_renderer", "IMAGE_SIZES", "RENDER_PARTS",
+           "SEGMENT_CLASSES", "Appearance", "APPEARANCES", "QUANTITIES", "held_out_only"]
 
 #: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
 #: tissue, blood, a debris pin, an instrument (the arms' and the assistant's).
@@ -451,8 +451,8 @@ class ThreadedEndoscopeRenderer:
             self.close()
             raise
         first = self._renderers[0]
-        self.size, self.depth, self.segmentation, self.layers = first.size, first.depth, first.segmentation, first.layers
-        self.contexts = contexts
+        self.size, self.depth, self.segmentation = first.size, first.depth, first.segmentation
+        self.layers, self.contexts = first.layers, contexts
 
     def parts(self, parts=None) -> tuple[str, ...]:
         """:meth:`EndoscopeRenderer.parts`."""
