@@ -14,6 +14,7 @@ camera is the scene's ``endoscope`` (``scenes/collaborative.xml``), fixed.
 
 from __future__ import annotations
 
+import ctypes
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -188,11 +189,11 @@ class EndoscopeRenderer:
                           light_xdir=data.light_xdir.copy(), light_xpos=data.light_xpos.copy())
         extent = model.stat.extent
         self._near, self._far = model.vis.map.znear * extent, model.vis.map.zfar * extent
-        self._frame_rgb = np.empty((size * self.rows, size * self.columns, 3), np.uint8)
-        self._frame_depth = np.empty((size * self.rows, size * self.columns), np.float32)
+        #: the framebuffer's reads, the GL's own depth values (MuJoCo's mjr_readPixels turns them round in 4.0)
+        self._reads = _PixelReads(size * self.columns, self._context.offFBO)
         #: the scene's own still layer (rgb, raw depth, segments or None), drawn once (its segments when first asked)
         self._still = self._draw_still(self.segmentation)
-        # Which way the depth buffer runs (MuJoCo 3.x reverses it: 1 near, an empty pixel 0; else an empty pixel is 1).
+        # Which way the depth buffer runs (MuJoCo 3 and 4 reverse it: 1 near, an empty pixel 0; else an empty pixel 1).
         self._reversed = float(self._still[1].max()) < 0.5
 
     # --- drawing -------------------------------------------------------------------------------------------
@@ -208,19 +209,19 @@ class EndoscopeRenderer:
         """The first ``count`` tiles, (count, S, S, 3) and (count, S, S) raw depth (None without ``depth``), rows
         bottom to top. Only the framebuffer's rows of tiles that hold them are read back (a few worlds in a
         framebuffer for 256: a strip)."""
+        return self._tiles(count, *self._reads.take(self._reads.queue(-(-count // self.columns) * self.size, depth)))
+
+    def _tiles(self, count: int, rgb: np.ndarray, raw: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The first ``count`` tiles of rows of the framebuffer read back (rgb, and raw depth or None), each a world's
+        image (count, S, S, ...)."""
         s, columns = self.size, self.columns
         rows = -(-count // columns)
-        width = s * columns
-        rgb = self._frame_rgb[:rows * s]  # (the first rows: contiguous views)
-        raw = self._frame_depth[:rows * s] if depth else None
-        mujoco.mjr_readPixels(rgb, raw, mujoco.MjrRect(0, 0, width, rows * s), self._context)
         tiles = [rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)[:count]]
-        if depth:
+        if raw is not None:
             tiles.append(raw.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)[:count])
-        # one row of tiles reshapes to a view of the framebuffer, which the next read overwrites: copied then
-        tiles = [part.copy() if np.may_share_memory(part, frame) else part
-                 for part, frame in zip(tiles, (self._frame_rgb, self._frame_depth))]
-        return tiles[0], tiles[1] if depth else None
+        # one row of tiles reshapes to a view of the frame read, which the next read overwrites: copied then
+        tiles = [part.copy() if np.may_share_memory(part, frame) else part for part, frame in zip(tiles, (rgb, raw))]
+        return tiles[0], tiles[1] if raw is not None else None
 
     def _bind(self) -> None:
         self._gl.make_current()
@@ -338,9 +339,12 @@ class EndoscopeRenderer:
         # layers: what moves, drawn in colour and (for segments) again by geom ids, the depth of either placing it
         # over the still layer; else each world's whole scene, its depth read only when asked for
         drawing, read_depth = (_MOVING, True) if self.layers else ((_STILL, _MOVING), "depth" in parts)
+        # Each framebuffer's reads are queued after its drawings and taken once the next framebuffer's drawings are
+        # issued: the GPU draws the next worlds while the CPU waits for and puts together the last ones.
+        queued = []
         for start in range(0, count, self.tiles):
             worlds = range(start, min(count, start + self.tiles))
-            drawn = {}
+            reads = {}
             for segmenting in (False,) * colour + (True,) * segmentation:
                 self._bind()
                 self._set_segmenting(segmenting)
@@ -355,33 +359,44 @@ class EndoscopeRenderer:
                         lookups.append(self._scene_classes())
                 # (the segments' depth: only where they place a layer that no colour drawing placed)
                 with_depth = (self.layers and not colour) if segmenting else read_depth
-                drawn[segmenting] = (*self._read(len(worlds), with_depth), lookups)
+                reads[segmenting] = (self._reads.queue(-(-len(worlds) // self.columns) * s, with_depth), lookups)
             self._set_segmenting(False)
-            rows = slice(worlds.start, worlds.stop)
-            if not self.layers:
-                if colour:
-                    self._put_whole(out, rows, drawn[False], parts, looks, keys, frames, worlds)
-                if segmentation:
-                    out["segmentation"][rows] = self._classes(drawn[True][0], drawn[True][2])[:, ::-1]
-                continue
-            # the still layers: the scene's own one, or each world's in its look
-            still = [self._still] if looks is None else [self._still_looks[ids[world]][1:] for world in worlds]
-            still_rgb, still_depth = np.stack([entry[0] for entry in still]), np.stack([entry[1] for entry in still])
-            moving_rgb, moving_depth, _ = drawn[not colour]  # (either drawing's depth: the same geometry)
-            nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth
-            if "rgb" in parts:
-                out["rgb"][rows] = self._noisy(np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1], looks,
-                                               keys, frames, worlds)
-            if "depth" in parts:
-                out["depth"][rows] = self._metres(np.where(nearer, moving_depth, still_depth)[:, ::-1])
-            if segmentation:
-                segment_rgb, _, lookups = drawn[True]
-                still_segments = np.stack([entry[2] for entry in still])
-                classes = self._classes(segment_rgb, lookups)
-                out["segmentation"][rows] = np.where(nearer, classes, still_segments)[:, ::-1]
+            if queued:
+                self._put_together(out, *queued.pop(), parts, looks, keys, frames, ids)
+            queued.append((worlds, reads))
+        for job in queued:
+            self._put_together(out, *job, parts, looks, keys, frames, ids)
         if looks is not None:
             self._wear(self._base)
         return out
+
+    def _put_together(self, out: dict, worlds: range, reads: dict, parts, looks, keys, frames, ids) -> None:
+        """The images of ``worlds`` (one framebuffer's) as their rows of ``out``, from their queued reads."""
+        drawn = {segmenting: (*self._tiles(len(worlds), *self._reads.take(read)), lookups)
+                 for segmenting, (read, lookups) in reads.items()}
+        segmentation, colour = True in drawn, False in drawn
+        rows = slice(worlds.start, worlds.stop)
+        if not self.layers:
+            if colour:
+                self._put_whole(out, rows, drawn[False], parts, looks, keys, frames, worlds)
+            if segmentation:
+                out["segmentation"][rows] = self._classes(drawn[True][0], drawn[True][2])[:, ::-1]
+            return
+        # the still layers: the scene's own one, or each world's in its look
+        still = [self._still] if looks is None else [self._still_looks[ids[world]][1:] for world in worlds]
+        still_rgb, still_depth = np.stack([entry[0] for entry in still]), np.stack([entry[1] for entry in still])
+        moving_rgb, moving_depth, _ = drawn[not colour]  # (either drawing's depth: the same geometry)
+        nearer = moving_depth > still_depth if self._reversed else moving_depth < still_depth
+        if "rgb" in parts:
+            out["rgb"][rows] = self._noisy(np.where(nearer[..., None], moving_rgb, still_rgb)[:, ::-1], looks,
+                                           keys, frames, worlds)
+        if "depth" in parts:
+            out["depth"][rows] = self._metres(np.where(nearer, moving_depth, still_depth)[:, ::-1])
+        if segmentation:
+            segment_rgb, _, lookups = drawn[True]
+            still_segments = np.stack([entry[2] for entry in still])
+            classes = self._classes(segment_rgb, lookups)
+            out["segmentation"][rows] = np.where(nearer, classes, still_segments)[:, ::-1]
 
     def _put_whole(self, out: dict, rows: slice, drawn: tuple, parts, looks, keys, frames, worlds) -> None:
         """Whole scenes' drawings (colour and raw depth) as the rows ``rows`` of ``out``."""
@@ -417,6 +432,7 @@ class EndoscopeRenderer:
             # in another renderer's, ids it uses too (its images came back black). Its own, then.
             with uncollected():
                 self._gl.make_current()
+                self._reads.free()
                 self._context.free()
                 self._gl.free()
             self._gl = None
@@ -509,6 +525,61 @@ def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation
     if contexts == 1:
         return EndoscopeRenderer(params, size, depth=depth, segmentation=segmentation)
     return ThreadedEndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, contexts=contexts)
+
+
+class _PixelReads:
+    """Reads of the bound framebuffer's first rows into pixel buffer objects: :meth:`queue` right after the drawings
+    (the GL keeps its order: later drawings do not change what it reads), :meth:`take` later, which waits only for
+    that read. Its buffers are reused; the GL context that made them must be current at each call."""
+
+    def __init__(self, width: int, framebuffer: int):
+        from OpenGL import GL
+
+        self._gl, self._width, self._framebuffer, self._free, self._buffers = GL, width, framebuffer, [], []
+
+    def queue(self, height: int, depth: bool) -> tuple:
+        """Queue a read of the framebuffer's ``height`` bottom rows (rgb, and raw depth with ``depth``)."""
+        GL = self._gl
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._framebuffer)  # (as MuJoCo's own read: its offscreen one)
+        GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)
+        read = []
+        for form, kind, channels, dtype in ((GL.GL_RGB, GL.GL_UNSIGNED_BYTE, 3, np.uint8),
+                                            (GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, 1, np.float32))[:1 + bool(depth)]:
+            size = self._width * height * channels * np.dtype(dtype).itemsize
+            buffer = self._free.pop() if self._free else int(GL.glGenBuffers(1))
+            if buffer not in self._buffers:
+                self._buffers.append(buffer)
+            GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, buffer)
+            GL.glBufferData(GL.GL_PIXEL_PACK_BUFFER, size, None, GL.GL_STREAM_READ)
+            GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+            GL.glReadPixels(0, 0, self._width, height, form, kind, ctypes.c_void_p(0))
+            read.append((buffer, size, (height, self._width, channels) if channels > 1 else (height, self._width),
+                         dtype))
+        GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, 0)  # (MuJoCo's own reads go to memory)
+        return tuple(read)
+
+    def take(self, read: tuple) -> tuple[np.ndarray, np.ndarray | None]:
+        """A queued read's rows (bottom to top): rgb (rows, width, 3) uint8 and raw depth (rows, width) or None."""
+        GL = self._gl
+        arrays = []
+        for buffer, size, shape, dtype in read:
+            GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, buffer)
+            address = GL.glMapBufferRange(GL.GL_PIXEL_PACK_BUFFER, 0, size, GL.GL_MAP_READ_BIT)
+            if not address:
+                GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, 0)
+                raise RuntimeError("the endoscope's renderer could not map its pixel buffer")
+            mapped = np.ctypeslib.as_array((ctypes.c_ubyte * size).from_address(int(address)))
+            arrays.append(mapped.view(dtype).reshape(shape).copy())
+            GL.glUnmapBuffer(GL.GL_PIXEL_PACK_BUFFER)
+            self._free.append(buffer)
+        GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, 0)
+        return arrays[0], arrays[1] if len(arrays) > 1 else None
+
+    def free(self) -> None:
+        """Delete the buffers (their GL context current)."""
+        if self._buffers:
+            self._gl.glDeleteBuffers(len(self._buffers), self._buffers)
+        self._buffers, self._free = [], []
 
 
 def _software_renderer() -> bool:
