@@ -158,6 +158,36 @@ def test_a_world_whose_episode_ended_keeps_its_last_images_and_the_others_are_dr
     assert ended.all() and drawn == [4] * 7 + [2] * 3
 
 
+def test_poses_worked_out_at_once_put_what_show_writes():
+    """The renderer's way of writing a world's state (every world's worked out at once, then put) leaves the model as
+    the mirror's ``show`` does: every joint, the blood's surfaces (those drawn), over worlds that hand pins over."""
+    from dvrl_marl.envs.scene_mirror import SceneMirror
+
+    env = _stepped(6, 0, seed=1)
+    env.core.delivered[2, 0] = True  # (a pin handed over: out of the scene)
+    env.core.remaining_ml[3] = 0.0  # (a cavity cleared: its blood not drawn)
+    shown, put = SceneMirror(env.params), SceneMirror(env.params)
+    poses = put.poses(env.core.world_states(range(6)))
+    assert poses["qpos"].shape == (6, put.model.nq)
+    np.testing.assert_array_equal(poses["qpos"], put.poses([env.core.world_state(w) for w in range(6)])["qpos"])
+    blood = shown.blood_geoms
+    for world in range(6):
+        shown.show(env.core.world_state(world))
+        put.put(poses, world)
+        seen = np.ones(put.model.nq, dtype=bool)  # (a handed-over pin's turn: out of the scene, either way)
+        for pin, address in enumerate(put._debris_qpos):
+            seen[address + 3:address + 7] = not env.core.delivered[world, pin]
+        np.testing.assert_allclose(put.data.qpos[seen], shown.data.qpos[seen], rtol=0, atol=1e-15,
+                                   err_msg=f"world {world}")
+        np.testing.assert_array_equal(put.data.qpos[put._debris_qpos[0]:put._debris_qpos[0] + 3][2] < 0,
+                                      env.core.delivered[world, 0])
+        drawn = shown.model.geom_rgba[blood, 3] > 0
+        np.testing.assert_array_equal(put.model.geom_rgba[blood, 3] > 0, drawn)
+        for name in ("geom_rgba", "geom_size", "geom_pos"):
+            np.testing.assert_array_equal(getattr(put.model, name)[blood][drawn],
+                                          getattr(shown.model, name)[blood][drawn], err_msg=f"world {world}, {name}")
+
+
 @pytest.mark.parametrize("appearance", [None, "train"])
 def test_whole_scenes_per_tile_give_the_layers_images_look_by_look(appearance):
     """A GPU's way (each world's whole scene in its tile, no layers put together) gives what the layers give, every

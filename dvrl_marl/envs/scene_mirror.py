@@ -85,13 +85,13 @@ class SceneMirror:
             states = list(states)
             if any(state.get("joints") is None for state in states):
                 raise ValueError("poses: each state needs the arms' joints (the core's world_state has them)")
-            stacked = {key: ({agent: np.stack([np.asarray(state[key][agent], np.float64) for state in states])
-                              for agent in AGENTS} if key in ("tips", "joints") else
-                             np.stack([np.asarray(state[key]) for state in states]))
-                       for key in ("joints", "jaw", "blood_ml", "debris_positions", "debris_yaws", "delivered")}
+            stacked = {key: np.stack([np.asarray(state[key]) for state in states])
+                       for key in ("jaw", "blood_ml", "debris_positions", "debris_yaws", "delivered")}
+            stacked["joints"] = {agent: np.stack([np.asarray(state["joints"][agent], np.float64) for state in states])
+                                 for agent in AGENTS}
         jaw = np.asarray(stacked["jaw"], np.float64)
         count = len(jaw)
-        qpos = np.tile(self.data.qpos, (count, 1))
+        qpos = np.tile(self.data.qpos, (count, 1))  # (every joint written below but a handed-over pin's turn: unseen)
         for agent in AGENTS:
             qpos[:, self.arms[agent].joint_qpos_addresses] = np.asarray(stacked["joints"][agent], np.float64)
         qpos[:, self.arms["grasper"].jaw_qpos_addresses] = (JAW_FINGER_OPEN_ANGLE * jaw)[:, None]
