@@ -1,11 +1,14 @@
 """The endoscope's view of many worlds, drawn for learning: what an image observation is made of.
 
 The human view (``render()``, the seats' windows and pages) draws the whole scene every frame with shadows,
-reflections and multisampling. Most of that work is the phantom: a heightfield of about 40,000 triangles that never
-moves. This renderer draws it once, with its depth, and then per world only what moves (the instruments, the pins,
-the blood), into tiles of one framebuffer read back once per batch; a pixel is the moving layer's where that is
-nearer than the phantom's, else the phantom's. With opaque geometry this is what one drawing of the whole scene gives
-(``tests/test_endoscope.py`` holds them equal), at a fraction of the cost (``benchmarks/endoscope_speed.py``).
+reflections and multisampling. The worlds are drawn here into tiles of one framebuffer, read back once per
+framebuffer (into pixel buffers, taken once the next framebuffer's drawings are issued, so that a GPU draws while the
+CPU puts images together). On a software renderer most of the work is the phantom, a heightfield of about 40,000
+triangles that never moves: it is drawn once, with its depth, and then per world only what moves (the instruments,
+the pins, the blood); a pixel is the moving layer's where that is nearer than the phantom's, else the phantom's.
+With opaque geometry this is what one drawing of the whole scene gives (``tests/test_endoscope.py`` holds them
+equal), at a fraction of the cost. On a GPU, whose cost is the calls per drawing, each world's whole scene is drawn
+in its tile (``EndoscopeRenderer.layers``; ``benchmarks/endoscope_speed.py``, ``docs/speed.md``).
 
 What the learning view leaves out, or draws otherwise, than the human view: no shadows, reflections, multisampling
 or marks (drop lines, cues), and the blood opaque (the human view's blood lets the cavity floor show through). The
@@ -119,11 +122,12 @@ APPEARANCES.update({f"held_out_{quantity}": held_out_only(quantity) for quantity
 class EndoscopeRenderer:
     """Draws the endoscope's view of many worlds of one scene (``params``: the env's :class:`SuctionDebrisParams`).
 
-    ``render(states)`` takes the core's :meth:`world_state` of each world and returns ``{"rgb": (N, S, S, 3) uint8}``
-    and, with ``depth=True``, ``"depth": (N, S, S) float32`` (metres along the camera's axis), with
-    ``segmentation=True``, ``"segmentation": (N, S, S) uint8`` (indices of :data:`SEGMENT_CLASSES`; a second drawing
-    of what moves), rows top to bottom. ``tiles`` worlds are drawn per framebuffer read (the default fills a
-    framebuffer of at most 1024 px a side).
+    ``render(states)`` takes the core's :meth:`world_state` of each world (or ``world_states``, stacked) and returns
+    ``{"rgb": (N, S, S, 3) uint8}`` and, with ``depth=True``, ``"depth": (N, S, S) float32`` (metres along the
+    camera's axis), with ``segmentation=True``, ``"segmentation": (N, S, S) uint8`` (indices of
+    :data:`SEGMENT_CLASSES`; a second drawing), rows top to bottom. ``tiles`` worlds are drawn per framebuffer read
+    (the default fills a framebuffer of at most 1024 px a side). ``layers``: the still phantom drawn once and what
+    moves over it (True), or each world's whole scene (False); None: layers on a software renderer only.
     """
 
     def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
