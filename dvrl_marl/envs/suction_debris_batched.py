@@ -56,7 +56,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium import spaces
@@ -67,12 +66,10 @@ from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, Collaborativ
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
 from dvrl_marl.core.worlds import check_action_batch
 from dvrl_marl.envs import features, start_levels
+from dvrl_marl.envs.appearance import APPEARANCES, Appearance
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
 from dvrl_marl.envs.observation_scaling import ObservationScaling
 from dvrl_marl.envs.presets import accepts_preset
-
-if TYPE_CHECKING:  # (the renderer's module loads MuJoCo's GL: only when images are drawn)
-    from dvrl_marl.envs.endoscope import Appearance
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "SceneLayout", "batched_env", "takes_worlds"]
 
@@ -158,8 +155,6 @@ class SuctionDebrisBatchedEnv:
         self.image_contexts = validated(PositiveInt, image_contexts, f"{self.name}: image_contexts")
         if self.image_contexts > 1 and not self.image_size:
             raise ValueError(f"{self.name}: image_contexts needs image_size (they draw the images)")
-        from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
-
         if not (image_appearance is None or isinstance(image_appearance, Appearance)
                 or (isinstance(image_appearance, str) and image_appearance in APPEARANCES)):
             raise ValueError(f"{self.name}: image_appearance must be None (the scene's own look), one of "
@@ -320,7 +315,6 @@ class SuctionDebrisBatchedEnv:
             return self._endoscope.render(states, parts=parts)
         # each world's look for its episode, from its own stream (a function of its seed and episode)
         from dvrl_marl.core.streams import STREAMS, uniforms
-        from dvrl_marl.envs.endoscope import APPEARANCES, Appearance
 
         streams = self.core.random
         episode = np.maximum(np.asarray(streams.episode)[worlds] - 1, 0)  # (the episode under way)
