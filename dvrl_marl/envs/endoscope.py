@@ -118,7 +118,7 @@ class EndoscopeRenderer:
         extent = model.stat.extent
         self._near, self._far = model.vis.map.znear * extent, model.vis.map.zfar * extent
         #: the framebuffer's reads, the GL's own depth values (MuJoCo's mjr_readPixels turns them round in 4.0)
-        self._reads = _PixelReads(size * self.columns, self._context.offFBO)
+        self._reads = _PixelReads(size * self.columns, size * self.rows, self._context.offFBO)
         #: the scene's own still layer (rgb, raw depth, segments or None), drawn once (its segments when first asked)
         self._still = self._draw_still(self.segmentation)
         # Which way the depth buffer runs (MuJoCo 3 and 4 reverse it: 1 near, an empty pixel 0; else an empty pixel 1).
@@ -144,12 +144,11 @@ class EndoscopeRenderer:
         image (count, S, S, ...)."""
         s, columns = self.size, self.columns
         rows = -(-count // columns)
-        tiles = [rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)[:count]]
-        if raw is not None:
-            tiles.append(raw.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)[:count])
-        # one row of tiles reshapes to a view of the frame read, which the next read overwrites: copied then
-        tiles = [part.copy() if np.may_share_memory(part, frame) else part for part, frame in zip(tiles, (rgb, raw))]
-        return tiles[0], tiles[1] if raw is not None else None
+        # (each read is an array of its own: one row of tiles may stay a view of it)
+        tiles = rgb.reshape(rows, s, columns, s, 3).transpose(0, 2, 1, 3, 4).reshape(-1, s, s, 3)[:count]
+        if raw is None:
+            return tiles, None
+        return tiles, raw.reshape(rows, s, columns, s).transpose(0, 2, 1, 3).reshape(-1, s, s)[:count]
 
     def _bind(self) -> None:
         self._gl.make_current()
@@ -446,11 +445,9 @@ class ThreadedEndoscopeRenderer:
 
 def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation: bool = False, contexts: int = 1):
     """The endoscope's renderer with ``contexts`` GL contexts: one, drawn in the calling thread
-    (:class:`EndoscopeRenderer`), or more, each in a thread of its own (:class:`ThreadedEndoscopeRenderer`)."""
-    from dvrl_marl.schemas import PositiveInt, validated
-
-    contexts = validated(PositiveInt, contexts, "endoscope contexts")
-    if contexts == 1:
+    (:class:`EndoscopeRenderer`), or more, each in a thread of its own (:class:`ThreadedEndoscopeRenderer`, which
+    refuses a bad number by name)."""
+    if type(contexts) is int and contexts == 1:
         return EndoscopeRenderer(params, size, depth=depth, segmentation=segmentation)
     return ThreadedEndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, contexts=contexts)
 
@@ -458,12 +455,14 @@ def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation
 class _PixelReads:
     """Reads of the bound framebuffer's first rows into pixel buffer objects: :meth:`queue` right after the drawings
     (the GL keeps its order: later drawings do not change what it reads), :meth:`take` later, which waits only for
-    that read. Its buffers are reused; the GL context that made them must be current at each call."""
+    that read. Its buffers, each the size of the whole framebuffer's depth, are made once and reused; the GL context
+    that made them must be current at each call."""
 
-    def __init__(self, width: int, framebuffer: int):
+    def __init__(self, width: int, height: int, framebuffer: int):
         from OpenGL import GL
 
         self._gl, self._width, self._framebuffer, self._free, self._buffers = GL, width, framebuffer, [], []
+        self._capacity = width * height * np.dtype(np.float32).itemsize  # (the largest read: every row's depth)
 
     def queue(self, height: int, depth: bool) -> tuple:
         """Queue a read of the framebuffer's ``height`` bottom rows (rgb, and raw depth with ``depth``)."""
@@ -474,11 +473,14 @@ class _PixelReads:
         for form, kind, channels, dtype in ((GL.GL_RGB, GL.GL_UNSIGNED_BYTE, 3, np.uint8),
                                             (GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, 1, np.float32))[:1 + bool(depth)]:
             size = self._width * height * channels * np.dtype(dtype).itemsize
-            buffer = self._free.pop() if self._free else int(GL.glGenBuffers(1))
-            if buffer not in self._buffers:
+            if self._free:
+                buffer = self._free.pop()
+                GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, buffer)
+            else:
+                buffer = int(GL.glGenBuffers(1))
                 self._buffers.append(buffer)
-            GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, buffer)
-            GL.glBufferData(GL.GL_PIXEL_PACK_BUFFER, size, None, GL.GL_STREAM_READ)
+                GL.glBindBuffer(GL.GL_PIXEL_PACK_BUFFER, buffer)
+                GL.glBufferData(GL.GL_PIXEL_PACK_BUFFER, self._capacity, None, GL.GL_STREAM_READ)
             GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
             GL.glReadPixels(0, 0, self._width, height, form, kind, ctypes.c_void_p(0))
             read.append((buffer, size, (height, self._width, channels) if channels > 1 else (height, self._width),
