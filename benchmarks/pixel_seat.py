@@ -68,6 +68,23 @@ def keeping_clear(policy, keep_mm: float):
     return policy
 
 
+def feeling_contact(policy, settings: list[float]):
+    """``--felt-contact NEAR_MM RETREAT_MM HOLD_STEPS THRESHOLD_MM``: the pixel seat keeping back from where its own
+    moves were stopped near the other instrument (``policy.json``'s ``felt_contact``), without training again."""
+    from dvrl_marl.envs.scripted_team import felt_contact_rule
+    from dvrl_marl.policies.felt_contact import FeltContact
+
+    if policy.keep_clear is None:
+        raise ValueError("--felt-contact reads keep_clear's geometry: give --keep-clear-mm too")
+    near_mm, retreat_mm, hold_steps, threshold_mm = settings
+    env = suction_debris_v8.parallel_env()
+    rule = felt_contact_rule(env.workspace_range, near_mm, retreat_mm, hold_steps, threshold_mm)
+    env.close()
+    policy.spec["felt_contact"] = rule
+    policy.felt_contact = FeltContact(rule, policy.keep_clear)
+    return policy
+
+
 def reading_full_above(policy, threshold: float):
     """``--full-above``: the pixel seat's blood estimates (those it keeps at their lowest) at ``threshold`` or more read
     as full (``image.fills.full_above``), without training again."""
@@ -129,6 +146,9 @@ def main() -> None:
     parser.add_argument("--keep-clear-mm", type=float,
                         help="the pixel seat withholds the moves that would bring its instrument within this of the "
                              "other's (the yielding suction's rule, on its estimate of the other tip)")
+    parser.add_argument("--felt-contact", type=float, nargs=4, metavar=("NEAR_MM", "RETREAT_MM", "HOLD", "MM"),
+                        help="keep back RETREAT_MM from a touch for HOLD steps: a move MM short of its command with "
+                             "the other instrument within NEAR_MM (as estimated)")
     parser.add_argument("--full-above", type=float,
                         help="the seat's blood estimates at this or more read as full (image.fills.full_above)")
     parser.add_argument("--exact", action="store_true",
@@ -160,6 +180,8 @@ def main() -> None:
                 pixel = acting_as(pixel, args.acting)
             if args.keep_clear_mm:
                 pixel = keeping_clear(pixel, args.keep_clear_mm)
+            if args.felt_contact:
+                pixel = feeling_contact(pixel, args.felt_contact)
             if args.full_above:
                 pixel = reading_full_above(pixel, args.full_above)
             row = evaluate("suction", pixel, partner, args.episodes, False,
@@ -168,7 +190,9 @@ def main() -> None:
                              + (f" (blood raised {args.raise_blood:+.3f})" if args.raise_blood else "")
                              + (f" (acting: {args.acting})" if args.acting else "")
                              + (f" (keeping {args.keep_clear_mm:g} mm clear)" if args.keep_clear_mm else "")
-                             + (f" (full above {args.full_above:g})" if args.full_above else ""))
+                             + (f" (full above {args.full_above:g})" if args.full_above else "")
+                             + (" (felt contact {:g} mm, {:g} mm, {:g} steps, {:g} mm)".format(*args.felt_contact)
+                                if args.felt_contact else ""))
             row.update(look=look, seconds=round(time.perf_counter() - began, 1),
                        gap=round(row["success_rate"] - privileged["success_rate"], 3))
             rows.append(row)

@@ -20,6 +20,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
            "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
            "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "PolicyImageFill", "cli_number",
+           "PolicyFeltContact",
            "Seed", "Seeds",
            "Text", "Flag", "UnitInterval"]
 
@@ -357,6 +358,21 @@ class PolicyKeepClear(BaseModel):
         return self
 
 
+class PolicyFeltContact(BaseModel):
+    """A policy's ``felt_contact`` (:mod:`dvrl_marl.policies.felt_contact`), in the observation's units (the ``_mm``
+    values as read by a person): a move ``threshold`` or more short of its command with the other instrument's axis
+    within ``near`` is a touch; the tip then keeps ``retreat`` behind it for ``hold_steps`` steps."""
+
+    model_config = STRICT
+    near_mm: Positive
+    near: Positive
+    retreat_mm: Positive
+    retreat: Positive
+    threshold_mm: Positive
+    threshold: Positive
+    hold_steps: PositiveInt
+
+
 class PolicyFile(BaseModel):
     """What ``policy.json`` must hold (:mod:`dvrl_marl.policies`; its other keys record how it was trained): the
     layer sizes, one activation per layer, the observation's keys and finite action bounds, each low below its
@@ -372,9 +388,13 @@ class PolicyFile(BaseModel):
     switch_dimensions: list[NonNegativeInt] = []
     image: PolicyImage | None = None
     keep_clear: PolicyKeepClear | None = None
+    felt_contact: PolicyFeltContact | None = None
 
     @model_validator(mode="after")
     def _consistent(self):
+        if self.felt_contact is not None and self.keep_clear is None:
+            raise ValueError("felt_contact reads the tips, the arms' centres and the action's gain from keep_clear, "
+                             "which the policy lacks")
         if self.keep_clear is not None:
             if self.image is not None and self.image.fills is None:
                 raise ValueError("keep_clear reads the two tips from the observation: a pixel policy has them only "

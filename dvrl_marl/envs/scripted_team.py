@@ -180,6 +180,22 @@ def keep_clear_rule(layout, observation_layout, workspace_range: float, agent: s
             "other_centre": [float(v) for v in layout.base_positions[other]]}
 
 
+def felt_contact_rule(workspace_range: float, near_mm: float, retreat_mm: float, hold_steps: int,
+                      threshold_mm: float) -> dict:
+    """A policy's ``felt_contact`` table (:mod:`dvrl_marl.policies.felt_contact`; it reads the geometry of the
+    policy's ``keep_clear``): a move ``threshold_mm`` or more short of its command with the other instrument's axis
+    within ``near_mm`` is a touch, after which the tip keeps ``retreat_mm`` behind it for ``hold_steps`` steps."""
+    for name, value in (("near_mm", near_mm), ("retreat_mm", retreat_mm), ("threshold_mm", threshold_mm)):
+        if not value > 0.0:
+            raise ValueError(f"felt_contact: {name} must be positive, got {value}")
+    if int(hold_steps) != hold_steps or hold_steps < 1:
+        raise ValueError(f"felt_contact: hold_steps must be a whole number of steps, at least 1, got {hold_steps}")
+    unit = 1000.0 * workspace_range  # mm per observation unit
+    return {"near_mm": float(near_mm), "near": near_mm / unit, "retreat_mm": float(retreat_mm),
+            "retreat": retreat_mm / unit, "threshold_mm": float(threshold_mm), "threshold": threshold_mm / unit,
+            "hold_steps": int(hold_steps)}
+
+
 class ScriptedSurgeon(_Scripted):
     """Picks each revealed debris in a cleared cavity, carries it over the phantom to the hand-off point."""
 

@@ -70,6 +70,14 @@ class NumpyPolicy:
         self.action_high = np.asarray(spec["action_high"], dtype=np.float64)
         self.switch_dimensions = list(spec.get("switch_dimensions", []))
         self.keep_clear = spec.get("keep_clear")
+        self.felt_contact = None
+        if spec.get("felt_contact") is not None:
+            from dvrl_marl.policies.felt_contact import FeltContact
+
+            if self.keep_clear is None:
+                raise ValueError(f"policy {self.name!r}: felt_contact reads the tips and the arms' centres from "
+                                 f"keep_clear, which it lacks")
+            self.felt_contact = FeltContact(spec["felt_contact"], self.keep_clear)
         self.encoder = None
         if spec.get("image") is not None:
             from dvrl_marl.policies.image_encoder import ImageEncoder
@@ -152,6 +160,8 @@ class NumpyPolicy:
         per world (a pixel policy with ``image.fills.keep_lowest``) forgets it there; the others keep none."""
         if self.encoder is not None:
             self.encoder.reset(worlds)
+        if self.felt_contact is not None:
+            self.felt_contact.reset(worlds)
 
     def with_noise(self, seed=None) -> "NoisyPolicy":
         """This policy acting with its training's exploration noise (see :class:`NoisyPolicy`)."""
@@ -173,8 +183,9 @@ class NumpyPolicy:
         and nearer (the scripted yielding suction's rule, on what this policy reads of the two tips)."""
         from dvrl_marl.core.instruments import keep_clear
 
-        x = observed["observation"] if isinstance(observed, dict) else observed
-        return keep_clear(action, np.asarray(x, dtype=np.float64), self.keep_clear)
+        x = np.asarray(observed["observation"] if isinstance(observed, dict) else observed, dtype=np.float64)
+        action = keep_clear(action, x, self.keep_clear)
+        return action if self.felt_contact is None else self.felt_contact(action, x)
 
 
 class NoisyPolicy:
