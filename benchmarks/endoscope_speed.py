@@ -8,6 +8,9 @@ A frame is one world's image. The env's figure is a step of every world with ran
     python benchmarks/endoscope_speed.py                       # 84 px, 1 ... 256 worlds
     python benchmarks/endoscope_speed.py --sizes 64 84 128 --worlds 64 --json out.jsonl
     python benchmarks/endoscope_speed.py --worlds 4096 --contexts 1 4 16   # GL contexts in threads (image_contexts)
+    python benchmarks/endoscope_speed.py --worlds 64 --stereo               # the stereo pair beside one eye
+
+A stereo frame is one world's pair (two images).
 """
 
 from __future__ import annotations
@@ -29,10 +32,12 @@ def _commit() -> str:
     return result.stdout.strip() or "unknown"
 
 
-def env_frames_per_second(size: int, worlds: int, repeats: int, steps: int, contexts: int = 1) -> float:
+def env_frames_per_second(size: int, worlds: int, repeats: int, steps: int, contexts: int = 1,
+                          stereo: bool = False) -> float:
     from dvrl_marl.envs import suction_debris_v8
 
-    env = suction_debris_v8.batched_env(num_envs=worlds, image_size=size, image_contexts=contexts)
+    env = suction_debris_v8.batched_env(num_envs=worlds, image_size=size, image_contexts=contexts,
+                                        image_stereo=stereo)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = [{agent: rng.uniform(-1, 1, (worlds, 4)) for agent in env.possible_agents} for _ in range(steps)]
@@ -80,6 +85,7 @@ def main(argv=None) -> int:
     parser.add_argument("--worlds", type=int, nargs="+", default=[1, 16, 64, 256])
     parser.add_argument("--contexts", type=int, nargs="+", default=[1],
                         help="GL contexts drawing the images, each in a thread of its own (the env's image_contexts)")
+    parser.add_argument("--stereo", action="store_true", help="each figure again with the stereo pair (image_stereo)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--frames", type=int, default=512, help="frames per timed block (about)")
     parser.add_argument("--json", help="append one JSON line per figure to this file")
@@ -95,13 +101,15 @@ def main(argv=None) -> int:
         print(f"{size} px, bare renderer: {bare:,.0f} frames/s", flush=True)
         for worlds in args.worlds:
             for contexts in args.contexts:
-                steps = max(2, args.frames // worlds)
-                fps = env_frames_per_second(size, worlds, args.repeats, steps, contexts)
-                rows.append({"what": "batched env step + image observations", "size": size, "worlds": worlds,
-                             "contexts": contexts, "frames_per_second": round(fps, 1),
-                             "versus_bare": round(fps / bare, 2)})
-                print(f"{size} px, {worlds} worlds, {contexts} GL context(s), step + images: {fps:,.0f} frames/s "
-                      f"({fps / bare:.2f}x the bare renderer)", flush=True)
+                for stereo in (False, True) if args.stereo else (False,):
+                    steps = max(2, args.frames // worlds)
+                    fps = env_frames_per_second(size, worlds, args.repeats, steps, contexts, stereo)
+                    what = "batched env step + " + ("the stereo pair" if stereo else "image observations")
+                    rows.append({"what": what, "size": size, "worlds": worlds, "contexts": contexts,
+                                 "frames_per_second": round(fps, 1), "versus_bare": round(fps / bare, 2)})
+                    print(f"{size} px, {worlds} worlds, {contexts} GL context(s), step + "
+                          f"{'stereo pairs' if stereo else 'images'}: {fps:,.0f} frames/s "
+                          f"({fps / bare:.2f}x the bare renderer)", flush=True)
     if args.json:
         with open(args.json, "a") as handle:
             for row in rows:

@@ -12,7 +12,8 @@ in its tile (``EndoscopeRenderer.layers``; ``benchmarks/endoscope_speed.py``, ``
 
 What the learning view leaves out, or draws otherwise, than the human view: no shadows, reflections, multisampling
 or marks (drop lines, cues), and the blood opaque (the human view's blood lets the cavity floor show through). The
-camera is the scene's ``endoscope`` (``scenes/collaborative.xml``), fixed.
+camera is the scene's ``endoscope`` (``scenes/collaborative.xml``), fixed; it is the stereo pair's left eye, and the
+right eye the same camera :data:`STEREO_BASELINE_MM` to its right.
 """
 
 from __future__ import annotations
@@ -29,11 +30,18 @@ from dvrl_marl.envs.scene_mirror import SceneMirror
 from dvrl_marl.rendering import uncollected
 
 __all__ = ["EndoscopeRenderer", "ThreadedEndoscopeRenderer", "endoscope_renderer", "IMAGE_SIZES", "RENDER_PARTS",
+           "STEREO_BASELINE_MM",
            "SEGMENT_CLASSES", "Appearance", "APPEARANCES", "QUANTITIES", "held_out_only"]
 
 #: What a segmentation mask's values mean (its index): nothing of the task (the table, the background), the phantom's
 #: tissue, blood, a debris pin, an instrument (the arms' and the assistant's).
 SEGMENT_CLASSES = ("background", "tissue", "blood", "pin", "instrument")
+
+#: The stereo endoscope's two cameras apart (mm): the right eye's camera is the scene's ``endoscope`` (the left eye)
+#: moved this far along its own x axis, looking the same way. 3D laparoscopes of the da Vinci's generation put their
+#: cameras 5 mm apart (Bhayani & Andriole's ring-placement study cites 5-mm separation: Surg Endosc 22(11):2396-2400,
+#: 2008, doi:10.1007/s00464-008-0032-8); the paper names the endoscope's "uniquely tight disparities" (Sec. VI).
+STEREO_BASELINE_MM = 5.0
 
 #: Image sizes (square, pixels) an image observation may have.
 IMAGE_SIZES = (32, 256)
@@ -51,13 +59,16 @@ class EndoscopeRenderer:
     camera's axis), with ``segmentation=True``, ``"segmentation": (N, S, S) uint8`` (indices of
     :data:`SEGMENT_CLASSES`; a second drawing), rows top to bottom. ``tiles`` worlds are drawn per framebuffer read
     (the default fills a framebuffer of at most 1024 px a side). ``layers``: the still phantom drawn once and what
-    moves over it (True), or each world's whole scene (False); None: layers on a software renderer only.
+    moves over it (True), or each world's whole scene (False); None: layers on a software renderer only. ``eye_mm``:
+    the camera moved that far along its own x axis (to the right in its image), the endoscope's pose and its looks'
+    shifts and turns kept: :data:`STEREO_BASELINE_MM` draws the stereo pair's right eye.
     """
 
     def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
-                 segmentation: bool = False, layers: bool | None = None):
-        from dvrl_marl.schemas import PositiveInt, validated
+                 segmentation: bool = False, layers: bool | None = None, eye_mm: float = 0.0):
+        from dvrl_marl.schemas import Finite, PositiveInt, validated
 
+        self._eye = validated(Finite, eye_mm, "eye_mm") / 1000.0  # (m)
         size = validated(PositiveInt, size, "image size")
         if not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
             raise ValueError(f"image size must be {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} px, got {size}")
@@ -113,6 +124,8 @@ class EndoscopeRenderer:
             option.geomgroup[list(groups)] = 1
             self._options[groups if len(groups) > 1 else groups[0]] = option
         mujoco.mj_forward(model, data)  # the camera and lights are fixed: placed once
+        camera = self._camera.fixedcamid
+        data.cam_xpos[camera] += self._eye * data.cam_xmat[camera].reshape(3, 3)[:, 0]  # (the eye: along its x)
         self._base.update(cam_xpos=data.cam_xpos.copy(), cam_xmat=data.cam_xmat.copy(),
                           light_xdir=data.light_xdir.copy(), light_xpos=data.light_xpos.copy())
         extent = model.stat.extent
@@ -203,8 +216,12 @@ class EndoscopeRenderer:
         dressing["light_specular"] = np.clip(base["light_specular"] * look["light"], 0.0, 1.0)
         dressing["light_xdir"] = base["light_xdir"] @ _turn(*look["light_turn"]).T
         camera = self._camera.fixedcamid
-        dressing["cam_xpos"][camera] = base["cam_xpos"][camera] + look["camera_shift"]
-        dressing["cam_xmat"][camera] = (_turn(*look["camera_turn"]) @ base["cam_xmat"][camera].reshape(3, 3)).ravel()
+        axes = base["cam_xmat"][camera].reshape(3, 3)
+        turned = _turn(*look["camera_turn"]) @ axes
+        # the endoscope shifted and turned about its left eye, which the right one follows (the pair is one rigid rig)
+        dressing["cam_xpos"][camera] = (base["cam_xpos"][camera] + look["camera_shift"]
+                                        + self._eye * (turned[:, 0] - axes[:, 0]))
+        dressing["cam_xmat"][camera] = turned.ravel()
         return dressing
 
     def _wear(self, dressing: dict) -> None:
@@ -379,7 +396,7 @@ class ThreadedEndoscopeRenderer:
     still layer is kept there). The images are the one renderer's (``tests/test_endoscope.py``)."""
 
     def __init__(self, params, size: int = 84, depth: bool = False, tiles: int | None = None,
-                 segmentation: bool = False, contexts: int = 2, layers: bool | None = None):
+                 segmentation: bool = False, contexts: int = 2, layers: bool | None = None, eye_mm: float = 0.0):
         from dvrl_marl.schemas import PositiveInt, validated
 
         contexts = validated(PositiveInt, contexts, "endoscope contexts")
@@ -389,7 +406,7 @@ class ThreadedEndoscopeRenderer:
             with uncollected():  # (each renderer made in its own thread: its GL context is current there alone)
                 for thread in self._threads:
                     self._renderers.append(thread.submit(EndoscopeRenderer, params, size, depth, tiles,
-                                                         segmentation, layers).result())
+                                                         segmentation, layers, eye_mm).result())
         except BaseException:
             self.close()
             raise
@@ -443,13 +460,15 @@ class ThreadedEndoscopeRenderer:
             pass
 
 
-def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation: bool = False, contexts: int = 1):
+def endoscope_renderer(params, size: int = 84, depth: bool = False, segmentation: bool = False, contexts: int = 1,
+                       eye_mm: float = 0.0):
     """The endoscope's renderer with ``contexts`` GL contexts: one, drawn in the calling thread
     (:class:`EndoscopeRenderer`), or more, each in a thread of its own (:class:`ThreadedEndoscopeRenderer`, which
-    refuses a bad number by name)."""
+    refuses a bad number by name); ``eye_mm`` as :class:`EndoscopeRenderer`'s."""
     if type(contexts) is int and contexts == 1:
-        return EndoscopeRenderer(params, size, depth=depth, segmentation=segmentation)
-    return ThreadedEndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, contexts=contexts)
+        return EndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, eye_mm=eye_mm)
+    return ThreadedEndoscopeRenderer(params, size, depth=depth, segmentation=segmentation, contexts=contexts,
+                                     eye_mm=eye_mm)
 
 
 class _PixelReads:

@@ -71,9 +71,13 @@ from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
 from dvrl_marl.envs.observation_scaling import ObservationScaling
 from dvrl_marl.envs.presets import accepts_preset
 
-__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "SceneLayout", "batched_env", "takes_worlds"]
+__all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "IMAGE_PARTS", "SceneLayout", "batched_env",
+           "takes_worlds"]
 
 AUTORESET_MODES = ("same_step", "disabled")
+#: What ``images()`` draws of a view: the endoscope's (left eye's) colour image, the right eye's, the left eye's depth
+#: and segmentation mask.
+IMAGE_PARTS = ("image", "image_right", "depth", "segmentation")
 #: "guided": the dense reward plus the guided terms (:mod:`dvrl_marl.envs.guidance`).
 REWARD_TYPES = ("sparse", "dense", "guided")
 
@@ -105,7 +109,7 @@ class SuctionDebrisBatchedEnv:
                  start_level: float | str = 1.0,
                  easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
                  state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
-                 image_depth: bool = False, image_segmentation: bool = False,
+                 image_depth: bool = False, image_segmentation: bool = False, image_stereo: bool = False,
                  image_appearance: str | Appearance | None = None, image_contexts: int = 1,
                  width: int = 640, height: int = 480, **params):
         from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
@@ -150,7 +154,8 @@ class SuctionDebrisBatchedEnv:
         self._spaces(observation_features, validated(Flag, state_observations, f"{self.name}: state_observations"),
                      validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
         self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"),
-                           validated(Flag, image_segmentation, f"{self.name}: image_segmentation"))
+                           validated(Flag, image_segmentation, f"{self.name}: image_segmentation"),
+                           validated(Flag, image_stereo, f"{self.name}: image_stereo"))
         #: GL contexts that draw the images, each in a thread of its own (more pay on a GPU; endoscope_renderer)
         self.image_contexts = validated(PositiveInt, image_contexts, f"{self.name}: image_contexts")
         if self.image_contexts > 1 and not self.image_size:
@@ -240,12 +245,13 @@ class SuctionDebrisBatchedEnv:
                                           dtype=np.float64)
             self.observation_scaling = scaling
 
-    def _image_spaces(self, size, depth: bool, segmentation: bool) -> None:
+    def _image_spaces(self, size, depth: bool, segmentation: bool, stereo: bool) -> None:
         """``image_size``: every agent's observation becomes ``{"observation": the observation above, "image": the
-        endoscope's view (S, S, 3) uint8}`` (and ``"depth"``, (S, S) float32 metres, with ``image_depth``;
-        ``"segmentation"``, (S, S) uint8 indices of :data:`~dvrl_marl.envs.endoscope.SEGMENT_CLASSES`, with
-        ``image_segmentation``), drawn by :func:`dvrl_marl.envs.endoscope.endoscope_renderer` (the first time an
-        observation is made)."""
+        endoscope's view (S, S, 3) uint8}`` (and ``"image_right"``, the stereo pair's right eye, (S, S, 3) uint8, with
+        ``image_stereo``; ``"depth"``, (S, S) float32 metres, with ``image_depth``; ``"segmentation"``, (S, S) uint8
+        indices of :data:`~dvrl_marl.envs.endoscope.SEGMENT_CLASSES`, with ``image_segmentation``: both of the left
+        eye's view), drawn by :func:`dvrl_marl.envs.endoscope.endoscope_renderer` (the first time an observation is
+        made)."""
         from dvrl_marl.envs.endoscope import IMAGE_SIZES, SEGMENT_CLASSES
         from dvrl_marl.schemas import NonNegativeInt, validated
 
@@ -253,12 +259,13 @@ class SuctionDebrisBatchedEnv:
         if size and not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
             raise ValueError(f"{self.name}: image_size must be 0 (no images) or {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} "
                              f"px, got {size}")
-        for flag, on in (("image_depth", depth), ("image_segmentation", segmentation)):
+        for flag, on in (("image_depth", depth), ("image_segmentation", segmentation), ("image_stereo", stereo)):
             if on and not size:
                 raise ValueError(f"{self.name}: {flag} needs image_size (it is the image's)")
-        #: the image observations' size (0: none) and whether they carry depth and a segmentation mask
+        #: the image observations' size (0: none) and whether they carry the right eye, depth and a segmentation mask
         self.image_size, self.image_depth, self.image_segmentation = size, depth, segmentation
-        self._endoscope = None
+        self.image_stereo = stereo
+        self._endoscope = self._right_eye = None
         # autoreset_mode="disabled": the worlds whose episode ended (not drawn again until reset) and each part's
         # last images, which an ended world keeps
         self._ended = np.zeros(self.num_envs, dtype=bool)
@@ -266,6 +273,8 @@ class SuctionDebrisBatchedEnv:
         if not size:
             return
         parts = {"image": spaces.Box(0, 255, shape=(size, size, 3), dtype=np.uint8)}
+        if stereo:
+            parts["image_right"] = spaces.Box(0, 255, shape=(size, size, 3), dtype=np.uint8)
         if depth:
             parts["depth"] = spaces.Box(0.0, np.inf, shape=(size, size), dtype=np.float32)
         if segmentation:
@@ -274,30 +283,26 @@ class SuctionDebrisBatchedEnv:
                                     for agent, space in self._observation_spaces.items()}
 
     def images(self, parts=None) -> dict:
-        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "depth", "segmentation"]}``.
-        ``parts`` draws only those of ``"image"``, ``"depth"`` and ``"segmentation"`` (default: what the observations
-        carry), whether or not the observations carry them: a dataset may take the segmentation on the steps it
-        records alone, at the cost of one drawing of what moves each time."""
+        """The endoscope's view of every world now: ``{"image": (N, S, S, 3) uint8[, "image_right", "depth",
+        "segmentation"]}``. ``parts`` draws only those of :data:`IMAGE_PARTS` (default: what the observations carry),
+        whether or not the observations carry them: a dataset may take the segmentation on the steps it records
+        alone, at the cost of one drawing of what moves each time."""
         if not self.image_size:
             raise ValueError(f"{self.name}: images need image_size (made with image_size=84, say)")
-        if self._endoscope is None:
-            from dvrl_marl.envs.endoscope import endoscope_renderer
-
-            self._endoscope = endoscope_renderer(self.params, self.image_size, depth=self.image_depth,
-                                                 segmentation=self.image_segmentation, contexts=self.image_contexts)
-        if parts is not None:
+        if parts is None:
+            named = ("image", *(part for part, on in (("image_right", self.image_stereo), ("depth", self.image_depth),
+                                                      ("segmentation", self.image_segmentation)) if on))
+        else:
             named = (parts,) if isinstance(parts, str) else tuple(parts)
-            unknown = [part for part in named if part not in ("image", "depth", "segmentation")]
+            unknown = [part for part in named if part not in IMAGE_PARTS]
             if unknown or not named:
-                raise ValueError(f"{self.name}: images' parts must be some of 'image', 'depth', 'segmentation', "
-                                 f"got {list(named)}")
-            parts = ["rgb" if part == "image" else part for part in named]
-        named = self._endoscope.parts(parts)
+                raise ValueError(f"{self.name}: images' parts must be some of {list(IMAGE_PARTS)}, got {list(named)}")
+            named = tuple(part for part in IMAGE_PARTS if part in named)
         # an ended episode's world keeps its last images (autoreset_mode="disabled": nothing is drawn for it until it
         # is reset; an evaluation's worlds that finished early cost nothing while the others play on)
         kept = self._ended.any() and all(part in self._last_images for part in named)
         worlds = np.flatnonzero(~self._ended) if kept else np.arange(self.num_envs)
-        drawn = self._draw(worlds, parts) if len(worlds) else {}
+        drawn = self._draw(worlds, named) if len(worlds) else {}
         if self.autoreset_mode == "disabled":
             for part in named:
                 if kept:
@@ -306,13 +311,35 @@ class SuctionDebrisBatchedEnv:
                 else:
                     self._last_images[part] = drawn[part]
             drawn = {part: self._last_images[part].copy() for part in named}
-        return {"image" if key == "rgb" else key: value for key, value in drawn.items()}
+        return drawn
 
-    def _draw(self, worlds: np.ndarray, parts) -> dict:
-        """The endoscope's view of ``worlds`` (indices of the batch), ``{part: (len(worlds), ...)}``."""
+    def _draw(self, worlds: np.ndarray, named: tuple) -> dict:
+        """The endoscope's view of ``worlds`` (indices of the batch), ``{part: (len(worlds), ...)}`` for the
+        :data:`IMAGE_PARTS` ``named``: the left eye's parts drawn by one renderer, the right eye's by another."""
+        from dvrl_marl.envs.endoscope import STEREO_BASELINE_MM, endoscope_renderer
+
         states = self.core.world_states(worlds)
+        looks = self._looks(worlds)
+        drawn = {}
+        left = [{"image": "rgb"}.get(part, part) for part in named if part != "image_right"]
+        if left:
+            if self._endoscope is None:
+                self._endoscope = endoscope_renderer(self.params, self.image_size, depth=self.image_depth,
+                                                     segmentation=self.image_segmentation,
+                                                     contexts=self.image_contexts)
+            images = self._endoscope.render(states, *looks, parts=left, worlds=worlds)
+            drawn.update({"image" if part == "rgb" else part: value for part, value in images.items()})
+        if "image_right" in named:
+            if self._right_eye is None:
+                self._right_eye = endoscope_renderer(self.params, self.image_size, contexts=self.image_contexts,
+                                                     eye_mm=STEREO_BASELINE_MM)
+            drawn["image_right"] = self._right_eye.render(states, *looks, parts="rgb", worlds=worlds)["rgb"]
+        return drawn
+
+    def _looks(self, worlds: np.ndarray) -> tuple:
+        """``(looks, keys, frames)`` of ``worlds`` for the renderers (all None: the scene's own look)."""
         if self.image_appearance is None:
-            return self._endoscope.render(states, parts=parts)
+            return None, None, None
         # each world's look for its episode, from its own stream (a function of its seed and episode)
         from dvrl_marl.core.streams import STREAMS, uniforms
 
@@ -324,8 +351,7 @@ class SuctionDebrisBatchedEnv:
                       else APPEARANCES[self.image_appearance])
         keys = list(zip(np.asarray(streams.key_low)[worlds].tolist(), np.asarray(streams.key_high)[worlds].tolist(),
                         episode.tolist()))
-        return self._endoscope.render(states, [appearance.draw(row) for row in np.asarray(draws)], keys,
-                                      np.asarray(self.core.elapsed)[worlds], parts=parts, worlds=worlds)
+        return [appearance.draw(row) for row in np.asarray(draws)], keys, np.asarray(self.core.elapsed)[worlds]
 
     def _check_scene_fits(self) -> None:
         """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
@@ -673,9 +699,10 @@ class SuctionDebrisBatchedEnv:
     def close(self) -> None:
         if self._mirror is not None:
             self._mirror.close()
-        if self._endoscope is not None:
-            self._endoscope.close()
-            self._endoscope = None
+        for renderer in (self._endoscope, self._right_eye):
+            if renderer is not None:
+                renderer.close()
+        self._endoscope = self._right_eye = None
 
 
 def takes_worlds(reset) -> bool:

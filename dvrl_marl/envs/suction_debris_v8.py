@@ -87,16 +87,21 @@ global state of Yu et al. 2022), as this project's trainer's MAPPO critic does.
 
 **Image observations** (``image_size=S``, 32 to 256; off by default): each agent's observation becomes a ``Dict``:
 ``"observation"`` (the Box above, the arm's own proprioception among it), ``"image"`` (``Box(0, 255, (S, S, 3), uint8)``,
-the ``endoscope`` camera's view, rows top to bottom; one camera, so both agents see the same image) and, with
-``image_depth=True``, ``"depth"`` (``Box(0, inf, (S, S), float32)``, metres along the camera's axis). They are drawn
+the ``endoscope`` camera's view, rows top to bottom; one camera, so both agents see the same image), with
+``image_stereo=True`` ``"image_right"`` (the same Box: the stereo endoscope's right eye, the ``endoscope`` camera being
+its left, 5 mm to its right and looking the same way, ``endoscope.STEREO_BASELINE_MM``; the pair shifts and turns as one
+in every look) and, with ``image_depth=True``, ``"depth"`` (``Box(0, inf, (S, S), float32)``, metres along the left
+camera's axis). They are drawn
 for learning (:mod:`dvrl_marl.envs.endoscope`): what one drawing of the scene gives without shadows, reflections,
 multisampling or marks, the blood opaque. On a software renderer the still phantom is drawn once, then per world only
 what moves (exactly the one drawing); about 1,000 frames/s at 84 x 84 with 64 worlds or more on a 2-core CPU, 7x a
 bare ``mujoco.Renderer``. On a GPU each world's whole scene is drawn in its own tile (about 10,000 frames/s on an
 H200, 1.5x the bare renderer; ``docs/speed.md``). ``image_contexts=N`` draws with N GL contexts at once, each in a
-thread of its own: two pay on a CPU (1.2-1.3x from 64 worlds), none on a GPU (``benchmarks/endoscope_speed.py``). ``image_segmentation=True`` adds ``"segmentation"`` (``(S, S) uint8``: 0
-background, 1 tissue, 2 blood, 3 pin, 4 instrument). The batched env's ``images(parts=...)`` draws any of
-``"image"``, ``"depth"`` and ``"segmentation"`` of every world now, whether or not the observations carry it: a
+thread of its own: two pay on a CPU (1.2-1.3x from 64 worlds), none on a GPU (``benchmarks/endoscope_speed.py``).
+``image_segmentation=True`` adds ``"segmentation"`` (``(S, S) uint8``: 0
+background, 1 tissue, 2 blood, 3 pin, 4 instrument; the left eye's). The batched env's ``images(parts=...)`` draws
+any of ``"image"``, ``"image_right"``, ``"depth"`` and ``"segmentation"`` of every world now, whether or not the
+observations carry it (the right eye costs a drawing of its own): a
 dataset takes the segmentation on the steps it records alone (a segmentation alone is one drawing of what moves).
 ``image_appearance`` randomises each world's look per episode (domain randomisation, from the world's own stream:
 a function of its seed and episode, like every reset draw): ``"train"`` draws within the training range below,

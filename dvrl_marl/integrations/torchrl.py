@@ -42,6 +42,9 @@ from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SuctionDebrisTorchRLEnv"]
 
+#: The env's image observations under TorchRL's names (the others keep theirs).
+_PIXELS = {"image": "pixels", "image_right": "pixels_right"}
+
 
 class SuctionDebrisTorchRLEnv(EnvBase):
     """suction_debris_v8, N worlds, as a TorchRL environment (see the module documentation)."""
@@ -75,7 +78,8 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         n, agents = self.batched.num_envs, len(self.agent_names)
         space = self.batched.observation_space(self.agent_names[0])
         #: image observations (the env's ``image_size``): the endoscope's view at the root, as TorchRL's ``"pixels"``
-        #: (one camera: every agent's), with ``"depth"`` and ``"segmentation"`` when the env draws them
+        #: (one camera: every agent's), with ``"pixels_right"`` (the stereo pair's right eye), ``"depth"`` and
+        #: ``"segmentation"`` when the env draws them
         self.images = bool(getattr(self.batched, "image_size", 0))
         obs_dim = (space["observation"] if self.images else space).shape[0]
         state_dim = self.batched.state_space.shape[0]
@@ -89,6 +93,9 @@ class SuctionDebrisTorchRLEnv(EnvBase):
             size = self.batched.image_size
             self.observation_spec["pixels"] = Bounded(0, 255, shape=(n, size, size, 3), dtype=torch.uint8,
                                                       device=device)
+            if self.batched.image_stereo:
+                self.observation_spec["pixels_right"] = Bounded(0, 255, shape=(n, size, size, 3), dtype=torch.uint8,
+                                                                device=device)
             if self.batched.image_depth:
                 self.observation_spec["depth"] = Unbounded(shape=(n, size, size), dtype=torch.float32, device=device)
             if self.batched.image_segmentation:
@@ -129,7 +136,7 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         extra = {}
         if self.images:
             first = observations[self.agent_names[0]]
-            extra = {"pixels" if key == "image" else key: torch.as_tensor(value, device=self.device)
+            extra = {_PIXELS.get(key, key): torch.as_tensor(value, device=self.device)
                      for key, value in first.items() if key != "observation"}
             observations = {agent: observations[agent]["observation"] for agent in self.agent_names}
         stacked = self._tensor(_stack([observations[agent] for agent in self.agent_names], axis=1))
