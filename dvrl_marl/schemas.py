@@ -270,6 +270,9 @@ class PolicyImage(BaseModel):
     # the read-out reads, after the convolutions' output, two keypoints per channel of the last convolution and the
     # proprioception (dvrl_marl.policies.image_encoder)
     keypoints: StrictBool = False
+    # the convolutions read the stereo pair: the left eye's image (key) then the right eye's (key + "_right"), six
+    # channels
+    stereo: StrictBool = False
 
     @model_validator(mode="after")
     def _consistent(self):

@@ -734,3 +734,56 @@ def test_a_seat_keeping_clear_acts_by_the_yielding_rule_on_its_estimate_of_the_o
               for update in ({}, {"teacher": "yielding", "keep_clear_mm": None}, {"keep_clear_mm": None})]
     np.testing.assert_array_equal(driven[0], driven[1])
     assert driven[0].shape != driven[2].shape or not np.array_equal(driven[0], driven[2])  # the rule withheld moves
+
+
+def test_a_seat_seeing_the_stereo_pair_is_the_network_it_was_trained_as_and_needs_both_eyes(tmp_path):
+    """stereo: the numpy encoder reads the left and right images as six channels, as the torch student did; the
+    policy asks the env for the pair, and an observation without the right eye is refused by name."""
+    config = _keypoint_config(stereo=True, image_size=48)
+    torch.manual_seed(0)
+    model = pixel_seat.PixelActor(config, 4)
+    folder = pixel_seat.export(model, config, tmp_path / "policy", "test-stereo", {}, np.full(30, np.nan))
+    policy = policies.load(folder)
+    assert policy.image_options == {"image_size": 48, "image_stereo": True}
+    assert policy.spec["observation_keys"] == ["observation", "image", "image_right"]
+    observation = _observation(3, size=48, seed=4)
+    observation["image_right"] = np.roll(observation["image"], -2, axis=2)
+    own = observation["observation"][:, :4]
+    pair = np.concatenate([observation["image"], observation["image_right"]], axis=-1)
+    with torch.no_grad():
+        expected = model.features(torch.from_numpy(pair), torch.from_numpy(own.astype(np.float32))).numpy()
+    np.testing.assert_allclose(policy.encoder.estimates(policy.encoder.image(observation), own)[:, :3],
+                               expected[:, :3], atol=1e-4)
+    assert policy(observation).shape == (3, 4)
+    with pytest.raises(ValueError, match="image_stereo=True"):
+        policy({key: value for key, value in observation.items() if key != "image_right"})
+    with pytest.raises(ValueError, match="stereo pair"):
+        policy.encoder(observation["image"], own)
+    # a file whose kernels read three channels under a stereo table is refused by name
+    spec = json.loads((folder / "policy.json").read_text())
+    spec["image"]["stereo"] = False
+    (folder / "policy.json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match="'K0' must hold finite floats of shape \\(8, 3, 5, 5\\)"):
+        policies.load(folder)
+
+
+def test_a_stereo_seat_collects_both_eyes_and_colours_each_eyes_classes_alike():
+    config = _config(worlds=2, max_cycles=4, record_every=2, action_noise=0.0, partners=["scripted"], stereo=True,
+                     class_jitter=0.3, convolutions=[[8, 8, 4]])
+    batch = pixel_seat.collect(config, None, seed=3, noise_seed=3)
+    assert batch["images"].shape == (4, 64, 64, 6) and batch["segmentation"].shape == (4, 64, 64, 2)
+    left, right = batch["images"][..., :3], batch["images"][..., 3:]
+    assert not np.array_equal(left, right) and not np.array_equal(batch["segmentation"][..., 0],
+                                                                  batch["segmentation"][..., 1])
+    images = torch.full((4, 8, 8, 6), 100, dtype=torch.uint8)
+    segmentation = torch.zeros((4, 8, 8, 2), dtype=torch.uint8)
+    segmentation[..., 0], segmentation[..., 1] = 1, 2  # the left eye sees tissue, the right blood
+    jittered = pixel_seat._class_jittered(torch, images, segmentation, 0.3, torch.Generator().manual_seed(0))
+    tissue = pixel_seat._class_jittered(torch, images[..., :3], segmentation[..., 0], 0.3,
+                                        torch.Generator().manual_seed(0))
+    torch.testing.assert_close(jittered[..., :3], tissue)  # each eye's classes in the one look's gains
+    assert not torch.allclose(jittered[..., :3], jittered[..., 3:])
+    gains = pixel_seat._jittered(torch, images, 0.3, torch.Generator().manual_seed(1))
+    torch.testing.assert_close(gains[..., :3], gains[..., 3:])  # the colour jitter alike in both eyes
+    model = pixel_seat.PixelActor(config, 4)
+    assert np.isfinite(pixel_seat.fit(model, batch, config, 2, 0))

@@ -76,8 +76,8 @@ __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "IMAGE_
 
 AUTORESET_MODES = ("same_step", "disabled")
 #: What ``images()`` draws of a view: the endoscope's (left eye's) colour image, the right eye's, the left eye's depth
-#: and segmentation mask.
-IMAGE_PARTS = ("image", "image_right", "depth", "segmentation")
+#: and segmentation mask, and the right eye's segmentation (on request only: no observation carries it).
+IMAGE_PARTS = ("image", "image_right", "depth", "segmentation", "segmentation_right")
 #: "guided": the dense reward plus the guided terms (:mod:`dvrl_marl.envs.guidance`).
 REWARD_TYPES = ("sparse", "dense", "guided")
 
@@ -321,7 +321,7 @@ class SuctionDebrisBatchedEnv:
         states = self.core.world_states(worlds)
         looks = self._looks(worlds)
         drawn = {}
-        left = [{"image": "rgb"}.get(part, part) for part in named if part != "image_right"]
+        left = [{"image": "rgb"}.get(part, part) for part in named if not part.endswith("_right")]
         if left:
             if self._endoscope is None:
                 self._endoscope = endoscope_renderer(self.params, self.image_size, depth=self.image_depth,
@@ -329,11 +329,14 @@ class SuctionDebrisBatchedEnv:
                                                      contexts=self.image_contexts)
             images = self._endoscope.render(states, *looks, parts=left, worlds=worlds)
             drawn.update({"image" if part == "rgb" else part: value for part, value in images.items()})
-        if "image_right" in named:
+        right = [{"image_right": "rgb", "segmentation_right": "segmentation"}[part] for part in named
+                 if part.endswith("_right")]
+        if right:
             if self._right_eye is None:
                 self._right_eye = endoscope_renderer(self.params, self.image_size, contexts=self.image_contexts,
                                                      eye_mm=STEREO_BASELINE_MM)
-            drawn["image_right"] = self._right_eye.render(states, *looks, parts="rgb", worlds=worlds)["rgb"]
+            images = self._right_eye.render(states, *looks, parts=right, worlds=worlds)
+            drawn.update({("image" if part == "rgb" else part) + "_right": value for part, value in images.items()})
         return drawn
 
     def _looks(self, worlds: np.ndarray) -> tuple:

@@ -102,16 +102,21 @@ class NumpyPolicy:
 
     @property
     def image_options(self) -> dict | None:
-        """The env options this policy's observation needs (``{"image_size": S}`` for a pixel policy), else None."""
-        return None if self.encoder is None else {"image_size": self.encoder.size}
+        """The env options this policy's observation needs (``{"image_size": S}`` for a pixel policy, and
+        ``"image_stereo": True`` for one that sees the stereo pair), else None."""
+        if self.encoder is None:
+            return None
+        return {"image_size": self.encoder.size, **({"image_stereo": True} if self.encoder.stereo else {})}
 
     def _seen(self, observation) -> np.ndarray:
         """A pixel policy's input: the image encoded, then the arm's own proprioception."""
-        if not isinstance(observation, dict) or self.encoder.key not in observation or "observation" not in observation:
+        keys = ("observation", *self.encoder.keys)
+        if not isinstance(observation, dict) or any(key not in observation for key in keys):
             got = sorted(observation) if isinstance(observation, dict) else f"an array {np.shape(observation)}"
-            raise ValueError(f"policy {self.name!r} sees the endoscope: it reads {{'observation', "
-                             f"{self.encoder.key!r}}} from an env made with image_size={self.encoder.size}, got {got}")
-        return self.encoder.observation(observation[self.encoder.key], observation["observation"])
+            made = ", ".join(f"{key}={value!r}" for key, value in self.image_options.items())
+            raise ValueError(f"policy {self.name!r} sees the endoscope: it reads {set(keys)} from an env made with "
+                             f"{made}, got {got}")
+        return self.encoder.observation(self.encoder.image(observation), observation["observation"])
 
     def features(self, observation) -> np.ndarray:
         return self._features(self._observed(observation))
@@ -306,7 +311,7 @@ def _read_policy_folder(path: Path):
                                  f"{array.dtype} {array.shape}")
             return array
 
-        channels = 3
+        channels = 6 if checked.image.stereo else 3  # (the stereo pair's two images side by side)
         for index, (out, kernel, _) in enumerate(checked.image.convolutions):
             kernels.append((image_array(f"K{index}", (out, channels, kernel, kernel)), image_array(f"k{index}", (out,))))
             channels = out

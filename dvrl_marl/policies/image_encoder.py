@@ -1,6 +1,7 @@
 """The convolutional encoder of a policy that sees the endoscope: numpy inference, no torch.
 
-A pixel policy's ``policy.json`` has an ``"image"`` table: the observation key of the image and its size, the
+A pixel policy's ``policy.json`` has an ``"image"`` table: the observation key of the image and its size (with
+``stereo``, the stereo pair's: the key's image, the left eye's, and ``<key>_right``, read as six channels), the
 slice of the ``"observation"`` vector it reads as proprioception (the arm's own tip and tool: what the robot's
 joints tell it), its convolutions ``[channels, kernel, stride]`` (no padding, ReLU after each) and optionally a
 ``readout``: a linear layer of that many outputs after them (estimates of what the scene holds, such as the blood
@@ -50,7 +51,13 @@ class ImageEncoder:
                  readout: tuple[np.ndarray, np.ndarray] | None = None, keypoint_gains: np.ndarray | None = None):
         checked = validated(PolicyImage, image, "policy.json's image")
         self.key, self.size, self.normalise = checked.key, checked.size, checked.normalise
+        #: the stereo pair's (the left eye's channels, then the right eye's ``<key>_right``) or one image's
+        self.stereo, self.channels = checked.stereo, 6 if checked.stereo else 3
+        self.keys = (self.key, f"{self.key}_right") if self.stereo else (self.key,)
         self.convolutions = [tuple(layer) for layer in checked.convolutions]
+        if kernels and np.shape(kernels[0][0])[1:2] != (self.channels,):
+            raise ValueError(f"policy.npz's first kernel reads {np.shape(kernels[0][0])[1:2]} channels; the image "
+                             f"table gives {self.channels} ({'the stereo pair' if self.stereo else 'RGB'})")
         self.proprioception = slice(*checked.proprioception)
         self.kernels = [(w.astype(np.float32), b.astype(np.float32)) for w, b in kernels]
         self.output_size = checked.encoded_size()
@@ -136,10 +143,18 @@ class ImageEncoder:
             self._lowest = np.minimum(self._lowest, estimates)
         return self._lowest  # (the caller writes it into its filled observation: a copy)
 
+    def image(self, observation: dict) -> np.ndarray:
+        """What the convolutions read of an env's observation dict: its image, or the stereo pair's two side by
+        side in the channels (left, then right)."""
+        if len(self.keys) == 1:
+            return np.asarray(observation[self.key])
+        return np.concatenate([np.asarray(observation[key]) for key in self.keys], axis=-1)
+
     def __call__(self, images, own=None) -> np.ndarray:
         images = np.asarray(images)
-        if images.shape[-3:] != (self.size, self.size, 3):
-            raise ValueError(f"the policy sees {self.size} x {self.size} RGB images (make the env with "
+        if images.shape[-3:] != (self.size, self.size, self.channels):
+            seen = "the stereo pair's images (image_stereo=True)" if self.stereo else "RGB images"
+            raise ValueError(f"the policy sees {self.size} x {self.size} {seen} (make the env with "
                              f"image_size={self.size}), got an image of shape {images.shape[-3:]}")
         lead = images.shape[:-3]
         x = images.reshape((-1,) + images.shape[-3:]).astype(np.float32) / 255.0

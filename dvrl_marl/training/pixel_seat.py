@@ -124,6 +124,9 @@ class PixelSeatConfig(BaseModel):
     # per_image: each channel of each image at zero mean and unit spread; brightness: each image scaled to one mean
     # (an exposure: a gain over the whole image changes nothing the network reads)
     normalise: Literal["none", "per_image", "brightness"] = "none"
+    # the student sees the stereo pair (the env's image_stereo): the left and right eyes' images as six channels,
+    # each augmentation alike in both (the same shift, look, light; the noise each its own)
+    stereo: Flag = False
     # frames where the other arm's tip is within near_mm of the arm's own are drawn into the fits' minibatches
     # (1 + near_weight) times as often as the others: where a seat must wait for the other instrument is a few frames
     # of an episode (about 14 % of them within 15 mm beside the surgeons in its way, fewer beside the others: measured)
@@ -196,13 +199,14 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
     class Actor(nn.Module):
         def __init__(self):
             super().__init__()
-            layers, channels = [], 3
+            layers, channels = [], _channels(config)
             for out, kernel, stride in config.convolutions:
                 layers += [nn.Conv2d(channels, out, kernel, stride), nn.ReLU()]
                 channels = out
             self.encoder = nn.Sequential(*layers)
             with torch.no_grad():
-                size = self.encoder(torch.zeros(1, 3, config.image_size, config.image_size)).flatten(1).shape[1]
+                size = self.encoder(torch.zeros(1, _channels(config), config.image_size,
+                                                config.image_size)).flatten(1).shape[1]
             self.gains = None
             self.register_buffer("mask", None)
             if config.acts_by == "teacher":
@@ -253,10 +257,20 @@ def PixelActor(config: PixelSeatConfig, proprioception: int):
             weight = self.readout.weight.detach()
             return (weight if self.mask is None else weight * self.mask).numpy().astype(np.float32)
 
-        def forward(self, images, own):  # images: (B, S, S, 3) uint8
+        def forward(self, images, own):  # images: (B, S, S, 3 or 6) uint8
             return self.head(torch.cat([self.features(images, own), own], dim=1))
 
     return Actor()
+
+
+def _observation_keys(config: PixelSeatConfig) -> list[str]:
+    """The observation's keys the exported policy reads."""
+    return ["observation", "image", *(["image_right"] if config.stereo else [])]
+
+
+def _channels(config: PixelSeatConfig) -> int:
+    """The student's image channels: RGB, or the stereo pair's two side by side."""
+    return 6 if config.stereo else 3
 
 
 def _cleared_levels() -> list[tuple[int, float]]:
@@ -283,6 +297,7 @@ def _env(config: PixelSeatConfig, worlds: int):
 
     options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
     return suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", image_size=config.image_size,
+                                         image_stereo=config.stereo,
                                          image_appearance=None if config.image_appearance == "none"
                                          else config.image_appearance, **options)
 
@@ -370,9 +385,13 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
                                          dtype=np.float32)
         if step % config.record_every == 0:
             live = ~done
-            images.append(seen["image"][live].copy())
+            images.append(np.concatenate([seen["image"], seen["image_right"]], axis=-1)[live] if config.stereo
+                          else seen["image"][live].copy())
             if config.class_jitter > 0:  # the classes the fit colours apart, drawn for the recorded steps alone
-                segments.append(env.images(parts="segmentation")["segmentation"][live])
+                eyes = ("segmentation", "segmentation_right") if config.stereo else ("segmentation",)
+                drawn = env.images(parts=eyes)
+                segments.append(np.stack([drawn[eye][live] for eye in eyes], axis=-1) if config.stereo
+                                else drawn["segmentation"][live])
             proprioception.append(seen["observation"][live, own].astype(np.float32))
             labels.append(label[live])
             target = seen["observation"][live, aux].astype(np.float64)
@@ -417,9 +436,10 @@ def _jittered(torch, images, jitter: float, generator, brightness: bool = True):
     ``brightness``, the gains divided by their mean (the colour changes, the brightness does not)."""
     if jitter == 0.0:
         return images
-    gains = 1.0 + jitter * (2.0 * torch.rand((images.shape[0], 1, 1, images.shape[3]), generator=generator) - 1.0)
+    gains = 1.0 + jitter * (2.0 * torch.rand((images.shape[0], 1, 1, 3), generator=generator) - 1.0)
     if not brightness:
         gains = gains / gains.mean(dim=3, keepdim=True)
+    gains = gains.repeat(1, 1, 1, images.shape[3] // 3)  # (the stereo pair: both eyes alike)
     return (images.float() * gains).clamp(0.0, 255.0)
 
 
@@ -446,8 +466,11 @@ def _class_jittered(torch, images, segmentation, jitter: float, generator):
     from dvrl_marl.envs.endoscope import SEGMENT_CLASSES
 
     count = images.shape[0]
-    gains = 1.0 + jitter * (2.0 * torch.rand((count, len(SEGMENT_CLASSES), images.shape[3]), generator=generator) - 1.0)
-    per_pixel = gains[torch.arange(count)[:, None, None], segmentation.long()]  # (count, S, S, channels)
+    gains = 1.0 + jitter * (2.0 * torch.rand((count, len(SEGMENT_CLASSES), 3), generator=generator) - 1.0)
+    # the stereo pair: each eye's classes (segmentation (count, S, S, 2)) in the same gains
+    eyes = segmentation.unsqueeze(-1) if segmentation.dim() == 3 else segmentation
+    per_pixel = torch.cat([gains[torch.arange(count)[:, None, None], eyes[..., eye].long()]
+                           for eye in range(eyes.shape[-1])], dim=-1)  # (count, S, S, channels)
     return (images.float() * per_pixel).clamp(0.0, 255.0)
 
 
@@ -593,7 +616,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         estimated = list(range(start, stop))
         image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
                  "convolutions": [list(layer) for layer in config.convolutions], "readout": stop - start,
-                 "normalise": config.normalise, "keypoints": config.keypoints,
+                 "normalise": config.normalise, "keypoints": config.keypoints, "stereo": config.stereo,
                  "fills": {"template": [float(value) for value in template], "estimates_at": estimated,
                            "keep_lowest": [index for index, kept in zip(estimated, blood) if kept and
                                            config.keep_lowest], "relative": _relative(config),
@@ -609,7 +632,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
             extra["keep_clear"] = _keep_clear_table(config)
         return write_policy(directory, layers, name=name, env_id="suction_debris_v8",
                             algorithm=f"DAgger (pixels: estimates for {teacher.name})",
-                            observation_keys=["observation", "image"], action_low=teacher.action_low.tolist(),
+                            observation_keys=_observation_keys(config), action_low=teacher.action_low.tolist(),
                             action_high=teacher.action_high.tolist(), kernels=kernels, readout=readout, image=image,
                             agent=config.agent, switch_dimensions=teacher.switch_dimensions, **gains, **extra,
                             **metadata)
@@ -618,11 +641,11 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
                "clip" if index == len(linear) - 1 else "relu") for index, layer in enumerate(linear)]
     image = {"key": "image", "size": config.image_size, "proprioception": list(config.proprioception),
              "convolutions": [list(layer) for layer in config.convolutions],
-             "readout": model.readout.out_features, "normalise": config.normalise}
+             "readout": model.readout.out_features, "normalise": config.normalise, "stereo": config.stereo}
     readout = (model.readout.weight.detach().numpy().astype(np.float32),
                model.readout.bias.detach().numpy().astype(np.float32))
     return write_policy(directory, layers, name=name, env_id="suction_debris_v8", algorithm="DAgger (pixels)",
-                        observation_keys=["observation", "image"], action_low=[-1.0] * 4, action_high=[1.0] * 4,
+                        observation_keys=_observation_keys(config), action_low=[-1.0] * 4, action_high=[1.0] * 4,
                         kernels=kernels, readout=readout, image=image, agent=config.agent, switch_dimensions=[3],
                         **metadata)
 
