@@ -252,7 +252,8 @@ def load(name_or_path) -> NumpyPolicy:
         if str(name_or_path) in available():
             path = shipped_dir() / str(name_or_path)
         else:
-            raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of {available()}")
+            raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of "
+                                    f"{available()}")
     spec, weights, kernels, readout, gains = _read_policy_folder(path)
     return NumpyPolicy(weights, spec, kernels, readout, gains)
 
@@ -313,7 +314,8 @@ def _read_policy_folder(path: Path):
 
         channels = 6 if checked.image.stereo else 3  # (the stereo pair's two images side by side)
         for index, (out, kernel, _) in enumerate(checked.image.convolutions):
-            kernels.append((image_array(f"K{index}", (out, channels, kernel, kernel)), image_array(f"k{index}", (out,))))
+            kernels.append((image_array(f"K{index}", (out, channels, kernel, kernel)),
+                            image_array(f"k{index}", (out,))))
             channels = out
         if checked.image.readout is not None:
             size = (checked.image.readout, checked.image.readout_input_size())
