@@ -10,6 +10,7 @@ and ``--raise-blood``'s.
                                           [--partner in-the-way]
                                           [--raise-blood 0.02] [--near-mm 15]
                                           [--keep-clear-mm 14] [--full-above 0.85]
+                                          [--felt-contact 30 2 100 0.3]
 
 Prints per world: success and steps; the truth and the kept estimate per cavity at its end; the kept estimate's
 least and greatest error over its episode, and the raw estimate's 1st and 99th percentile of error. A seat that left
@@ -19,7 +20,9 @@ seat's action is from its teacher's given the truth in the estimates' place: a s
 teacher would, its blood estimates right, was led there by the rest (and the distance again given the true
 blood alone, the rest as estimated: small where the rest made the seat's action). Where the two tips came within
 ``--near-mm`` of each other (where it must wait for the other instrument): the world's contact steps, the other tip's
-error there and how far its action was from its teacher's given the truth.
+error there, how far its action was from its teacher's given the truth, and in how many of those steps its own tip
+moved 0.3 mm or more short of its command (stopped by the other instrument, a wall or a joint limit: what a seat's
+joints feel).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import argparse
 
 import numpy as np
 from partner_zoo import PARTNERS, partner_seat
-from pixel_seat import exactly_filled, keeping_clear, raised, reading_full_above
+from pixel_seat import exactly_filled, feeling_contact, keeping_clear, raised, reading_full_above
 
 from dvrl_marl import policies
 from dvrl_marl.envs import suction_debris_v8
@@ -48,10 +51,12 @@ class Traced:
         self.other_at = np.asarray(estimates_at)[~self.blood]  # the rest it estimates (the other arm's tip)
         self.teacher = policies.load(policy.spec["teacher"])
         self.raw, self.kept, self.truth, self.other_error, self.action_gap = [], [], [], [], []
-        self.blood_only_gap, self.apart_mm = [], []
+        self.blood_only_gap, self.apart_mm, self.short_mm = [], [], []
+        self._last = None  # the own tip and the move sent at the last call
         env = suction_debris_v8.parallel_env()  # where the tips are in the observation, and its unit
         self.own_tip, self.other_tip = env.observation_layout["own_tip"], env.observation_layout["other_tip"]
         self.mm_per_unit = 1000.0 * env.workspace_range
+        self.step = env.layout().gain ** -1  # an action of 1 moves the tip this far (observation units)
         env.close()
 
     def reset(self, worlds=None):
@@ -64,7 +69,13 @@ class Traced:
         state = np.asarray(observation["observation"], dtype=np.float64)
         self.apart_mm.append(self.mm_per_unit * np.linalg.norm(state[:, self.own_tip] - state[:, self.other_tip],
                                                                axis=1))
-        estimates = self.policy.encoder.estimates(observation["image"], state[:, self.policy.encoder.proprioception])
+        estimates = self.policy.encoder.estimates(self.policy.encoder.image(observation),
+                                                  state[:, self.policy.encoder.proprioception])
+        # how far short of its last command the own tip moved (mm): a move the other instrument or a wall stopped
+        tip = state[:, self.own_tip]
+        self.short_mm.append(np.zeros(len(state)) if self._last is None else self.mm_per_unit * np.linalg.norm(
+            self._last[1] - (tip - self._last[0]), axis=1))
+        self._last = (tip.copy(), np.asarray(action, dtype=np.float64)[:, :3] * self.step)
         self.raw.append(estimates[:, self.blood])
         self.kept.append(self.policy.encoder._lowest[:, self.blood].copy())
         self.truth.append(state[:, self.truth_at])
@@ -98,6 +109,8 @@ def main() -> None:
                         help="the seat keeps this clear of the other instrument (benchmarks/pixel_seat.py's)")
     parser.add_argument("--full-above", type=float,
                         help="its blood estimates at this or more read as full (benchmarks/pixel_seat.py's)")
+    parser.add_argument("--felt-contact", type=float, nargs=4, metavar=("NEAR_MM", "RETREAT_MM", "HOLD", "MM"),
+                        help="the felt-contact rule (benchmarks/pixel_seat.py's)")
     parser.add_argument("--near-mm", type=float, default=15.0,
                         help="the steps where the two tips are within this: the other tip's error and the action's "
                              "gap from the teacher's there")
@@ -109,13 +122,15 @@ def main() -> None:
         policy = keeping_clear(policy, args.keep_clear_mm)
     if args.full_above:
         policy = reading_full_above(policy, args.full_above)
+    if args.felt_contact:
+        policy = feeling_contact(policy, args.felt_contact)
     seat = Traced(raised(policy, args.raise_blood))
     result = teams.evaluate_team_batched({"suction": seat, "grasper": partner_seat(args.partner, "grasper")},
                                          args.episodes, seed=teams.EVAL_SEED + args.first, max_cycles=6000,
                                          **({} if args.look == "scene" else {"image_appearance": args.look}))
-    raw, kept, truth, other_error, gap, blood_only_gap, apart = (
+    raw, kept, truth, other_error, gap, blood_only_gap, apart, short = (
         np.stack(part) for part in (seat.raw, seat.kept, seat.truth, seat.other_error, seat.action_gap,
-                                    seat.blood_only_gap, seat.apart_mm))
+                                    seat.blood_only_gap, seat.apart_mm, seat.short_mm))
     print(f"success {result['success_rate']:.2f} ({args.look} looks, beside {args.partner}, {args.episodes} episodes), "
           f"contact steps {result['mean_contact_steps']:.1f}")
     for world in range(args.episodes):
@@ -136,7 +151,8 @@ def main() -> None:
             print(f"          contact steps {result['contact_steps'][world]:4d}; tips within {args.near_mm:g} mm in "
                   f"{near.sum():4d} steps: other tip's error median {np.median(other_error[:end, world][near]):.3f}, "
                   f"|action - teacher's| mean {gap[:end, world][near].mean():.2f} (> 0.5 in "
-                  f"{(gap[:end, world][near] > 0.5).mean():.0%})")
+                  f"{(gap[:end, world][near] > 0.5).mean():.0%}); its own move 0.3 mm or more short of its command "
+                  f"in {(short[:end, world][near] >= 0.3).sum()} of them")
 
 
 if __name__ == "__main__":
