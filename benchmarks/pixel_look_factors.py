@@ -38,8 +38,7 @@ def play(folder, look: str | None, worlds: int, seed: int) -> dict:
     seat, partner = policies.load(folder), teams.seat("scripted", "grasper")
     start, stop = seat.encoder.fills[1][0], seat.encoder.fills[1][-1] + 1
     options = {} if look is None else {"image_appearance": look}
-    env = suction_debris_v8.batched_env(num_envs=worlds, image_size=seat.encoder.size, autoreset_mode="disabled",
-                                        **options)
+    env = suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", **seat.image_options, **options)
     observations, _ = env.reset(seed=seed)
     seat.reset()
     truth, estimates = [], []
@@ -47,7 +46,7 @@ def play(folder, look: str | None, worlds: int, seed: int) -> dict:
     while not done.all():
         seen = observations["suction"]
         truth.append(seen["observation"][~done, start:stop])
-        estimates.append(seat.encoder(seen["image"][~done]))
+        estimates.append(seat.encoder(seat.encoder.image(seen)[~done]))
         observations, _, terminations, truncations, infos = env.step(
             {"suction": seat(seen), "grasper": partner(observations["grasper"]["observation"])})
         success |= ~done & infos["suction"]["is_success"]
