@@ -128,7 +128,8 @@ def test_the_pixel_suction_loads_with_numpy_alone_and_reads_the_endoscope():
             "import numpy as np\n"
             "from dvrl_marl import policies\n"
             "p = policies.load('marl-suction-pixels')\n"
-            "seen = {'observation': np.zeros((2, 30)), 'image': np.zeros((2, 64, 64, 3), np.uint8)}\n"
+            "seen = {'observation': np.zeros((2, 30)), 'image': np.zeros((2, 64, 64, 3), np.uint8),\n"
+            "        'image_right': np.zeros((2, 64, 64, 3), np.uint8)}\n"
             "print(p.spec['agent'], p.image_options['image_size'], p(seen).shape)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
