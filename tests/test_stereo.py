@@ -5,19 +5,11 @@ the env (parallel, AEC, batched, the seat env, TorchRL), deterministic per seed,
 import mujoco
 import numpy as np
 import pytest
+from test_endoscope import _stepped  # (a batch stepped with random actions)
 
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.envs.appearance import APPEARANCES
 from dvrl_marl.envs.endoscope import STEREO_BASELINE_MM, EndoscopeRenderer, _software_renderer
-
-
-def _stepped(num_envs, steps, seed=0, **options):
-    env = suction_debris_v8.batched_env(num_envs=num_envs, **options)
-    env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    for _ in range(steps):
-        env.step({agent: rng.uniform(-1, 1, (num_envs, 4)) for agent in env.possible_agents})
-    return env
 
 
 def test_the_right_eye_is_the_endoscope_moved_by_the_baseline_along_its_x_axis():
