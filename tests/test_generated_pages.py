@@ -1,0 +1,63 @@
+"""The pages generated from records cannot silently go empty: each holds a row per cell of its records, and says how
+many records it aggregates, which must be every record there is (a page regenerated from fewer, or records added
+without regenerating it, fails here)."""
+
+import collections
+import importlib.util
+import json
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+marl_benchmark = _load_script("marl_benchmark")
+
+
+def _page_rows(page: Path) -> list[list[str]]:
+    lines = [line for line in page.read_text().splitlines() if line.startswith("|")]
+    assert len(lines) >= 2, f"{page}: no table"
+    return [[cell.strip() for cell in line.strip("|").split("|")] for line in lines[2:]]
+
+
+def test_the_benchmark_page_holds_a_row_per_cell_of_the_current_scenes_records():
+    records = [json.loads(path.read_text()) for path in sorted(marl_benchmark.RESULTS.glob("*_seed*.json"))]
+    scene = marl_benchmark.current_scene()
+    cells = collections.Counter((marl_benchmark._library_of(r), r["algorithm"].upper(), r["level"])
+                                for r in records if marl_benchmark._task_of(r) == scene)
+    assert cells, f"no record of the benchmark's scene {scene} in {marl_benchmark.RESULTS}"
+    page = marl_benchmark.DOCS_PAGE
+    rows = _page_rows(page)
+    assert rows, f"{page} has a table without rows: regenerate it (python benchmarks/marl_benchmark.py table)"
+    on_page = {(row[0], row[1], row[2]): int(row[3]) for row in rows}
+    assert on_page == dict(cells), (f"{page} is not the table of the records: regenerate it "
+                                    "(python benchmarks/marl_benchmark.py table)")
+    assert marl_benchmark.records_on_page(page) == sum(cells.values())
+    assert f"`{scene}`" in page.read_text()
+    assert re.search(r"!\[.*\]\(benchmark\.png\)", page.read_text())
+    assert (page.with_suffix(".png")).stat().st_size > 30_000  # bars, not empty axes (17.5 kB)
+
+
+def test_a_regeneration_from_fewer_records_leaves_the_page_as_it_was(tmp_path, capsys):
+    page = tmp_path / "benchmark.md"
+    page.write_text(marl_benchmark.DOCS_PAGE.read_text())
+    before = page.read_text()
+    results = tmp_path / "records"
+    results.mkdir()
+    one = sorted(path for path in marl_benchmark.RESULTS.glob("*_seed*.json")
+                 if marl_benchmark._task_of(json.loads(path.read_text())) == marl_benchmark.current_scene())[0]
+    (results / one.name).write_text(one.read_text())
+    assert marl_benchmark.main(["table", "--results", str(results), "--docs", str(page)]) == 2
+    assert "left as it was" in capsys.readouterr().err and page.read_text() == before
+    (results / one.name).unlink()
+    other = next(marl_benchmark.RESULTS.glob("*_v3_*_seed*.json"))  # an earlier scene's record only
+    (results / other.name).write_text(other.read_text())
+    assert marl_benchmark.main(["table", "--results", str(results), "--docs", str(page)]) == 2
+    assert "no record of the current scene" in capsys.readouterr().err and page.read_text() == before
