@@ -111,9 +111,9 @@ def _train(args) -> int:
         import gymnasium as gym
 
         from dvrl_marl.training.export import export_policy
-        from dvrl_marl.training.runner import sb3_algorithms
+        from dvrl_marl.training.runner import load_final_model
 
-        model = sb3_algorithms()[config.algorithm].load(out / "final_model.zip")
+        model = load_final_model(config, out)
         export_policy(model, args.export, name=Path(args.export).name, env_id=config.env_id,
                       **config.export_metadata(),
                       training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
@@ -405,7 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--out", type=output_folder, help="run folder (default runs/<config>-seed<seed>)")
     train.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     train.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs to <out>/sb3_log")
-    train.add_argument("--export", help="folder to export the final policy to (numpy format)")
+    train.add_argument("--export", type=output_folder, help="folder to export the final policy to (numpy format)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--ray-address", help="MAPPO/IPPO: collect experience on a Ray cluster (auto: the cluster "
                        "this machine joined with `ray start`; host:port; local: a Ray instance of this process)")

@@ -248,3 +248,19 @@ def test_a_goal_env_configuration_extends_another_and_keeps_the_chain(tmp_path):
     assert (short.name, short.total_timesteps) == ("short", 500)
     assert (short.env_id, short.algorithm, short.her) == (record.env_id, record.algorithm, record.her)
     assert short.source.startswith(base.read_text()) and "# --- short.toml ---" in short.source
+
+
+@pytest.mark.parametrize("config", ["reach_lnd_ddpg_her", "pick_lnd_ppo_scratch"])
+def test_the_cli_exports_what_it_trained(tmp_path, config):
+    """``train --export``: an off-policy HER run (SB3 will not load its buffer without an env) and an on-policy one
+    both write a policy that loads and acts."""
+    from dvrl_marl import policies
+    from dvrl_marl.cli import main
+
+    exported = tmp_path / "exported"
+    assert main(["train", config, "--steps", "200", "--out", str(tmp_path / "run"), "--export", str(exported),
+                 "--no-progress"]) == 0
+    policy = policies.load(exported)
+    env = gym.make(policy.spec["env_id"])
+    observation, _ = env.reset(seed=0)
+    assert env.action_space.contains(policy(observation))

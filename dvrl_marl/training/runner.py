@@ -393,6 +393,17 @@ def train(config: RunConfig, seed: int, out_dir, *, total_timesteps: int | None 
     return history
 
 
+def load_final_model(config: RunConfig, out_dir):
+    """A finished run's ``final_model.zip``, for export: off-policy models are loaded beside an env of the config (SB3's
+    HER buffer will not load without one) with a replay buffer of one transition (an export reads the actor alone)."""
+    cls = sb3_algorithms()[config.algorithm]
+    path = Path(out_dir) / "final_model.zip"
+    if config.algorithm in ON_POLICY:
+        return cls.load(path)
+    env = gym.make(config.env_id, **config.env, **config.train_env)
+    return cls.load(path, env=env, custom_objects={"buffer_size": 1, "learning_starts": 0})
+
+
 def log_formats(tensorboard: bool) -> list[str]:
     """SB3 logger formats: CSV always, TensorBoard on request (a clear error if it is not installed)."""
     if tensorboard:
