@@ -197,7 +197,10 @@ def _evaluate(args) -> int:
                              "collaborative scene (it is evaluated beside the pipeline partner on suction_debris_v8); "
                              "dvrl-marl evaluate-team pairs it with other partners")
 
-        agent = policy.spec.get("agent", "grasper")
+        agent = policy.spec.get("agent")
+        if agent not in ("suction", "grasper"):  # (once seated as the grasper without a word)
+            raise ValueError(f"{args.policy}: a policy of {env_id} must say which seat it fills (policy.json's "
+                             f"'agent': 'suction' or 'grasper'), got {agent!r}")
         partner = "suction" if agent == "grasper" else "grasper"
         seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
         preset = policy.spec.get("preset", "default")  # the scene the seat learnt on (its manifest says)
@@ -220,8 +223,9 @@ def _evaluate_team(args) -> int:
     from dvrl_marl.training import teams
 
     seed = teams.EVAL_SEED if args.seed is None else args.seed
+    preset = _team_preset(args.suction, args.grasper, args.preset)  # every seat checked before any pair runs
     rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, noise=args.noise,
-                            **scene_options(args.preset))
+                            **scene_options(preset))
     width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
     print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
           f"{'median steps':>13} {'contacts':>9}")
@@ -230,11 +234,48 @@ def _evaluate_team(args) -> int:
         print(f"{row['suction']:<{width}} {row['grasper']:<{width}} {row['success_rate']:>8.2f} "
               f"{row['mean_blood_removed_ml']:>9.2f} {row['mean_debris_delivered']:>7.2f} {median:>13} "
               f"{row['mean_contact_steps']:>9.1f}")
-    print(f"({args.episodes} episodes each, seeds {seed}..{seed + args.episodes - 1}"
+    print(f"({args.episodes} episodes each on preset {preset!r}, seeds {seed}..{seed + args.episodes - 1}"
           f"{'; learned seats acting with their exploration noise' if args.noise else ''})")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
     return 0
+
+
+#: The seats ``evaluate-team`` builds by name rather than from a policy file (dvrl_marl.training.teams.seat).
+_NAMED_SEATS = ("scripted", "keep-clear", "sweeping", "yielding", "person-like", "in-the-way", "pipeline")
+
+
+def _team_preset(suctions, graspers, given) -> str:
+    """The preset every pair of ``evaluate-team`` runs on, after checking every seat it names: the one the learned
+    seats record (a policy without one learnt on the default scene), or ``--preset``; a learned seat beside another
+    of a different preset needs ``--preset``, and a ``--preset`` other than a seat's own is said."""
+    from dvrl_marl import policies
+
+    recorded = {}
+    for flag, agent, names in (("--suction", "suction", suctions), ("--grasper", "grasper", graspers)):
+        for name in names:
+            if name in _NAMED_SEATS:
+                if name == "yielding" and agent != "suction":
+                    raise ValueError(f"{flag} yielding: 'yielding' is a suction seat")
+                continue
+            try:
+                policy = policies.load_seat(name, agent, who=flag)
+            except FileNotFoundError:
+                raise ValueError(f"{flag} {name!r}: not a seat ({', '.join(_NAMED_SEATS)}), a shipped policy "
+                                 f"({', '.join(policies.available())}) nor a policy folder") from None
+            recorded[name] = policy.spec.get("preset", "default")
+    presets = sorted(set(recorded.values()))
+    if given is None:
+        if len(presets) > 1:
+            raise ValueError("the learned seats learnt on different presets ("
+                             + ", ".join(f"{name}: {preset}" for name, preset in recorded.items())
+                             + "); choose the scene with --preset")
+        return presets[0] if presets else "default"
+    other = {name: preset for name, preset in recorded.items() if preset != given}
+    if other:
+        print("dvrl-marl: note: --preset " + given + " is not the preset "
+              + ", ".join(f"{name} learnt on ({preset})" for name, preset in other.items()), file=sys.stderr)
+    return given
 
 
 def _plot(args) -> int:
@@ -436,9 +477,10 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--episodes", type=COUNT, default=100)
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", type=output_file, help="also write the rows to this JSON file")
-    team.add_argument("--preset", choices=sorted(PRESETS), default="default",
-                      help="the scene's preset (suction_debris_v8); its learning options (reward, observation "
-                           "features) are left out, since the seats compute their own features")
+    team.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                      help="the scene's preset (suction_debris_v8; default: the one the learned seats record, else "
+                           "default); its learning options (reward, observation features) are left out, since the "
+                           "seats compute their own features")
     team.add_argument("--noise", action="store_true",
                       help="learned seats act with the exploration noise they trained with (seeded; their policy.json "
                            "records it), not their mean action")

@@ -72,3 +72,36 @@ def test_a_progress_file_without_its_columns_is_named(capsys, tmp_path):
 ])
 def test_a_trainer_flag_that_does_not_apply_is_named(capsys, argv, named):
     assert named in _refused(argv, capsys)
+
+
+def test_evaluate_team_checks_every_seat_before_any_pair_runs(capsys):
+    message = _refused(["evaluate-team", "--suction", "scripted", "benchmark-suction", "--grasper", "scripted",
+                        "benchmark-grasperr", "--episodes", "1"], capsys)
+    assert "--grasper 'benchmark-grasperr': not a seat" in message and "benchmark-grasper," in message
+    assert "was trained for the 'grasper' seat" in _refused(["evaluate-team", "--suction", "marl-grasper"], capsys)
+
+
+def test_evaluate_team_plays_the_preset_its_seats_learnt_on(capsys):
+    from dvrl_marl.cli import _team_preset
+
+    assert _team_preset(["benchmark-suction"], ["benchmark-grasper"], None) == "benchmark"
+    assert _team_preset(["scripted"], ["benchmark-grasper"], None) == "benchmark"
+    assert _team_preset(["marl-suction"], ["scripted"], None) == "default"
+    assert _team_preset(["benchmark-suction"], ["benchmark-grasper"], "default") == "default"
+    assert "not the preset benchmark-suction learnt on (benchmark)" in capsys.readouterr().err
+    assert "choose the scene with --preset" in _refused(["evaluate-team", "--suction", "benchmark-suction",
+                                                         "--grasper", "marl-grasper"], capsys)
+
+
+def test_a_seat_policy_that_does_not_name_its_seat_is_refused(capsys, tmp_path):
+    import json
+    import shutil
+
+    from dvrl_marl import policies
+
+    folder = tmp_path / "seat"
+    shutil.copytree(policies.shipped_dir() / "marl-grasper", folder)
+    spec = json.loads((folder / "policy.json").read_text())
+    del spec["agent"]
+    (folder / "policy.json").write_text(json.dumps(spec))
+    assert "must say which seat it fills" in _refused(["evaluate", str(folder), "--episodes", "1"], capsys)
