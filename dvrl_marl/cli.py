@@ -210,11 +210,21 @@ def _evaluate(args) -> int:
         print(json.dumps({"policy": str(args.policy), "env_id": env_id, "preset": preset, "seat": agent,
                           "partner": "pipeline (learned_team)", **result}, indent=2))
         return 0
+    _check_env_id(env_id, "--env" if args.env else f"{args.policy}'s env_id")
     env_kwargs = {"tool": args.tool} if args.tool else {}
     result = evaluate_policy(policy, env_id, args.episodes, seed=args.seed, env_kwargs=env_kwargs, video_path=args.video)
     result.update({"policy": str(args.policy), "env_id": env_id, **env_kwargs})
     print(json.dumps(result, indent=2))
     return 0
+
+
+def _check_env_id(env_id: str, what: str) -> None:
+    """An env id Gymnasium knows, or an error naming what gave it and the library's own ids."""
+    import gymnasium as gym
+
+    if env_id not in gym.registry:
+        ours = sorted(name for name in gym.registry if name.startswith("dvrl_marl/"))
+        raise ValueError(f"{what} {env_id!r} is not a registered environment; this library's: {', '.join(ours)}")
 
 
 def _evaluate_team(args) -> int:
@@ -380,6 +390,26 @@ def output_folder(text: str) -> str:
     return text
 
 
+#: The image files ``render`` writes (what imageio's Pillow plugin writes).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+def image_file(text: str) -> str:
+    """An image file to write: :func:`output_file`, with a suffix that names an image format."""
+    if Path(text).is_dir() or Path(text).suffix.lower() in IMAGE_SUFFIXES:
+        return output_file(text)  # (a folder is named as one)
+    raise argparse.ArgumentTypeError(f"{text!r} has no image suffix; give one of {', '.join(IMAGE_SUFFIXES)}")
+
+
+def device_name(text: str) -> str:
+    """A device of the compiled trainers: ``cpu``, ``cuda`` or ``cuda:<index>`` (what is there is checked when the
+    run starts, before any work)."""
+    kind, colon, index = text.partition(":")
+    if kind not in ("cpu", "cuda") or (colon and (kind == "cpu" or not index.isdigit())):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a device; give cpu, cuda or cuda:<index>")
+    return text
+
+
 def host_address(text: str) -> str:
     """An interface to serve on: an IP address or a name this machine resolves."""
     import socket
@@ -433,7 +463,8 @@ def build_parser() -> argparse.ArgumentParser:
     render = sub.add_parser("render", help="render a scene from its endoscope camera and print a summary")
     render.add_argument("--scene", default="collaborative", help="a scene with an endoscope camera: collaborative "
                         "(default), pick_lnd, pick_lnd_v1, reach_lnd, reach_suction_irrigation")
-    render.add_argument("--out", type=output_file, default="collaborative.png", help="PNG file to write")
+    render.add_argument("--out", type=image_file, default="collaborative.png",
+                        help=f"image file to write ({', '.join(IMAGE_SUFFIXES)}; default collaborative.png)")
     render.add_argument("--width", type=COUNT, default=640)
     render.add_argument("--height", type=COUNT, default=480)
     render.set_defaults(func=_render)
@@ -456,7 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="MAPPO/IPPO: record, the trainer of record (TorchRL; checkpoints, partners, Ray); device, "
                        "everything on --device (dvrl_marl.training.device_mappo); jax, each update cycle compiled "
                        'whole by JAX (dvrl_marl.training.jax_mappo; pip install "dvrl-marl[jax]")')
-    train.add_argument("--device", help="--trainer device or jax: cpu (default), cuda or cuda:<index>")
+    train.add_argument("--device", type=device_name, help="--trainer device or jax: cpu (default), cuda or "
+                       "cuda:<index>")
     train.add_argument("--validators", type=COUNT, help="--trainer jax: validations scored at once (default 1)")
     train.set_defaults(func=_train)
 
@@ -510,7 +542,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dvrl-marl: {args.command} needs the {extra} extra ({error.name} is not installed): "
               f'pip install "dvrl-marl[{extra}]"', file=sys.stderr)
         return 2
-    except (FileNotFoundError, ValueError) as error:
+    except (OSError, ValueError, RuntimeError) as error:  # (a file, a value, a device or OpenGL: said, no traceback)
         print(f"dvrl-marl: error: {error}", file=sys.stderr)
         return 2
 

@@ -45,6 +45,10 @@ def render_scene(name: str, width: int = 640, height: int = 480) -> np.ndarray:
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "endoscope") < 0:
         raise ValueError(f"scene {name!r} has no endoscope camera: it is a part that scenes include; renderable "
                          f"scenes: {renderable_scenes()}")
+    # the offscreen framebuffer made as large as the image (the scenes' is 1920 x 1080); past what the OpenGL can
+    # draw, the renderer says so
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, int(width))
+    model.vis.global_.offheight = max(model.vis.global_.offheight, int(height))
     data = mujoco.MjData(model)
     for prefix, tool in scene_arms(model).items():
         arm = Arm(model, data, prefix, tool)

@@ -86,7 +86,12 @@ class SceneRenderer:
             self.model.vis.quality.offsamples = 0
         try:
             renderer = mujoco.Renderer(self.model, self.height, self.width)
+        except ValueError as error:  # larger than the model's offscreen framebuffer
+            raise ValueError(f"render size {self.width} x {self.height}: {str(error).splitlines()[0]}") from None
         except Exception as error:  # MuJoCo raises FatalError when no OpenGL context could be made
+            if "framebuffer" in str(error):  # a size past what this OpenGL draws offscreen
+                raise ValueError(f"render size {self.width} x {self.height} is past what this OpenGL can draw "
+                                 f"offscreen ({error})") from None
             raise RuntimeError(
                 "could not create an OpenGL context for offscreen rendering; on a machine without a display set "
                 "MUJOCO_GL=egl before anything imports mujoco (importing dvrl_marl first does this for you)"

@@ -105,3 +105,36 @@ def test_a_seat_policy_that_does_not_name_its_seat_is_refused(capsys, tmp_path):
     del spec["agent"]
     (folder / "policy.json").write_text(json.dumps(spec))
     assert "must say which seat it fills" in _refused(["evaluate", str(folder), "--episodes", "1"], capsys)
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["render", "--out", "{tmp}/scene"], "has no image suffix"),
+    (["render", "--out", "{tmp}/scene.xyz"], "has no image suffix"),
+    (["train", "suction_debris_mappo", "--trainer", "device", "--device", "tpu"], "'tpu' is not a device"),
+    (["train", "suction_debris_mappo", "--trainer", "jax", "--device", "cpu:abc"], "'cpu:abc' is not a device"),
+    (["train", "suction_debris_mappo", "--trainer", "jax", "--device", "cuda:x"], "'cuda:x' is not a device"),
+    (["evaluate", "reach-lnd", "--env", "dvrl_marl/Nope-v1", "--episodes", "1"],
+     "--env 'dvrl_marl/Nope-v1' is not a registered environment"),
+])
+def test_paths_that_once_ended_in_a_traceback_name_what_was_wrong(capsys, tmp_path, argv, named):
+    message = _refused([part.replace("{tmp}", str(tmp_path)) for part in argv], capsys)
+    assert named in message and "Traceback" not in message
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_a_policy_of_an_unknown_env_is_named(capsys, tmp_path):
+    import json
+    import shutil
+
+    from dvrl_marl import policies
+
+    shutil.copytree(policies.shipped_dir() / "reach-lnd", tmp_path / "policy")
+    spec = json.loads((tmp_path / "policy" / "policy.json").read_text())
+    (tmp_path / "policy" / "policy.json").write_text(json.dumps({**spec, "env_id": "dvrl_marl/PSMReach-v0"}))
+    message = _refused(["evaluate", str(tmp_path / "policy"), "--episodes", "1"], capsys)
+    assert "env_id 'dvrl_marl/PSMReach-v0' is not a registered environment" in message
+
+
+def test_a_render_past_what_the_opengl_draws_is_named(capsys, tmp_path):
+    message = _refused(["render", "--width", "40000", "--height", "16", "--out", str(tmp_path / "wide.png")], capsys)
+    assert "render size 40000 x 16" in message and not (tmp_path / "wide.png").exists()

@@ -52,9 +52,9 @@ def jax_device(device):
     if hasattr(device, "platform"):  # a JAX device already
         return device
     text = str(device)
-    kind, _, index = text.partition(":")
+    kind, colon, index = text.partition(":")
     platform = {"cuda": "gpu", "gpu": "gpu", "cpu": "cpu"}.get(kind)
-    if platform is None:
+    if platform is None or (colon and not index.isdigit()):
         raise ValueError(f"device must be 'cpu', 'cuda' or 'cuda:<index>', got {device!r}")
     try:
         devices = jax.devices(platform)
