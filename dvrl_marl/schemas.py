@@ -336,6 +336,13 @@ class PolicyImage(BaseModel):
         return self.convolved_size() + 2 * self.convolutions[-1][0] + stop - start
 
 
+#: The workspace's span in observation units (positions are normalised to [-1, 1]).
+WORKSPACE_SPAN = 2.0
+#: The longest episode the collaborative scene runs (a person's seat: 2 minutes at 50 Hz), the bound of a policy's
+#: counts of steps.
+MAX_EPISODE_STEPS = 6000
+
+
 class PolicyKeepClear(BaseModel):
     """A policy's ``keep_clear`` (:mod:`dvrl_marl.policies`): its motion withheld where it would bring its instrument
     within ``keep`` of the other's and nearer, in the observation's coordinates (``keep_mm`` as read by a person).
@@ -358,7 +365,17 @@ class PolicyKeepClear(BaseModel):
             if stop - start != 3:
                 raise ValueError(f"{name} must span three observation values, [start, start + 3), got "
                                  f"{getattr(self, name)}")
+        if self.keep > WORKSPACE_SPAN:  # (a seat that keeps clear of the whole workspace never moves)
+            raise ValueError(f"keep {self.keep} (keep_mm {self.keep_mm}) is wider than the workspace "
+                             f"({WORKSPACE_SPAN} observation units across)")
+        for name in ("own_centre", "other_centre"):
+            if max(abs(v) for v in getattr(self, name)) > 10 * WORKSPACE_SPAN:
+                raise ValueError(f"{name} {getattr(self, name)} lies far outside the workspace (observation units)")
         return self
+
+    def mm_per_unit(self) -> float:
+        """Millimetres per observation unit, as this table reads them (``keep_mm / keep``)."""
+        return self.keep_mm / self.keep
 
 
 class PolicyFeltContact(BaseModel):
@@ -373,7 +390,21 @@ class PolicyFeltContact(BaseModel):
     retreat: Positive
     threshold_mm: Positive
     threshold: Positive
-    hold_steps: PositiveInt
+    hold_steps: Annotated[int, _NUMBER, Strict(), Field(ge=1, le=MAX_EPISODE_STEPS)]
+
+    @model_validator(mode="after")
+    def _sizes(self):
+        units = {name: getattr(self, f"{name}_mm") / getattr(self, name) for name in ("near", "retreat", "threshold")}
+        if max(units.values()) > min(units.values()) * (1 + 1e-6):
+            raise ValueError(f"the _mm values and their observation units disagree: {units} mm per unit")
+        if self.near > WORKSPACE_SPAN:
+            raise ValueError(f"near {self.near} (near_mm {self.near_mm}) is wider than the workspace "
+                             f"({WORKSPACE_SPAN} observation units across)")
+        for name in ("retreat", "threshold"):
+            if not getattr(self, name) < self.near:
+                raise ValueError(f"{name}_mm {getattr(self, f'{name}_mm')} must be below near_mm {self.near_mm} (a "
+                                 f"touch is felt within near, and the tip keeps within it)")
+        return self
 
 
 class PolicyFile(BaseModel):
@@ -398,6 +429,11 @@ class PolicyFile(BaseModel):
         if self.felt_contact is not None and self.keep_clear is None:
             raise ValueError("felt_contact reads the tips, the arms' centres and the action's gain from keep_clear, "
                              "which the policy lacks")
+        if self.felt_contact is not None:
+            keep, felt = self.keep_clear.mm_per_unit(), self.felt_contact.near_mm / self.felt_contact.near
+            if abs(keep - felt) > 1e-6 * keep:
+                raise ValueError(f"keep_clear reads {keep:g} mm per observation unit, felt_contact {felt:g}: the "
+                                 "two tables must be of one scene")
         if self.keep_clear is not None:
             if self.image is not None and self.image.fills is None:
                 raise ValueError("keep_clear reads the two tips from the observation: a pixel policy has them only "

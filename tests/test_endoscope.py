@@ -492,3 +492,23 @@ def test_one_quantity_held_out_draws_it_from_the_held_out_range_and_the_rest_fro
     for wrong in [("blood",), ("colour", "blood"), ()]:
         with pytest.raises(ValueError, match="quantities must be among"):
             held_out_only(*wrong)
+
+
+@pytest.mark.parametrize("form", ["batched", "parallel"])
+def test_an_env_with_images_is_pickled_and_copied_after_it_drew_and_a_copy_outlives_the_original(form):
+    """The renderers do not travel: a pickle, a deep copy and a shallow copy make their own when they first draw, and
+    draw what the original drew (a shallow copy that shared them once broke when the original closed)."""
+    import copy
+    import pickle
+
+    make = {"batched": lambda: suction_debris_v8.batched_env(num_envs=2, image_size=32, image_stereo=True),
+            "parallel": lambda: suction_debris_v8.parallel_env(image_size=32)}[form]
+    env = make()
+    drawn, _ = env.reset(seed=3)
+    copies = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env), copy.copy(env)]
+    env.close()
+    for copied in copies:
+        again, _ = copied.reset(seed=3)
+        for key in drawn["suction"]:
+            np.testing.assert_array_equal(again["suction"][key], drawn["suction"][key])
+        copied.close()

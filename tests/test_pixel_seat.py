@@ -124,6 +124,7 @@ def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its
     policy = policies.load(folder)
     assert policy.spec["image"]["fills"]["keep_lowest"] == [7, 8]
     bright, dark = _observation(3, seed=1), _observation(3, seed=2)
+    dark["observation"] = bright["observation"]  # one episode: the tips where they were (a jump starts another)
     encoder = policy.encoder
     first = encoder(bright["image"])  # (the margin folded into the read-out)
     second = encoder(dark["image"])
@@ -144,6 +145,28 @@ def test_a_seat_keeping_its_lowest_estimates_keeps_them_world_by_world_until_its
     plain.encoder.keep_lowest = None
     policy.reset()
     np.testing.assert_array_equal(policy(bright), plain(bright))
+
+
+def test_a_seat_called_across_episodes_without_reset_starts_them_where_its_tip_jumps(tmp_path):
+    """keep_lowest without reset(): a world whose tip moved NEW_EPISODE_JUMP or more since the last call starts a new
+    episode (its lowest estimates forgotten, as reset(worlds) would); smaller moves keep them."""
+    from dvrl_marl.policies.image_encoder import NEW_EPISODE_JUMP
+
+    config = _config(acts_by="teacher", estimated=[7, 9], keep_lowest=True, convolutions=[[8, 8, 4]])
+    torch.manual_seed(0)
+    folder = pixel_seat.export(pixel_seat.PixelActor(config, 4), config, tmp_path / "policy", "test-jump", {},
+                               np.full(30, np.nan))
+    policy = policies.load(folder)
+    bright, dark = _observation(3, seed=1), _observation(3, seed=2)
+    first, second = policy.encoder(bright["image"]), policy.encoder(dark["image"])
+    seen = lambda o: policy.encoder.observation(o["image"], o["observation"])[:, 7:9]  # noqa: E731
+    seen(bright)
+    moved = bright["observation"].copy()
+    moved[0, 0:3] += 0.9 * NEW_EPISODE_JUMP / np.sqrt(3)  # a step within an episode
+    moved[2, 0:3] += 1.1 * NEW_EPISODE_JUMP / np.sqrt(3)  # a new episode's start
+    expected = np.minimum(first, second)
+    expected[2] = second[2]
+    np.testing.assert_allclose(seen({"image": dark["image"], "observation": moved}), expected, atol=1e-6)
 
 
 def test_a_seat_reads_its_kept_blood_estimates_at_full_above_or_more_as_full(tmp_path):
@@ -508,6 +531,7 @@ def test_a_seat_estimating_the_other_tip_raises_and_keeps_lowest_only_the_blood(
     assert policy.spec["image"]["fills"]["estimates_at"] == [4, 5, 6, 7, 8]
     assert policy.spec["image"]["fills"]["keep_lowest"] == [7, 8]
     bright, dark = _observation(3, seed=1), _observation(3, seed=2)
+    dark["observation"] = bright["observation"]  # one episode (a tip's jump starts another)
     with torch.no_grad():
         raw = [model.features(torch.from_numpy(o["image"])).numpy() for o in (bright, dark)]
     seen = lambda o: policy.encoder.observation(o["image"], o["observation"])  # noqa: E731

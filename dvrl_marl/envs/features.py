@@ -20,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["spec", "suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
-           "suction_debris_cleared_pins_zoom", "suction_debris_bleeding", "psm_pick_zoom", "pick_spec", "SCENE_FEATURE_SETS", "routes_geometry", "feature_count", "apply", "FEATURES"]
+           "suction_debris_cleared_pins_zoom", "suction_debris_bleeding", "psm_pick_zoom", "pick_spec", "SCENE_FEATURE_SETS", "routes_geometry", "feature_count", "apply", "FEATURES",
+           "check_spec", "observation_width"]
 
 #: A distance no pin in the normalised workspace reaches (masked slots).
 _FAR = 1e6
@@ -344,6 +345,50 @@ _ARGUMENTS = {"suction_debris_targets": _SCENE_ARGUMENTS[:2],
 #: Feature sets that carry the scene's geometry in their spec (:func:`routes_geometry`).
 NEEDS_GEOMETRY = {"suction_debris_routes", "suction_debris_cleared_pins", "suction_debris_cleared_pins_zoom",
                   "suction_debris_bleeding"}
+
+
+def observation_width(spec: dict) -> int | None:
+    """The observation length a feature set reads (the collaborative scene's: tips, tool, blood, pin slots, hand-off),
+    or None where the set does not fix it (a single-arm set)."""
+    if spec.get("name") in SCENE_FEATURE_SETS:
+        return 7 + int(spec["cavities"]) + 6 * int(spec["debris"]) + 3
+    return None
+
+
+def check_spec(spec) -> None:
+    """A feature set as a policy file keeps it, checked before any observation meets it: a known name, exactly its
+    arguments, counts >= 1, and every geometry value finite, of one entry per cavity (a NaN centre once gave NaN
+    actions, a wrong count numpy's own errors at the first step)."""
+    if not isinstance(spec, dict):
+        raise ValueError(f"a feature set is a table ({{'name': ..., arguments}}), got {spec!r}")
+    name = spec.get("name")
+    if name not in _PARTS:
+        raise ValueError(f"unknown observation features {name!r} (known: {sorted(_PARTS)})")
+    given, wanted = set(spec) - {"name"}, set(_ARGUMENTS[name])
+    if given != wanted:
+        raise ValueError(f"observation features {name!r} take the arguments {sorted(wanted)}"
+                         + (f"; missing {sorted(wanted - given)}" if wanted - given else "")
+                         + (f"; unknown {sorted(given - wanted)}" if given - wanted else ""))
+    for key in ("cavities", "debris"):
+        if key in spec and (type(spec[key]) is not int or spec[key] < 1):
+            raise ValueError(f"observation features {name!r}: {key} must be an integer >= 1, got {spec[key]!r}")
+    shapes = {"cavity_centres": (spec.get("cavities"), 2), "cavity_targets_z": (spec.get("cavities"),),
+              "blood_threshold_fraction": (spec.get("cavities"),), "cavity_mouth_radius": (), "rim_z": (),
+              "tool_point_drop": (), "zoom": ()}
+    for key, shape in shapes.items():
+        if key not in spec:
+            continue
+        value = spec[key]
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"observation features {name!r}: {key} must be numbers, got {value!r}") from None
+        if isinstance(value, bool) or array.shape != shape or not np.all(np.isfinite(array)):
+            raise ValueError(f"observation features {name!r}: {key} must be finite numbers of shape {shape} "
+                             f"(one per cavity where it has an axis), got {value!r}")
+    for key in ("cavity_mouth_radius", "zoom"):
+        if key in spec and not spec[key] > 0:
+            raise ValueError(f"observation features {name!r}: {key} must be > 0, got {spec[key]!r}")
 
 
 def apply(spec: dict, observation):

@@ -699,6 +699,20 @@ class SuctionDebrisBatchedEnv:
             self._mirror = SceneMirror(self.params, self.render_mode, width=width, height=height, **renderer_options)
         return self._mirror
 
+    #: What draws (OpenGL contexts, their threads, a window): a copy or a pickle of the env carries none of them and
+    #: makes its own when it first draws (a copy that shared them lost them when the original closed).
+    _DRAWING = ("_endoscope", "_right_eye", "_mirror")
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.update(dict.fromkeys(self._DRAWING))
+        return state
+
+    def __copy__(self):
+        copied = type(self).__new__(type(self))
+        copied.__dict__.update(self.__getstate__())
+        return copied
+
     def close(self) -> None:
         if self._mirror is not None:
             self._mirror.close()

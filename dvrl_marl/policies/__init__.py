@@ -87,7 +87,15 @@ class NumpyPolicy:
         if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
             from dvrl_marl.envs import features
 
-            self._feature_count = features.feature_count((spec["features"] or {}).get("name"))
+            features.check_spec(spec["features"])
+            self._feature_count = features.feature_count(spec["features"]["name"])
+            reads = features.observation_width(spec["features"])
+            width = (len(self.encoder.fills[0]) if self.encoder is not None and self.encoder.fills is not None
+                     else None if self.encoder is not None else weights[0][0].shape[1] - self._feature_count)
+            if reads is not None and width is not None and width != reads:
+                raise ValueError(f"policy {self.name!r}: its features read an observation of {reads} values "
+                                 f"({spec['features']['cavities']} cavities, {spec['features']['debris']} pins), its "
+                                 f"network {width}")
         if self.keep_clear is not None:
             width = (len(self.encoder.fills[0]) if self.encoder is not None and self.encoder.fills is not None
                      else weights[0][0].shape[1] - self._feature_count)
@@ -116,7 +124,18 @@ class NumpyPolicy:
             made = ", ".join(f"{key}={value!r}" for key, value in self.image_options.items())
             raise ValueError(f"policy {self.name!r} sees the endoscope: it reads {set(keys)} from an env made with "
                              f"{made}, got {got}")
-        return self.encoder.observation(self.encoder.image(observation), observation["observation"])
+        images, vector = self.encoder.image(observation), np.asarray(observation["observation"])
+        if self.encoder.fills is not None:
+            wanted = f"{len(self.encoder.fills[0])} values"
+            fits = vector.shape[-1:] == (len(self.encoder.fills[0]),)
+        else:
+            wanted = f"at least {self.encoder.proprioception.stop} values"
+            fits = vector.ndim >= 1 and vector.shape[-1] >= self.encoder.proprioception.stop
+        if not fits or vector.shape[:-1] != images.shape[:-3]:
+            raise ValueError(f"policy {self.name!r} reads 'observation' as {wanted} per world, one per image, got "
+                             f"shape {vector.shape} beside images {images.shape}")
+        _check_finite(self.name, vector, "'observation'")
+        return self.encoder.observation(images, vector)
 
     def features(self, observation) -> np.ndarray:
         return self._features(self._observed(observation))
@@ -140,6 +159,7 @@ class NumpyPolicy:
             x = np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
         else:
             x = np.asarray(observation, dtype=np.float64)
+        _check_finite(self.name, x, "observation")
         expected = self.weights[0][0].shape[1] - self._feature_count
         if self._feature_count and x.shape[-1] == expected:  # features it computes from its observation
             from dvrl_marl.envs import features
@@ -191,6 +211,12 @@ class NumpyPolicy:
         x = np.asarray(observed["observation"] if isinstance(observed, dict) else observed, dtype=np.float64)
         action = keep_clear(action, x, self.keep_clear)
         return action if self.felt_contact is None else self.felt_contact(action, x)
+
+
+def _check_finite(name: str, values: np.ndarray, what: str) -> None:
+    """A policy's input must be numbers: NaN or inf in, NaN actions out (said here, not after an episode of them)."""
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"policy {name!r}: its {what} holds NaN or inf")
 
 
 class NoisyPolicy:
@@ -255,7 +281,10 @@ def load(name_or_path) -> NumpyPolicy:
             raise FileNotFoundError(f"no policy {name_or_path!r}: not a folder with policy.json, nor one of "
                                     f"{available()}")
     spec, weights, kernels, readout, gains = _read_policy_folder(path)
-    return NumpyPolicy(weights, spec, kernels, readout, gains)
+    try:
+        return NumpyPolicy(weights, spec, kernels, readout, gains)
+    except ValueError as error:  # (every table checked at load: the file named)
+        raise ValueError(f"{path / 'policy.json'}: {error}") from None
 
 
 def load_seat(name_or_path, agent: str, who: str = "partner") -> NumpyPolicy:

@@ -32,11 +32,18 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from dvrl_marl.schemas import PolicyImage, validated
 
-__all__ = ["ImageEncoder", "NORMALISE_FLOOR", "FULL", "keypoints"]
+__all__ = ["ImageEncoder", "NORMALISE_FLOOR", "FULL", "NEW_EPISODE_JUMP", "keypoints"]
 
 #: ``normalise = "per_image"``: added to a channel's spread (``"brightness"``: to an image's mean), so that a flat
 #: (or black) image is not blown up.
 NORMALISE_FLOOR = 0.02
+
+#: ``keep_lowest``: a move of the tip (the proprioception's first three values, the observation's ``own_tip``) this
+#: large or larger in one call starts the world's episode anew, as a reset does: the tip moves at most 0.022 a step
+#: (measured: every action at +-1), and a new episode puts it back at its start (0.117 or more away in 64 episodes of
+#: such moves). A seat called across episodes without ``reset()`` kept the last episode's emptied cavities and
+#: finished 1 of 20 episodes beside the scripted surgeon.
+NEW_EPISODE_JUMP = 0.05
 
 #: A cavity's blood left when it is full, in the observation's terms (its share of the cavity's start): what
 #: ``fills.full_above`` reads an estimate as.
@@ -77,6 +84,7 @@ class ImageEncoder:
             kept = np.isin(checked.fills.estimates_at, checked.fills.keep_lowest)
             self.keep_lowest = kept if kept.any() else None
         self._lowest = None  # keep_lowest: the lowest estimates of each world's episode so far
+        self._last_tip = None  # keep_lowest: each world's tip at the last call (a jump starts a new episode)
         # keep_lowest's estimates at this or more read as full (1), or None
         self.full_above = None if checked.fills is None else checked.fills.full_above
         # fills.relative: the read-out's outputs that are offsets, and the proprioception's entries added to them
@@ -100,6 +108,7 @@ class ImageEncoder:
             return np.concatenate([self(images, own).astype(np.float64), own], axis=-1)
         encoded = self.estimates(images, own)
         if self.keep_lowest is not None:
+            self._start_jumped_episodes(own)
             encoded = np.where(self.keep_lowest, self._kept_lowest(encoded), encoded)
             if self.full_above is not None:
                 encoded = np.where(self.keep_lowest & (encoded >= self.full_above), FULL, encoded)
@@ -127,9 +136,19 @@ class ImageEncoder:
         """Start the episodes of ``worlds`` (a boolean mask or indices over the batch; None: every world): the
         lowest estimates kept (``keep_lowest``) are forgotten there."""
         if self._lowest is None or worlds is None:
-            self._lowest = None
+            self._lowest = self._last_tip = None
             return
         self._lowest[np.asarray(worlds)] = np.inf
+
+    def _start_jumped_episodes(self, own: np.ndarray) -> None:
+        """The worlds whose tip jumped (:data:`NEW_EPISODE_JUMP`) since the last call start new episodes: their
+        lowest estimates are forgotten, as :meth:`reset` would (a caller that never resets is not misled)."""
+        tip = np.asarray(own, dtype=np.float64)[..., :3]
+        if self._last_tip is not None and self._last_tip.shape == tip.shape and self._lowest is not None:
+            jumped = np.linalg.norm(tip - self._last_tip, axis=-1) >= NEW_EPISODE_JUMP
+            if self._lowest.shape[:-1] == jumped.shape and np.any(jumped):
+                self._lowest = np.where(jumped[..., None], np.inf, self._lowest)
+        self._last_tip = tip.copy()
 
     def _kept_lowest(self, estimates: np.ndarray) -> np.ndarray:
         """Each estimate the lowest its world's episode has seen (the caller keeps those ``keep_lowest`` names). Why:
@@ -146,9 +165,15 @@ class ImageEncoder:
     def image(self, observation: dict) -> np.ndarray:
         """What the convolutions read of an env's observation dict: its image, or the stereo pair's two side by
         side in the channels (left, then right)."""
-        if len(self.keys) == 1:
-            return np.asarray(observation[self.key])
-        return np.concatenate([np.asarray(observation[key]) for key in self.keys], axis=-1)
+        eyes = [np.asarray(observation[key]) for key in self.keys]
+        for key, eye in zip(self.keys, eyes):
+            if eye.dtype != np.uint8:  # (floats in 0..1 read as black, uint16 as glare; NaN cannot be uint8)
+                raise ValueError(f"the policy reads {key!r} as the env draws it, uint8 RGB in 0..255, got {eye.dtype}")
+            if eye.ndim < 3 or eye.shape[-3:] != (self.size, self.size, 3) or eye.shape[:-3] != eyes[0].shape[:-3]:
+                raise ValueError(f"the policy reads {key!r} as {self.size} x {self.size} RGB images "
+                                 f"(..., {self.size}, {self.size}, 3), one per world as the other eye's (make the env "
+                                 f"with image_size={self.size}), got shape {eye.shape}")
+        return eyes[0] if len(eyes) == 1 else np.concatenate(eyes, axis=-1)
 
     def __call__(self, images, own=None) -> np.ndarray:
         images = np.asarray(images)
