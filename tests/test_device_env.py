@@ -60,10 +60,88 @@ def test_the_device_env_steps_as_the_numpy_env(pair):
     np.testing.assert_allclose(device.state().cpu().numpy(), host.state(), rtol=0, atol=1e-9)
 
 
+@pytest.fixture(scope="module")
+def masked_pair():
+    """A numpy and a device env that reset ended worlds only when asked (reset_mask)."""
+    return (suction_debris_v8.batched_env(num_envs=WORLDS, autoreset_mode="disabled", **OPTIONS),
+            suction_debris_v8.batched_env(num_envs=WORLDS, device=DEVICE, autoreset_mode="disabled", **OPTIONS))
+
+
+@pytest.mark.parametrize("check_actions", [True, False])
+def test_actions_with_nan_or_inf_change_no_world_and_are_refused_as_numpy_refuses_them(pair, check_actions):
+    """The numpy env's rule and words on the device: no world changes; the refusal comes at once, or with
+    check_actions=False at the next call (no wait on the device per step)."""
+    host, device = pair
+    device.check_actions = check_actions
+    try:
+        for bad in (float("nan"), float("inf"), -float("inf")):
+            host.reset(seed=2)
+            device.reset(seed=2)
+            before = {key: np.array(value) for key, value in device.world_state.items()}
+            actions = {agent: np.zeros((WORLDS, 4)) for agent in host.possible_agents}
+            actions["grasper"][2, 1] = bad
+            expected = _refusal(host, lambda env: env.step(actions))
+            torch_actions = {agent: torch.from_numpy(value).to(DEVICE) for agent, value in actions.items()}
+            if check_actions:
+                message = _refusal(device, lambda env: env.step(torch_actions))
+            else:
+                device.step(torch_actions)
+                message = _refusal(device, lambda env: env.step(torch_actions))  # the earlier step's, said now
+            assert message.startswith(expected) and ("changed no world" in message or "no world was changed" in message)
+            for key, value in device.world_state.items():
+                np.testing.assert_array_equal(np.array(value), before[key], err_msg=key)
+            calm = {agent: np.zeros((WORLDS, 4)) for agent in host.possible_agents}
+            want = host.step(calm)[0]
+            got = device.step({agent: torch.from_numpy(value).to(DEVICE) for agent, value in calm.items()})[0]
+            for agent in host.possible_agents:  # the worlds go on as the numpy env's, which never took the step
+                np.testing.assert_allclose(got[agent].cpu().numpy(), want[agent], rtol=0, atol=1e-9)
+    finally:
+        device.check_actions = True
+
+
+def _refusal(env, call) -> str:
+    with pytest.raises(ValueError) as refused:
+        call(env)
+    return str(refused.value)
+
+
+@pytest.mark.parametrize("mask,form", [([0, 2], list), ([0, 2], torch.tensor), ([True, False, True], np.array),
+                                       ([2, 2], list)])
+def test_a_reset_mask_picks_the_worlds_the_numpy_env_picks(masked_pair, mask, form):
+    """Integers are world indices on both backends (the device once read [0, 1] as a mask), booleans a mask."""
+    host, device = masked_pair
+    host.reset(seed=4)
+    device.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        actions = {agent: rng.uniform(-1, 1, (WORLDS, 4)) for agent in host.possible_agents}
+        host.step(actions)
+        device.step({agent: torch.from_numpy(value).to(DEVICE) for agent, value in actions.items()})
+    want, _ = host.reset(options={"reset_mask": mask})
+    given = form(mask)
+    got, _ = device.reset(options={"reset_mask": given.to(DEVICE) if form is torch.tensor else given})
+    for agent in host.possible_agents:
+        np.testing.assert_allclose(got[agent].cpu().numpy(), want[agent], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("mask", [[2, 3], [0.5, 0.0, 1.0], [np.nan, 0.0, 0.0], ["a", "b", "c"], [-1],
+                                  np.array([True, False])])
+def test_a_reset_mask_the_numpy_env_refuses_is_refused_alike_and_changes_nothing(masked_pair, mask):
+    host, device = masked_pair
+    host.reset(seed=4)
+    device.reset(seed=4)
+    before = {key: np.array(value) for key, value in device.world_state.items()}
+    expected = _refusal(host, lambda env: env.reset(options={"reset_mask": mask, "level": 0.0}))
+    assert _refusal(device, lambda env: env.reset(options={"reset_mask": mask, "level": 0.0})) == expected
+    for key, value in device.world_state.items():
+        np.testing.assert_array_equal(np.array(value), before[key], err_msg=key)
+    np.testing.assert_array_equal(device.host.levels, host.levels)
+
+
 def test_bad_input_on_the_device_names_what_was_wrong(pair):
     _, device = pair
     device.reset(seed=1)
-    with pytest.raises(ValueError, match=r"suction's actions must have shape \(3, 4\)"):
+    with pytest.raises(ValueError, match=r"agent 'suction': actions must have shape \(3, 4\)"):
         device.step({"suction": torch.zeros(2, 4, device=DEVICE), "grasper": torch.zeros(3, 4, device=DEVICE)})
     with pytest.raises(ValueError, match="dict over the agents"):
         device.step({"suction": torch.zeros(3, 4, device=DEVICE)})

@@ -19,8 +19,11 @@ terminations, truncations, infos)``, dicts over the agents. What differs:
 - a reset of every world runs on the host through the numpy env and moves the state to the device (``seed`` and
   ``level`` are taken); start levels (``start_level=``, ``set_start_level``, a ``level`` reset option) draw easy
   episodes on the device; a seat's filler (``surgeon=``) and rendering are the numpy env's;
-- actions are checked for shape on the host and for NaN/inf on the device (``check_actions=True``: one boolean
-  read back per step; ``False`` skips it and clips whatever comes);
+- actions are checked for shape on the host and for NaN/inf on the device: a step given NaN or inf changes no
+  world (as the numpy env, which refuses them before anything changes) and is refused by a ``ValueError``, at once
+  (``check_actions=True``: one boolean read back per step) or at the next ``step`` or ``reset`` (``False``: no wait on
+  the device; the refused step's outputs are not the worlds'); ``reset_mask`` is read as the numpy env reads it
+  (booleans of shape (N,), or world indices);
 - ``step_function`` is the step as a pure function of ``world_state`` and the actions, for a learner that compiles
   its own loop around it (``jax.lax.scan``; :mod:`dvrl_marl.training.jax_mappo`).
 
@@ -99,6 +102,7 @@ class SuctionDebrisDeviceEnv:
         self.autoreset_mode = autoreset_mode
         self._jax = jax
         self._state = None
+        self._refused = None  # check_actions=False: the last step's actions_finite, read at the next call
         self._step = jax.jit(self._traced_step, donate_argnums=(0,))
         self._restart = jax.jit(self._traced_restart, donate_argnums=(0,))
         self._global = jax.jit(self._traced_global_state)
@@ -182,7 +186,11 @@ class SuctionDebrisDeviceEnv:
             potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
         infos = {"is_success": success, "final_observation": final, "final_state": final_state,
                  "actions_finite": finite, "state": env.state()}
-        out = self._unload(potential, state["levels"]), env.observations(), rewards, terminated, truncated, infos
+        # Actions with NaN or inf touch no world: the state stays as it was (the numpy env refuses them before any
+        # state changes; here the refusal is read back after the step, which must then have changed nothing).
+        stepped = self._unload(potential, state["levels"])
+        kept = self._jax.tree_util.tree_map(lambda new, old: xp.where(finite, new, old), stepped, state)
+        out = kept, env.observations(), rewards, terminated, truncated, infos
         self._rest()
         return out
 
@@ -209,16 +217,15 @@ class SuctionDebrisDeviceEnv:
         if options:
             raise ValueError(f"{self.name}: the device env takes the reset options reset_mask and level only (got "
                              f"{sorted(options)}); use the numpy env for the others")
-        if level is not None:
-            self.set_start_level(level, None if mask is None else np.asarray(self._host_array(mask), dtype=bool))
-        if mask is not None and seed is None and self._state is not None:
-            mask = self._in(mask, dtype="bool")
-            if tuple(mask.shape) != (self.num_envs,):
-                raise ValueError(f"{self.name}: reset_mask must have shape ({self.num_envs},), got {tuple(mask.shape)}")
-            self._state, observations, self._global_state = self._restart(self._state, mask)
-            return self._out(observations), {}
         if mask is not None and self._state is None:
             raise ValueError(f"{self.name}: the first reset starts every world; reset_mask is for the resets after it")
+        self._raise_refused_actions()
+        mask = None if mask is None else self._mask_in(mask)  # checked before the level touches anything
+        if level is not None:
+            self.set_start_level(level, None if mask is None else np.asarray(self._host_array(mask), dtype=bool))
+        if mask is not None and seed is None:
+            self._state, observations, self._global_state = self._restart(self._state, mask)
+            return self._out(observations), {}
         self.host.reset(seed=seed)
         potential = self.host.guided_potentials()
         core = self.host.core
@@ -229,6 +236,42 @@ class SuctionDebrisDeviceEnv:
         observations = self._jax.device_put(self.host.observations(), self.device)
         self._global_state = self._jax.device_put(self.host.state(), self.device)
         return self._out(observations), {}
+
+    def _mask_in(self, mask):
+        """``reset_mask`` on the device, read as the numpy env reads it: booleans of shape (N,), or world indices
+        (integers in [0, N)); anything else refused by name. A boolean torch or JAX array stays where it is."""
+        if type(mask).__module__.startswith(("torch", "jax")) and str(mask.dtype) in ("torch.bool", "bool"):
+            if tuple(mask.shape) != (self.num_envs,):
+                raise ValueError(f"{self.name}: reset mask must have shape ({self.num_envs},), got {tuple(mask.shape)}")
+            return self._in(mask, dtype="bool")
+        from dvrl_marl.core.worlds import world_indices
+
+        try:
+            host = self._host_array(mask)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{self.name}: reset mask must be booleans of shape ({self.num_envs},) or world indices, "
+                             f"got {mask!r}") from error
+        chosen = np.zeros(self.num_envs, dtype=bool)
+        chosen[world_indices(host, self.num_envs, self.name)] = True
+        return self._jax.device_put(chosen, self.device)
+
+    def _raise_refused_actions(self) -> None:
+        """``check_actions=False``: a step given NaN or inf, held (its worlds unchanged), is refused at the next call."""
+        refused, self._refused = self._refused, None
+        if refused is not None and not bool(refused[0]):
+            self._refuse(refused[1], "the last step's actions were refused: it changed no world (they are as before "
+                                     "it), and its outputs are not the worlds'")
+
+    def _refuse(self, commands: dict, outcome: str) -> None:
+        """The numpy env's refusal of these actions (its rules and words, read on the host), and what came of them."""
+        from dvrl_marl.core.worlds import check_action_batch
+
+        for agent in self.possible_agents:
+            try:
+                check_action_batch(self._host_array(commands[agent]), self.num_envs, 4, f"{self.name}: agent {agent!r}")
+            except ValueError as error:
+                raise ValueError(f"{error}; {outcome}") from None
+        raise ValueError(f"{self.name}: actions contain NaN or inf; {outcome}")  # (not reached: one agent's did)
 
     def set_start_level(self, level, worlds=None) -> None:
         """The start level (:mod:`dvrl_marl.envs.start_levels`) of the next episodes of ``worlds`` (default all; a
@@ -249,15 +292,23 @@ class SuctionDebrisDeviceEnv:
                              f"{sorted(actions) if isinstance(actions, dict) else type(actions).__name__}")
         commands = {}
         for agent in self.possible_agents:
-            value = self._in(actions[agent])
+            try:
+                value = self._in(actions[agent])
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"{self.name}: agent {agent!r}: actions are not numeric: {actions[agent]!r}") from error
             if tuple(value.shape) != (self.num_envs, 4):
-                raise ValueError(f"{self.name}: {agent}'s actions must have shape ({self.num_envs}, 4), got "
+                raise ValueError(f"{self.name}: agent {agent!r}: actions must have shape ({self.num_envs}, 4), got "
                                  f"{tuple(value.shape)}")
             commands[agent] = value
+        self._raise_refused_actions()
         state, observations, rewards, terminated, truncated, infos = self._step(self._state, commands)
-        self._state, self._global_state = state, infos["state"]
-        if self.check_actions and not bool(infos["actions_finite"]):  # (the step ran clipped; the worlds go on)
-            raise ValueError(f"{self.name}: actions contain NaN or inf")
+        self._state = state  # (with NaN or inf actions, the state before the step)
+        if self.check_actions and not bool(infos["actions_finite"]):
+            self._global_state = None
+            self._refuse(commands, "no world was changed")
+        self._global_state = infos["state"]
+        if not self.check_actions:  # read at the next call, when the step is long done: no wait on the device here
+            self._refused = (infos["actions_finite"], commands)
         out = self._out
         infos = {"is_success": out(infos["is_success"]), "final_observation": out(infos["final_observation"]),
                  "final_state": out(infos["final_state"])}
