@@ -46,7 +46,8 @@ UnitInterval = Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_n
 PositiveInt = Annotated[int, _NUMBER, Strict(), Field(ge=1)]
 NonNegativeInt = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
 #: numpy's generators take seeds >= 0.
-Seed = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
+#: A seed: a 64-bit key of the counter-based streams (a larger one once wrapped: 2**64 played seed 0).
+Seed = Annotated[int, _NUMBER, Strict(), Field(ge=0, le=2**64 - 1)]
 Seeds = list[Seed]  # (one object: validated() keeps one adapter per schema)
 Vector3 = tuple[Finite, Finite, Finite]
 Text = StrictStr

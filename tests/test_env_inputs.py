@@ -135,3 +135,20 @@ def test_tip_positions_that_are_not_a_table_of_agents_are_named():
         env.reset(options={"tip_positions": [[0.0, 0.0, 0.05]] * 2})
     with pytest.raises(ValueError, match=r"^suction_debris_v8: tip positions must be a dict \{agent: "):
         env.set_tip_positions([[0.0, 0.0, 0.05]] * 2)
+
+
+def test_seeds_past_64_bits_are_refused_rather_than_wrapped_to_another_seed():
+    """World i plays seed + i, a 64-bit key: seed 2**64 once played seed 0, and a batch's last worlds wrapped."""
+    from dvrl_marl.envs import suction_debris_v8
+
+    single = suction_debris_v8.parallel_env()
+    with pytest.raises(ValueError, match="must be <= 18446744073709551615"):
+        single.reset(seed=2**64)
+    single.reset(seed=2**64 - 1)
+    batch = suction_debris_v8.batched_env(num_envs=3)
+    with pytest.raises(ValueError, match="must stay below 2\\*\\*64 for the 3 worlds"):
+        batch.reset(seed=2**64 - 2)
+    with pytest.raises(ValueError, match="must be <= 18446744073709551615"):
+        batch.reset(seed=[0, 1, 2**64])
+    observations, _ = batch.reset(seed=2**64 - 3)
+    np.testing.assert_array_equal(observations["suction"][2], single.reset(seed=2**64 - 1)[0]["suction"])

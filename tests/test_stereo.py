@@ -141,7 +141,8 @@ def test_the_seat_env_and_torchrl_take_the_stereo_pair():
 def test_bad_stereo_options_are_refused_by_name(options, named):
     with pytest.raises(ValueError, match=named):
         suction_debris_v8.parallel_env(**options)
-    with pytest.raises(ValueError, match="images' parts must be some of"):
-        suction_debris_v8.batched_env(num_envs=1, image_size=32).images(parts="image_left")
+    for parts in ("image_left", 5, [5], [], None.__class__):  # (a number once raised a raw TypeError)
+        with pytest.raises(ValueError, match="images' parts must be some of"):
+            suction_debris_v8.batched_env(num_envs=1, image_size=32).images(parts=parts)
     with pytest.raises(ValueError, match="eye_mm"):
         EndoscopeRenderer(suction_debris_v8.batched_env(num_envs=1).params, 32, eye_mm=float("nan"))

@@ -75,15 +75,18 @@ class ResetStreams:
                 from dvrl_marl.schemas import Seed, validated
 
                 first = validated(Seed, seed, "reset(seed=...)")
-            # world i: seed + i, modulo 2^64 (numpy's uint64 addition wraps)
-            keys = np.uint64(first % 2**64) + np.arange(self.num_worlds, dtype=np.uint64)
+                if first + self.num_worlds - 1 >= 2**64:  # (a world's key would wrap round to seed 0's)
+                    raise ValueError(f"reset(seed={first}): world i plays seed + i, which must stay below 2**64 for "
+                                     f"the {self.num_worlds} worlds; give a seed up to {2**64 - self.num_worlds}")
+            # world i: seed + i (below 2^64: the seed's check; fresh entropy may wrap, as numpy's uint64 addition does)
+            keys = np.uint64(first) + np.arange(self.num_worlds, dtype=np.uint64)
         else:
             from dvrl_marl.schemas import Seeds, validated
 
             seeds = validated(Seeds, list(seed), "reset(seed=[...]): one seed per world")
             if len(seeds) != self.num_worlds:
                 raise ValueError(f"seed: expected an int or {self.num_worlds} seeds, got {len(seeds)}")
-            keys = np.array([s % 2**64 for s in seeds], dtype=np.uint64)
+            keys = np.array(seeds, dtype=np.uint64)
         self.key_low = (keys & np.uint64(_MASK)).astype(np.int64)
         self.key_high = (keys >> np.uint64(32)).astype(np.int64)
         self.episode = np.zeros(self.num_worlds, dtype=np.int64)

@@ -270,6 +270,9 @@ class SuctionDebrisBatchedEnv:
         # last images, which an ended world keeps
         self._ended = np.zeros(self.num_envs, dtype=bool)
         self._last_images: dict = {}
+        # and what an ended world is drawn from (its state and clock when it ended: any part asked later is drawn as
+        # it was then, though the world's arms may have gone on moving), rows of ended worlds valid
+        self._end_states = None
         if not size:
             return
         parts = {"image": spaces.Box(0, 255, shape=(size, size, 3), dtype=np.uint8)}
@@ -293,10 +296,13 @@ class SuctionDebrisBatchedEnv:
             named = ("image", *(part for part, on in (("image_right", self.image_stereo), ("depth", self.image_depth),
                                                       ("segmentation", self.image_segmentation)) if on))
         else:
-            named = (parts,) if isinstance(parts, str) else tuple(parts)
-            unknown = [part for part in named if part not in IMAGE_PARTS]
-            if unknown or not named:
-                raise ValueError(f"{self.name}: images' parts must be some of {list(IMAGE_PARTS)}, got {list(named)}")
+            try:
+                named = (parts,) if isinstance(parts, str) else tuple(parts)
+            except TypeError:  # (a number, say)
+                named = None
+            if not named or any(not isinstance(part, str) or part not in IMAGE_PARTS for part in named):
+                raise ValueError(f"{self.name}: images' parts must be some of {list(IMAGE_PARTS)} (a name or a list "
+                                 f"of them), got {parts!r}")
             named = tuple(part for part in IMAGE_PARTS if part in named)
         # an ended episode's world keeps its last images (autoreset_mode="disabled": nothing is drawn for it until it
         # is reset; an evaluation's worlds that finished early cost nothing while the others play on)
@@ -318,8 +324,8 @@ class SuctionDebrisBatchedEnv:
         :data:`IMAGE_PARTS` ``named``: the left eye's parts drawn by one renderer, the right eye's by another."""
         from dvrl_marl.envs.endoscope import STEREO_BASELINE_MM, endoscope_renderer
 
-        states = self.core.world_states(worlds)
-        looks = self._looks(worlds)
+        states, elapsed = self._drawn_states(worlds)
+        looks = self._looks(worlds, elapsed)
         drawn = {}
         left = [{"image": "rgb"}.get(part, part) for part in named if not part.endswith("_right")]
         if left:
@@ -339,7 +345,26 @@ class SuctionDebrisBatchedEnv:
             drawn.update({("image" if part == "rgb" else part) + "_right": value for part, value in images.items()})
         return drawn
 
-    def _looks(self, worlds: np.ndarray) -> tuple:
+    def _keep_end_states(self, worlds: np.ndarray) -> None:
+        """Keep what ``worlds``, whose episodes just ended, are drawn from (:meth:`_drawn_states`)."""
+        ended = {"state": self.core.world_states(worlds), "elapsed": np.asarray(self.core.elapsed)[worlds]}
+        if self._end_states is None:
+            self._end_states = _rows_like(ended, self.num_envs)
+        _write_rows(self._end_states, worlds, ended)
+
+    def _drawn_states(self, worlds: np.ndarray):
+        """What the renderers draw ``worlds`` from: each one's state and clock now, or, where its episode has ended
+        (autoreset_mode="disabled"), as they were when it ended."""
+        states, elapsed = self.core.world_states(worlds), np.asarray(self.core.elapsed)[worlds]
+        ended = self._ended[worlds] if self._end_states is not None else np.zeros(len(worlds), dtype=bool)
+        if ended.any():
+            kept = _take_rows(self._end_states, np.asarray(worlds)[ended])
+            _write_rows(states, np.flatnonzero(ended), kept["state"])  # (world_states' rows are copies already)
+            elapsed = elapsed.copy()
+            elapsed[ended] = kept["elapsed"]
+        return states, elapsed
+
+    def _looks(self, worlds: np.ndarray, elapsed=None) -> tuple:
         """``(looks, keys, frames)`` of ``worlds`` for the renderers (all None: the scene's own look)."""
         if self.image_appearance is None:
             return None, None, None
@@ -354,7 +379,8 @@ class SuctionDebrisBatchedEnv:
                       else APPEARANCES[self.image_appearance])
         keys = list(zip(np.asarray(streams.key_low)[worlds].tolist(), np.asarray(streams.key_high)[worlds].tolist(),
                         episode.tolist()))
-        return [appearance.draw(row) for row in np.asarray(draws)], keys, np.asarray(self.core.elapsed)[worlds]
+        return ([appearance.draw(row) for row in np.asarray(draws)], keys,
+                np.asarray(self.core.elapsed)[worlds] if elapsed is None else elapsed)
 
     def _check_scene_fits(self) -> None:
         """Every position an observation holds (tips in the workspace box, pins in the cavities, the hand-off point)
@@ -619,6 +645,8 @@ class SuctionDebrisBatchedEnv:
         infos = {agent: dict(info) for agent in self.agents}
         done = terminated | truncated
         if self.autoreset_mode == "disabled":
+            if self.image_size and np.any(done & ~self._ended):
+                self._keep_end_states(np.flatnonzero(done & ~self._ended))
             self._ended |= done
         if self.autoreset_mode == "same_step" and done.any():
             final_state = self.state()
@@ -720,6 +748,29 @@ class SuctionDebrisBatchedEnv:
             if renderer is not None:
                 renderer.close()
         self._endoscope = self._right_eye = None
+
+
+def _rows_like(tree, count: int):
+    """Arrays of ``count`` rows shaped as ``tree``'s (a dict of dicts of arrays), zeros."""
+    if isinstance(tree, dict):
+        return {key: _rows_like(value, count) for key, value in tree.items()}
+    return np.zeros((count,) + np.shape(tree)[1:], dtype=np.asarray(tree).dtype)
+
+
+def _take_rows(tree, rows):
+    """``tree``'s rows ``rows`` (copies)."""
+    if isinstance(tree, dict):
+        return {key: _take_rows(value, rows) for key, value in tree.items()}
+    return np.asarray(tree)[rows]
+
+
+def _write_rows(tree, rows, values) -> None:
+    """``values``' rows written into ``tree``'s rows ``rows``, in place."""
+    for key, value in values.items():
+        if isinstance(value, dict):
+            _write_rows(tree[key], rows, value)
+        else:
+            tree[key][rows] = value
 
 
 def takes_worlds(reset) -> bool:
