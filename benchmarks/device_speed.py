@@ -17,20 +17,13 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]
-
-
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return os.environ.get("DVRL_MARL_COMMIT", "unknown")
+sys.path.insert(0, str(HERE / "benchmarks"))
+import provenance  # noqa: E402
 
 
 def _device_name(device: str) -> str:
@@ -104,7 +97,7 @@ def main() -> None:
     parser.add_argument("--json", default=None, help="append one JSON line per figure to this file")
     args = parser.parse_args()
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # (torch shares the GPU)
-    commit, name = _commit(), _device_name(args.device)
+    commit, name = provenance.commit(), _device_name(args.device)
     print(f"device {args.device}: {name}; commit {commit}; setting {args.preset or 'default'}", flush=True)
     print(f"{'N':>9} {'form':<8} {'sim env-steps/s':>16} {'sim + inference':>16}", flush=True)
     for worlds in args.sizes:

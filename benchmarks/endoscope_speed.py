@@ -18,18 +18,15 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parents[1]
-
-
-def _commit() -> str:
-    result = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE)
-    return result.stdout.strip() or "unknown"
+sys.path.insert(0, str(HERE / "benchmarks"))
+import provenance  # noqa: E402
 
 
 def env_frames_per_second(size: int, worlds: int, repeats: int, steps: int, contexts: int = 1,
@@ -113,7 +110,7 @@ def main(argv=None) -> int:
     if args.json:
         with open(args.json, "a") as handle:
             for row in rows:
-                handle.write(json.dumps({**row, "machine": machine, "commit": _commit(),
+                handle.write(json.dumps({**row, "machine": machine, "commit": provenance.commit(),
                                          "command": "python benchmarks/endoscope_speed.py " +
                                                     " ".join(argv or __import__("sys").argv[1:])}) + "\n")
     return 0

@@ -53,6 +53,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import provenance  # noqa: E402
+
 RESULTS = ROOT / "baselines" / "results" / "benchmark"
 LIBRARIES = ("benchmarl", "dvrl-marl", "rllib")
 #: RLlib's PPO with a policy and a critic per arm, each on its own observation: IPPO.
@@ -354,7 +357,8 @@ def command_run(args) -> int:
            **({f"{args.library}_settings": settings} if settings is not None else {}),
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
-           "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}}
+           "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+           "code": provenance.code_state()}  # (what a rerun must match to give this figure bit for bit)
     record.write_text(json.dumps(out, indent=2) + "\n")
     print(f"{record.name}: test success {final['success_rate']:.2f}, {frames:,} frames, {wall / 60:.1f} min, "
           f"to {TARGET:.0%}: {out['frames_to_target']} frames")
