@@ -407,6 +407,37 @@ def aggregate(records: list[dict], reps: int = 2000) -> list[dict]:
     return rows
 
 
+#: The records in marl-eval's JSON form (https://github.com/instadeepai/marl-eval: the form BenchMARL and JaxMARL
+#: report in), written by ``table`` beside table.json, one file per level (``marl_eval_<level>.json``), for others to
+#: plot with their tools.
+MARL_EVAL = "marl_eval_{}.json"
+
+
+def marl_eval_json(records: list[dict]) -> dict:
+    """``{level: {scene: {level: {"<library> <ALGORITHM>": {"seed_N": {"step_i": {"step_count", "success_rate"},
+    ..., "absolute_metrics": {...}}}}}}}``, as marl-eval's checks ask (``DiagnoseData``): per scene one task (the
+    level), so every algorithm is in every task; the same number of steps in every run, the validations nearest the
+    coarsest run's (each with its own frame count); the held-out test by the mean action as the absolute metric (the
+    metrics must be the steps' own: the sampled test is table.json's). Each metric is one value (a share of
+    episodes)."""
+    cells: dict = {}
+    for record in records:
+        cells.setdefault((record["level"], _task_of(record)), []).append(record)
+    out: dict = {}
+    for (level, scene), runs in sorted(cells.items()):
+        coarsest = min(runs, key=lambda r: len(r["curve"]))["curve"]
+        grid = [point["frames"] for point in coarsest]
+        for record in sorted(runs, key=lambda r: (_library_of(r), r["algorithm"], r["seed"])):
+            points = [min(record["curve"], key=lambda point: abs(point["frames"] - frames)) for frames in grid]
+            run = {f"step_{index}": {"step_count": int(point["frames"]), "success_rate": [float(point["success_rate"])]}
+                   for index, point in enumerate(points)}
+            run["absolute_metrics"] = {"success_rate": [float(record["final"]["success_rate"])]}
+            algorithm = f"{_library_of(record)} {record['algorithm'].upper()}"
+            out.setdefault(level, {}).setdefault(scene, {}).setdefault(level, {}).setdefault(algorithm, {})[
+                f"seed_{record['seed']}"] = run
+    return out
+
+
 def current_scene() -> str:
     """The scene of the benchmark's cells: ``suction_debris_v8`` with ``preset="benchmark"``'s scene options."""
     return _scene_of({"preset": "benchmark"})
@@ -446,6 +477,8 @@ def command_table(args) -> int:
                   f"{before}; it was left as it was (--allow-fewer writes it with the records found)", file=sys.stderr)
             return 2
     rows = aggregate(records)
+    for level, data in marl_eval_json(records).items():
+        (results / MARL_EVAL.format(level)).write_text(json.dumps(data, indent=1) + "\n")
     (results / "table.json").write_text(json.dumps({"target": TARGET, "test_episodes": TEST_EPISODES, "rows": rows},
                                                    indent=2) + "\n")
     print("\n".join(_markdown_table(rows)))

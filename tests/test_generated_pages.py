@@ -61,3 +61,25 @@ def test_a_regeneration_from_fewer_records_leaves_the_page_as_it_was(tmp_path, c
     (results / other.name).write_text(other.read_text())
     assert marl_benchmark.main(["table", "--results", str(results), "--docs", str(page)]) == 2
     assert "no record of the current scene" in capsys.readouterr().err and page.read_text() == before
+
+
+def test_the_marl_eval_export_is_the_records_in_marl_evals_form():
+    """baselines/results/benchmark/marl_eval_<level>.json: regenerated with the table, from the records alone, and in
+    the form marl-eval's checks ask (per scene: one task, every algorithm in it, the same number of steps in every
+    run, the steps' metrics in the absolute metrics)."""
+    records = [json.loads(path.read_text()) for path in sorted(marl_benchmark.RESULTS.glob("*_seed*.json"))]
+    exported = marl_benchmark.marl_eval_json(records)
+    assert sorted(exported) == sorted(marl_benchmark.LEVELS)
+    for level, data in exported.items():
+        path = marl_benchmark.RESULTS / marl_benchmark.MARL_EVAL.format(level)
+        assert json.loads(path.read_text()) == data, f"{path} is stale: python benchmarks/marl_benchmark.py table"
+        for scene, tasks in data.items():
+            assert list(tasks) == [level]
+            runs = [run for algorithm in tasks[level].values() for run in algorithm.values()]
+            assert len({len(run) for run in runs}) == 1, scene
+            for run in runs:
+                steps = [value for key, value in run.items() if key.startswith("step_")]
+                assert all(set(step) == {"step_count", "success_rate"} for step in steps)
+                assert set(run["absolute_metrics"]) == {"success_rate"}
+    current = exported["default"][marl_benchmark.current_scene()]["default"]
+    assert {len(runs) for runs in current.values()} == {5} and "dvrl-marl MAPPO" in current
