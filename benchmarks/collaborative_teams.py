@@ -5,14 +5,19 @@ pipeline team, the learned Reach + Pick pipeline team (the shipped policies), an
 given.
 
     python benchmarks/collaborative_teams.py [--episodes 50] [--ppo runs/baselines/suction_debris_ppo-seed0]
+    python benchmarks/collaborative_teams.py --episodes 50 --json baselines/results/collaborative_teams_v8.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import provenance  # noqa: E402
 
 from dvrl_marl import policies
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
@@ -25,6 +30,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--ppo", help="a suction_debris_ppo run folder (with final_model.zip)")
+    parser.add_argument("--json", help="write the figures to this JSON record (with the command and the code)")
     args = parser.parse_args()
     env = suction_debris_v8.parallel_env()
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
@@ -53,6 +59,11 @@ def main() -> None:
         print(f"{label:32s} {r['success_rate']:8.0%} {r['mean_steps']:7.0f} {r['mean_blood_removed_ml']:9.2f} "
               f"{r['mean_contacts']:9.2f}")
     print(json.dumps(results, indent=1))
+    if args.json:
+        Path(args.json).write_text(json.dumps({
+            "episodes": args.episodes, "teams": results,
+            "command": "python benchmarks/collaborative_teams.py " + " ".join(sys.argv[1:]),
+            "code": provenance.code_state()}, indent=1) + "\n")
 
 
 if __name__ == "__main__":
