@@ -530,7 +530,7 @@ def _docs_page(rows: list[dict], plot: str, records: int) -> str:
         "        --frames 3932160 --eval-every 491520 [--algorithm-file baselines/configs/benchmarl_mappo_entropy.yaml]",
         "    python benchmarks/marl_benchmark.py run --library rllib --algorithm ippo --level easy --seed N \\",
         "        --frames 983040 --eval-every 245760", "",
-        "Cells of every earlier scene, and how each change was found: [results](results.md).", "",
+        "Cells of every earlier scene, and how each change was found: [history](history.md).", "",
         f"Scene: `{current_scene()}` ({records} records).", "",
         *_markdown_table(rows, with_scene=False), "",
         RECORDS_MARK.format(records), "",

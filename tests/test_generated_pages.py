@@ -83,3 +83,46 @@ def test_the_marl_eval_export_is_the_records_in_marl_evals_form():
                 assert set(run["absolute_metrics"]) == {"success_rate"}
     current = exported["default"][marl_benchmark.current_scene()]["default"]
     assert {len(runs) for runs in current.values()} == {5} and "dvrl-marl MAPPO" in current
+
+
+def _load_docs_script(name: str):
+    import sys
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "docs" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # (its dataclass looks its module up)
+    spec.loader.exec_module(module)
+    return module
+
+
+build_results = _load_docs_script("build_results")
+
+
+def test_the_results_and_the_policies_tables_are_what_the_records_give():
+    assert build_results.main(["--check"]) == 0, "python docs/build_results.py"
+    page = build_results.RESULTS_PAGE.read_text()
+    assert len(page.splitlines()) <= 600
+    for title, _, make in build_results.SECTIONS:  # every table has rows, and names its record, command and commit
+        section = page.split(f"## {title}\n", 1)[1].split("\n## ", 1)[0]
+        assert section.count("\n| ") >= 2 and "Record `" in section and " at " in section, title
+
+
+def test_a_missing_record_or_a_table_without_rows_writes_no_page(tmp_path, monkeypatch, capsys):
+    page = tmp_path / "results.md"
+    page.write_text("the page as it was\n")
+    monkeypatch.setattr(build_results, "RESULTS_PAGE", page)
+    monkeypatch.setattr(build_results, "POLICIES_PAGE", tmp_path / "policies.md")
+    (tmp_path / "policies.md").write_text("no generated tables\n")
+    monkeypatch.setattr(build_results, "POLICY_TABLES", {})
+
+    def from_a_lost_record():
+        build_results._read("baselines/results/a_lost_record.json")
+
+    def without_rows():
+        return build_results.Table(["a", "b"])
+
+    for make in (from_a_lost_record, without_rows):
+        monkeypatch.setattr(build_results, "SECTIONS", (("A capability", "What it shows.", make),))
+        assert build_results.main([]) == 2
+        assert "no page was written" in capsys.readouterr().err
+        assert page.read_text() == "the page as it was\n"

@@ -1,0 +1,386 @@
+"""Write docs/results.md, and the tables of docs/policies.md, from the records alone.
+
+    python docs/build_results.py            # rewrite
+    python docs/build_results.py --check    # exit 1 if a page is stale
+
+Every figure on these pages is read from a record (a JSON file under baselines/ or benchmarks/results/); every table
+says which record, the command that wrote it and the commit it was made at. A record that is missing, or a table
+that finds no rows in its record, stops the generator: a page never goes empty without a word. Where a record does
+not carry its command or commit (the older ones), :data:`MADE_BY` says them, here and nowhere else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS_PAGE = ROOT / "docs" / "results.md"
+POLICIES_PAGE = ROOT / "docs" / "policies.md"
+
+#: The command and commit of the records that do not say them themselves (the commit: the one that wrote the record).
+MADE_BY = {
+    "baselines/policies/reach-lnd/policy.json": ("dvrl-marl evaluate reach-lnd --episodes 50", "cf2ebaf"),
+    "baselines/policies/reach-suction-irrigation/policy.json": (
+        "dvrl-marl evaluate reach-suction-irrigation --episodes 50 --tool suction_irrigation", "cf2ebaf"),
+    "baselines/policies/pick-lnd/policy.json": ("dvrl-marl evaluate pick-lnd --episodes 50", "cf2ebaf"),
+    "baselines/policies/pick-lnd-scratch/policy.json": ("dvrl-marl evaluate pick-lnd-scratch --episodes 50", "e6805a2"),
+    "baselines/results/partner_zoo_v8.json": (
+        "python benchmarks/partner_zoo.py --episodes 100 --json baselines/results/partner_zoo_v8.json", "789969e"),
+    "baselines/results/partner_zoo_yielding.json": (
+        "python benchmarks/partner_zoo.py --seats suction --suction marl-suction-yielding --episodes 100 --json "
+        "baselines/results/partner_zoo_yielding.json", "4f237ee"),
+    "baselines/results/reference_team/cross_play.json": (
+        "dvrl-marl evaluate-team --suction benchmark-suction scripted person-like --grasper benchmark-grasper scripted "
+        "person-like --preset benchmark --episodes 100 --json baselines/results/reference_team/cross_play.json",
+        "66992d7"),
+    "baselines/results/bleeding_field_v8.json": (
+        "python benchmarks/bleeding_field.py --episodes 100 --out baselines/results/bleeding_field_v8.json", "17c9108"),
+    "baselines/results/bleeding_field_sweeping.json": (
+        'python benchmarks/bleeding_field.py --episodes 100 --teams "keep-clear scripted team" "sweeping scripted '
+        'team" "learned bleeding team" --out baselines/results/bleeding_field_sweeping.json', "4b29644"),
+    "baselines/results/pixel_seat_stereo_v8.json": (None, "22b9a81"),
+}
+
+
+class MissingRecord(RuntimeError):
+    """A record a table reads is missing, or holds none of the rows the table shows."""
+
+
+def _read(path: str):
+    file = ROOT / path
+    if not file.is_file():
+        raise MissingRecord(f"{path}: no such record (a table of the results reads it)")
+    if path.endswith(".jsonl"):
+        return [json.loads(line) for line in file.read_text().splitlines() if line.strip()]
+    return json.loads(file.read_text())
+
+
+@dataclass
+class Table:
+    """One table: its rows (lists of cells) under ``header``, and each record it read with the record's command and
+    commit."""
+
+    header: list[str]
+    rows: list[list[str]] = field(default_factory=list)
+    sources: list[tuple[str, str, str]] = field(default_factory=list)
+
+    def source(self, path: str, command: str | None = None, commit: str | None = None) -> None:
+        made = MADE_BY.get(path, (None, None))
+        command, commit = command or made[0], commit or made[1]
+        if not command or not commit:
+            raise MissingRecord(f"{path}: the record says neither its command nor its commit, and MADE_BY lacks them")
+        if (path, command, commit) not in self.sources:
+            self.sources.append((path, command, commit))
+
+    def sources_of_rows(self, path: str, rows: list[dict]) -> None:
+        """A record whose rows each name their command and commit: one line per command and commit."""
+        for row in rows:
+            self.source(path, row["command"], row["commit"])
+
+    def markdown(self, name: str) -> list[str]:
+        if not self.rows:
+            raise MissingRecord(f"table {name!r}: no rows in {[path for path, _, _ in self.sources]}")
+        lines = ["| " + " | ".join(self.header) + " |", "|" + "---|" * len(self.header)]
+        lines += ["| " + " | ".join(row) + " |" for row in self.rows]
+        lines.append("")
+        for path, command, commit in self.sources:
+            made = command if command.startswith("from ") else f"by `{command}`"
+            lines.append(f"Record `{path}`, made {made} at {commit}.  ")
+        lines[-1] = lines[-1].rstrip()
+        return lines
+
+
+def _percent(value) -> str:
+    return f"{100 * float(value):.0f} %"
+
+
+def _share(value) -> str:
+    return "-" if value is None else f"{float(value):.2f}"
+
+
+def _count(value) -> str:
+    return "-" if value is None else f"{float(value):,.0f}"
+
+
+# --- the tables -------------------------------------------------------------------------------------------------
+def single_arm() -> Table:
+    table = Table(["policy", "env", "success", "episodes", "mean final distance"])
+    for name, env in (("reach-lnd", "`PSMReach-v1`"), ("reach-suction-irrigation", '`PSMReach-v1`, `tool="suction_irrigation"`'),
+                      ("pick-lnd", "`PSMPick-v1`"), ("pick-lnd-scratch", "`PSMPick-v1`")):
+        path = f"baselines/policies/{name}/policy.json"
+        evaluation = _read(path)["evaluation"]
+        table.rows.append([f"`{name}`", env, _percent(evaluation["success_rate"]), str(evaluation["episodes"]),
+                           f"{1000 * evaluation['mean_final_distance']:.1f} mm"])
+        table.source(path, evaluation.get("command"))
+    return table
+
+
+def pick_without_demonstrations() -> Table:
+    path = "baselines/results/pick_lnd_ppo_scratch_held_out.json"
+    record = _read(path)
+    table = Table(["seed", "success", "held-out episodes", "mean final distance", "training steps", "training minutes"])
+    for seed in record["seeds"]:
+        table.rows.append([str(seed["seed"]), _percent(seed["success_rate"]), str(seed["episodes"]),
+                           f"{1000 * seed['mean_final_distance']:.1f} mm", _count(seed["training_steps"]),
+                           f"{seed['training_wall_seconds'] / 60:.0f}"])
+    table.source(path, record.get("command"), record.get("commit"))
+    return table
+
+
+def teams() -> Table:
+    path = "baselines/results/collaborative_teams_v8.json"
+    record = _read(path)
+    names = {"scripted team": "the scripted experts",
+             "pipeline scripted_team": "the pipeline of scripted stages (`scripted_team.toml`)",
+             "pipeline learned_team": "the pipeline of learned Reach and Pick policies (`learned_team.toml`)"}
+    table = Table(["team", "success", "mean steps", "blood removed", "contact steps"])
+    for label, result in record["teams"].items():
+        table.rows.append([names.get(label, label), _percent(result["success_rate"]), _count(result["mean_steps"]),
+                           f"{result['mean_blood_removed_ml']:.2f} ml", f"{result['mean_contacts']:.2f}"])
+    table.source(path, record.get("command"), record["code"]["commit"])
+    return table
+
+
+def _zoo(path: str, seats: tuple[str, ...]) -> Table:
+    record = _read(path)
+    rows = record["rows"]
+    table = Table(["seat", "partner", "learned: success", "contact steps", "scripted: success", "contact steps",
+                   "median steps (learned)"])
+    for seat in seats:
+        learned = [row for row in rows if row["seat"] == seat and row["player"] != "scripted"]
+        scripted = {row["partner"]: row for row in rows if row["seat"] == seat and row["player"] == "scripted"}
+        for index, row in enumerate(learned):
+            other = scripted.get(row["partner"], {})
+            table.rows.append([f"{seat} (`{row['player']}`)" if index == 0 else "", row["partner"],
+                               _share(row["success_rate"]), f"{row['mean_contact_steps']:.1f}",
+                               _share(other.get("success_rate")),
+                               "-" if not other else f"{other['mean_contact_steps']:.1f}",
+                               _count(row["median_steps_to_completion"])])
+    table.source(path)
+    return table
+
+
+def partner_zoo() -> Table:
+    return _zoo("baselines/results/partner_zoo_v8.json", ("suction", "grasper"))
+
+
+def yielding_zoo() -> Table:
+    return _zoo("baselines/results/partner_zoo_yielding.json", ("suction",))
+
+
+def benchmark_cells() -> Table:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("marl_benchmark", ROOT / "benchmarks" / "marl_benchmark.py")
+    marl_benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(marl_benchmark)
+    path = "baselines/results/benchmark/table.json"
+    scene = marl_benchmark.current_scene()
+    table = Table(["library", "algorithm", "level", "seeds", "IQM success, mean action [95 % CI]", "IQM, sampled"])
+    for row in _read(path)["rows"]:
+        if row["task"] != scene:
+            continue
+        low, high = row["ci95"]
+        table.rows.append([row["library"], row["algorithm"].upper(), row["level"], str(row["seeds"]),
+                           f"{row['iqm_success']:.2f} [{low:.2f}, {high:.2f}]", _share(row["iqm_success_sampled"])])
+    table.source(path, "from the runs' records (`baselines/results/benchmark/*_seed*.json`, each naming its command "
+                       "and machine) by `python benchmarks/marl_benchmark.py table`",
+                 "each run's commit (named by the records from 2026-12-01 on)")
+    return table
+
+
+def cross_play() -> Table:
+    path = "baselines/results/reference_team/cross_play.json"
+    table = Table(["suction", "grasper", "success", "debris delivered (of 3)", "median steps", "contact steps"])
+    for row in _read(path):
+        table.rows.append([row["suction"], row["grasper"], _share(row["success_rate"]),
+                           f"{row['mean_debris_delivered']:.2f}", _count(row["median_steps_to_completion"]),
+                           f"{row['mean_contact_steps']:.1f}"])
+    table.source(path)
+    return table
+
+
+def bleeding_field() -> Table:
+    table = Table(["variant", "team", "success", "blood left", "median steps", "contact steps"])
+    seen = set()
+    for path in ("baselines/results/bleeding_field_sweeping.json", "baselines/results/bleeding_field_v8.json"):
+        for row in _read(path):
+            if (row["variant"], row["team"]) in seen:  # (the keep-clear team in both records: the newer one's)
+                continue
+            seen.add((row["variant"], row["team"]))
+            table.rows.append([row["variant"], row["team"], _percent(row["success_rate"]),
+                               f"{row['mean_blood_left_ml']:.2f} ml", _count(row["median_steps_to_completion"]),
+                               f"{row['mean_contact_steps']:.2f}"])
+        table.source(path)
+    table.rows.sort(key=lambda row: (["no bleeding", "bleeding 0.1 ml/s", "bleeding 0.3 ml/s"].index(row[0])
+                                     if row[0] in ("no bleeding", "bleeding 0.1 ml/s", "bleeding 0.3 ml/s") else 9))
+    return table
+
+
+def pixel_seat() -> Table:
+    path = "baselines/results/pixel_seat_stereo_v8.json"
+    record = _read(path)
+    looks = {None: "`marl-suction-yielding` (no image)", "train": "pixels, training looks",
+             "scene": "pixels, the scene's own look", "held_out": "pixels, held-out looks"}
+    cells: dict = {}
+    for row in record["rows"]:
+        failed = [str(world) for world, success in enumerate(row["success"]) if not success]
+        cells.setdefault(row["partner"], {})[row["look"]] = (
+            f"{row['success_rate']:.2f}, {row['mean_contact_steps']:.1f}"
+            + (f" (fails {', '.join(failed)})" if failed else ""))
+    table = Table(["partner", *looks.values()])
+    order = ["scripted", "pipeline", "person", "hesitant", "late", "shaky", "slow", "in-the-way"]
+    for partner, by_look in sorted(cells.items(), key=lambda item: order.index(item[0]) if item[0] in order else 99):
+        table.rows.append([{"in-the-way": "surgeons in its way"}.get(partner, partner),
+                           *(by_look.get(look, "-") for look in looks)])
+    for command in record["commands"]:
+        table.source(path, command.replace("<the seat>", "<the seat's run folder>"), record["code"].split(" ")[0]
+                     + " (the seat's training) to " + MADE_BY[path][1] + " (the evaluations)")
+    return table
+
+
+def pixel_seat_without_reset() -> Table:
+    path = "baselines/results/pixel_seat_without_reset_v8.json"
+    table = Table(["the seat", "second episodes completed", "seconds"])
+    for row in _read(path)["rows"]:
+        table.rows.append([f"`{row['policy']}`, " + ("a new episode seen where its tip jumps" if row["new_episodes_seen"]
+                                                     else "as it was: no new episode seen"),
+                           f"{row['second_episodes_completed']} of {row['worlds']}", f"{row['seconds']:.0f}"])
+        table.source(path, row["command"], row["code"]["commit"]
+                     + (" (with " + ", ".join(row["code"]["modified"]) + " changed)" if row["code"]["modified"] else ""))
+    return table
+
+
+def endoscope_speed() -> Table:
+    table = Table(["machine", "what", "size", "worlds", "GL contexts", "frames/s", "x the bare renderer", "record",
+                   "commit"])
+    for path, machine in (("benchmarks/results/endoscope_stereo_cpu_2026-11-30.jsonl", "2-core CPU"),
+                          ("benchmarks/results/device_h200_endoscope_2026-11-29.jsonl", "NVIDIA H200")):
+        rows = [row for row in _read(path) if "frames_per_second" in row
+                and not row["what"].startswith("batched env step + image observations (layers")]
+        if machine == "NVIDIA H200":  # the renderer of record there (fc6387e's tiles), and its bare renderer
+            rows = [row for row in rows if row["commit"] == "fc6387e"]
+        for row in rows:
+            table.rows.append([machine, row["what"], str(row["size"]), _count(row["worlds"]),
+                               str(row.get("contexts", 1)), _count(row["frames_per_second"]),
+                               "-" if "versus_bare" not in row else f"{row['versus_bare']:.2f}",
+                               f"`{Path(path).name}`", row["commit"]])
+        table.sources_of_rows(path, rows)
+    return table
+
+
+def trainer_to_target() -> Table:
+    table = Table(["machine", "seed", "worlds", "validation at the target", "held-out test", "seconds from the start",
+                   "env-steps/s", "record", "commit"])
+    for path, machine in (("benchmarks/results/jax_trainer_cpu_2026-11-28.jsonl", "2-core CPU"),
+                          ("benchmarks/results/device_h200_jax_trainer_2026-11-28.jsonl", "NVIDIA H200")):
+        rows = [row for row in _read(path) if row["what"] == "jax_trainer"]
+        for row in rows:
+            table.rows.append([machine, str(row["seed"]), _count(row["worlds"]), _share(row["validation_success"]),
+                               _share(row.get("test_success")), f"{row['seconds_from_process_start']:.0f}",
+                               _count(row["env_steps_per_s"]), f"`{Path(path).name}`", row["commit"]])
+        table.sources_of_rows(path, rows)
+    return table
+
+
+#: The results page: (section title, what it shows, the table). One table per capability.
+SECTIONS = (
+    ("Single-arm policies", "The shipped Reach and Pick policies on the paper's tasks, by their mean action, "
+     "held-out seeds (from 1,000,000).", single_arm),
+    ("PSM Pick without demonstrations", "`pick_lnd_ppo_scratch.toml` (PPO through the env's learning options), three "
+     "seeds, each on 100 held-out episodes; seed 0 ships as `pick-lnd-scratch`.", pick_without_demonstrations),
+    ("Teams of the collaborative scene", "The scripted experts and the pipelines that compose the single-arm "
+     "policies into the collaborative task (`suction_debris_v8`, default preset), 50 seeded episodes.", teams),
+    ("Deployable seats beside partners they never met", "`marl-suction` and `marl-grasper` beside the held-out "
+     "partner zoo, against the scripted seat in the same place; 100 test episodes per row, a person's 6,000-step "
+     "horizon, the default preset.", partner_zoo),
+    ("The yielding suction", "`marl-suction-yielding` beside every partner kind, the surgeons in its way "
+     "(`in-the-way`) among them, against the scripted suction; 100 episodes per row.", yielding_zoo),
+    ("The benchmark", "Both arms learnt from scratch on `suction_debris_v8` with `preset=\"benchmark\"`, per cell the "
+     "interquartile mean over seeds of the success on 100 held-out test episodes; the whole table, its plot and "
+     "each run's figures: [benchmark](benchmark.md).", benchmark_cells),
+    ("The benchmark's reference team beside other partners", "`benchmark-suction` and `benchmark-grasper` with the "
+     "scripted and person-like seats, the benchmark's scene and 1,500-step limit, 100 held-out episodes each.",
+     cross_play),
+    ("The bleeding field", "Teams on the field that bleeds (`bleeding_ml_s`), 100 held-out episodes per row, the "
+     "task's 1,500 steps, by the policies' mean action.", bleeding_field),
+    ("The suction seat from the stereo endoscope", "`marl-suction-pixels` by its default call beside every partner "
+     "kind, in the looks it trained on, the scene's own and held-out ones, against its teacher with no image; 20 test "
+     "episodes per cell, success and contact steps (the worlds that failed).", pixel_seat),
+    ("A seat that keeps state per world, never reset", "`marl-suction-pixels` called across episodes without "
+     "`reset()`, beside the scripted surgeon: each of 20 worlds plays two episodes; the second ones count.",
+     pixel_seat_without_reset),
+    ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
+     "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),
+    ("Training to the target: the compiled trainer", "`dvrl-marl train suction_debris_mappo_large_batch --trainer jax` "
+     "to 0.9 validation success by the mean action, the seconds from the process's start.", trainer_to_target),
+)
+
+#: The tables of docs/policies.md, each between ``<!-- generated: NAME -->`` and ``<!-- end: NAME -->``.
+POLICY_TABLES = {"teams": teams, "partner_zoo": partner_zoo, "pixel_seat": pixel_seat, "cross_play": cross_play}
+
+
+def results_page() -> str:
+    lines = ["# Results", "",
+             "The current figures, one table per capability, each read from its record by `python docs/build_results.py`",
+             "(do not edit: change a record, then regenerate). Every record names the command that made it and the",
+             "commit it was made at. How each figure was reached, run by run: [history](history.md).", "",
+             "## Reproducing a figure", "",
+             "- **Evaluations** of a shipped policy or a scripted team are functions of their seeds: the command under",
+             "  a table gives its figures again on any machine with the same library versions.",
+             "- **Training runs** of the trainers of record (this project's MAPPO on TorchRL, the compiled JAX trainer,",
+             "  SB3's DDPG/SAC/TQC + HER and PPO) are deterministic for a seed on one machine with one set of library",
+             "  versions and thread settings: the tests train twice and compare the exported policies bit for bit",
+             "  (`tests/test_mappo.py`, `tests/test_jax_mappo.py`, `tests/test_training.py`). Across machines, CPU",
+             "  kinds, thread counts (`torch_threads`), library versions or a GPU they are not: the order of floating-",
+             "  point sums differs, and a policy that differs in its last bits can take another path through an",
+             "  episode. A training figure is therefore given over seeds (the benchmark's IQM and interval), and a",
+             "  record names the commit, the tracked files that differed from it and the libraries' versions",
+             "  (`benchmarks/provenance.py`; records before 2026-12-01 name their command and machine only: one such",
+             "  benchmark seed, 0.98 when recorded, gave 0.70 when rerun on a later commit).",
+             "- **Speed** figures are of the machine they name, measured side by side where they are ratios.",
+             ""]
+    for title, about, make in SECTIONS:
+        lines += [f"## {title}", "", about, "", *make().markdown(make.__name__), ""]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def policies_page(text: str) -> str:
+    """docs/policies.md with each generated table written anew (the prose around them is the page's own)."""
+    for name, make in POLICY_TABLES.items():
+        pattern = re.compile(rf"(<!-- generated: {name} -->\n).*?(<!-- end: {name} -->)", re.S)
+        if not pattern.search(text):
+            raise MissingRecord(f"{POLICIES_PAGE.name}: no place for the table {name!r} "
+                                f"(<!-- generated: {name} --> ... <!-- end: {name} -->)")
+        table = "\n".join(make().markdown(name))
+        text = pattern.sub(lambda match: match.group(1) + table + "\n" + match.group(2), text)
+    return text
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if a page is not what the records give")
+    args = parser.parse_args(argv)
+    try:
+        pages = {RESULTS_PAGE: results_page(), POLICIES_PAGE: policies_page(POLICIES_PAGE.read_text())}
+    except MissingRecord as error:
+        print(f"build_results: {error}; no page was written", file=sys.stderr)
+        return 2
+    stale = [page for page, text in pages.items() if not page.is_file() or page.read_text() != text]
+    if args.check:
+        for page in stale:
+            print(f"{page.relative_to(ROOT)} is not what the records give: python docs/build_results.py", file=sys.stderr)
+        return 1 if stale else 0
+    for page in stale:
+        page.write_text(pages[page])
+        print(f"wrote {page.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
