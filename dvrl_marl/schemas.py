@@ -44,6 +44,10 @@ NonNegative = Annotated[float, _NUMBER, Strict(), Field(ge=0, allow_inf_nan=Fals
 Fraction = Annotated[float, _NUMBER, Strict(), Field(ge=0, le=1, allow_inf_nan=False)]
 UnitInterval = Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)]  # (0, 1]
 PositiveInt = Annotated[int, _NUMBER, Strict(), Field(ge=1)]
+#: A count of steps (an episode's limit): at most a billion (230 days at 50 Hz), which int64 arrays hold.
+StepCount = Annotated[int, _NUMBER, Strict(), Field(ge=1, le=10**9)]
+#: An easy episode's limit (0: the task's), a count of steps as above.
+EasyEpisodeSteps = Annotated[int, _NUMBER, Strict(), Field(ge=0, le=10**9)]
 NonNegativeInt = Annotated[int, _NUMBER, Strict(), Field(ge=0)]
 #: numpy's generators take seeds >= 0.
 #: A seed: a 64-bit key of the counter-based streams (a larger one once wrapped: 2**64 played seed 0).
@@ -164,7 +168,7 @@ class CollaborativeTask(BaseModel):
     suction_rate_ml_s: Positive
     debris_count: PositiveInt
     contact_penalty: NonNegative
-    max_cycles: PositiveInt
+    max_cycles: StepCount
     pins_fall: Flag = False
     suction_reach: NonNegative = 0.0
     bleeding_ml_s: NonNegative = 0.0
@@ -415,6 +419,10 @@ class PolicyFile(BaseModel):
 
     model_config = ConfigDict(extra="allow")
     format: Text
+    name: Text = "policy"
+    env_id: Text
+    agent: Literal["suction", "grasper"] | None = None  # (a seat of the collaborative scene names its seat)
+    preset: Text | None = None
     layer_sizes: Annotated[list[PositiveInt], Field(min_length=2)]
     activations: Annotated[list[Text], Field(min_length=1)]
     observation_keys: list[Text]

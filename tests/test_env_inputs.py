@@ -81,9 +81,9 @@ def test_make_vec_refuses_episodes_that_end_before_they_begin(monkeypatch):
     assert not unraisable, [str(report.exc_value) for report in unraisable]  # the refused env closes cleanly
 
 
-def test_render_lists_only_the_scenes_it_can_render():
+def test_render_lists_only_the_scenes_it_can_render(tmp_path):
     result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "render", "--scene", "common", "--out",
-                             "/dev/null"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+                             str(tmp_path / "common.png")], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert result.returncode == 2 and "has no endoscope camera" in result.stderr, result.stderr
     assert "'common'" not in result.stderr.split("renderable scenes:")[1]
 
@@ -122,8 +122,10 @@ def test_evaluate_team_runs_the_demos_scene_by_default_and_names_a_bad_preset():
     from dvrl_marl.cli import build_parser
     from dvrl_marl.demo import ENV_NAME
 
+    from dvrl_marl.cli import _team_preset
+
     args = build_parser().parse_args(["evaluate-team", "--suction", "scripted", "--grasper", "scripted"])
-    assert args.preset == "default" and ENV_NAME == "suction_debris_v8"
+    assert _team_preset(args.suction, args.grasper, args.preset) == "default" and ENV_NAME == "suction_debris_v8"
     with pytest.raises(SystemExit):
         build_parser().parse_args(["evaluate-team", "--preset", "fast"])
 

@@ -207,8 +207,11 @@ class CollaborativeCore:
 
     def set_blood(self, worlds, blood_ml) -> None:
         """Set the initial blood (ml per cavity) of ``worlds`` for this and later episodes (a reset option)."""
-        volumes = np.asarray(blood_ml, dtype=np.float64)
         c = self.cavities.count
+        try:
+            volumes = np.asarray(blood_ml, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{self.name}: blood_ml needs one volume (ml) per cavity ({c}), got {blood_ml!r}") from None
         if volumes.shape[-1:] != (c,) or volumes.ndim > 2:
             raise ValueError(f"{self.name}: blood_ml needs one volume per cavity ({c}), got {volumes.tolist()}")
         if not np.all(np.isfinite(volumes)) or np.any(volumes < 0.0) or np.any(volumes > self.cavities.capacity_ml):

@@ -112,7 +112,7 @@ class SuctionDebrisBatchedEnv:
                  image_depth: bool = False, image_segmentation: bool = False, image_stereo: bool = False,
                  image_appearance: str | Appearance | None = None, image_contexts: int = 1,
                  width: int = 640, height: int = 480, **params):
-        from dvrl_marl.schemas import Flag, NonNegativeInt, PositiveInt, validated
+        from dvrl_marl.schemas import EasyEpisodeSteps, Flag, PositiveInt, validated
 
         if not isinstance(task, (str, Path)):
             raise ValueError(f"{TASK}: task must be a task file's name or path, got {task!r}")
@@ -171,7 +171,7 @@ class SuctionDebrisBatchedEnv:
         # Options that help learning: start levels, the guided reward.
         self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
         if easy_episode_steps is not None:  # 0 says what None does where there is no null (a TOML configuration)
-            easy_episode_steps = validated(NonNegativeInt, easy_episode_steps,
+            easy_episode_steps = validated(EasyEpisodeSteps, easy_episode_steps,
                                            f"{self.name}: easy_episode_steps") or None
         #: an easy episode's time limit (None: the task's max_cycles)
         self.easy_episode_steps = easy_episode_steps
@@ -475,21 +475,38 @@ class SuctionDebrisBatchedEnv:
                 blood_ml is not None or debris_count is not None or tips is not None):
             raise ValueError(f"{self.name}: a level below 1 draws blood, debris and starts itself; pass "
                              "blood_ml / debris_count / tip_positions or level, not both")
-        if seed is not None:
-            self.core.random.seed(seed)  # (validates the seed before anything is drawn)
-        self.levels = levels
-        if np.any(self.levels[worlds] < start_levels.DEFAULT):
-            self._start_at_levels(worlds)
-        else:
-            self._reset_at_default(worlds, blood_ml)
-        if debris_count is not None:
-            count = np.asarray(debris_count)
-            self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
-        if tips is not None:
-            if not isinstance(tips, dict):
-                raise ValueError(f"{self.name}: tip_positions must be a dict {{agent: (num_envs, 3) metres}}")
-            self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip_positions[{agent!r}]")
-                                          for agent, value in tips.items()})
+        if tips is not None and not isinstance(tips, dict):
+            raise ValueError(f"{self.name}: tip_positions must be a dict {{agent: (num_envs, 3) metres}}, got "
+                             f"{type(tips).__name__}")
+        # A start option is checked against the episode it starts (a tip must clear the other, reset, instrument):
+        # one refused after the worlds were reset puts them back as they were.
+        before = ((self.core.snapshot(), dict(self.core.random.state()), self.levels.copy())
+                  if blood_ml is not None or debris_count is not None or tips is not None else None)
+        try:
+            if seed is not None:
+                self.core.random.seed(seed)  # (validates the seed before anything is drawn)
+            self.levels = levels
+            if np.any(self.levels[worlds] < start_levels.DEFAULT):
+                self._start_at_levels(worlds)
+            else:
+                self._reset_at_default(worlds, blood_ml)
+            if debris_count is not None:
+                count = np.asarray(debris_count)
+                if count.ndim > 1 or (count.ndim == 1 and len(count) != self.num_envs):
+                    raise ValueError(f"{self.name}: debris_count is one count, or one per world ({self.num_envs}), "
+                                     f"got {debris_count!r}")
+                self.core.limit_debris(worlds, count[worlds] if count.ndim == 1 else count)
+            if tips is not None:
+                self.core.place_tips(worlds, {agent: self._rows(value, worlds, f"tip_positions[{agent!r}]")
+                                              for agent, value in tips.items()})
+        except (ValueError, TypeError) as error:
+            if before is not None:
+                self.core.restore(before[0])
+                self.core.random.restore(before[1])
+                self.levels = before[2]
+            if isinstance(error, TypeError):  # (a value numpy cannot read as numbers)
+                raise ValueError(f"{self.name}: reset options: {error}") from None
+            raise
         self._reset_surgeon(None if mask is None else worlds)
         self._restart_potential()
         self._started = True
@@ -610,7 +627,11 @@ class SuctionDebrisBatchedEnv:
         self._restart_potential()
 
     def _rows(self, value, worlds, name):
-        value = np.asarray(value, dtype=np.float64)
+        try:
+            value = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{self.name}: {name} must be numbers, one row per world ({self.num_envs}), got "
+                             f"{value!r}") from None
         if value.ndim != 2 or value.shape[0] != self.num_envs:
             raise ValueError(f"{self.name}: {name} needs one row per world ({self.num_envs}), got shape {value.shape}")
         return value[worlds]

@@ -78,6 +78,12 @@ class NumpyPolicy:
                 raise ValueError(f"policy {self.name!r}: felt_contact reads the tips and the arms' centres from "
                                  f"keep_clear, which it lacks")
             self.felt_contact = FeltContact(spec["felt_contact"], self.keep_clear)
+        if spec.get("preset") is not None:  # the scene it learnt on, which the evaluations make
+            from dvrl_marl.envs.presets import PRESETS
+
+            if spec["preset"] not in PRESETS:
+                raise ValueError(f"policy {self.name!r}: preset {spec['preset']!r} is not a preset of the scene "
+                                 f"({sorted(PRESETS)})")
         self.encoder = None
         if spec.get("image") is not None:
             from dvrl_marl.policies.image_encoder import ImageEncoder
@@ -155,10 +161,18 @@ class NumpyPolicy:
             if missing:
                 raise ValueError(f"policy {self.name!r} reads observation key(s) {missing}, absent from this env's "
                                  f"observation ({sorted(observation)})")
-            parts = [np.asarray(observation[key], dtype=np.float64) for key in self.observation_keys]
-            x = np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
+            try:
+                parts = [np.asarray(observation[key], dtype=np.float64) for key in self.observation_keys]
+                x = np.concatenate([p.reshape(p.shape[:-1] + (-1,)) if p.ndim > 1 else p for p in parts], axis=-1)
+            except (TypeError, ValueError):  # (numpy's words for a part that is not numbers, or of another shape)
+                shapes = {key: np.shape(observation[key]) for key in self.observation_keys}
+                raise ValueError(f"policy {self.name!r} reads {self.observation_keys} as numbers, one row per world "
+                                 f"each, got shapes {shapes}") from None
         else:
-            x = np.asarray(observation, dtype=np.float64)
+            try:
+                x = np.asarray(observation, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"policy {self.name!r} reads an observation of numbers, got {observation!r:.80}") from None
         _check_finite(self.name, x, "observation")
         expected = self.weights[0][0].shape[1] - self._feature_count
         if self._feature_count and x.shape[-1] == expected:  # features it computes from its observation
