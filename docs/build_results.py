@@ -256,6 +256,17 @@ def pixel_seat_without_reset() -> Table:
     return table
 
 
+def bad_input_round() -> Table:
+    path = "baselines/results/bad_input_round_3.json"
+    record = _read(path)
+    table = Table(["kind of case", "cases"])
+    table.rows = [[kind, str(count)] for kind, count in record["kinds"].items()]
+    table.rows.append([f"**all** (taken {record['taken']}, refused by name {record['refused']})",
+                       f"**{record['cases']}: {record['defect']} defects**"])
+    table.source(path, record["command"], record["code"]["commit"])
+    return table
+
+
 def endoscope_speed() -> Table:
     table = Table(["machine", "what", "size", "worlds", "GL contexts", "frames/s", "x the bare renderer", "record",
                    "commit"])
@@ -315,6 +326,10 @@ SECTIONS = (
     ("A seat that keeps state per world, never reset", "`marl-suction-pixels` called across episodes without "
      "`reset()`, beside the scripted surgeon: each of 20 worlds plays two episodes; the second ones count.",
      pixel_seat_without_reset),
+    ("Bad input", "A round of bad input as a careless user gives it (`benchmarks/bad_input_round.py`, seeded): each "
+     "case taken and then well behaved, or refused by a `ValueError` (argparse's exit 2) naming the value; a defect is "
+     "any other exception, a traceback, a refusal that changed a world, or NaN out. The device env's cases ran on the "
+     "CPU through JAX.", bad_input_round),
     ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
      "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),
     ("Training to the target: the compiled trainer", "`dvrl-marl train suction_debris_mappo_large_batch --trainer jax` "

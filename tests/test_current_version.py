@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: single-arm -v0 ids.
 OLD_NAME = re.compile(r"suction_debris[_-]v[0-7]\b|SurgeonSeat-v[0-7]\b|PSM(Reach|Pick)(Dense)?-v0\b")
 #: Files allowed to name old versions: the records and the pages that map or list them.
-RECORD_PAGES = {"docs/migration.md", "docs/results.md", "CHANGELOG.md"}
+RECORD_PAGES = {"docs/migration.md", "docs/history.md", "CHANGELOG.md"}
 
 
 @pytest.mark.parametrize("version", range(8))
