@@ -130,3 +130,71 @@ def test_a_task_file_that_extends_itself_through_others_is_named(tmp_path, monke
     with pytest.raises(ValueError, match=r"a\.toml|b\.toml|c\.toml") as error:
         task.load_task_table("a")
     assert "cannot extend itself" in str(error.value) and "->" in str(error.value) or files == {"a": "a"}
+
+
+def _seat_copy(tmp_path, name):
+    folder = tmp_path / name
+    shutil.copytree(policies.shipped_dir() / name, folder)
+    return folder
+
+
+def _felt(spec, **changes):
+    from dvrl_marl.envs.scripted_team import felt_contact_rule
+
+    spec["felt_contact"] = {**felt_contact_rule(0.08, 30.0, 2.0, 100, 0.3), **changes}
+
+
+@pytest.mark.parametrize("name, change, message", [
+    ("marl-grasper", lambda s: s["features"]["cavity_centres"][0].__setitem__(0, float("nan")),
+     "cavity_centres must be finite numbers of shape (2, 2)"),
+    ("marl-grasper", lambda s: s["features"].update(cavities=3), "cavity_centres must be finite numbers of shape (3, 2)"),
+    ("marl-grasper", lambda s: s["features"].update(debris=2), "its features read an observation of 24 values"),
+    ("marl-grasper", lambda s: s["features"].update(zoom=1.0), "unknown ['zoom']"),
+    ("marl-grasper", lambda s: s["features"].pop("rim_z"), "missing ['rim_z']"),
+    ("marl-grasper", lambda s: s.update(agent="scalpel"), "agent"),
+    ("marl-grasper", lambda s: s.update(preset="fast"), "preset 'fast' is not a preset"),
+    ("marl-suction-pixels", lambda s: s["keep_clear"].update(keep_mm=1e6, keep=1e6 / 80), "wider than the workspace"),
+    ("marl-suction-pixels", lambda s: _felt(s, near_mm=30.0, near=30.0 / 40), "the _mm values and their observation units"),
+    ("marl-suction-pixels", lambda s: _felt(s, retreat_mm=40.0, retreat=0.5), "retreat_mm 40.0 must be below near_mm"),
+    ("marl-suction-pixels", lambda s: _felt(s, hold_steps=10**7), "hold_steps"),
+    ("marl-suction-pixels", lambda s: (s["keep_clear"].update(keep_mm=14.0, keep=14.0 / 40), _felt(s)),
+     "keep_clear reads 40 mm per observation unit, felt_contact 80"),
+])
+def test_every_table_of_a_seat_is_checked_at_load(tmp_path, name, change, message):
+    """A seat's features, keep_clear and felt_contact, its seat and preset: checked when the file is read, the file
+    named (a NaN centre once gave NaN actions; wrong counts numpy's own errors at the first step)."""
+    folder = _seat_copy(tmp_path, name)
+    _edit_json(folder, change)
+    with pytest.raises(ValueError) as error:
+        policies.load(folder)
+    assert str(folder / "policy.json") in str(error.value) and message in str(error.value), str(error.value)
+
+
+@pytest.fixture(scope="module")
+def pixel_observation():
+    from dvrl_marl.envs import suction_debris_v8
+
+    policy = policies.load("marl-suction-pixels")
+    env = suction_debris_v8.batched_env(num_envs=2, **policy.image_options)
+    observations, _ = env.reset(seed=0)
+    return policy, observations["suction"]
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda o: o.update(image=o["image"] / 255.0), "uint8 RGB in 0..255, got float64"),
+    (lambda o: o.update(image=o["image"].astype(np.uint16) * 257), "got uint16"),
+    (lambda o: o.update(image_right=o["image_right"][:, :32, :32]), "'image_right' as 64 x 64 RGB images"),
+    (lambda o: o.update(image_right=o["image_right"][:1]), "one per world as the other eye's"),
+    (lambda o: o.update(observation=o["observation"][:, :-1]), "reads 'observation' as 30 values per world"),
+    (lambda o: o["observation"].__setitem__((0, 0), np.nan), "its 'observation' holds NaN or inf"),
+    (lambda o: o.pop("image_right"), "sees the endoscope"),
+])
+def test_what_a_pixel_seat_reads_is_checked(pixel_observation, change, message):
+    """Images of another kind (floats in 0..1, uint16), an eye of another size or count, an observation of another
+    width, NaN: each refused by name, where they once gave other actions silently or numpy's own errors."""
+    policy, observation = pixel_observation
+    given = {key: np.array(value) for key, value in observation.items()}
+    change(given)
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        policy(given)
+    assert np.all(np.isfinite(policy({key: np.array(value) for key, value in observation.items()})))
