@@ -202,6 +202,12 @@ exposes it to TorchRL.
 ``preset="default"`` (the default) is the task file as it is. Every form takes it (parallel, AEC, batched, the seat
 env, the TorchRL and BenchMARL tasks).
 
+**In JaxMARL's form** (``pip install "dvrl-marl[jax]"``): ``jax_env(**same keyword arguments)`` is one world as pure
+functions, ``reset(key) -> (observations, state)`` and ``step(key, state, actions) -> (observations, state, rewards,
+dones, infos)`` with ``dones["__all__"]``, for ``jax.jit(jax.vmap(env.step))`` over any number of worlds; the same step
+as every other form, world i of a vmapped batch equal to world i of the batched env seeded ``seed_of(key_i)``
+(:mod:`dvrl_marl.envs.suction_debris_jax`).
+
 ## Version History
 - v8: the one current version. Its rules are v7's of the unreleased 0.1.0 (blocked moves slide and settle, the
   hand-off judged at the grip, pins that stay in view, falling pins, graded suction, optional bleeding); the
@@ -215,6 +221,7 @@ from dvrl_marl.envs.presets import PRESETS
 from dvrl_marl.envs.suction_debris import (AGENTS, TASK, SceneLayout, SuctionDebrisEnv, SuctionDebrisParams, env,
                                            parallel_env, raw_env)
 from dvrl_marl.envs.suction_debris_device import batched_env
+from dvrl_marl.envs.suction_debris_jax import jax_env
 
-__all__ = ["parallel_env", "env", "raw_env", "batched_env", "AGENTS", "TASK", "PRESETS", "SuctionDebrisEnv",
-           "SuctionDebrisParams", "SceneLayout"]
+__all__ = ["parallel_env", "env", "raw_env", "batched_env", "jax_env", "AGENTS", "TASK", "PRESETS",
+           "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout"]
