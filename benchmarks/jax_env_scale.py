@@ -76,7 +76,9 @@ def main(argv=None) -> int:
         given = {agent: np.asarray(value)[: args.compare] for agent, value in actions_at(t).items()}
         observations = host.step(given)[0]
         worst = max(worst, max(float(np.abs(np.asarray(picked[agent][t]) - observations[agent]).max()) for agent in agents))
+    state_bytes = sum(value[0].nbytes for value in states.values())  # one world's
     row = {"what": "jax_env: jit(vmap(step)) in one lax.scan", "worlds": args.worlds, "steps": args.steps,
+           "state_bytes_per_world": state_bytes, "state_arrays": len(states),
            "finite": finite, "same_for_the_same_key": same, "worlds_compared": args.compare,
            "max_difference_from_numpy": worst, "episodes_ended": int(np.asarray(ended).sum()),
            "compile_and_first_run_seconds": round(first, 1), "run_seconds": round(seconds, 2),
