@@ -357,7 +357,8 @@ def results_page() -> str:
              "  episode. A training figure is therefore given over seeds (the benchmark's IQM and interval), and a",
              "  record names the commit, the tracked files that differed from it and the libraries' versions",
              "  (`benchmarks/provenance.py`; records before 2026-12-01 name their command and machine only: one such",
-             "  benchmark seed, 0.98 when recorded, gave 0.70 when rerun on a later commit).",
+             "  benchmark seed (3), 0.98 when recorded, gave 0.70 when rerun on a later commit, and 0.92 at 84d0f03 on",
+             "  this machine kind: `baselines/results/benchmark_rerun_seed3_2026-12-01.json`).",
              "- **Speed** figures are of the machine they name, measured side by side where they are ratios.",
              ""]
     for title, about, make in SECTIONS:
