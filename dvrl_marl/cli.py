@@ -10,6 +10,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs.presets import PRESETS, scene_options
 from dvrl_marl.schemas import cli_number
 
@@ -175,7 +176,7 @@ def resolve_config(name: str) -> str:
 
 
 #: The env ids a seat policy of the collaborative scene names (the seat env's, or the scene's it learnt on).
-_SEAT_ENV_IDS = ("dvrl_marl/SurgeonSeat-v8", "suction_debris_v8")
+_SEAT_ENV_IDS = ("dvrl_marl/SurgeonSeat-v8", TASK)
 
 
 def _evaluate(args) -> int:
@@ -194,7 +195,7 @@ def _evaluate(args) -> int:
         if given:
             raise ValueError(f"evaluate: {', '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to "
                              f"{args.policy}, a seat of the "
-                             "collaborative scene (it is evaluated beside the pipeline partner on suction_debris_v8); "
+                             f"collaborative scene (it is evaluated beside the pipeline partner on {TASK}); "
                              "dvrl-marl evaluate-team pairs it with other partners")
 
         agent = policy.spec.get("agent")
@@ -510,7 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
     team.add_argument("--seed", type=SEED, help="first evaluation seed (default: the held-out range)")
     team.add_argument("--json", type=output_file, help="also write the rows to this JSON file")
     team.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                      help="the scene's preset (suction_debris_v8; default: the one the learned seats record, else "
+                      help=f"the scene's preset ({TASK}; default: the one the learned seats record, else "
                            "default); its learning options (reward, observation features) are left out, since the "
                            "seats compute their own features")
     team.add_argument("--noise", action="store_true",

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core.collaborative_task import TASK
+
 __all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "EpisodeRecorder",
            "save_episodes", "next_free_id", "SEAT_ENV_ID"]
 
@@ -184,7 +186,7 @@ def record(dataset_id: str, policy, episodes: int = 20, *, seed: int = 0, env_kw
     name = policy if isinstance(policy, str) else type(policy).__name__
     return save_episodes(dataset_id, buffers, env, algorithm_name=algorithm_name or f"dvrl-marl {name}",
                          description=description or (f"{episodes} episodes of {name} in the surgeon seat of "
-                                                     f"suction_debris_v8 (seeds {seed}..{seed + episodes - 1}, "
+                                                     f"{TASK} (seeds {seed}..{seed + episodes - 1}, "
                                                      f"action noise {action_noise})"))
 
 

@@ -25,14 +25,14 @@ from datetime import datetime
 from pathlib import Path
 
 from dvrl_marl import policies
-from dvrl_marl.envs import suction_debris_v8 as scene_env
+from dvrl_marl.envs import suction_debris as scene_env
 from dvrl_marl.pipeline import ArmPipeline, load_pipeline, pipeline_policies
 
 __all__ = ["run_demo", "SURGEONS", "TEAMS", "format_summary"]
 
 SURGEONS = ("learned", "scripted", "keyboard")
 #: The scene the demo runs: the current version, with its default preset (no bleeding).
-ENV_NAME = "suction_debris_v8"
+ENV_NAME = scene_env.TASK
 #: A person at the keyboard gets 2 minutes (6,000 steps) unless ``max_cycles`` says otherwise: the task's 1,500
 #: steps (30 s) are enough for a script (an expert pressing the keys finishes in 13-24 s), tight for a person.
 KEYBOARD_MAX_CYCLES = 6000

@@ -137,3 +137,32 @@ def test_the_readmes_examples_run():
             except ImportError:
                 continue
         exec(compile(block, f"README.md block {index}", "exec"), {})
+
+
+def test_the_library_says_the_scenes_version_in_one_place():
+    """PettingZoo's way: internals import the unversioned module (dvrl_marl.envs.suction_debris); the version's name is
+    the task's (core.collaborative_task.TASK), and only dvrl_marl.envs, its versioned module and the registry say it
+    in code (the docstrings are the users' pages, which name what users import)."""
+    import ast
+
+    allowed = {"envs/__init__.py", "envs/suction_debris_v8.py", "registration.py", "core/collaborative_task.py"}
+    package = ROOT / "dvrl_marl"
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        relative = str(path.relative_to(package))
+        if relative in allowed:
+            continue
+        tree = ast.parse(path.read_text())
+        documentation = {id(node.body[0].value) for node in ast.walk(tree)
+                         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                         and node.body and isinstance(node.body[0], ast.Expr)
+                         and isinstance(node.body[0].value, ast.Constant)}
+        for node in ast.walk(tree):
+            named = (isinstance(node, ast.Name) and node.id == "suction_debris_v8"
+                     or isinstance(node, ast.alias) and "suction_debris_v8" in node.name
+                     or isinstance(node, ast.ImportFrom) and "suction_debris_v8" in (node.module or "")
+                     or isinstance(node, ast.Constant) and id(node) not in documentation
+                     and isinstance(node.value, str) and "suction_debris_v8" in node.value)
+            if named:
+                found.append(f"{relative}:{node.lineno}")
+    assert not found, f"the version named outside its one place: {found}"

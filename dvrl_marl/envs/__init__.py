@@ -8,6 +8,7 @@ import importlib.abc
 import re
 import sys
 
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.envs.psm_pick import PSMPickEnv
 from dvrl_marl.envs.psm_reach import PSMReachEnv
@@ -15,7 +16,7 @@ from dvrl_marl.envs.psm_reach import PSMReachEnv
 __all__ = ["PSMReachEnv", "PSMPickEnv", "suction_debris_v8", "CURRENT", "RECORDS_COMMIT"]
 
 #: The current version of the collaborative scene.
-CURRENT = "suction_debris_v8"
+CURRENT = TASK
 #: The commit whose code reproduces the records of the versions before the current one (0.1.0, never released).
 RECORDS_COMMIT = "36a42a0"
 _REPLACED = re.compile(r"suction_debris_v(\d+)$")

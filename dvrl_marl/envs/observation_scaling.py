@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.core.collaborative_task import TASK
+
 __all__ = ["ObservationScaling", "SCALES_FILE", "MEASURE_WORLDS", "MEASURE_SEED", "MIN_SPREAD", "MEASURE_TASK"]
 
 #: Where the measured centres and spreads are kept (package data).
@@ -36,7 +38,7 @@ MEASURE_SEED = 0
 #: (dvrl_marl.training.models reads it from here).
 MIN_SPREAD = 0.01
 #: The task the statistics were measured on (its observation is every version's).
-MEASURE_TASK = "suction_debris_v8"
+MEASURE_TASK = TASK
 
 
 class ObservationScaling:

@@ -13,6 +13,8 @@ from __future__ import annotations
 import functools
 from types import MappingProxyType
 
+from dvrl_marl.core.collaborative_task import TASK
+
 __all__ = ["PRESETS", "LEARNING_OPTIONS", "with_preset", "accepts_preset", "scene_options"]
 
 #: Options that shape learning only (the reward, what is appended to or done to observations): a learned seat is
@@ -35,7 +37,7 @@ PRESETS = MappingProxyType({
 })
 
 
-def with_preset(kwargs: dict, owner: str = "suction_debris_v8") -> dict:
+def with_preset(kwargs: dict, owner: str = TASK) -> dict:
     """``kwargs`` with its ``preset`` (if any) replaced by the preset's values; the explicit keywords win."""
     kwargs = dict(kwargs)
     name = kwargs.pop("preset", "default")

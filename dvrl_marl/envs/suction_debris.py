@@ -27,8 +27,8 @@ from dvrl_marl.envs.suction_debris_batched import REWARD_TYPES, SceneLayout, Suc
 from dvrl_marl.envs.surgeon_seat import SurgeonSeat, check_seat
 from dvrl_marl.rendering import render_modes_here
 
-__all__ = ["parallel_env", "env", "raw_env", "TASK", "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout", "AGENTS",
-           "env_name", "REWARD_TYPES"]
+__all__ = ["parallel_env", "env", "raw_env", "batched_env", "jax_env", "TASK", "PRESETS", "SuctionDebrisEnv",
+           "SuctionDebrisParams", "SceneLayout", "AGENTS", "env_name", "REWARD_TYPES"]
 
 #: Attributes of the one-world batch the env shows as its own (the scene's parameters, spaces' layouts, options).
 _SHARED = ("name", "params", "reward_type", "core", "phantom", "handoff", "workspace_centre", "workspace_range",
@@ -277,3 +277,10 @@ raw_env = parallel_env
 def env(**kwargs):
     """The AEC form, through PettingZoo's parallel-to-AEC conversion."""
     return parallel_to_aec(parallel_env(**kwargs))
+
+
+# The scene's every form, from this unversioned module: the library imports it (PettingZoo's way); only users and
+# dvrl_marl.envs say the version (suction_debris_v8), whose name is the task's (core.collaborative_task.TASK).
+from dvrl_marl.envs.presets import PRESETS  # noqa: E402
+from dvrl_marl.envs.suction_debris_device import batched_env  # noqa: E402
+from dvrl_marl.envs.suction_debris_jax import jax_env  # noqa: E402

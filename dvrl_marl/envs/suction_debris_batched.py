@@ -100,7 +100,7 @@ class SceneLayout:
 class SuctionDebrisBatchedEnv:
     """N worlds of suction_debris_v8 (see the module documentation)."""
 
-    metadata = {"name": "suction_debris_v8", "render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"name": TASK, "render_modes": ["rgb_array"], "render_fps": 50}
 
     @accepts_preset
     def __init__(self, num_envs: int = 1, surgeon=None, surgeon_seat: str = "grasper", reward_type: str = "sparse",

@@ -38,6 +38,7 @@ import copy
 import numpy as np
 
 from dvrl_marl.core.collaborative import AGENTS
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
@@ -81,11 +82,11 @@ class SuctionDebrisDeviceEnv:
             raise ImportError('the device env needs JAX: pip install "dvrl-marl[jax]"') from None
         for option, why in _HOST_ONLY.items():
             if kwargs.get(option):  # (None, and image_size 0, ask for nothing of the host)
-                raise ValueError(f"suction_debris_v8: {option}= is not taken on a device ({why}); use the numpy env")
+                raise ValueError(f"{TASK}: {option}= is not taken on a device ({why}); use the numpy env")
         if autoreset_mode not in ("same_step", "disabled"):
-            raise ValueError(f"suction_debris_v8: autoreset_mode must be 'same_step' or 'disabled', got {autoreset_mode!r}")
+            raise ValueError(f"{TASK}: autoreset_mode must be 'same_step' or 'disabled', got {autoreset_mode!r}")
         if arrays not in ("torch", "jax"):
-            raise ValueError(f"suction_debris_v8: arrays must be 'torch' or 'jax', got {arrays!r}")
+            raise ValueError(f"{TASK}: arrays must be 'torch' or 'jax', got {arrays!r}")
         jax.config.update("jax_enable_x64", True)  # the core is float64
         #: the numpy env this one mirrors: options, spaces, layouts and the first reset are its own
         self.host = SuctionDebrisBatchedEnv(num_envs, autoreset_mode="disabled", **kwargs)

@@ -51,11 +51,12 @@ class SuctionDebrisJaxEnv:
     keyword arguments but for the host's (``surgeon``, ``render_mode``, ``image_size``)."""
 
     def __init__(self, **options):
+        from dvrl_marl.core.collaborative_task import TASK
         from dvrl_marl.envs.suction_debris_device import SuctionDebrisDeviceEnv
 
         for option in ("num_envs", "autoreset_mode", "device", "arrays", "check_actions"):
             if option in options:
-                raise ValueError(f"suction_debris_v8: jax_env() is one world, stepped where JAX puts it, its ended "
+                raise ValueError(f"{TASK}: jax_env() is one world, stepped where JAX puts it, its ended "
                                  f"episodes restarted in the step; {option}= is the batched env's")
         # the traced functions of the device env, at one world (a vmapped batch of them is N worlds)
         self._one = SuctionDebrisDeviceEnv(1, device="cpu", arrays="jax", check_actions=False,

@@ -217,11 +217,8 @@ as every other form, world i of a vmapped batch equal to world i of the batched 
 
 from __future__ import annotations
 
-from dvrl_marl.envs.presets import PRESETS
-from dvrl_marl.envs.suction_debris import (AGENTS, TASK, SceneLayout, SuctionDebrisEnv, SuctionDebrisParams, env,
-                                           parallel_env, raw_env)
-from dvrl_marl.envs.suction_debris_device import batched_env
-from dvrl_marl.envs.suction_debris_jax import jax_env
+from dvrl_marl.envs.suction_debris import (AGENTS, PRESETS, TASK, SceneLayout, SuctionDebrisEnv, SuctionDebrisParams,
+                                           batched_env, env, jax_env, parallel_env, raw_env)
 
 __all__ = ["parallel_env", "env", "raw_env", "batched_env", "jax_env", "AGENTS", "TASK", "PRESETS",
            "SuctionDebrisEnv", "SuctionDebrisParams", "SceneLayout"]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs.suction_debris_jax import SuctionDebrisJaxEnv
 
 __all__ = ["SuctionDebrisJaxMARLEnv", "suction_debris_env"]
@@ -42,7 +43,7 @@ class SuctionDebrisJaxMARLEnv(SuctionDebrisJaxEnv, MultiAgentEnv):
 
     @property
     def name(self) -> str:
-        return "suction_debris_v8"
+        return TASK
 
     @name.setter
     def name(self, value) -> None:  # (the base classes set it)

@@ -47,10 +47,10 @@ def register_suction_debris(name: str = "dvrl_marl/suction_debris-v8") -> str:
     goes to ``parallel_env(**env_config)``."""
     from ray.tune.registry import register_env
 
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
 
     register_env(name, lambda env_config: RenderableParallelPettingZooEnv(
-        suction_debris_v8.parallel_env(**dict(env_config))))
+        suction_debris.parallel_env(**dict(env_config))))
     return name
 
 

@@ -98,11 +98,11 @@ def make_collaborative_vec_env(n_envs: int = 4, seed: int | None = None, surgeon
     """
     import supersuit as ss
 
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
     from dvrl_marl.schemas import PositiveInt, validated
 
     n_envs = validated(PositiveInt, n_envs, "make_collaborative_vec_env: n_envs")
-    env = suction_debris_v8.parallel_env(surgeon=surgeon, **env_kwargs)
+    env = suction_debris.parallel_env(surgeon=surgeon, **env_kwargs)
     env = ss.pad_observations_v0(env)
     env = ss.pad_action_space_v0(env)
     if len(env.possible_agents) > 1:

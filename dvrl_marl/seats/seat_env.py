@@ -36,7 +36,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 
 __all__ = ["SeatEnv", "PARTNERS"]
 
@@ -49,15 +49,15 @@ class SeatEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
     def __init__(self, seat: str = "grasper", partner="pipeline", render_mode=None, **scene_kwargs):
-        if seat not in suction_debris_v8.AGENTS:
-            raise ValueError(f"SeatEnv: seat must be one of {suction_debris_v8.AGENTS}, got {seat!r}")
+        if seat not in suction_debris.AGENTS:
+            raise ValueError(f"SeatEnv: seat must be one of {suction_debris.AGENTS}, got {seat!r}")
         for key in ("surgeon", "surgeon_seat"):  # the partner fills the other seat; the seat is this env's
             if key in scene_kwargs:
                 raise TypeError(f"SeatEnv() got an unexpected keyword argument {key!r}: the other arm is the "
                                 "partner's (partner=...), this one the agent's")
-        self.scene = suction_debris_v8.parallel_env(render_mode=render_mode, **scene_kwargs)
+        self.scene = suction_debris.parallel_env(render_mode=render_mode, **scene_kwargs)
         self.seat = seat
-        self.partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)
+        self.partner_seat = next(agent for agent in suction_debris.AGENTS if agent != seat)
         self.partner = self._partner(partner)
         self.render_mode = render_mode
         self.observation_space = self.scene.observation_space(seat)

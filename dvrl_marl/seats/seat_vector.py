@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector.utils import batch_space
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.vector import autoreset_metadata
 
 __all__ = ["SeatVectorEnv", "make_seat_vector"]
@@ -40,13 +40,13 @@ class SeatVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, seat: str = "grasper", partner="scripted",
                  autoreset_mode: str = "next_step", **scene_kwargs):
-        if seat not in suction_debris_v8.AGENTS:
-            raise ValueError(f"SeatVectorEnv: seat must be one of {suction_debris_v8.AGENTS}, got {seat!r}")
+        if seat not in suction_debris.AGENTS:
+            raise ValueError(f"SeatVectorEnv: seat must be one of {suction_debris.AGENTS}, got {seat!r}")
         if autoreset_mode not in ("next_step", "same_step"):
             raise ValueError(f"SeatVectorEnv: autoreset_mode must be 'next_step' or 'same_step', got "
                              f"{autoreset_mode!r}")
-        partner_seat = next(agent for agent in suction_debris_v8.AGENTS if agent != seat)
-        self.batched = suction_debris_v8.batched_env(num_envs=num_envs,
+        partner_seat = next(agent for agent in suction_debris.AGENTS if agent != seat)
+        self.batched = suction_debris.batched_env(num_envs=num_envs,
                                                      surgeon=_batched_partner(partner, partner_seat),
                                                      surgeon_seat=partner_seat, autoreset_mode="disabled",
                                                      **scene_kwargs)

@@ -25,6 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.teleop.browser import BrowserDevice
 from dvrl_marl.envs.scene_view import SceneView
 from dvrl_marl.pacing import RealTimePacer
@@ -325,7 +326,7 @@ class TeleopSession:
                 dataset_id = next_free_id(self.dataset_id)
                 dataset = save_episodes(
                     dataset_id, buffers, self.env, algorithm_name="dvrl-marl teleop (a person in the browser)",
-                    description=f"{len(buffers)} episodes of a person in the {self.seat} seat of suction_debris_v8 "
+                    description=f"{len(buffers)} episodes of a person in the {self.seat} seat of {TASK} "
                                 f"beside the {self.partner_name} partner, recorded by dvrl-marl teleop")
                 self.saved.append({"id": dataset_id, "episodes": len(buffers),
                                    "successes": sum(bool(b.infos["is_success"][-1]) for b in buffers),

@@ -97,9 +97,9 @@ def load_config(path) -> CloneConfig:
 def cleared_features() -> list[tuple[int, float]]:
     """``(observation index, threshold)`` of each cavity's blood fraction in the seat's observation, at the task's
     "cleared" level (the scripted surgeon goes for a cavity's debris once its blood is under it)."""
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
 
-    scene = suction_debris_v8.parallel_env()
+    scene = suction_debris.parallel_env()
     blood = scene.observation_layout["blood"]
     thresholds = scene.layout().blood_threshold_fraction
     scene.close()
@@ -194,10 +194,10 @@ def clone(observations: np.ndarray, actions: np.ndarray, directory, *, hidden=(2
 def dagger_round(policy, partner: str, episodes: int, seed: int):
     """Let ``policy`` work the grasper seat beside ``partner`` on ``episodes`` worlds (seeded ``seed``, ``seed + 1``...)
     and return every observation it visited with the scripted surgeon's action for it."""
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
     from dvrl_marl.training import teams
 
-    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled")
+    env = suction_debris.batched_env(num_envs=episodes, autoreset_mode="disabled")
     expert, suction = teams.seat("scripted", "grasper"), teams.seat(partner, "suction")
     observations, _ = env.reset(seed=seed)
     done = np.zeros(episodes, dtype=bool)

@@ -53,7 +53,7 @@ class RolloutCollector:
     def __init__(self, config, seed: int, *, index: int = 0, num_envs: int | None = None, first_world: int = 0,
                  steps_done: int = 0, progress: float = 0.0, rng_state=None, actor=None,
                  torch_threads: int | None = None):
-        from dvrl_marl.envs import suction_debris_v8
+        from dvrl_marl.envs import suction_debris
 
         torch = require_torch()
         if torch_threads:
@@ -62,7 +62,7 @@ class RolloutCollector:
             torch.manual_seed(int(np.random.SeedSequence([seed, index, steps_done]).generate_state(1)[0]))
         self.config, self.index = config, int(index)
         surgeon = partner(config, None, noise_from=TRAIN_SEED_BASE * (seed + 1) + 104_729 * (index + 1))
-        self.env = suction_debris_v8.batched_env(num_envs=int(num_envs or config.num_envs), surgeon=surgeon,
+        self.env = suction_debris.batched_env(num_envs=int(num_envs or config.num_envs), surgeon=surgeon,
                                                  surgeon_seat=config.surgeon_seat, autoreset_mode="disabled",
                                                  **config.env)
         env, n = self.env, self.env.num_envs

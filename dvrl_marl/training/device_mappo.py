@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.presets import scene_options
 from dvrl_marl.envs.suction_debris import env_name
 from dvrl_marl.training import teams
@@ -235,7 +235,7 @@ def _collector_main(connection, config: MappoConfig, seed: int) -> None:
     torch = require_torch()
     limit_threads(1)
     torch.manual_seed(seed)
-    host = suction_debris_v8.batched_env(num_envs=config.num_envs, **dict(config.env))
+    host = suction_debris.batched_env(num_envs=config.num_envs, **dict(config.env))
     env = _TorchView(host, torch)
     models = build_learner(config, host, torch.device("cpu"), torch)
     observations, _ = env.reset(seed=seed)
@@ -321,7 +321,7 @@ def export(arrays: dict, config: MappoConfig, folder: Path, seed: int, steps: in
     for agent, actor in arrays.items():
         folders[agent] = folder / f"marl-{agent}"
         write_actor(actor, folders[agent], name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
-                    env_id=env_name(str(config.env.get("task", "suction_debris_v8"))),
+                    env_id=env_name(str(config.env.get("task", suction_debris.TASK))),
                     metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                            "steps": steps, "trainer": trainer}},
                     input_scaling=None if env.observation_scaling is None
@@ -574,10 +574,10 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", backe
     out = new_run_folder(out_dir)
     options = dict(config.env)
     if backend == "jax":
-        env = suction_debris_v8.batched_env(num_envs=config.num_envs, device=str(device), **options)
+        env = suction_debris.batched_env(num_envs=config.num_envs, device=str(device), **options)
         host = env
     else:
-        host = suction_debris_v8.batched_env(num_envs=config.num_envs, **options)
+        host = suction_debris.batched_env(num_envs=config.num_envs, **options)
         env = _TorchView(host, torch)
     models = build_learner(config, host, device, torch)
     optimiser = torch.optim.Adam(models["parameters"], lr=config.learning_rate)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.observation_scaling import MIN_SPREAD
 from dvrl_marl.training import device_mappo
 from dvrl_marl.training.mappo_config import MappoConfig, load_config
@@ -471,7 +471,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
     device_mappo.refuse_options(config, "the JAX trainer")
     began = time.perf_counter()
     out = device_mappo.new_run_folder(out_dir)
-    env = suction_debris_v8.batched_env(num_envs=config.num_envs, device=device, arrays="jax", check_actions=False,
+    env = suction_debris.batched_env(num_envs=config.num_envs, device=device, arrays="jax", check_actions=False,
                                         **dict(config.env))
     carry = list(start(env, config, seed))
     cycle = jax.jit(make_cycle(env, config), donate_argnums=(0,))

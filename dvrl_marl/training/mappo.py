@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.presets import scene_options
 from dvrl_marl.envs.suction_debris import TASK, env_name
 from dvrl_marl.training import teams
@@ -95,7 +95,7 @@ def train(config: MappoConfig, seed: int, out_dir, *, total_steps: int | None = 
     total = int(total_steps or config.total_steps)
     surgeon = None if config.surgeon == "none" else "scripted"  # (who fills the seat does not change the spaces)
     # The learner's view of the env (spaces, layout for the partner in evaluation): one world.
-    env = suction_debris_v8.batched_env(num_envs=1, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
+    env = suction_debris.batched_env(num_envs=1, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
                                         autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)
     n, horizon, count = config.num_envs, config.rollout_steps, len(agents)

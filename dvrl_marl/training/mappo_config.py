@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
-from dvrl_marl.envs import start_levels, suction_debris_v8
+from dvrl_marl.envs import start_levels, suction_debris
 from dvrl_marl.envs.presets import with_preset
 from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval)
@@ -51,7 +51,7 @@ class MappoConfig:
     # policy (a shipped name or a folder), or a list of these (teams.Partners: a share of the worlds each, in
     # training, demonstrations and validation alike; learned partners act with their recorded noise)
     surgeon: Text | list[Text] = "none"
-    surgeon_seat: Literal[suction_debris_v8.AGENTS] = "grasper"
+    surgeon_seat: Literal[suction_debris.AGENTS] = "grasper"
     env: dict[Text, Any] = field(default_factory=lambda: {"reward_type": "dense"})
     # PPO
     learning_rate: Positive = 3e-4
@@ -75,7 +75,7 @@ class MappoConfig:
     # "gaussian": the tool value (valve / jaw) is a fourth Gaussian dimension; "switch": an open/closed decision
     # (Bernoulli, action +1 or -1; see _switch_gaussian), its initial logit per agent in initial_tool_logit
     tool_head: Literal[TOOL_HEADS] = "gaussian"
-    initial_tool_logit: dict[Literal[suction_debris_v8.AGENTS], Finite] = field(default_factory=dict)
+    initial_tool_logit: dict[Literal[suction_debris.AGENTS], Finite] = field(default_factory=dict)
     # MAPPO's critic input: "state" (the env's state()), or "state_and_observation": the state and the agent's own
     # observation (with its features), one value network per agent (Yu et al. 2022's agent-specific global state)
     critic_input: Literal[CRITIC_INPUTS] = "state"
@@ -99,7 +99,7 @@ class MappoConfig:
     # fine-tuning: a learning seat's actor starts from a policy (a shipped name or a folder) of the same network
     # and observation features, e.g. { suction = "marl-suction" }; its input scaling is kept, as a clone's is.
     # A run that uses it learns from that policy's demonstrations or runs (reported apart from the runs from scratch).
-    init_policy: dict[Literal[suction_debris_v8.AGENTS], Text] = field(default_factory=dict)
+    init_policy: dict[Literal[suction_debris.AGENTS], Text] = field(default_factory=dict)
     # PPO steps (parallel env steps) at the start of the run during which only the critic learns, the actor frozen
     critic_warmup_steps: NonNegativeInt = 0
     # where the learner's update runs: "cpu", "cuda" (or "cuda:N"), or "auto" (cuda when torch sees a GPU).
@@ -161,7 +161,7 @@ RETIRED_AT = {"held_tool_logit": "c59ae5f"}
 def _check_env(path, config: MappoConfig) -> None:
     """``[env]``: the scene's keyword arguments, checked by building the scene once (its own schema)."""
     try:
-        suction_debris_v8.parallel_env(**config.env).close()
+        suction_debris.parallel_env(**config.env).close()
     except (TypeError, ValueError) as error:
         raise ValueError(f"{path}: [env] {error}") from None
 
@@ -246,8 +246,8 @@ def check_surgeon(path, config: MappoConfig) -> None:
                          f"got {spec!r}")
     if "none" in names and len(names) > 1:
         raise ValueError(f"{path}: surgeon \"none\" cannot be one of several partners")
-    if config.surgeon_seat not in suction_debris_v8.AGENTS:
-        raise ValueError(f"{path}: surgeon_seat must be one of {suction_debris_v8.AGENTS}, got {config.surgeon_seat!r}")
+    if config.surgeon_seat not in suction_debris.AGENTS:
+        raise ValueError(f"{path}: surgeon_seat must be one of {suction_debris.AGENTS}, got {config.surgeon_seat!r}")
     for name in names:
         if name in ("scripted", "pipeline"):
             continue
@@ -263,7 +263,7 @@ def partner(config: MappoConfig, env, noise_from: int):
     if config.surgeon == "none":
         return None
     if env is None:
-        env = suction_debris_v8.parallel_env(**config.env)
+        env = suction_debris.parallel_env(**config.env)
     return teams.partner(config.surgeon, config.surgeon_seat, env, noise_from=noise_from)
 
 

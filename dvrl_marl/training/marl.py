@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 
 __all__ = ["make_vec_env", "train_ppo", "TeamPolicy", "evaluate_team"]
 
@@ -64,7 +64,7 @@ def evaluate_team(act, episodes: int, seed: int = 5_000_000, surgeon=None, on_re
 
     ``on_reset()`` is called at each episode start (e.g. to reset pipelines' stage state).
     """
-    env = suction_debris_v8.parallel_env(surgeon=surgeon, **env_kwargs)
+    env = suction_debris.parallel_env(surgeon=surgeon, **env_kwargs)
     successes, steps, removed, contacts = 0, [], [], []
     for episode in range(episodes):
         observations, _ = env.reset(seed=seed + episode)
@@ -96,7 +96,7 @@ def _checked(path, table: dict):
     run = validated(Sb3PpoRun, table.get("run", {}), str(path), table="run")
     env_kwargs = dict(table.get("env", {}))
     try:
-        suction_debris_v8.parallel_env(**env_kwargs).close()
+        suction_debris.parallel_env(**env_kwargs).close()
     except (TypeError, ValueError) as error:
         raise ValueError(f"{path}: [env] {error}") from None
     return run, env_kwargs
@@ -128,7 +128,7 @@ def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = Non
     model.learn(int(total_timesteps or run.total_timesteps))
     model.save(out_dir / "final_model.zip")
     vec.close()
-    agents = [a for a in suction_debris_v8.AGENTS if surgeon is None or a != "grasper"]
+    agents = [a for a in suction_debris.AGENTS if surgeon is None or a != "grasper"]
     episodes = int(eval_episodes or run.eval_episodes)
     result = evaluate_team(TeamPolicy(model, agents), episodes, surgeon=surgeon, **env_kwargs)
     result.update({"config": config_path.stem, "seed": seed, "timesteps": int(model.num_timesteps),

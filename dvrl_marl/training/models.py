@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs.observation_scaling import MIN_SPREAD
 
 __all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "actor_arrays",
@@ -287,7 +288,7 @@ def actor_arrays(actor_net, index: int, log_std=None) -> dict:
 
 
 def write_actor(arrays: dict, directory, *, name: str, agent: str, metadata: dict, tool_head: str = "gaussian",
-                env_id: str = "suction_debris_v8", input_scaling=None, feature_spec: dict | None = None) -> Path:
+                env_id: str = TASK, input_scaling=None, feature_spec: dict | None = None) -> Path:
     """Write a deterministic actor given as numpy ``arrays`` (:func:`actor_arrays`) as a numpy policy folder: the
     Gaussian's mean clipped to the action box (with the switch tool head the tool's more likely value, +1 or -1), the
     observation normalisation folded into the first layer. ``arrays["log_std"]``: its exploration noise, recorded for
@@ -326,7 +327,7 @@ def write_actor(arrays: dict, directory, *, name: str, agent: str, metadata: dic
 
 
 def export_actor(actor_net, index: int, directory, *, name: str, agent: str, metadata: dict,
-                 tool_head: str = "gaussian", log_std=None, env_id: str = "suction_debris_v8",
+                 tool_head: str = "gaussian", log_std=None, env_id: str = TASK,
                  input_scaling=None) -> Path:
     """Write agent ``index``'s deterministic actor of a torch ``actor_net`` as a numpy policy folder
     (:func:`write_actor`; ``log_std``: this agent's log standard deviation per action dimension)."""

@@ -44,6 +44,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.schemas import (STRICT, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval, validated)
 
@@ -293,10 +294,10 @@ def _partner(config: PixelSeatConfig, noise_from: int | None = None):
 
 
 def _env(config: PixelSeatConfig, worlds: int):
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
 
     options = {} if config.max_cycles is None else {"max_cycles": config.max_cycles}
-    return suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", image_size=config.image_size,
+    return suction_debris.batched_env(num_envs=worlds, autoreset_mode="disabled", image_size=config.image_size,
                                          image_stereo=config.stereo,
                                          image_appearance=None if config.image_appearance == "none"
                                          else config.image_appearance, **options)
@@ -305,9 +306,9 @@ def _env(config: PixelSeatConfig, worlds: int):
 def _scene():
     """The scene's layout, observation layout and workspace range (the env's; one world reads them in
     milliseconds)."""
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
 
-    env = suction_debris_v8.batched_env(num_envs=1)
+    env = suction_debris.batched_env(num_envs=1)
     facts = env.layout(), env.observation_layout, env.workspace_range
     env.close()
     return facts
@@ -630,7 +631,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
         extra = {"features": teacher.spec["features"]} if teacher.spec.get("features") else {}
         if config.keep_clear_mm is not None:
             extra["keep_clear"] = _keep_clear_table(config)
-        return write_policy(directory, layers, name=name, env_id="suction_debris_v8",
+        return write_policy(directory, layers, name=name, env_id=TASK,
                             algorithm=f"DAgger (pixels: estimates for {teacher.name})",
                             observation_keys=_observation_keys(config), action_low=teacher.action_low.tolist(),
                             action_high=teacher.action_high.tolist(), kernels=kernels, readout=readout, image=image,
@@ -644,7 +645,7 @@ def export(model, config: PixelSeatConfig, directory, name: str, metadata: dict,
              "readout": model.readout.out_features, "normalise": config.normalise, "stereo": config.stereo}
     readout = (model.readout.weight.detach().numpy().astype(np.float32),
                model.readout.bias.detach().numpy().astype(np.float32))
-    return write_policy(directory, layers, name=name, env_id="suction_debris_v8", algorithm="DAgger (pixels)",
+    return write_policy(directory, layers, name=name, env_id=TASK, algorithm="DAgger (pixels)",
                         observation_keys=_observation_keys(config), action_low=[-1.0] * 4, action_high=[1.0] * 4,
                         kernels=kernels, readout=readout, image=image, agent=config.agent, switch_dimensions=[3],
                         **metadata)

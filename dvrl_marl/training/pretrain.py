@@ -31,13 +31,13 @@ def record_expert(config, seed: int, *, act=None, round_index: int = 0) -> dict:
     ``bc_episodes`` default-task episodes. ``act(index, observations) -> actions``: who drives (a DAgger round: the
     clone acts, the expert labels what it visits); None: the expert with DART noise. ``round_index`` picks the
     episodes' seeds (each round its own)."""
-    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.envs import suction_debris
     from dvrl_marl.training import teams
     from dvrl_marl.training.mappo_config import TRAIN_SEED_BASE, partner
 
     episodes = int(config.bc_episodes)
     surgeon = partner(config, None, noise_from=TRAIN_SEED_BASE * (seed + 1) - 31 * (round_index + 1))
-    env = suction_debris_v8.batched_env(num_envs=episodes, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
+    env = suction_debris.batched_env(num_envs=episodes, surgeon=surgeon, surgeon_seat=config.surgeon_seat,
                                         autoreset_mode="disabled", **config.env)
     agents = list(env.possible_agents)
     experts = {agent: teams.seat(config.bc_expert, agent, env) for agent in agents}

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.envs import suction_debris
 from dvrl_marl.agents.partners import Partners
 
 __all__ = ["evaluate_team_batched", "evaluate_beside", "seat", "seats", "partner", "Partners", "cross_play",
@@ -58,7 +58,7 @@ class _PerWorld:
 
 def noise_seed(agent: str, seed: int) -> int:
     """The seed of a learned seat's exploration noise in an evaluation starting at ``seed`` (one per seat)."""
-    return int(seed) * 2 + suction_debris_v8.AGENTS.index(agent)
+    return int(seed) * 2 + suction_debris.AGENTS.index(agent)
 
 
 def seat(name, agent: str, env=None, noise_from: int | None = None):
@@ -68,11 +68,11 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
     from dvrl_marl.agents.collaborative import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon,
                                                 SweepingSuction, SweepingSurgeon, YieldingSuction)
 
-    if agent not in suction_debris_v8.AGENTS:
-        raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris_v8.AGENTS)}")
+    if agent not in suction_debris.AGENTS:
+        raise ValueError(f"unknown seat {agent!r}; seats are {list(suction_debris.AGENTS)}")
     if callable(name):
         return name
-    env = env or suction_debris_v8.parallel_env()
+    env = env or suction_debris.parallel_env()
     if name == "scripted":
         return (ScriptedSuction if agent == "suction" else ScriptedSurgeon).for_env(env)
     if name == "keep-clear":  # the cooperative experts for a bleeding field
@@ -95,7 +95,7 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
         from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
         plan = load_pipeline("learned_team")[agent]
-        single = suction_debris_v8.parallel_env()
+        single = suction_debris.parallel_env()
         return _PerWorld(lambda: ArmPipeline(plan, agent, single))
     policy = policies.load(name)
     trained_for = policy.spec.get("agent")
@@ -181,7 +181,7 @@ def _play(team: dict, episodes: int, seed: int, env_kwargs: dict) -> dict:
         env_kwargs.update(options)
     if not seeing and "image_appearance" in env_kwargs:
         raise ValueError("evaluate_team_batched: image_appearance given, but no seat sees the endoscope")
-    env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
+    env = suction_debris.batched_env(num_envs=episodes, autoreset_mode="disabled", **env_kwargs)
     missing = set(env.possible_agents) - set(team)
     if missing:
         raise ValueError(f"evaluate_team_batched: no policy for seat(s) {sorted(missing)}")
