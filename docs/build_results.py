@@ -267,6 +267,21 @@ def bad_input_round() -> Table:
     return table
 
 
+def jax_env_scale() -> Table:
+    path = "benchmarks/results/jax_env_cpu_2026-12-01.jsonl"
+    table = Table(["worlds", "steps", "finite", "the same for the same key", "worlds compared with numpy",
+                   "largest difference", "state bytes a world", "env-steps/s", "compile and first run (s)"])
+    rows = _read(path)
+    for row in rows:
+        table.rows.append([_count(row["worlds"]), _count(row["steps"]), "yes" if row["finite"] else "**no**",
+                           "yes" if row["same_for_the_same_key"] else "**no**", str(row["worlds_compared"]),
+                           f"{row['max_difference_from_numpy']:.1e}", str(row["state_bytes_per_world"]),
+                           _count(row["env_steps_per_s"]), f"{row['compile_and_first_run_seconds']:.0f}"])
+        table.source(path, row["command"], row["code"]["commit"]
+                     + (" (with " + ", ".join(row["code"]["modified"]) + " changed)" if row["code"]["modified"] else ""))
+    return table
+
+
 def endoscope_speed() -> Table:
     table = Table(["machine", "what", "size", "worlds", "GL contexts", "frames/s", "x the bare renderer", "record",
                    "commit"])
@@ -330,6 +345,10 @@ SECTIONS = (
      "case taken and then well behaved, or refused by a `ValueError` (argparse's exit 2) naming the value; a defect is "
      "any other exception, a traceback, a refusal that changed a world, or NaN out. The device env's cases ran on the "
      "CPU through JAX.", bad_input_round),
+    ("The scene in JaxMARL's form, at scale", "`jax.jit(jax.vmap(env.step))` of `suction_debris_v8.jax_env()` inside "
+     "one `lax.scan` on this 2-core CPU (beside other work): every observation and reward finite, the run the same "
+     "twice from one key, and the compared worlds equal to the numpy env's seeded `seed_of(key)`, step by step.",
+     jax_env_scale),
     ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
      "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),
     ("Training to the target: the compiled trainer", "`dvrl-marl train suction_debris_mappo_large_batch --trainer jax` "
