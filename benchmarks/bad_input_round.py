@@ -372,6 +372,7 @@ def main(argv=None) -> int:
     parser.add_argument("--scale", type=float, default=1.0, help="cases per kind, times this")
     parser.add_argument("--json", help="write the round's record here")
     args = parser.parse_args(argv)
+    code = provenance.code_state()  # (as the run starts)
     rng = random.Random(args.seed)
     round_ = Round()
     began = time.perf_counter()
@@ -404,7 +405,7 @@ def main(argv=None) -> int:
             "cases": total, "kinds": round_.kinds, **round_.counts, "defects": round_.defects,
             "device": device, "seed": args.seed,
             "command": "python benchmarks/bad_input_round.py " + " ".join(sys.argv[1:]),
-            "code": provenance.code_state()}, indent=1) + "\n")
+            "code": code}, indent=1) + "\n")
     return 1 if round_.defects else 0
 
 

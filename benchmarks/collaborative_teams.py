@@ -32,6 +32,7 @@ def main() -> None:
     parser.add_argument("--ppo", help="a suction_debris_ppo run folder (with final_model.zip)")
     parser.add_argument("--json", help="write the figures to this JSON record (with the command and the code)")
     args = parser.parse_args()
+    code = provenance.code_state()  # (as the run starts)
     env = suction_debris_v8.parallel_env()
     suction, surgeon = ScriptedSuction.for_env(env), ScriptedSurgeon.for_env(env)
     teams = {"scripted team": lambda o: {"suction": suction(o["suction"]), "grasper": surgeon(o["grasper"])}}
@@ -63,7 +64,7 @@ def main() -> None:
         Path(args.json).write_text(json.dumps({
             "episodes": args.episodes, "teams": results,
             "command": "python benchmarks/collaborative_teams.py " + " ".join(sys.argv[1:]),
-            "code": provenance.code_state()}, indent=1) + "\n")
+            "code": code}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", type=int, default=8, help="worlds compared with the numpy env")
     parser.add_argument("--json", help="append the figures to this JSON-lines record")
     args = parser.parse_args(argv)
+    code = provenance.code_state()  # (as the run starts: what it imports)
     import jax
     import jax.numpy as jnp
 
@@ -83,7 +84,7 @@ def main(argv=None) -> int:
            "max_difference_from_numpy": worst, "episodes_ended": int(np.asarray(ended).sum()),
            "compile_and_first_run_seconds": round(first, 1), "run_seconds": round(seconds, 2),
            "env_steps_per_s": round(args.worlds * args.steps / seconds), "device": str(jax.devices()[0]),
-           "command": "python benchmarks/jax_env_scale.py " + " ".join(sys.argv[1:]), "code": provenance.code_state()}
+           "command": "python benchmarks/jax_env_scale.py " + " ".join(sys.argv[1:]), "code": code}
     print(json.dumps({k: v for k, v in row.items() if k != "code"}, indent=1))
     if args.json:
         with open(args.json, "a") as handle:

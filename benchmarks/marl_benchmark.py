@@ -319,6 +319,7 @@ def run_rllib(level: str, seed: int, frames: int, eval_every: int, folder: Path,
 
 
 def command_run(args) -> int:
+    code = provenance.code_state()  # (as the run starts: what it imports and trains)
     results = Path(args.results)
     options = _task_options(args.level)  # read once: the record says what ran, whatever the file says later
     ppo = _rllib_recipe().benchmark_ppo_settings() if args.library == "rllib" else None  # read once, as the options
@@ -358,7 +359,7 @@ def command_run(args) -> int:
            "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
-           "code": provenance.code_state()}  # (what a rerun must match to give this figure bit for bit)
+           "code": code}  # (what a rerun must match to give this figure bit for bit)
     record.write_text(json.dumps(out, indent=2) + "\n")
     print(f"{record.name}: test success {final['success_rate']:.2f}, {frames:,} frames, {wall / 60:.1f} min, "
           f"to {TARGET:.0%}: {out['frames_to_target']} frames")

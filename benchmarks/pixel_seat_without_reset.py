@@ -59,9 +59,10 @@ def main(argv=None) -> int:
                         help="the seat as it was: a tip's jump starts no new episode")
     parser.add_argument("--json", help="append the row to this JSON record")
     args = parser.parse_args(argv)
+    code = provenance.code_state()  # (as the run starts)
     row = {**second_episodes(args.policy, args.worlds, not args.no_new_episodes),
            "command": "python benchmarks/pixel_seat_without_reset.py " + " ".join(sys.argv[1:]),
-           "code": provenance.code_state()}
+           "code": code}
     print(f"{row['policy']}, {'a new episode seen where the tip jumps' if row['new_episodes_seen'] else 'no new episode seen'}: "
           f"{row['second_episodes_completed']} of {row['worlds']} second episodes completed ({row['seconds']:.0f} s)")
     if args.json:
