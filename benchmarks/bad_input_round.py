@@ -17,7 +17,6 @@ import contextlib
 import copy
 import io
 import json
-import math
 import random
 import shutil
 import sys
