@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from dvrl_marl import kinematics
-from dvrl_marl.core import sliding, tools
+from dvrl_marl.core import layout, sliding, tools
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.backend import join, namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
@@ -385,8 +385,8 @@ class CollaborativeCore:
         contact = xp.zeros(commands[AGENTS[0]].shape[:1], dtype=xp.bool)
         for agent in AGENTS:
             command = commands[agent]
-            contact = contact | self._move(agent, eta * command[:, :3])
-            tool = command[:, 3]
+            contact = contact | self._move(agent, eta * command[:, layout.MOVE])
+            tool = command[:, layout.TOOL]
             given = ~xp.isnan(tool)
             if agent == "suction":
                 opening = tools.moved_towards(self.valve_opening, tools.valve_target(tool), self.params.tool_speed)
@@ -695,14 +695,18 @@ class CollaborativeCore:
                              handoff], xp) for agent in agents}
 
     def _pins(self, positions, xp):
-        """(N, 6 D): each pin's position, then whether it is visible, held, delivered."""
+        """(N, PIN_WIDTH D): each pin's slot (:mod:`dvrl_marl.core.layout`): its position, then whether it is visible,
+        held, delivered."""
         n, d = positions.shape[:2]
+        width = layout.PIN_WIDTH
         if xp is np:
-            out = np.empty((n, d, 6))
-            out[..., 0:3], out[..., 3], out[..., 4], out[..., 5] = positions, self.visible, self.held, self.delivered
-            return out.reshape(n, 6 * d)
+            out = np.empty((n, d, width))
+            out[..., layout.PIN_POSITION] = positions
+            out[..., layout.PIN_VISIBLE], out[..., layout.PIN_HELD] = self.visible, self.held
+            out[..., layout.PIN_DELIVERED] = self.delivered
+            return out.reshape(n, width * d)
         flags = [xp.astype(flag, positions.dtype)[..., None] for flag in (self.visible, self.held, self.delivered)]
-        return xp.reshape(xp.concat([positions, *flags], axis=-1), (n, 6 * d))
+        return xp.reshape(xp.concat([positions, *flags], axis=-1), (n, width * d))  # (the layout's order)
 
     def _handoff_rows(self, n, xp):
         return xp.broadcast_to(xp.asarray(self.handoff_normalised, dtype=self.remaining_ml.dtype)[None, :], (n, 3))
@@ -835,5 +839,6 @@ class CollaborativeCore:
         for agent in agents:
             if agent not in actions:
                 raise ValueError(f"{self.name}: no action for agent {agent!r}")
-            commands[agent] = check_action_batch(actions[agent], self.num_worlds, 4, f"{self.name}: agent {agent!r}")
+            commands[agent] = check_action_batch(actions[agent], self.num_worlds, layout.ACTION_WIDTH,
+                                                 f"{self.name}: agent {agent!r}")
         return commands

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core import layout
+
 __all__ = ["spec", "suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
            "suction_debris_cleared_pins_zoom", "suction_debris_bleeding", "psm_pick_zoom", "pick_spec", "SCENE_FEATURE_SETS", "routes_geometry", "feature_count", "apply", "FEATURES",
            "check_spec", "observation_width"]
@@ -97,20 +99,30 @@ def feature_count(name: str) -> int:
     return FEATURES[name]
 
 
+def _part(observation, name: str, cavities: int, debris: int):
+    """The observation's part ``name`` (:func:`dvrl_marl.core.layout.observation_layout`)."""
+    return observation[..., layout.observation_layout(cavities, debris)[name]]
+
+
 def _slots(observation, cavities, debris):
-    first = 7 + cavities
-    return observation[..., first:first + 6 * debris].reshape(*observation.shape[:-1], debris, 6)
+    """``(..., debris, PIN_WIDTH)``: every pin's slot."""
+    return _part(observation, "debris", cavities, debris).reshape(*observation.shape[:-1], debris, layout.PIN_WIDTH)
+
+
+def _flags(slots):
+    """Each pin's visible, held and delivered flags, as booleans."""
+    return slots[..., layout.PIN_VISIBLE] > 0.5, slots[..., layout.PIN_HELD] > 0.5, slots[..., layout.PIN_DELIVERED] > 0.5
 
 
 def _targets_parts(ops, observation, cavities, debris):
-    tip, other = observation[..., 0:3], observation[..., 4:7]
+    tip, other = _part(observation, "own_tip", cavities, debris), _part(observation, "other_tip", cavities, debris)
     slots = _slots(observation, cavities, debris)
-    position = slots[..., 0:3]
-    visible, held, delivered = slots[..., 3] > 0.5, slots[..., 4] > 0.5, slots[..., 5] > 0.5
+    position = slots[..., layout.PIN_POSITION]
+    visible, held, delivered = _flags(slots)
     pending = visible & ~held & ~delivered
     to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
     holding = held.any(-1)
-    handoff = observation[..., -3:]
+    handoff = _part(observation, "handoff", cavities, debris)
     held_position = (position * ops.as_float(held)[..., None]).sum(-2)  # at most one pin is held
     carry = (handoff - held_position) * ops.as_float(holding)[..., None]
     return [to_pin, ops.as_float(has_pin)[..., None], ops.as_float(holding)[..., None], carry, handoff - tip,
@@ -164,8 +176,8 @@ def routes_geometry(layout) -> dict:
 def _routes_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius, cavity_targets_z, rim_z,
                   blood_threshold_fraction):
     parts = _targets_parts(ops, observation, cavities, debris)
-    tip = observation[..., 0:3]
-    levels = observation[..., 7:7 + cavities]
+    tip = _part(observation, "own_tip", cavities, debris)
+    levels = _part(observation, "blood", cavities, debris)
     centres = ops.constant(cavity_centres)  # (C, 2)
     targets = ops.concatenate([centres, ops.constant(cavity_targets_z)[:, None]])  # (C, 3)
     pending = (levels >= ops.constant(blood_threshold_fraction)) & (levels > 0.0)
@@ -184,7 +196,7 @@ def _routes_parts(ops, observation, cavities, debris, cavity_centres, cavity_mou
         walled = ~(tip_over & inside(target)).any(-1)
         return (below_rim * ops.as_float(walled if valid is None else walled & valid))[..., None]
 
-    handoff = observation[..., -3:]
+    handoff = _part(observation, "handoff", cavities, debris)
     pin = tip + parts[0]
     return parts + [to_cavity, ops.as_float(has_cavity)[..., None], climb(tip + to_cavity, has_cavity),
                     climb(pin, parts[1][..., 0] > 0.5), climb(handoff)]
@@ -214,16 +226,17 @@ def _cleared_pins_parts(ops, observation, cavities, debris, cavity_centres, cavi
                         rim_z, blood_threshold_fraction):
     parts = _routes_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius, cavity_targets_z,
                           rim_z, blood_threshold_fraction)
-    tip = observation[..., 0:3]
-    levels = observation[..., 7:7 + cavities]
+    tip = _part(observation, "own_tip", cavities, debris)
+    levels = _part(observation, "blood", cavities, debris)
     centres = ops.constant(cavity_centres)
     slots = _slots(observation, cavities, debris)
-    position = slots[..., 0:3]
+    position = slots[..., layout.PIN_POSITION]
     home = ops.as_float(_squared(position[..., None, 0:2] - centres).argmin(-1)[..., None]
                         == ops.arange(cavities))  # (..., D, C)
     cleared = (levels < ops.constant(blood_threshold_fraction)) | (levels <= 0.0)  # (..., C)
     in_cleared = (home * ops.as_float(cleared)[..., None, :]).sum(-1) > 0.5  # (..., D)
-    pending = (slots[..., 3] > 0.5) & (slots[..., 4] < 0.5) & (slots[..., 5] < 0.5) & in_cleared
+    visible, held, delivered = _flags(slots)
+    pending = visible & ~held & ~delivered & in_cleared
     to_pin, has_pin = _nearest(ops, position - tip[..., None, :], pending)
     # the climb toward it, as suction_debris_routes measures its own
     mouth2 = float(cavity_mouth_radius) ** 2
@@ -278,9 +291,9 @@ def _bleeding_parts(ops, observation, cavities, debris, cavity_centres, cavity_m
                     rim_z, blood_threshold_fraction):
     parts = _cleared_pins_parts(ops, observation, cavities, debris, cavity_centres, cavity_mouth_radius,
                                 cavity_targets_z, rim_z, blood_threshold_fraction)
-    in_thresholds = observation[..., 7:7 + cavities] / ops.constant(blood_threshold_fraction)
+    in_thresholds = _part(observation, "blood", cavities, debris) / ops.constant(blood_threshold_fraction)
     slots = _slots(observation, cavities, debris)
-    visible, held, delivered = slots[..., 3] > 0.5, slots[..., 4] > 0.5, slots[..., 5] > 0.5
+    visible, held, delivered = _flags(slots)
     left = ops.as_float(~delivered).sum(-1)
     holding_last = (left == 1.0) & (held & ~delivered).any(-1)
     hidden = (~visible & ~delivered).any(-1)
@@ -351,7 +364,7 @@ def observation_width(spec: dict) -> int | None:
     """The observation length a feature set reads (the collaborative scene's: tips, tool, blood, pin slots, hand-off),
     or None where the set does not fix it (a single-arm set)."""
     if spec.get("name") in SCENE_FEATURE_SETS:
-        return 7 + int(spec["cavities"]) + 6 * int(spec["debris"]) + 3
+        return layout.observation_layout(int(spec["cavities"]), int(spec["debris"]))["handoff"].stop
     return None
 
 

@@ -25,6 +25,7 @@ from dataclasses import asdict
 import numpy as np
 from pydantic.dataclasses import dataclass
 
+from dvrl_marl.core import layout
 from dvrl_marl.core.backend import namespace
 from dvrl_marl.core.collaborative import Cavities
 from dvrl_marl.envs.places import suction_parking_place, surgeon_waiting_place
@@ -196,15 +197,17 @@ class GraspPathShaping:
 
     def potential(self, state: np.ndarray) -> np.ndarray:
         xp = namespace(state)
-        debris = state[:, self.debris:self.debris + 6 * self.count].reshape(len(state), self.count, 6)
+        debris = state[:, self.debris:self.debris + layout.PIN_WIDTH * self.count].reshape(len(state), self.count,
+                                                                                            layout.PIN_WIDTH)
         tip = state[:, None, self.tip]
         handoff = state[:, None, self.handoff]
-        visible, held, delivered = debris[..., 3] > 0.5, debris[..., 4] > 0.5, debris[..., 5] > 0.5
+        visible, held = debris[..., layout.PIN_VISIBLE] > 0.5, debris[..., layout.PIN_HELD] > 0.5
+        delivered = debris[..., layout.PIN_DELIVERED] > 0.5
         pending = visible & ~delivered & ~held
-        to_pin = _length(debris[..., :3] - tip) * self.range
-        to_handoff = _length(debris[..., :3] - handoff) * self.range
+        to_pin = _length(debris[..., layout.PIN_POSITION] - tip) * self.range
+        to_handoff = _length(debris[..., layout.PIN_POSITION] - handoff) * self.range
         rise = xp.asarray([0.0, 0.0, self.APPROACH_HEIGHT / self.range if self.centred else 0.0])
-        approach = debris[..., :3] + rise  # centred: come down onto the pin's centre from above it
+        approach = debris[..., layout.PIN_POSITION] + rise  # centred: come down onto the pin's centre from above it
         # The env's potential is -10 x (distance to the nearest pin); this term replaces it by the shortest path
         # tip -> pin -> hand-off over the pins to collect, a continuous function of the state.
         env_term = xp.where(pending.any(axis=1), xp.where(pending, to_pin, xp.inf).min(axis=1), 0.0)
@@ -218,7 +221,7 @@ class GraspPathShaping:
             path = xp.where(targets, to_approach + to_handoff, xp.inf).min(axis=1)
         else:  # the same path, measured around the phantom (and the carry too)
             world = lambda x: x * self.range + self.centre  # noqa: E731
-            pins, tip_w, handoff_w = world(debris[..., :3]), world(tip), world(handoff)
+            pins, tip_w, handoff_w = world(debris[..., layout.PIN_POSITION]), world(tip), world(handoff)
             to_pin_geo = self.over_rims.distance(tip_w, world(approach)) + height
             to_handoff_geo = self.over_rims.distance(pins, handoff_w)
             path = xp.where(targets, to_pin_geo + to_handoff_geo, xp.inf).min(axis=1)
@@ -238,7 +241,7 @@ class GraspPathShaping:
             detour = detour + self.UNDELIVERABLE_WEIGHT * beyond
             bonus = bonus * xp.clip(1.0 - beyond / self.delivery_threshold, 0.0, 1.0)
         if self.off_centre > 0.0:  # the held pin's horizontal distance from the tip: 0 for a grasp at its centre
-            pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
+            pin = (debris[..., layout.PIN_POSITION] * held[..., None]).sum(axis=1)  # at most one pin is held
             off = xp.sqrt(_squared_2d((pin - tip[:, 0])[:, :2])) * self.range
             detour = detour + self.off_centre * xp.where(holding, off, 0.0)
         return -self.weight * detour + bonus
@@ -247,7 +250,7 @@ class GraspPathShaping:
         xp = namespace(debris)
         """(N,): how far (m) the tip would have to leave the workspace (the box [-1, 1] in normalised units) to bring
         the held pin onto the hand-off point, keeping its grasp; 0 when nothing is held."""
-        pin = (debris[..., :3] * held[..., None]).sum(axis=1)  # at most one pin is held
+        pin = (debris[..., layout.PIN_POSITION] * held[..., None]).sum(axis=1)  # at most one pin is held
         needed = handoff - (pin - tip)
         outside = _length(needed - xp.clip(needed, -1.0, 1.0)) * self.range
         return xp.where(held.any(axis=1), outside, 0.0)

@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from dvrl_marl.core.instruments import keep_clear
+from dvrl_marl.core.layout import (ACTION_WIDTH, MOVE, PIN_DELIVERED, PIN_HELD, PIN_POSITION, PIN_VISIBLE, PIN_WIDTH,
+                                   TOOL)
 from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
 
 __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "SweepingSuction",
@@ -74,7 +76,7 @@ class _Scripted:
     def _parts(self, obs: np.ndarray):
         """One observation's own tip, other tip, blood fractions, debris rows (D, 6) and hand-off point."""
         s = self.slices
-        return (obs[s["own_tip"]], obs[s["other_tip"]], obs[s["blood"]], obs[s["debris"]].reshape(-1, 6),
+        return (obs[s["own_tip"]], obs[s["other_tip"]], obs[s["blood"]], obs[s["debris"]].reshape(-1, PIN_WIDTH),
                 obs[s["handoff"]])
 
     def _cavity_of(self, position) -> int:
@@ -105,9 +107,9 @@ class _Scripted:
 
     @staticmethod
     def _with_tool(move, tool) -> np.ndarray:
-        action = np.empty((move.shape[0], 4), dtype=np.float32)
-        action[:, :3] = move
-        action[:, 3] = tool
+        action = np.empty((move.shape[0], ACTION_WIDTH), dtype=np.float32)
+        action[:, MOVE] = move
+        action[:, TOOL] = tool
         return action
 
 
@@ -208,7 +210,7 @@ class ScriptedSurgeon(_Scripted):
         rows = np.arange(n)
         tip = obs[:, self.slices["own_tip"]]
         blood = obs[:, self.slices["blood"]]
-        debris = obs[:, self.slices["debris"]].reshape(n, -1, 6)
+        debris = obs[:, self.slices["debris"]].reshape(n, -1, PIN_WIDTH)
         handoff = obs[:, self.slices["handoff"]]
         # Default: wait at home with the jaw open.
         action = self._with_tool(self._towards(tip, self._via_safe_height(tip, self.home, 4 * self.near)), 1.0)
@@ -218,8 +220,8 @@ class ScriptedSurgeon(_Scripted):
         dy = debris[:, :, None, 1] - self.cavity_centres[:, 1]
         cavity = np.argmin(np.hypot(dx, dy), axis=2)  # (N, D)
         cleared = blood[rows[:, None], cavity] < self.threshold[cavity]
-        candidate = (debris[:, :, 3] > 0.5) & (debris[:, :, 5] < 0.5) & cleared
-        offset = debris[:, :, :3] - tip[:, None, :]
+        candidate = (debris[:, :, PIN_VISIBLE] > 0.5) & (debris[:, :, PIN_DELIVERED] < 0.5) & cleared
+        offset = debris[:, :, PIN_POSITION] - tip[:, None, :]
         distance = np.linalg.norm(offset, axis=2)
         hunting = candidate.any(axis=1)
         if hunting.any():
@@ -231,7 +233,7 @@ class ScriptedSurgeon(_Scripted):
             approach[on_it] = (0.0, 0.0, 0.0, -1.0)  # close the jaw on it
             action[hunting] = approach[hunting]
 
-        held = debris[:, :, 4] > 0.5
+        held = debris[:, :, PIN_HELD] > 0.5
         carrying = held.any(axis=1)
         if carrying.any():
             pin = debris[rows, np.argmax(held, axis=1), :3]
@@ -397,9 +399,9 @@ class SweepingSuction(_KeepClear):
     def act_one(self, obs: np.ndarray) -> np.ndarray:
         tip, other, blood, debris, _ = self._parts(obs)
         level = blood / self.threshold  # in thresholds
-        left = debris[debris[:, 5] < 0.5]  # not yet delivered
-        hidden = bool(np.any(left[:, 3] < 0.5))
-        sweeping = not hidden and (len(left) == 0 or (len(left) == 1 and left[0, 4] > 0.5))
+        left = debris[debris[:, PIN_DELIVERED] < 0.5]  # not yet delivered
+        hidden = bool(np.any(left[:, PIN_VISIBLE] < 0.5))
+        sweeping = not hidden and (len(left) == 0 or (len(left) == 1 and left[0, PIN_HELD] > 0.5))
         if hidden or sweeping:
             free = [c for c in self.order if not self._inside(other, c)]
             for cavity in free:  # finish the cavity it works in

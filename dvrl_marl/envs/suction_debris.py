@@ -18,6 +18,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from dvrl_marl.core import tools
+from dvrl_marl.core import layout
 from dvrl_marl.core.collaborative import AGENTS
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
 from dvrl_marl.envs import start_levels
@@ -223,8 +224,9 @@ class SuctionDebrisEnv(ParallelEnv):
             array = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as error:
             raise ValueError(f"{self.name}: action for {agent!r} is not numeric: {action!r}") from error
-        if array.shape != (4,):
-            raise ValueError(f"{self.name}: action for {agent!r} must have shape (4,), got {array.shape}")
+        if array.shape != (layout.ACTION_WIDTH,):
+            raise ValueError(f"{self.name}: action for {agent!r} must have shape ({layout.ACTION_WIDTH},), got "
+                             f"{array.shape}")
         values = array.tolist()
         for value in values:
             if not math.isfinite(value):

@@ -61,6 +61,7 @@ import numpy as np
 from gymnasium import spaces
 
 from dvrl_marl import assets
+from dvrl_marl.core import layout
 from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
@@ -191,18 +192,10 @@ class SuctionDebrisBatchedEnv:
         """Observation, action and state spaces and their layouts, with the observation options."""
         p, c = self.params, self.core.cavities.count
         d = p.debris_count
-        self.observation_layout = {
-            "own_tip": slice(0, 3), "own_tool": slice(3, 4), "other_tip": slice(4, 7),
-            "blood": slice(7, 7 + c), "debris": slice(7 + c, 7 + c + 6 * d),
-            "handoff": slice(7 + c + 6 * d, 10 + c + 6 * d),
-        }
+        self.observation_layout = layout.observation_layout(c, d)
         #: Slices of ``state()``: both tips and tools, blood, every debris (hidden ones too), hand-off point.
-        self.state_layout = {
-            "suction_tip": slice(0, 3), "valve": slice(3, 4), "grasper_tip": slice(4, 7), "jaw": slice(7, 8),
-            "blood": slice(8, 8 + c), "debris": slice(8 + c, 8 + c + 6 * d),
-            "handoff": slice(8 + c + 6 * d, 11 + c + 6 * d),
-        }
-        obs_dim, state_dim = 10 + c + 6 * d, 11 + c + 6 * d
+        self.state_layout = layout.state_layout(c, d)
+        obs_dim, state_dim = self.observation_layout["handoff"].stop, self.state_layout["handoff"].stop
         observation_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, shape=(obs_dim,), dtype=np.float64)
         if not isinstance(observation_features, str):
             raise ValueError(f"{self.name}: observation_features must be a feature set's name or '', "
@@ -220,7 +213,8 @@ class SuctionDebrisBatchedEnv:
             low = np.concatenate([np.full(obs_dim, -OBSERVATION_BOUND), np.full(count, -2 * OBSERVATION_BOUND)])
             observation_space = spaces.Box(low, -low, dtype=np.float64)
         self._observation_spaces = {agent: observation_space for agent in AGENTS}
-        self._action_spaces = {agent: spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32) for agent in AGENTS}
+        self._action_spaces = {agent: spaces.Box(-1.0, 1.0, shape=(layout.ACTION_WIDTH,), dtype=np.float32)
+                               for agent in AGENTS}
         self.state_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, shape=(state_dim,), dtype=np.float64)
         #: ``state()`` followed by every arm's observation, features included (the option; see the module's docs)
         self.state_observations = state_observations

@@ -37,6 +37,7 @@ import copy
 
 import numpy as np
 
+from dvrl_marl.core import layout
 from dvrl_marl.core.collaborative import AGENTS
 from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
@@ -297,8 +298,9 @@ class SuctionDebrisDeviceEnv:
                 value = self._in(actions[agent])
             except (TypeError, ValueError) as error:
                 raise ValueError(f"{self.name}: agent {agent!r}: actions are not numeric: {actions[agent]!r}") from error
-            if tuple(value.shape) != (self.num_envs, 4):
-                raise ValueError(f"{self.name}: agent {agent!r}: actions must have shape ({self.num_envs}, 4), got "
+            if tuple(value.shape) != (self.num_envs, layout.ACTION_WIDTH):
+                raise ValueError(f"{self.name}: agent {agent!r}: actions must have shape ({self.num_envs}, "
+                                 f"{layout.ACTION_WIDTH}), got "
                                  f"{tuple(value.shape)}")
             commands[agent] = value
         self._raise_refused_actions()

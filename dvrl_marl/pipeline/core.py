@@ -34,6 +34,7 @@ import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the single-arm environments)
 from dvrl_marl import policies
+from dvrl_marl.core import layout
 from dvrl_marl.schemas import STRICT, Finite, Flag, NonNegative, Positive, PositiveInt, Text
 from dvrl_marl.agents.experts import PickExpert, ReachExpert
 from dvrl_marl.task import load_task
@@ -253,13 +254,14 @@ class ArmPipeline:
 
     def _parse(self, observation) -> dict:
         obs = np.asarray(observation, dtype=np.float64)
-        debris = obs[self.slices["debris"]].reshape(-1, 6)
+        debris = obs[self.slices["debris"]].reshape(-1, layout.PIN_WIDTH)
         return {
             "tip": self._world(obs[self.slices["own_tip"]]),
             "tool": float(obs[self.slices["own_tool"]][0]),
             "blood": obs[self.slices["blood"]],
-            "debris_position": self._world(debris[:, :3]),
-            "visible": debris[:, 3] > 0.5, "held": debris[:, 4] > 0.5, "delivered": debris[:, 5] > 0.5,
+            "debris_position": self._world(debris[:, layout.PIN_POSITION]),
+            "visible": debris[:, layout.PIN_VISIBLE] > 0.5, "held": debris[:, layout.PIN_HELD] > 0.5,
+            "delivered": debris[:, layout.PIN_DELIVERED] > 0.5,
             "handoff": self._world(obs[self.slices["handoff"]]),
         }
 
