@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH, MOVE, TOOL
 from dvrl_marl.agents.population import Partners, draw_within
 from dvrl_marl.core.instruments import segment_distance
 
@@ -119,16 +120,16 @@ class InTheWayPartner:
         close = segment_distance(own, self.centres["grasper"], other, self.centres["suction"]) < self.near
         self._waited = np.where(close & ~self._yielded, self._waited + 1, 0)
         self._yielded |= self._waited >= self.obstruction.patience_steps
-        actions = np.empty((n, 4))
+        actions = np.empty((n, ACTION_WIDTH))
         yielded, resting = self._yielded, ~self._yielded
         if yielded.any():
             actions[yielded] = self.expert(batch[yielded])
         if resting.any():
             expert = self.expert
             way = expert._via_safe_height(own[resting], self._rest[resting], 2 * expert.near)
-            actions[resting, :3] = expert._towards(own[resting], way)
-            actions[resting & close, :3] = 0.0  # with the suction beside it, it stops where it is (it never pushes)
-            actions[resting, 3] = 1.0  # the jaw open, as a surgeon waiting to work
+            actions[resting, MOVE] = expert._towards(own[resting], way)
+            actions[resting & close, MOVE] = 0.0  # with the suction beside it, it stops where it is (it never pushes)
+            actions[resting, TOOL] = 1.0  # the jaw open, as a surgeon waiting to work
         return actions[0].astype(np.float32) if single else actions
 
     def __repr__(self) -> str:

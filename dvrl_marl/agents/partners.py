@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH, MOVE, TOOL
 from dvrl_marl.agents.population import Partners, draw_within
 
 __all__ = ["Partners", "Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
@@ -128,10 +129,10 @@ class PersonLikePartner:
         self._seen[self._steps % depth, rows] = batch
         seen = self._seen[(self._steps + 1) % depth, rows]  # what it saw reaction_steps ago, world by world
         self._steps += 1
-        actions = np.asarray(self.expert(seen), dtype=np.float64).reshape(n, 4).copy()
-        actions[:, :3] *= self.profile.speed
+        actions = np.asarray(self.expert(seen), dtype=np.float64).reshape(n, ACTION_WIDTH).copy()
+        actions[:, MOVE] *= self.profile.speed
         if self.profile.motor_noise > 0.0:
-            actions[:, :3] += np.stack([rng.normal(0.0, self.profile.motor_noise, 3) for rng in self._rngs])
+            actions[:, MOVE] += np.stack([rng.normal(0.0, self.profile.motor_noise, 3) for rng in self._rngs])
         if self.profile.pause_probability > 0.0:
             draws = np.array([rng.random() for rng in self._rngs])
             starting = (self._paused == 0) & (draws < self.profile.pause_probability)
@@ -142,7 +143,7 @@ class PersonLikePartner:
             actions[held, 3] = self._tool[held]
             self._paused[pausing] -= 1
         np.clip(actions, -1.0, 1.0, out=actions)
-        self._tool = actions[:, 3].copy()
+        self._tool = actions[:, TOOL].copy()
         return actions[0].astype(np.float32) if single else actions
 
     def __repr__(self) -> str:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import array_api_compat.numpy  # noqa: F401  (numpy's namespace, loaded now rather than on the first step)
 
+from dvrl_marl.core.layout import MOVE
 from dvrl_marl import assets
 from dvrl_marl.core.backend import namespace
 
@@ -64,10 +65,10 @@ def keep_clear(action, observation, rule: dict):
     ``rule`` (a policy's ``keep_clear`` table: :func:`dvrl_marl.envs.scripted_team.keep_clear_rule`) says so, the
     tips read from ``observation`` ``(..., d)``; numpy, a new array."""
     tip, other = observation[..., slice(*rule["own_tip"])], observation[..., slice(*rule["other_tip"])]
-    withheld = withheld_moves(tip, action[..., :3] / rule["gain"], other, np.asarray(rule["own_centre"]),
+    withheld = withheld_moves(tip, action[..., MOVE] / rule["gain"], other, np.asarray(rule["own_centre"]),
                               np.asarray(rule["other_centre"]), rule["keep"])
     action = np.array(action, copy=True)
-    action[..., :3] = np.where(withheld[..., None], 0.0, action[..., :3])
+    action[..., MOVE] = np.where(withheld[..., None], 0.0, action[..., MOVE])
     return action
 
 

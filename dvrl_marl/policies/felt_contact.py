@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core.layout import MOVE
 from dvrl_marl.core.instruments import segment_distance
 
 __all__ = ["FeltContact"]
@@ -86,5 +87,5 @@ class FeltContact:
             action[held, :3] = np.clip((motion + (kept - along)[:, None] * normal) / self.step, -1.0, 1.0)
             self._left[held] -= 1
         self._tip = tip.copy()
-        self._sent = action[:, :3] * self.step
+        self._sent = action[:, MOVE] * self.step
         return action.reshape(shape)

@@ -29,6 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH
 from dvrl_marl.teleop.devices import KeyboardDevice
 
 __all__ = ["BrowserDevice", "TeleopLost", "BadMessage", "BROWSER_KEYS"]
@@ -60,7 +61,7 @@ class BrowserDevice:
     label = "browser"
     KEY_HELP = tuple(row for row in KeyboardDevice.KEY_HELP if row[0] not in ("TAB", "ESC"))
 
-    def __init__(self, silence_timeout: float = 1.0, action_dim: int = 4, speed: float = 1.0,
+    def __init__(self, silence_timeout: float = 1.0, action_dim: int = ACTION_WIDTH, speed: float = 1.0,
                  precision_speed: float = 0.25, clock: Callable[[], float] = time.monotonic,
                  initial_tool: float = 1.0):
         if not silence_timeout > 0:

@@ -10,6 +10,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH
+
 __all__ = [
     "Device",
     "KeyboardDevice",
@@ -94,7 +96,7 @@ class KeyboardDevice:
     KEY_HELP = (("A / D", "-x / +x"), ("S / W", "-y / +y"), ("F / R", "down / up"), ("SPACE", "jaw / valve"),
                 ("SHIFT", "slow, precise"), ("TAB", "free camera"), ("ESC", "quit"))
 
-    def __init__(self, repeat: int = 5, action_dim: int = 4, speed: float = 1.0, precision_speed: float = 0.25,
+    def __init__(self, repeat: int = 5, action_dim: int = ACTION_WIDTH, speed: float = 1.0, precision_speed: float = 0.25,
                  initial_tool: float = 1.0):
         for name, value in (("speed", speed), ("precision_speed", precision_speed)):
             if not 0.0 < value <= 1.0:

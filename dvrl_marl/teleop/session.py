@@ -25,6 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH
 from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.teleop.browser import BrowserDevice
 from dvrl_marl.envs.scene_view import SceneView
@@ -287,7 +288,7 @@ class TeleopSession:
     def _step(self) -> None:
         try:
             action = np.asarray(self.device.action(self._observation), dtype=np.float32)
-            if action.shape != (4,) or not np.all(np.isfinite(action)):
+            if action.shape != (ACTION_WIDTH,) or not np.all(np.isfinite(action)):
                 raise ValueError(f"unusable action {action!r}")
             self._lost = False
         except Exception:  # noqa: BLE001  (no page, a silent one or a bad action: the seat holds still)

@@ -21,6 +21,7 @@ import socket
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH
 from dvrl_marl.training.mappo_config import TRAIN_SEED_BASE, partner
 from dvrl_marl.training.models import build_models, limit_threads, require_torch
 
@@ -85,7 +86,7 @@ class RolloutCollector:
         self.buffers = {
             "observation": np.zeros((horizon, n, count, obs_dim), dtype=np.float32),
             "state": np.zeros((horizon, n, state_dim), dtype=np.float32),
-            "action": np.zeros((horizon, n, count, 4), dtype=np.float32),
+            "action": np.zeros((horizon, n, count, ACTION_WIDTH), dtype=np.float32),
             "log_prob": np.zeros((horizon, n, count), dtype=np.float32),
             "reward": np.zeros((horizon, n, count), dtype=np.float32),
             "discounted_return": np.zeros((horizon, n, count), dtype=np.float64),

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.core.layout import ACTION_WIDTH, MOVE
 from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.observation_scaling import MIN_SPREAD
 from dvrl_marl.training import device_mappo
@@ -83,7 +84,7 @@ def _mlp(layers: list, x):
     return x @ layers[-1]["weight"].T + layers[-1]["bias"]
 
 
-def init_params(key, config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int = 4) -> dict:
+def init_params(key, config: MappoConfig, agents, obs_dim: int, state_dim: int, action_dim: int = ACTION_WIDTH) -> dict:
     """The actors (one network per agent; the last layer scaled by 0.01, its bias zero but the switch tool's initial
     logit), the log standard deviations (A, action_dim) and the critics, as :func:`models.build_models` makes them."""
     import jax
@@ -223,7 +224,7 @@ def minibatch_loss(params: dict, norms: dict, config: MappoConfig, batch: dict):
     entropy = _entropy(loc, log_std, switch).mean()
     loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
     if config.bounds_loss_coef > 0.0:  # the means kept inside the action box (models.bounds_loss)
-        motion = loc[..., :3] if switch else loc
+        motion = loc[..., MOVE] if switch else loc
         loss = loss + config.bounds_loss_coef * (jnp.maximum(jnp.abs(motion) - 1.0, 0.0) ** 2).sum(-1).mean()
     return loss, (policy_loss, value_loss, entropy)
 

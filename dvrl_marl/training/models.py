@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.core.layout import MOVE
 from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.envs.observation_scaling import MIN_SPREAD
 
@@ -108,7 +109,7 @@ def bounds_loss(loc, tool_head: str = "gaussian"):
     both pushed into walls at full speed for the rest of their episodes). A penalty on the excess keeps the means
     where sampling still matters without limiting what the policy can do (a mean of 1 is full speed half the time;
     the bounds loss of rl_games' PPO does the same). The switch tool's logit is left free."""
-    motion = loc[..., :3] if tool_head == "switch" else loc
+    motion = loc[..., MOVE] if tool_head == "switch" else loc
     return (motion.abs() - 1.0).clamp_min(0.0).pow(2).sum(-1).mean()
 
 

@@ -44,6 +44,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from dvrl_marl.core.layout import MOVE, TOOL
 from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.schemas import (STRICT, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval, validated)
@@ -377,7 +378,7 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
         seen = observations[agent]
         label = np.asarray(teacher(seen["observation"]), dtype=np.float32)
         action = label.copy()
-        action[:, :3] = np.clip(action[:, :3] + config.action_noise * rng.standard_normal((len(action), 3)),
+        action[:, MOVE] = np.clip(action[:, MOVE] + config.action_noise * rng.standard_normal((len(action), 3)),
                                 -1.0, 1.0)
         if rule is not None:  # the teacher drives by the seat's rule too (on the truth: it reads the other tip)
             action = keep_clear(action, seen["observation"], rule)
@@ -516,13 +517,13 @@ def fit(model, data: dict, config: PixelSeatConfig, updates: int, seed: int) -> 
             model._target_scale = (targets.mean(0), targets.std(0).clamp_min(1e-6))
         targets = (targets - model._target_scale[0]) / model._target_scale[1]
         cleared = torch.from_numpy(data["cleared"])
-        opened = (labels[:, 3] > 0).float()
+        opened = (labels[:, TOOL] > 0).float()
         estimates = model.estimates
 
         def batch_loss(batch, features):
             output = model.head(torch.cat([features, own[batch]], dim=1))
-            return (functional.mse_loss(output[:, :3], labels[batch, :3])
-                    + config.valve_weight * functional.binary_cross_entropy_with_logits(output[:, 3], opened[batch])
+            return (functional.mse_loss(output[:, MOVE], labels[batch, MOVE])
+                    + config.valve_weight * functional.binary_cross_entropy_with_logits(output[:, TOOL], opened[batch])
                     + config.auxiliary_weight * functional.mse_loss(features[:, :estimates], targets[batch])
                     + config.cleared_weight * functional.binary_cross_entropy_with_logits(features[:, estimates:],
                                                                                           cleared[batch]))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core.layout import MOVE, TOOL
 __all__ = ["record_expert", "clone_actor", "clone_experts", "start_from_policies"]
 
 
@@ -54,7 +55,7 @@ def record_expert(config, seed: int, *, act=None, round_index: int = 0) -> dict:
             recorded[agent][1].append(label[running].astype(np.float32))
             if act is None:
                 executed = label.copy()
-                executed[:, :3] = np.clip(label[:, :3] + rng.normal(0.0, config.bc_action_noise, (episodes, 3)),
+                executed[:, MOVE] = np.clip(label[:, MOVE] + rng.normal(0.0, config.bc_action_noise, (episodes, 3)),
                                           -1.0, 1.0)
             else:
                 executed = act(index, observations[agent], rng)
@@ -84,7 +85,7 @@ def clone_experts(config, seed: int, actor_net, agents) -> dict:
             loc = actor_net.agent_forward(x, index).cpu().numpy()
         action = np.clip(loc + rng.normal(0.0, std, loc.shape), -1.0, 1.0).astype(np.float64)
         if config.tool_head == "switch":  # the logit's more likely side, as the exported policy acts
-            action[:, 3] = np.where(loc[:, 3] > 0.0, 1.0, -1.0)
+            action[:, TOOL] = np.where(loc[:, TOOL] > 0.0, 1.0, -1.0)
         return action
 
     data = record_expert(config, seed)
@@ -133,8 +134,8 @@ def clone_actor(actor_net, index: int, observations: np.ndarray, actions: np.nda
             loc = actor_net.agent_forward(x[chosen], index)
             target = y[chosen]
             if tool_head == "switch":
-                loss = ((loc[:, :3] - target[:, :3].clamp(-1.0, 1.0)) ** 2).sum(-1).mean()
-                loss = loss + functional.binary_cross_entropy_with_logits(loc[:, 3], (target[:, 3] > 0.0).float())
+                loss = ((loc[:, MOVE] - target[:, MOVE].clamp(-1.0, 1.0)) ** 2).sum(-1).mean()
+                loss = loss + functional.binary_cross_entropy_with_logits(loc[:, TOOL], (target[:, TOOL] > 0.0).float())
             else:
                 loss = ((loc - target.clamp(-1.0, 1.0)) ** 2).sum(-1).mean()
             optimiser.zero_grad()
