@@ -1,6 +1,9 @@
+import importlib.util
 import os
 import shutil
 import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -9,6 +12,18 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering in CI
 # 6 s docs block took minutes; the suite's figures are timed in benchmarks/, never here.
 for _variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
+
+
+def load_script(path: Path, name: str | None = None):
+    """A script of the checkout (benchmarks/, docs/, examples/) as a module, registered under its name (a dataclass
+    in it looks its module up); the benchmarks' folder on the path for their shared helpers (provenance)."""
+    name = name or path.stem
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture(scope="session")

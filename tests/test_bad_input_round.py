@@ -2,21 +2,16 @@
 well behaved or refused by name; none is a defect (another exception, a traceback, a refusal that changed a world,
 NaN out). The recorded round (1,320 cases, both backends) is on the results page."""
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _round():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location("bad_input_round", ROOT / "benchmarks" / "bad_input_round.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(ROOT / "benchmarks" / "bad_input_round.py")
 
 
 @pytest.mark.parametrize("seed", [100, 101])

@@ -3,22 +3,16 @@ many records it aggregates, which must be every record there is (a page regenera
 without regenerating it, fails here)."""
 
 import collections
-import importlib.util
 import json
 import re
 from pathlib import Path
 
+from conftest import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _load_script(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-marl_benchmark = _load_script("marl_benchmark")
+marl_benchmark = load_script(ROOT / "benchmarks" / "marl_benchmark.py")
 
 
 def _page_rows(page: Path) -> list[list[str]]:
@@ -85,17 +79,7 @@ def test_the_marl_eval_export_is_the_records_in_marl_evals_form():
     assert {len(runs) for runs in current.values()} == {5} and "dvrl-marl MAPPO" in current
 
 
-def _load_docs_script(name: str):
-    import sys
-
-    spec = importlib.util.spec_from_file_location(name, ROOT / "docs" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # (its dataclass looks its module up)
-    spec.loader.exec_module(module)
-    return module
-
-
-build_results = _load_docs_script("build_results")
+build_results = load_script(ROOT / "docs" / "build_results.py")
 
 
 def test_the_results_and_the_policies_tables_are_what_the_records_give():

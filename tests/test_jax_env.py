@@ -109,14 +109,12 @@ def test_bad_input_is_named_at_trace_time(compiled):
 def test_the_ippo_example_trains_in_one_compiled_function():
     """examples/jax_ippo.py: collection by lax.scan over jit(vmap(step)), GAE, a PPO update per agent; its loop
     runs and changes the actors."""
-    import importlib.util
     from pathlib import Path
 
+    from conftest import load_script
+
     pytest.importorskip("optax")
-    path = Path(__file__).resolve().parents[1] / "examples" / "jax_ippo.py"
-    spec = importlib.util.spec_from_file_location("jax_ippo", path)
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_script(Path(__file__).resolve().parents[1] / "examples" / "jax_ippo.py")
     params, rewards = example.make_train(worlds=8, rollout=8, updates=2, seed=0, max_cycles=6)()
     assert rewards.shape == (2,) and np.all(np.isfinite(np.asarray(rewards)))
     untrained = example.make_train(worlds=8, rollout=8, updates=0, seed=0, max_cycles=6)()[0]

@@ -1,7 +1,6 @@
 """benchmarks/marl_benchmark.py: a run writes one record and never overwrites one; the table aggregates the records
 (IQM with a bootstrap interval, frames to the target) into its JSON and plot."""
 
-import importlib.util
 import json
 import os
 import subprocess
@@ -9,19 +8,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "marl_benchmark.py"
 
 
-def _load_script(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-marl_benchmark = _load_script("marl_benchmark")
+marl_benchmark = load_script(SCRIPT)
 
 
 def _shipped_options() -> dict:
@@ -175,7 +168,7 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     if library == "rllib":
         return  # (mean_action_failures.py reads a BenchMARL run's folder)
     # the run's folder holds what benchmarks/mean_action_failures.py reads: its failures, classified
-    failures = _load_script("mean_action_failures")
+    failures = load_script(ROOT / "benchmarks" / "mean_action_failures.py")
     success, classes, examples = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10)
     assert 0.0 <= success <= 1.0 and sum(classes.values()) == round(3 * (1.0 - success))
     assert set(examples) == set(classes)
