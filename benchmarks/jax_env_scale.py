@@ -26,11 +26,14 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--compare", type=int, default=8, help="worlds compared with the numpy env")
     parser.add_argument("--json", help="append the figures to this JSON-lines record")
+    parser.add_argument("--memory-worlds", type=int, default=65536,
+                        help="compile one vmapped step for this many worlds and read XLA's memory figures (0: skip)")
     args = parser.parse_args(argv)
     code = provenance.code_state()  # (as the run starts: what it imports)
     import jax
     import jax.numpy as jnp
 
+    from dvrl_marl.core import scene_state
     from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.envs.suction_debris_jax import seed_of
 
@@ -69,7 +72,8 @@ def main(argv=None) -> int:
     seconds = time.perf_counter() - began
     finite = bool(jnp.all(finite))  # every observation and reward of every world and step
     # (the state holds NaN and inf by design: a pin not falling, a cavity that never bleeds)
-    same = all(bool(jnp.array_equal(states[name], again[name], equal_nan=True)) for name in states)
+    same = all(bool(jnp.array_equal(a, b, equal_nan=True))
+               for a, b in zip(jax.tree_util.tree_leaves(states), jax.tree_util.tree_leaves(again)))
     host = suction_debris_v8.batched_env(num_envs=args.compare)
     host.reset(seed=[int(seed_of(key)) for key in keys[: args.compare]])
     worst = 0.0
@@ -77,9 +81,14 @@ def main(argv=None) -> int:
         given = {agent: np.asarray(value)[: args.compare] for agent, value in actions_at(t).items()}
         observations = host.step(given)[0]
         worst = max(worst, max(float(np.abs(np.asarray(picked[agent][t]) - observations[agent]).max()) for agent in agents))
-    state_bytes = sum(value[0].nbytes for value in states.values())  # one world's
+    leaves = jax.tree_util.tree_leaves(states)
+    state_bytes = sum(value[0].nbytes for value in leaves)  # one world's
+    state_bytes_float32 = state_bytes - scene_state.bytes_per_world(states.scene) + scene_state.bytes_per_world(
+        states.scene, float_bytes=4) - sum(value[0].nbytes // 2 for value in jax.tree_util.tree_leaves(states.potential))
+    memory = step_memory(env, args.memory_worlds) if args.memory_worlds else {}
     row = {"what": "jax_env: jit(vmap(step)) in one lax.scan", "worlds": args.worlds, "steps": args.steps,
-           "state_bytes_per_world": state_bytes, "state_arrays": len(states),
+           "state_bytes_per_world": state_bytes, "state_bytes_per_world_float32": state_bytes_float32,
+           "state_arrays": len(leaves), **memory,
            "finite": finite, "same_for_the_same_key": same, "worlds_compared": args.compare,
            "max_difference_from_numpy": worst, "episodes_ended": int(np.asarray(ended).sum()),
            "compile_and_first_run_seconds": round(first, 1), "run_seconds": round(seconds, 2),
@@ -90,6 +99,27 @@ def main(argv=None) -> int:
         with open(args.json, "a") as handle:
             handle.write(json.dumps(row) + "\n")
     return 0 if finite and same and worst <= 1e-9 else 1
+
+
+def step_memory(env, worlds: int) -> dict:
+    """XLA's figures for one ``jit(vmap(step))`` over ``worlds`` worlds (compiled, not run: the state, the actions and
+    the step's temporaries), and a million worlds scaled from them."""
+    import jax
+    import jax.numpy as jnp
+
+    keys = jax.random.split(jax.random.key(0), worlds)
+    states = jax.eval_shape(jax.vmap(env.reset), keys)[1]
+    actions = {agent: jax.ShapeDtypeStruct((worlds, env.action_width), jnp.float64) for agent in env.agents}
+    compiled = jax.jit(jax.vmap(env.step)).lower(keys, states, actions).compile()
+    analysis = compiled.memory_analysis()
+    if analysis is None:  # (a backend without the figures)
+        return {"memory_worlds": worlds, "memory_analysis": "not given by this backend"}
+    used = analysis.argument_size_in_bytes + analysis.output_size_in_bytes + analysis.temp_size_in_bytes
+    return {"memory_worlds": worlds, "step_arguments_bytes": int(analysis.argument_size_in_bytes),
+            "step_outputs_bytes": int(analysis.output_size_in_bytes),
+            "step_temporaries_bytes": int(analysis.temp_size_in_bytes),
+            "step_bytes_per_world": round(used / worlds, 1),
+            "million_worlds_step_gb": round(used / worlds * 1e6 / 1e9, 2)}
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-pytest.importorskip("jax")
+jax = pytest.importorskip("jax")
 torch = pytest.importorskip("torch")
 
 from dvrl_marl.envs import suction_debris_v8  # noqa: E402
@@ -67,6 +67,12 @@ def masked_pair():
             suction_debris_v8.batched_env(num_envs=WORLDS, device=DEVICE, autoreset_mode="disabled", **OPTIONS))
 
 
+def _arrays(state) -> dict:
+    """``{path: numpy copy}`` of every array of a state record (an EnvState pytree)."""
+    return {jax.tree_util.keystr(path): np.array(value)
+            for path, value in jax.tree_util.tree_flatten_with_path(state)[0]}
+
+
 @pytest.mark.parametrize("check_actions", [True, False])
 def test_actions_with_nan_or_inf_change_no_world_and_are_refused_as_numpy_refuses_them(pair, check_actions):
     """The numpy env's rule and words on the device: no world changes; the refusal comes at once, or with
@@ -77,7 +83,7 @@ def test_actions_with_nan_or_inf_change_no_world_and_are_refused_as_numpy_refuse
         for bad in (float("nan"), float("inf"), -float("inf")):
             host.reset(seed=2)
             device.reset(seed=2)
-            before = {key: np.array(value) for key, value in device.world_state.items()}
+            before = _arrays(device.world_state)
             actions = {agent: np.zeros((WORLDS, 4)) for agent in host.possible_agents}
             actions["grasper"][2, 1] = bad
             expected = _refusal(host, lambda env: env.step(actions))
@@ -88,8 +94,8 @@ def test_actions_with_nan_or_inf_change_no_world_and_are_refused_as_numpy_refuse
                 device.step(torch_actions)
                 message = _refusal(device, lambda env: env.step(torch_actions))  # the earlier step's, said now
             assert message.startswith(expected) and ("changed no world" in message or "no world was changed" in message)
-            for key, value in device.world_state.items():
-                np.testing.assert_array_equal(np.array(value), before[key], err_msg=key)
+            for key, value in _arrays(device.world_state).items():
+                np.testing.assert_array_equal(value, before[key], err_msg=key)
             calm = {agent: np.zeros((WORLDS, 4)) for agent in host.possible_agents}
             want = host.step(calm)[0]
             got = device.step({agent: torch.from_numpy(value).to(DEVICE) for agent, value in calm.items()})[0]
@@ -130,11 +136,11 @@ def test_a_reset_mask_the_numpy_env_refuses_is_refused_alike_and_changes_nothing
     host, device = masked_pair
     host.reset(seed=4)
     device.reset(seed=4)
-    before = {key: np.array(value) for key, value in device.world_state.items()}
+    before = _arrays(device.world_state)
     expected = _refusal(host, lambda env: env.reset(options={"reset_mask": mask, "level": 0.0}))
     assert _refusal(device, lambda env: env.reset(options={"reset_mask": mask, "level": 0.0})) == expected
-    for key, value in device.world_state.items():
-        np.testing.assert_array_equal(np.array(value), before[key], err_msg=key)
+    for key, value in _arrays(device.world_state).items():
+        np.testing.assert_array_equal(value, before[key], err_msg=key)
     np.testing.assert_array_equal(device.host.levels, host.levels)
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dvrl_marl.core.scene_state import SPECS
+
 GOLDEN = Path(__file__).resolve().parent / "golden"
 
 
@@ -72,17 +74,24 @@ def test_every_recorded_step_gives_its_recorded_outcome(steps):
     for case, (kwargs, worlds, count, _) in module.STEP_CASES.items():
         env = suction_debris_v8.batched_env(num_envs=worlds, autoreset_mode="disabled", **kwargs)
         fields = sorted(key.split("/", 2)[2] for key in steps if key.startswith(f"{case}/before/"))
-        assert set(fields) == set(env.core.snapshot()), case
+        # (recorded at 36a42a0 under the names of its snapshot, "suction.tip"; the record's fields are "suction_tip",
+        # and it holds more: the random streams and a person's cues, which the step does not read)
+        # The suction's jaw, a constant 1 it never used, is no field of the record.
+        recorded = {name: "jaw" if name == "grasper.jaw" else name.replace(".", "_")
+                    for name in fields if name != "suction.jaw"}
+        assert set(recorded.values()) <= set(SPECS), case
+        env.reset(seed=0)
         for index in range(count):
-            env.restore({name: steps[f"{case}/before/{name}"][index] for name in fields})
+            env.restore(env.core.snapshot().replace(**{field: steps[f"{case}/before/{name}"][index]
+                                                       for name, field in recorded.items()}))
             rewards, terminated, truncated = env.advance({a: steps[f"{case}/commands/{a}"][index] for a in agents})
             got = env.core.snapshot()
-            for name in fields:
-                expected = steps[f"{case}/after/{name}"][index]
-                same = (np.allclose(got[name], expected, rtol=0, atol=1e-9, equal_nan=True)
-                        if np.issubdtype(expected.dtype, np.floating) else np.array_equal(got[name], expected))
+            for name, field in recorded.items():
+                expected, value = steps[f"{case}/after/{name}"][index], getattr(got, field)
+                same = (np.allclose(value, expected, rtol=0, atol=1e-9, equal_nan=True)
+                        if np.issubdtype(expected.dtype, np.floating) else np.array_equal(value, expected))
                 if not same:
-                    pytest.fail(f"{case}: step {index}: {name} is {got[name].tolist()}, recorded {expected.tolist()}")
+                    pytest.fail(f"{case}: step {index}: {name} is {value.tolist()}, recorded {expected.tolist()}")
             for agent in agents:
                 assert np.allclose(rewards[agent], steps[f"{case}/rewards/{agent}"][index], rtol=0, atol=1e-9), \
                     f"{case}: step {index}: the reward of {agent}"

@@ -90,10 +90,15 @@ def test_bad_input_is_named_at_trace_time(compiled):
         env.step(key, state, {"suction": jnp.zeros(4)})
     with pytest.raises(ValueError, match="'grasper''s action must have shape \\(4,\\)"):
         env.step(key, state, {**good, "grasper": jnp.zeros(5)})
-    with pytest.raises(ValueError, match="step's state must be the dict reset\\(\\) gave"):
-        env.step(key, {k: v for k, v in state.items() if k != "levels"}, good)
-    with pytest.raises(ValueError, match="must be float64 of shape"):
-        env.step(key, {**state, "remaining_ml": state["remaining_ml"][None]}, good)
+    with pytest.raises(ValueError, match="the state must be the EnvState reset gave, got dict"):
+        env.step(key, {"scene": state.scene, "levels": state.levels}, good)
+    with pytest.raises(ValueError, match=r"state.remaining_ml must be float of shape \(2,\), got float64 of shape "
+                                         r"\(1, 2\)"):
+        env.step(key, state.replace(scene=state.scene.replace(remaining_ml=state.scene.remaining_ml[None])), good)
+    with pytest.raises(ValueError, match="state.holding must be int of shape"):
+        env.step(key, state.replace(scene=state.scene.replace(holding=jnp.zeros(()))), good)
+    with pytest.raises(ValueError, match="state.levels must have shape"):
+        env.step(key, state.replace(levels=jnp.zeros(2)), good)
     for bad in (0, np.zeros(3), jax.random.split(jax.random.key(0), 2)):
         with pytest.raises(ValueError, match="key must be one JAX key"):
             env.reset(bad)
@@ -102,8 +107,8 @@ def test_bad_input_is_named_at_trace_time(compiled):
     nan = {**good, "suction": jnp.full(4, jnp.nan)}
     _, held, _, _, infos = env.step(key, state, nan)  # a compiled step reads nothing back: it holds, and says so
     assert not bool(infos["actions_finite"])
-    for name, value in state.items():
-        np.testing.assert_array_equal(np.asarray(held[name]), np.asarray(value), err_msg=name)
+    for (path, value), kept in zip(jax.tree_util.tree_flatten_with_path(state)[0], jax.tree_util.tree_leaves(held)):
+        np.testing.assert_array_equal(np.asarray(kept), np.asarray(value), err_msg=jax.tree_util.keystr(path))
 
 
 def test_the_ippo_example_trains_in_one_compiled_function():

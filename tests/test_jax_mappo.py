@@ -230,10 +230,12 @@ def test_the_device_env_gives_its_state_to_a_loop_of_its_own_and_takes_it_back()
     env.reset(seed=1)
     env.step({agent: np.full((4, 4), 0.3) for agent in env.possible_agents})
     after = np.asarray(env.state())
-    env.world_state = dict(env.world_state)  # (given back from outside: the global state is computed from it)
+    env.world_state = env.world_state.replace()  # (given back from outside: the global state is computed from it)
     np.testing.assert_allclose(np.asarray(env.state()), after, atol=1e-12)
-    with pytest.raises(ValueError, match="world_state takes the dict"):
+    with pytest.raises(ValueError, match="the state must be the EnvState reset gave"):
         env.world_state = {"positions": 0}
+    with pytest.raises(ValueError, match=r"state.elapsed must be int of shape \(4,\)"):
+        env.world_state = env.world_state.replace(scene=env.world_state.scene.replace(elapsed=np.zeros(3, int)))
     numpy_env = suction_debris_v8.batched_env(num_envs=4, autoreset_mode="disabled", **TINY.env)
     with pytest.raises(AttributeError):
         numpy_env.step_function  # noqa: B018  (the numpy env steps eagerly: no traced step to give)

@@ -13,17 +13,19 @@ Memory: about 1.5 kB per world with 3 debris.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 
 from dvrl_marl import kinematics
-from dvrl_marl.core import layout, sliding, tools
+from dvrl_marl.core import layout, scene_state, sliding, tools
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.backend import join, namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
 from dvrl_marl.core.phantom import Cavities
 from dvrl_marl.core.scene_geometry import SceneGeometry
+from dvrl_marl.core.scene_state import SceneState
 from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.core.streams import STREAMS, ResetStreams, uniforms
 from dvrl_marl.core.worlds import check_action_batch, world_indices
@@ -53,12 +55,12 @@ STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
 
 
-#: What the next step depends on, world by world (:meth:`CollaborativeCore.snapshot`): the scene's arrays, then each
-#: arm's tip (base frame), joints, jaw and shaping distance as ``"<agent>.<name>"``.
-STATE_FIELDS = ("valve_opening", "initial_ml", "remaining_ml", "surface_z", "debris_position", "debris_yaw",
-                "debris_cavity", "visible", "held", "delivered", "lifted", "fall_speed", "added_ml", "bleed_onset",
-                "bleed_rate", "holding", "hold_offset", "grip_offset", "elapsed", "limit", "contact", "complete")
-ARM_FIELDS = ("tip", "q", "jaw")
+#: Where the core keeps each field of its state record (:class:`~dvrl_marl.core.scene_state.SceneState`) that is not
+#: an attribute of its own name: an arm's, a per-agent dict's, the random streams'.
+_ARM_FIELDS = {"suction_tip": ("suction", "tip"), "suction_q": ("suction", "q"), "grasper_tip": ("grasper", "tip"),
+               "grasper_q": ("grasper", "q"), "jaw": ("grasper", "jaw")}
+_PER_AGENT_FIELDS = {f"{agent}_{kind}": (kind, agent) for agent in AGENTS for kind in ("work_distance", "blocked")}
+_STREAM_FIELDS = {"stream_key_low": "key_low", "stream_key_high": "key_high", "stream_episode": "episode"}
 
 
 def _one_hot(index, count: int, xp):
@@ -165,33 +167,20 @@ class CollaborativeCore:
         self.handoff = np.asarray(geometry.handoff, dtype=np.float64)
         self.handoff_normalised = self.normalise(self.handoff)
         self.rewarded_agents = tuple(rewarded_agents)
-        c, d = self.cavities.count, p.debris_count
-        self.valve_opening = np.zeros(n)  # the valve's stroke, 0 closed .. 1 open (core.tools)
-        self.initial_ml = np.tile(np.asarray(p.blood_ml, dtype=np.float64), (n, 1))
-        self.remaining_ml = self.initial_ml.copy()
-        self.surface_z = np.zeros((n, c))
-        self.debris_position = np.zeros((n, d, 3))
-        self.debris_yaw = np.zeros((n, d))
-        self.debris_cavity = np.zeros((n, d), dtype=np.int64)
-        self.visible = np.zeros((n, d), dtype=bool)
-        self.held = np.zeros((n, d), dtype=bool)
-        self.delivered = np.zeros((n, d), dtype=bool)
-        self.lifted = np.zeros((n, d), dtype=bool)
-        self.fall_speed = np.full((n, d), np.nan)  # m/s while a released pin falls, NaN at rest
-        self.added_ml = np.zeros((n, c))
-        self.bleed_onset = np.full((n, c), np.inf)  # s; inf: no bleeding
-        self.bleed_rate = np.zeros((n, c))  # ml/s
-        self.holding = np.full(n, -1, dtype=np.int64)  # index of the held pin, -1 for none
-        self.hold_offset = np.zeros((n, 3))
-        self.grip_offset = np.zeros((n, 3))  # where the jaws hold the held pin, from the tip (the hand-off at the grip)
-        self.elapsed = np.zeros(n, dtype=np.int64)
-        self.limit = np.full(n, p.max_cycles, dtype=np.int64)  # each episode's time limit (start levels shorten it)
-        self.contact = np.zeros(n, dtype=bool)
-        self.complete = np.zeros(n, dtype=bool)
         self.work_distance = {agent: np.zeros(n) for agent in AGENTS}
         self.blocked = {agent: np.zeros(n, dtype=bool) for agent in AGENTS}  # its last move was refused
-        self.drawn_ml = np.zeros(n)  # blood the suction drew in the last step
         self.random = ResetStreams(n)
+        #: each field's shape in one world (scene_state.SPECS): what a record given to set_state must have
+        self.world_shapes = scene_state.world_shapes(self.cavities.count, p.debris_count,
+                                                     {agent: arm.tool.n_joints for agent, arm in self.arms.items()})
+        for name, spec in scene_state.SPECS.items():  # every field, as an episode starts it (else zeros)
+            if name not in _ARM_FIELDS and name not in _STREAM_FIELDS:
+                fill = 0 if spec.start is None else spec.start
+                self._set(name, np.full((n,) + self.world_shapes[name], fill, dtype=scene_state.dtype_of(name)))
+        self.initial_ml = np.tile(np.asarray(p.blood_ml, dtype=np.float64), (n, 1))
+        self.remaining_ml = self.initial_ml.copy()
+        self.bleed_onset = np.full((n, self.cavities.count), np.inf)  # s; inf: no bleeding
+        self.limit = np.full(n, p.max_cycles, dtype=np.int64)  # each episode's time limit (start levels shorten it)
         self._rows = np.arange(n)
 
     # --- helpers ------------------------------------------------------------------------------------------
@@ -202,8 +191,10 @@ class CollaborativeCore:
         return world_indices(worlds, self.num_worlds, self.name)
 
     def _update_surfaces(self, worlds, cavity) -> None:
-        self.surface_z[worlds, cavity] = self.cavities.floor_z[cavity] + self.cavities.fill_depth(
+        surface = self.surface_z.copy()  # (a new array: a record the core was loaded from stays as it was)
+        surface[worlds, cavity] = self.cavities.floor_z[cavity] + self.cavities.fill_depth(
             cavity, self.remaining_ml[worlds, cavity])
+        self.surface_z = surface
 
     def set_blood(self, worlds, blood_ml) -> None:
         """Set the initial blood (ml per cavity) of ``worlds`` for this and later episodes (a reset option)."""
@@ -264,13 +255,13 @@ class CollaborativeCore:
             self.bleed_onset = renew(self.bleed_onset, bleeding[:, :c] * p.bleeding_onset_s)
             self.bleed_rate = renew(self.bleed_rate, (0.5 + 0.5 * bleeding[:, c:]) * p.bleeding_ml_s)
         streams.next_episode(mask)
-        grasper = self.arms["grasper"]
-        grasper.jaw = xp.where(mask, 1.0, grasper.jaw)
-        self.valve_opening = xp.where(mask, 0.0, self.valve_opening)
+        for name, spec in scene_state.SPECS.items():  # what every episode starts alike (the valve shut, no pin held..)
+            if spec.start is not None:
+                value = self._get(name)
+                started = xp.reshape(mask, mask.shape + (1,) * (value.ndim - 1))
+                self._set(name, xp.where(started, xp.asarray(spec.start, dtype=value.dtype), value))
         initial = take(self.initial_ml, rows)
         self.remaining_ml = renew(self.remaining_ml, initial)
-        self.added_ml = xp.where(mask[:, None], 0.0, self.added_ml)
-        self.fall_speed = xp.where(mask[:, None], float("nan"), self.fall_speed)
         cavity_of = xp.broadcast_to(xp.arange(self.cavities.count)[None, :], initial.shape)
         surface = self.cavities.per_cavity(self.cavities.floor_z, cavity_of) + self.cavities.fill_depth(cavity_of,
                                                                                                            initial)
@@ -279,17 +270,8 @@ class CollaborativeCore:
         for index in range(self.cavities.count):
             pin_surface = xp.where(cavity == index, surface[:, index:index + 1], pin_surface)
         self.visible = renew(self.visible, position[:, :, 2] + PIN_RADIUS > pin_surface)
-        pins = mask[:, None]
-        self.held, self.delivered, self.lifted = (self.held & ~pins, self.delivered & ~pins, self.lifted & ~pins)
-        self.holding = xp.where(mask, -1, self.holding)
-        self.hold_offset = xp.where(mask[:, None], 0.0, self.hold_offset)
-        self.elapsed = xp.where(mask, 0, self.elapsed)
         self.limit = xp.where(mask, p.max_cycles, self.limit)
-        self.contact = self.contact & ~mask
-        self.complete = self.complete & ~mask
-        self.drawn_ml = xp.where(mask, 0.0, self.drawn_ml)
         for agent in AGENTS:
-            self.blocked[agent] = self.blocked[agent] & ~mask
             self.work_distance[agent] = xp.where(mask, self._work_distance(agent), self.work_distance[agent])
 
     # --- start-state curricula ----------------------------------------------------------------------------
@@ -744,29 +726,81 @@ class CollaborativeCore:
             "is_success": _copy(self.complete),
         }
 
-    def snapshot(self) -> dict:
-        """Every world's state (copies): :data:`STATE_FIELDS`, and per arm ``"<agent>.tip"``, ``".q"``, ``".jaw"`` and
-        ``".work_distance"``. :meth:`restore` puts it back; a step from it is the step from the state it was taken in
+    # --- the state as one record -------------------------------------------------------------------------
+    def _get(self, name: str):
+        if name in _ARM_FIELDS:
+            agent, attribute = _ARM_FIELDS[name]
+            return getattr(self.arms[agent], attribute)
+        if name in _PER_AGENT_FIELDS:
+            kind, agent = _PER_AGENT_FIELDS[name]
+            return getattr(self, kind)[agent]
+        if name in _STREAM_FIELDS:
+            return getattr(self.random, _STREAM_FIELDS[name])
+        return getattr(self, name)
+
+    def _set(self, name: str, value) -> None:
+        if name in _ARM_FIELDS:
+            agent, attribute = _ARM_FIELDS[name]
+            setattr(self.arms[agent], attribute, value)
+        elif name in _PER_AGENT_FIELDS:
+            kind, agent = _PER_AGENT_FIELDS[name]
+            getattr(self, kind)[agent] = value
+        elif name in _STREAM_FIELDS:
+            setattr(self.random, _STREAM_FIELDS[name], value)
+        else:
+            setattr(self, name, value)
+
+    def get_state(self, copy: bool = True) -> SceneState:
+        """Every world's state as one record (numpy arrays copied unless ``copy=False``)."""
+        return SceneState(**{name: _copy(self._get(name)) if copy else self._get(name) for name in scene_state.SPECS})
+
+    def set_state(self, state: SceneState, copy: bool = True) -> None:
+        """The worlds' state from a record of as many worlds as this core has, checked field by field (a
+        ``ValueError`` names the first of another shape or kind). numpy arrays are copied in unless ``copy=False``;
+        another library's (JAX's) are taken as they are, and the core then steps on that library."""
+        scene_state.check_state(state, self.world_shapes, self.num_worlds, self.name)
+        for name in scene_state.SPECS:
+            value = getattr(state, name)
+            self._set(name, np.array(value) if copy and isinstance(value, np.ndarray) else value)
+
+    def snapshot(self) -> SceneState:
+        """Every world's state (copies): :meth:`get_state`. A step from it is the step from the state it was taken in
         (the golden trajectories hold the step to that, step by step)."""
-        state = {name: _copy(getattr(self, name)) for name in STATE_FIELDS}
-        for agent, arm in self.arms.items():
-            state.update({f"{agent}.{name}": _copy(getattr(arm, name)) for name in ARM_FIELDS})
-            state[f"{agent}.work_distance"] = _copy(self.work_distance[agent])
-        return state
+        return self.get_state()
 
-    def restore(self, state: dict) -> None:
-        """Put back a :meth:`snapshot` (of as many worlds as this core has). numpy arrays are copied in; another
-        library's (JAX's, say) are taken as they are, and the core then steps on that library."""
+    def restore(self, state: SceneState) -> None:
+        """Put back a :meth:`snapshot`: :meth:`set_state`."""
+        self.set_state(state)
 
-        def value(given, like):
-            return np.array(given, dtype=like.dtype) if isinstance(given, (np.ndarray, list, tuple)) else given
+    def _scratch(self) -> "CollaborativeCore":
+        """A core sharing this one's parameters and geometry whose state the pure functions load and read (this
+        core's own state is left as it is)."""
+        scratch = getattr(self, "_scratch_core", None)
+        if scratch is None:
+            scratch = copy.copy(self)
+            scratch.arms = {agent: copy.copy(arm) for agent, arm in self.arms.items()}
+            scratch.work_distance, scratch.blocked = dict(self.work_distance), dict(self.blocked)
+            scratch.random = copy.copy(self.random)
+            scratch._scratch_core = scratch
+            self._scratch_core = scratch
+        return scratch
 
-        for name in STATE_FIELDS:
-            setattr(self, name, value(state[name], getattr(self, name)))
-        for agent, arm in self.arms.items():
-            for name in ARM_FIELDS:
-                setattr(arm, name, value(state[f"{agent}.{name}"], getattr(arm, name)))
-            self.work_distance[agent] = value(state[f"{agent}.work_distance"], self.work_distance[agent])
+    def step_state(self, state: SceneState, commands: dict):
+        """The step as a pure function: ``(state after, rewards {agent: (N,)}, terminated (N,), truncated (N,))``
+        from a record and ``{agent: (N, 4)}`` commands in [-1, 1] (:meth:`step`); the record given is not changed.
+        Traceable by ``jax.jit`` (a record of JAX arrays: :func:`scene_state.register_with_jax`)."""
+        scratch = self._scratch()
+        scratch.set_state(state, copy=False)
+        rewards, terminated, truncated = scratch.step(commands)
+        return scratch.get_state(copy=False), rewards, terminated, truncated
+
+    def reset_state(self, state: SceneState, mask) -> SceneState:
+        """New episodes in the worlds where ``mask`` (N,) holds, drawn from their streams (:meth:`start_episodes`),
+        as a pure function of the record."""
+        scratch = self._scratch()
+        scratch.set_state(state, copy=False)
+        scratch.start_episodes(mask)
+        return scratch.get_state(copy=False)
 
     @property
     def removed_ml(self) -> np.ndarray:
@@ -775,34 +809,26 @@ class CollaborativeCore:
 
     def world_state(self, world: int) -> dict:
         """World ``world``'s state, as :meth:`set_world` takes it (and the MuJoCo mirror shows it)."""
-        return {
-            "tips": {agent: self.arms[agent].tip[world].copy() for agent in AGENTS},
-            "joints": {agent: self.arms[agent].q[world].copy() for agent in AGENTS},
-            "jaw": float(self.arms["grasper"].jaw[world]),
-            "valve_open": bool(self.valve_open[world]),
-            "valve_opening": float(self.valve_opening[world]),
-            "blood_ml": self.remaining_ml[world].copy(),
-            "debris_positions": self.debris_position[world].copy(),
-            "debris_yaws": self.debris_yaw[world].copy(),
-            "visible": self.visible[world].copy(),
-            "delivered": self.delivered[world].copy(),
-        }
+        return {key: ({agent: part[0] for agent, part in value.items()} if isinstance(value, dict) else
+                      value[0].item() if key in ("jaw", "valve_open", "valve_opening") else value[0])
+                for key, value in self.world_states([int(world)]).items()}
 
     def world_states(self, worlds) -> dict:
-        """:meth:`world_state` of the worlds ``worlds`` at once: each value stacked along a first axis of
-        ``len(worlds)`` (what the endoscope's renderer draws from)."""
-        rows = np.asarray(worlds, dtype=np.int64)
+        """What the MuJoCo mirror and the endoscope's renderer draw of the worlds ``worlds`` (copies, numpy; each value
+        stacked along a first axis of ``len(worlds)``): read from the state record."""
+        state = scene_state.take_worlds(scene_state.map_arrays(np.asarray, self.get_state(copy=False)),
+                                        np.asarray(worlds, dtype=np.int64))
         return {
-            "tips": {agent: np.asarray(self.arms[agent].tip)[rows] for agent in AGENTS},
-            "joints": {agent: np.asarray(self.arms[agent].q)[rows] for agent in AGENTS},
-            "jaw": np.asarray(self.arms["grasper"].jaw, dtype=np.float64)[rows],
-            "valve_open": np.asarray(self.valve_open)[rows],
-            "valve_opening": np.asarray(self.valve_opening, dtype=np.float64)[rows],
-            "blood_ml": np.asarray(self.remaining_ml)[rows],
-            "debris_positions": np.asarray(self.debris_position)[rows],
-            "debris_yaws": np.asarray(self.debris_yaw)[rows],
-            "visible": np.asarray(self.visible)[rows],
-            "delivered": np.asarray(self.delivered)[rows],
+            "tips": {agent: getattr(state, f"{agent}_tip") for agent in AGENTS},
+            "joints": {agent: getattr(state, f"{agent}_q") for agent in AGENTS},
+            "jaw": state.jaw.astype(np.float64),
+            "valve_open": state.valve_opening > tools.VALVE_OPEN_ABOVE,
+            "valve_opening": state.valve_opening.astype(np.float64),
+            "blood_ml": state.remaining_ml,
+            "debris_positions": state.debris_position,
+            "debris_yaws": state.debris_yaw,
+            "visible": state.visible,
+            "delivered": state.delivered,
         }
 
     def set_world(self, world: int, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible,

@@ -474,7 +474,7 @@ class SuctionDebrisBatchedEnv:
                              f"{type(tips).__name__}")
         # A start option is checked against the episode it starts (a tip must clear the other, reset, instrument):
         # one refused after the worlds were reset puts them back as they were.
-        before = ((self.core.snapshot(), dict(self.core.random.state()), self.levels.copy())
+        before = ((self.core.snapshot(), self.levels.copy())
                   if blood_ml is not None or debris_count is not None or tips is not None else None)
         try:
             if seed is not None:
@@ -496,8 +496,7 @@ class SuctionDebrisBatchedEnv:
         except (ValueError, TypeError) as error:
             if before is not None:
                 self.core.restore(before[0])
-                self.core.random.restore(before[1])
-                self.levels = before[2]
+                self.levels = before[1]
             if isinstance(error, TypeError):  # (a value numpy cannot read as numbers)
                 raise ValueError(f"{self.name}: reset options: {error}") from None
             raise

@@ -38,8 +38,8 @@ import copy
 import numpy as np
 
 from dvrl_marl.core import layout
-from dvrl_marl.core.collaborative import AGENTS
 from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.core.scene_state import EnvState, check_state, register_with_jax
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
@@ -93,7 +93,8 @@ class SuctionDebrisDeviceEnv:
         self.host = SuctionDebrisBatchedEnv(num_envs, autoreset_mode="disabled", **kwargs)
         #: the env the traced functions run through (a copy: its arrays are JAX's while a function is traced)
         self._tracing = copy.deepcopy(self.host)
-        self._resting = self._arrays(self._tracing.core)
+        self._resting = self._tracing.core.get_state()  # (numpy: what the tracing env holds between traces)
+        register_with_jax()
         self.name = self.host.name
         self.num_envs = self.host.num_envs
         self.possible_agents = list(self.host.possible_agents)
@@ -134,43 +135,21 @@ class SuctionDebrisDeviceEnv:
         raise AttributeError(name)
 
     # --- the traced functions -----------------------------------------------------------------------------
-    @staticmethod
-    def _arrays(core) -> dict:
-        """Every array attribute of a core and its arms (numpy, at rest: what a traced function starts from)."""
-        out = {("core", k): copy.deepcopy(v) for k, v in vars(core).items() if isinstance(v, (np.ndarray, dict))}
-        for agent, arm in core.arms.items():
-            out.update({(agent, k): v.copy() for k, v in vars(arm).items() if isinstance(v, np.ndarray)})
-        out[("random", "")] = core.random.state()
-        return out
-
     def _rest(self) -> None:
-        """Put the tracing env's arrays back to numpy (no JAX value outlives the function being traced)."""
-        core = self._tracing.core
-        for (owner, name), value in self._resting.items():
-            if owner == "random":
-                core.random.restore(value)
-            elif owner == "core":
-                setattr(core, name, copy.deepcopy(value))
-            else:
-                setattr(core.arms[owner], name, value.copy())
+        """Put the tracing env's state back to numpy (no JAX value outlives the function being traced)."""
+        self._tracing.core.set_state(self._resting)
 
-    def _load(self, state):
-        self._rest()
-        core = self._tracing.core
-        core.restore({key: value for key, value in state.items()
-                      if not key.startswith(("stream_", "potential/")) and key != "levels"})
-        core.random.restore(state)
+    def _load(self, state: EnvState) -> None:
+        self._tracing.core.set_state(state.scene, copy=False)
 
-    def _unload(self, potential, levels) -> dict:
-        core = self._tracing.core
-        state = {**core.snapshot(), **core.random.state(), "levels": levels}
-        state.update({f"potential/{agent}": value for agent, value in potential.items()})
-        return state
+    def _unload(self, potential, levels) -> EnvState:
+        return EnvState(scene=self._tracing.core.get_state(copy=False), levels=levels, potential=potential)
 
     def _traced_step(self, state, actions):
         xp = self._jax.numpy
         env = self._tracing
         core = env.core
+        self.check_state(state)
         self._load(state)
         finite = xp.all(xp.stack([xp.all(xp.isfinite(actions[agent])) for agent in self.possible_agents]))
         commands = {agent: xp.clip(actions[agent], -1.0, 1.0) for agent in self.possible_agents}
@@ -178,12 +157,12 @@ class SuctionDebrisDeviceEnv:
         potential = env.guided_potentials()
         for agent in rewards:
             if agent in potential:
-                rewards[agent] = rewards[agent] + (potential[agent] - state[f"potential/{agent}"])
+                rewards[agent] = rewards[agent] + (potential[agent] - state.potential[agent])
         final, final_state = env.observations(), env.state()
         success = core.complete
         if self.autoreset_mode == "same_step":
             done = terminated | truncated
-            env.start_at_levels(done, state["levels"])
+            env.start_at_levels(done, state.levels)
             restarted = env.guided_potentials()
             potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
         infos = {"is_success": success, "final_observation": final, "final_state": final_state,
@@ -191,7 +170,7 @@ class SuctionDebrisDeviceEnv:
         # Actions with NaN or inf touch no world: the state stays as it was (the numpy env refuses them before any
         # state changes; here the refusal is read back after the step, which must then have changed nothing). A cond
         # picks one state's buffers (an elementwise where over every array cost the step 17 % at N = 1,024 on a CPU).
-        stepped = self._unload(potential, state["levels"])
+        stepped = self._unload(potential, state.levels)
         kept = self._jax.lax.cond(finite, lambda: stepped, lambda: state)
         out = kept, env.observations(), rewards, terminated, truncated, infos
         self._rest()
@@ -201,11 +180,12 @@ class SuctionDebrisDeviceEnv:
         """New episodes in the worlds of ``mask``, on the device."""
         xp = self._jax.numpy
         env = self._tracing
+        self.check_state(state)
         self._load(state)
-        env.start_at_levels(mask, state["levels"])
-        potential = {agent: xp.where(mask, value, state[f"potential/{agent}"])
+        env.start_at_levels(mask, state.levels)
+        potential = {agent: xp.where(mask, value, state.potential[agent])
                      for agent, value in env.guided_potentials().items()}
-        out = self._unload(potential, state["levels"]), env.observations(), env.state()
+        out = self._unload(potential, state.levels), env.observations(), env.state()
         self._rest()
         return out
 
@@ -231,10 +211,9 @@ class SuctionDebrisDeviceEnv:
             return self._out(observations), {}
         self.host.reset(seed=seed)
         potential = self.host.guided_potentials()
-        core = self.host.core
-        state = {**core.snapshot(), **core.random.state(), "levels": self.host.levels,
-                 **{f"potential/{agent}": value for agent, value in potential.items()}}
-        self._state = self._jax.device_put({key: np.asarray(value) for key, value in state.items()}, self.device)
+        state = EnvState(scene=self.host.core.get_state(), levels=self.host.levels.copy(),
+                         potential={agent: np.asarray(value) for agent, value in potential.items()})
+        self._state = self._jax.device_put(state, self.device)
         # (the host's observations and state are the device's: the same state, held equal by the tests)
         observations = self._jax.device_put(self.host.observations(), self.device)
         self._global_state = self._jax.device_put(self.host.state(), self.device)
@@ -281,7 +260,7 @@ class SuctionDebrisDeviceEnv:
         mask or indices), automatic resets included (checked on the host, then sent to the device)."""
         self.host.set_start_level(level, worlds)
         if self._state is not None:
-            self._state = {**self._state, "levels": self._jax.device_put(self.host.levels, self.device)}
+            self._state = self._state.replace(levels=self._jax.device_put(self.host.levels, self.device))
 
     @staticmethod
     def _host_array(value):
@@ -334,18 +313,39 @@ class SuctionDebrisDeviceEnv:
         return self._traced_step
 
     @property
-    def world_state(self) -> dict:
-        """The worlds' state on the device (a dict of JAX arrays; what :attr:`step_function` takes and gives)."""
+    def world_state(self) -> EnvState:
+        """The worlds' state on the device (an :class:`~dvrl_marl.core.scene_state.EnvState` of JAX arrays: the
+        scene's record, the start levels and the guided reward's potentials; what :attr:`step_function` takes and
+        gives)."""
         if self._state is None:
             raise RuntimeError(f"{self.name}: call reset() before reading world_state")
         return self._state
 
     @world_state.setter
-    def world_state(self, state: dict) -> None:
-        if self._state is None or set(state) != set(self._state):
-            raise ValueError(f"{self.name}: world_state takes the dict world_state gave (after a reset)")
+    def world_state(self, state: EnvState) -> None:
+        if self._state is None:
+            raise ValueError(f"{self.name}: call reset() before setting world_state")
+        self.check_state(state)
         self._state = state
         self._global_state = None  # (computed from the new state when asked)
+
+    def check_state(self, state, num_worlds="env") -> None:
+        """``ValueError`` naming what of ``state`` is not an :class:`EnvState` of this env's worlds (``num_worlds``:
+        the leading axis, None for one world's record); shapes and dtypes only, so it runs at trace time."""
+        if not isinstance(state, EnvState):
+            raise ValueError(f"{self.name}: the state must be the EnvState reset gave, got {type(state).__name__}")
+        count = self.num_envs if num_worlds == "env" else num_worlds
+        check_state(state.scene, self._tracing.core.world_shapes, count, self.name)
+        want = () if count is None else (count,)
+        if tuple(getattr(state.levels, "shape", ())) != want:
+            raise ValueError(f"{self.name}: state.levels must have shape {want}, got "
+                             f"{tuple(getattr(state.levels, 'shape', ()))}")
+        if set(state.potential) != set(self._resting_potentials()):
+            raise ValueError(f"{self.name}: state.potential must hold the guided reward's agents "
+                             f"{sorted(self._resting_potentials())}, got {sorted(state.potential)}")
+
+    def _resting_potentials(self) -> dict:
+        return dict.fromkeys(self.possible_agents) if self.host.reward_type == "guided" else {}
 
     def _traced_global_state(self, state):
         self._load(state)

@@ -34,6 +34,8 @@ that world and says so in ``infos["actions_finite"]``.
 
 from __future__ import annotations
 
+from dvrl_marl.core.scene_state import SPECS, EnvState
+
 __all__ = ["SuctionDebrisJaxEnv", "jax_env", "seed_of"]
 
 
@@ -69,9 +71,8 @@ class SuctionDebrisJaxEnv:
         host.reset(seed=0)
         potential = host.guided_potentials()
         #: a world's state at rest: what reset() draws a new episode into (its stream key replaced by the key's)
-        self._template = {**host.core.snapshot(), **host.core.random.state(), "levels": host.levels,
-                          **{f"potential/{agent}": value for agent, value in potential.items()}}
-        self._template = {key: jnp.asarray(value)[0] for key, value in self._template.items()}
+        self._template = jax.tree_util.tree_map(lambda value: jnp.asarray(value)[0], EnvState(
+            scene=host.core.get_state(), levels=host.levels.copy(), potential=dict(potential)))
         self.name = host.name
         self.agents = list(host.possible_agents)
         self.num_agents = len(self.agents)
@@ -85,18 +86,18 @@ class SuctionDebrisJaxEnv:
 
     @property
     def state_keys(self) -> tuple:
-        """The names of the state's arrays."""
-        return tuple(sorted(self._template))
+        """The names of the scene record's fields (:data:`dvrl_marl.core.scene_state.SPECS`)."""
+        return tuple(SPECS)
 
     # --- the pure functions ---------------------------------------------------------------------------------
     def reset(self, key):
         """``(observations, state)`` of a new episode: the one the numpy env starts with ``seed=seed_of(key)``."""
         jnp = self._jnp
         seed = seed_of(self._check_key(key, "reset"))
-        state = dict(self._template)
-        state["stream_key_low"] = (seed & jnp.uint64(0xFFFFFFFF)).astype(jnp.int64)
-        state["stream_key_high"] = (seed >> jnp.uint64(32)).astype(jnp.int64)
-        state["stream_episode"] = jnp.zeros((), dtype=jnp.int64)
+        state = self._template.replace(scene=self._template.scene.replace(
+            stream_key_low=(seed & jnp.uint64(0xFFFFFFFF)).astype(jnp.int64),
+            stream_key_high=(seed >> jnp.uint64(32)).astype(jnp.int64),
+            stream_episode=jnp.zeros((), dtype=jnp.int64)))
         batch = self._batch(state)
         restarted, observations, _ = self._one._traced_restart(batch, jnp.ones((1,), dtype=bool))
         return self._world(observations), self._world(restarted)
@@ -127,8 +128,8 @@ class SuctionDebrisJaxEnv:
         return (self._world(observations), self._world(stepped), self._world(rewards), dones, out_infos)
 
     # --- one world as a batch of one --------------------------------------------------------------------------
-    def _batch(self, state: dict) -> dict:
-        return {key: value[None] for key, value in state.items()}
+    def _batch(self, state):
+        return self._jax.tree_util.tree_map(lambda value: value[None], state)
 
     def _world(self, tree):
         return self._jax.tree_util.tree_map(lambda value: value[0], tree)
@@ -145,16 +146,8 @@ class SuctionDebrisJaxEnv:
         return key
 
     def _check_state(self, state) -> None:
-        if not isinstance(state, dict) or set(state) != set(self._template):
-            got = sorted(state) if isinstance(state, dict) else type(state).__name__
-            raise ValueError(f"{self.name}: step's state must be the dict reset() gave (keys {self.state_keys}), "
-                             f"got {got}")
-        for key, like in self._template.items():
-            value = state[key]
-            if getattr(value, "shape", None) != like.shape or str(getattr(value, "dtype", "")) != str(like.dtype):
-                raise ValueError(f"{self.name}: state[{key!r}] must be {like.dtype} of shape {like.shape} in one world "
-                                 f"(vmap maps the worlds), got {getattr(value, 'dtype', type(value).__name__)} "
-                                 f"{getattr(value, 'shape', '')}")
+        """The state of one world, as reset() gave it (shapes and dtypes: named at trace time)."""
+        self._one.check_state(state, num_worlds=None)
 
 
 def jax_env(**options) -> SuctionDebrisJaxEnv:
