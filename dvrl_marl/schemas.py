@@ -18,7 +18,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, Strict, Str
                       ValidationError, model_validator)
 
 __all__ = ["validated", "describe", "STRICT", "Finite", "Positive", "NonNegative", "Fraction", "PositiveInt",
-           "NonNegativeInt", "Vector3", "SingleArmTask", "CollaborativeTask", "Sb3PpoRun", "CloneRun", "CloneBc",
+           "NonNegativeInt", "Vector3", "SingleArmTask", "Sb3PpoRun", "CloneRun", "CloneBc",
            "CloneDagger", "CloneRecord", "CloneEvaluate", "PolicyFile", "PolicyImage", "PolicyImageFill", "cli_number",
            "PolicyFeltContact",
            "Seed", "Seeds",
@@ -150,36 +150,7 @@ class SingleArmTask(BaseModel):
     original_goal_floor: NonNegative | None = None
 
 
-class CollaborativeTask(BaseModel):
-    """The collaborative scene's task (suction_debris and its versions)."""
-
-    model_config = STRICT
-    description: Text = ""
-    scene: Text
-    workspace_centre: Vector3
-    workspace_range: Positive
-    step_size: Positive
-    distance_threshold: Positive
-    grasp_threshold: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)]
-    control_dt: Positive
-    tip_clearance: NonNegative
-    blood_ml: tuple[NonNegative, ...]
-    blood_threshold_ml: NonNegative
-    suction_rate_ml_s: Positive
-    debris_count: PositiveInt
-    contact_penalty: NonNegative
-    max_cycles: StepCount
-    pins_fall: Flag = False
-    suction_reach: NonNegative = 0.0
-    bleeding_ml_s: NonNegative = 0.0
-    bleeding_onset_s: NonNegative = 0.0
-    deliver_at_grip: Flag = False
-    pins_stay_on_phantom: Flag = False
-    blocked_moves: Literal["stop", "slide", "climb", "climb_ahead", "settle"] = "stop"
-    held_pin_at_grip: Flag = False
-    tool_speed: Annotated[float, _NUMBER, Strict(), Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
-    jaw_command: Literal["proportional", "switch"] = "proportional"
-    hold_until_handoff: Flag = False
+# (the collaborative task's schema is made from its parameters' fields: core.collaborative_task.task_schema)
 
 
 # --- training configurations without a dataclass of their own --------------------------------------------------------

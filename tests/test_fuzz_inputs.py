@@ -20,7 +20,8 @@ from hypothesis import strategies as st
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.assets import tasks_dir
 from dvrl_marl.envs.suction_debris import SuctionDebrisParams
-from dvrl_marl.schemas import CollaborativeTask, SingleArmTask
+from dvrl_marl.core.collaborative_task import task_schema
+from dvrl_marl.schemas import SingleArmTask
 from dvrl_marl.task import load_task
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,7 +73,7 @@ def _task_table(name: str) -> dict:
 
 
 @pytest.mark.parametrize("task, loader, schema", [
-    ("suction_debris_v8", SuctionDebrisParams.from_task, CollaborativeTask), ("psm_reach", load_task, SingleArmTask),
+    ("suction_debris_v8", SuctionDebrisParams.from_task, task_schema()), ("psm_reach", load_task, SingleArmTask),
     ("psm_pick", load_task, SingleArmTask)])
 @FUZZ
 @given(data=st.data())

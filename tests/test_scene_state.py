@@ -125,3 +125,19 @@ def test_every_field_is_started_made_and_counted():
         assert value.dtype == scene_state.dtype_of(name), name
     float32 = scene_state.bytes_per_world(state, float_bytes=4)
     assert 0 < float32 < scene_state.bytes_per_world(state)
+
+
+def test_the_record_is_a_pytree_that_jit_and_vmap_carry_and_a_wrong_one_is_named_at_trace_time():
+    jax = pytest.importorskip("jax")
+    jax.config.update("jax_enable_x64", True)
+    jnp = jax.numpy
+    scene_state.register_with_jax()
+    core = _env().core
+    state = core.get_state()
+    device = scene_state.map_arrays(jnp.asarray, state)
+    assert len(jax.tree_util.tree_leaves(device)) == len(SPECS)
+    blood = jax.jit(jax.vmap(lambda world: world.remaining_ml.sum()))(device)  # one world's fields, per world
+    np.testing.assert_allclose(np.asarray(blood), state.remaining_ml.sum(axis=1))
+    commands = {agent: jnp.zeros((WORLDS, 4)) for agent in ("suction", "grasper")}
+    with pytest.raises(ValueError, match=r"state.debris_yaw must be float of shape \(3, 3\)"):
+        jax.jit(core.step_state)(device.replace(debris_yaw=device.debris_yaw[:, :2]), commands)

@@ -382,6 +382,7 @@ class CollaborativeCore:
                 arm.jaw = xp.where(given, jaw, arm.jaw)
         removed = self.drawn_ml = self._suction()
         self._bleed()
+        self._clot()
         lifted, delivered = self._grasping()
         self._fall()
         self.elapsed = self.elapsed + 1
@@ -458,16 +459,17 @@ class CollaborativeCore:
         cavity = self.cavities.cavity_at(tip[:, 0], tip[:, 1])
         safe = xp.maximum(cavity, 0)
         remaining = _pick(self.remaining_ml, safe, xp)
+        liquid = remaining - _pick(self.clot_ml, safe, xp) if self.params.clotting_ml_s > 0.0 else remaining
         height = tip[:, 2] - _pick(self.surface_z, safe, xp)
         reach = self.params.suction_reach
         if reach <= 0.0:  # the simple rule: full flow under the surface, none at or above it
             flow = xp.where(height < 0.0, 1.0, 0.0)
         else:  # 1 at or below the surface, falling linearly to 0 at reach above it
             flow = xp.where(height <= 0.0, 1.0, xp.where(height < reach, 1.0 - height / reach, 0.0))
-        sucking = open_ & (cavity >= 0) & (remaining > 0.0) & (flow > 0.0)
+        sucking = open_ & (cavity >= 0) & (liquid > 0.0) & (flow > 0.0)
         if not needed(sucking):
             return removed
-        amount = xp.minimum(flow * self.params.suction_rate_ml_s * self.params.control_dt, remaining)
+        amount = xp.minimum(flow * self.params.suction_rate_ml_s * self.params.control_dt, liquid)
         drawn = self._in_cavity(safe, sucking)  # (N, C): the cavity each sucking world draws from
         self.remaining_ml = xp.where(drawn, xp.maximum(remaining - amount, 0.0)[:, None], self.remaining_ml)
         self._update_surfaces_where(drawn)
@@ -575,6 +577,13 @@ class CollaborativeCore:
         self.remaining_ml = xp.where(grew, self.remaining_ml + added, self.remaining_ml)
         self.added_ml = xp.where(grew, self.added_ml + added, self.added_ml)
         self._update_surfaces_where(grew)
+
+    def _clot(self) -> None:
+        """Liquid blood clots at ``clotting_ml_s`` in every cavity, up to the blood there (suction draws no clot)."""
+        if self.params.clotting_ml_s <= 0.0:
+            return
+        xp = namespace(self.clot_ml)
+        self.clot_ml = xp.minimum(self.clot_ml + self.params.clotting_ml_s * self.params.control_dt, self.remaining_ml)
 
     def _fall(self) -> None:
         """Released pins fall under gravity onto the surface below them."""

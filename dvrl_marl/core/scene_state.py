@@ -51,6 +51,8 @@ SPECS = {
     "fall_speed": FieldSpec(("D",), _F, float("nan")),  # m/s while a released pin falls, NaN at rest
     # bleeding: blood added this episode (ml), each cavity's onset (s; inf: none) and rate (ml/s)
     "added_ml": FieldSpec(("C",), _F, 0.0), "bleed_onset": FieldSpec(("C",)), "bleed_rate": FieldSpec(("C",)),
+    # clotted blood per cavity (ml; part of remaining_ml, which suction cannot draw)
+    "clot_ml": FieldSpec(("C",), _F, 0.0),
     # the held pin (-1: none), its offset from the tip and where the jaws hold it
     "holding": FieldSpec((), _I, -1), "hold_offset": FieldSpec((3,), _F, 0.0), "grip_offset": FieldSpec((3,)),
     # the episode's clock and end
@@ -92,6 +94,7 @@ class SceneState:
     added_ml: object
     bleed_onset: object
     bleed_rate: object
+    clot_ml: object
     holding: object
     hold_offset: object
     grip_offset: object
