@@ -636,38 +636,62 @@ class SuctionDebrisBatchedEnv:
             seat = self.surgeon_seat
             commands[seat] = check_action_batch(self._surgeon(core.observation(seat)), self.num_envs, 4,
                                                 f"{self.name}: surgeon in seat {seat!r}")
-        rewards, terminated, truncated = self.advance(commands)
-        return self._outcome(rewards, terminated, truncated)
+        restart = self._restart_ended if self.autoreset_mode == "same_step" else None
+        rewards, terminated, truncated, self._potential, ended = self.transition(commands, self._potential, restart)
+        return self._outcome(rewards, terminated, truncated, ended)
+
+    def _restart_ended(self, done) -> None:
+        self._start_episodes(np.flatnonzero(done))
 
     def advance(self, commands: dict):
         """One step of the core with both arms' commands, already checked: ``{agent: (N, 4)}`` float64 in [-1, 1],
         a NaN tool value meaning "unchanged" (a held seat). Returns ``(rewards {agent: (N,)}, terminated (N,),
         truncated (N,))`` with the guided terms; nothing resets."""
-        core = self.core
-        rewards, terminated, truncated = core.step(commands)
-        if self._guided is not None:  # the guided terms' change over the step (potential-based)
-            potential = self._guided.potentials(core.state(), core.remaining_ml)
-            for agent in rewards:
-                rewards[agent] = rewards[agent] + (potential[agent] - self._potential[agent])
-            self._potential = potential
+        rewards, terminated, truncated, self._potential, _ = self.transition(commands, self._potential)
         return rewards, terminated, truncated
 
-    def _outcome(self, rewards, terminated, truncated):
+    def transition(self, commands: dict, potential, restart=None):
+        """The env's step, written once for this env and the compiled one (:mod:`.suction_debris_device`, which
+        traces it with the state loaded from its record): the core's step, the guided reward's change of potential
+        from ``potential`` (``{agent: (N,)}``; ignored without the guided reward), and, given ``restart`` (a function
+        of the mask of ended worlds that starts their next episodes), the same-step autoreset.
+
+        Returns ``(rewards, terminated, truncated, potential after, ended)``; ``ended`` is None when no episode
+        ended (or without ``restart``), else a dict of what the step ended on, taken before the restart: ``done``
+        (the ended worlds), ``is_success``, ``final_observation``, ``final_state`` and ``info`` (the core's figures).
+        numpy skips it all when no world ended; traced, every world restarts where the mask holds."""
         core = self.core
+        rewards, terminated, truncated = core.step(commands)
+        after = {}
+        if self._guided is not None:  # the guided terms' change over the step (potential-based)
+            after = self.guided_potentials()
+            rewards = {agent: value + (after[agent] - potential[agent]) if agent in after else value
+                       for agent, value in rewards.items()}
+        done = terminated | truncated
+        if restart is None or not needed(done):
+            return rewards, terminated, truncated, after, None
+        ended = {"done": done, "is_success": _copied(core.complete), "final_observation": self.observations(),
+                 "final_state": self.state(), "info": core.info()}
+        restart(done)
+        if after:
+            xp = namespace(done)
+            restarted = self.guided_potentials()
+            after = {agent: xp.where(done, restarted[agent], value) for agent, value in after.items()}
+        return rewards, terminated, truncated, after, ended
+
+    def _outcome(self, rewards, terminated, truncated, ended=None):
         observations = self.observations()
-        info = core.info()
+        info = self.core.info() if ended is None else ended["info"]  # (the ended episodes' figures, not the new ones')
         infos = {agent: dict(info) for agent in self.agents}
         done = terminated | truncated
         if self.autoreset_mode == "disabled":
             if self.image_size and np.any(done & ~self._ended):
                 self._keep_end_states(np.flatnonzero(done & ~self._ended))
             self._ended |= done
-        if self.autoreset_mode == "same_step" and done.any():
-            final_state = self.state()
+        if ended is not None:
             for agent in self.agents:
-                infos[agent].update(final_observation=observations[agent], final_state=final_state, _final=done)
-            self._start_episodes(np.flatnonzero(done))
-            observations = self.observations()
+                infos[agent].update(final_observation=ended["final_observation"][agent],
+                                    final_state=ended["final_state"], _final=done)
         terminations = {agent: terminated.copy() for agent in self.agents}
         truncations = {agent: truncated.copy() for agent in self.agents}
         return observations, rewards, terminations, truncations, infos
@@ -762,6 +786,10 @@ class SuctionDebrisBatchedEnv:
             if renderer is not None:
                 renderer.close()
         self._endoscope = self._right_eye = None
+
+
+def _copied(value):
+    return value.copy() if isinstance(value, np.ndarray) else value
 
 
 def _rows_like(tree, count: int):

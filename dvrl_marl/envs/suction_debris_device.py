@@ -34,6 +34,7 @@ same state, with the benchmark's setting and with the defaults. JAX's float64 is
 from __future__ import annotations
 
 import copy
+import functools
 
 import numpy as np
 
@@ -153,18 +154,12 @@ class SuctionDebrisDeviceEnv:
         self._load(state)
         finite = xp.all(xp.stack([xp.all(xp.isfinite(actions[agent])) for agent in self.possible_agents]))
         commands = {agent: xp.clip(actions[agent], -1.0, 1.0) for agent in self.possible_agents}
-        rewards, terminated, truncated = core.step(commands)
-        potential = env.guided_potentials()
-        for agent in rewards:
-            if agent in potential:
-                rewards[agent] = rewards[agent] + (potential[agent] - state.potential[agent])
-        final, final_state = env.observations(), env.state()
-        success = core.complete
-        if self.autoreset_mode == "same_step":
-            done = terminated | truncated
-            env.start_at_levels(done, state.levels)
-            restarted = env.guided_potentials()
-            potential = {agent: xp.where(done, restarted[agent], potential[agent]) for agent in potential}
+        restart = functools.partial(env.start_at_levels, levels=state.levels) if self.autoreset_mode == "same_step" \
+            else None
+        rewards, terminated, truncated, potential, ended = env.transition(commands, state.potential, restart)
+        if ended is None:  # (without autoreset: what the step ended on is the worlds' present)
+            ended = {"is_success": core.complete, "final_observation": env.observations(), "final_state": env.state()}
+        success, final, final_state = ended["is_success"], ended["final_observation"], ended["final_state"]
         infos = {"is_success": success, "final_observation": final, "final_state": final_state,
                  "actions_finite": finite, "state": env.state()}
         # Actions with NaN or inf touch no world: the state stays as it was (the numpy env refuses them before any

@@ -21,11 +21,12 @@ vmapped batch equal to world i of the numpy batched env, step by step.
 **Keys and seeds.** The scene draws its episodes from counter-based streams kept in the state (a world's 64-bit seed
 and its episode count), not from the key: ``reset(key)`` starts the episode the numpy env starts with
 ``seed=seed_of(key)``, and the following episodes of that world are those of the same seed, wherever they are
-played. ``step``'s key is taken for the API's form and not used. The state is a dict of arrays (float64: JAX's x64 is
-switched on for the process), a pytree that ``jit``, ``vmap`` and ``lax.scan`` carry: 34 arrays, 534 bytes a world
-(274 were its floats float32; the default scene; ``benchmarks/jax_env_scale.py`` prints it), so a million worlds'
-state is about 0.5 GB before a step's temporaries. Some of it is NaN or inf by design (a pin that is not falling, a
-cavity that never bleeds); observations and rewards are finite.
+played. ``step``'s key is taken for the API's form and not used. The state is an
+:class:`~dvrl_marl.core.scene_state.EnvState` record (the scene's :class:`~dvrl_marl.core.scene_state.SceneState`, the
+start level and, with the guided reward, the potentials; float64: JAX's x64 is switched on for the process), a pytree
+that ``jit``, ``vmap`` and ``lax.scan`` carry; ``benchmarks/jax_env_scale.py`` prints its bytes a world and XLA's
+figures for a step over many worlds (the results page has them). Some of it is NaN or inf by design (a pin that is
+not falling, a cavity that never bleeds); observations and rewards are finite.
 
 Bad input is named at trace time where it can be: an action dict missing an agent or of another width, a state of
 another form. A NaN action is not refused inside a compiled step (nothing is read back): the step changes nothing of
