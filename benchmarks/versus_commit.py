@@ -15,6 +15,7 @@ versions it had:
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import statistics
@@ -23,6 +24,8 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import provenance  # noqa: E402
 
 #: The benchmark's setting spelt out (a checkout from before ``preset=`` takes these keywords).
 BENCHMARK = dict(reward_type="guided", observation_features="suction_debris_cleared_pins_zoom", state_observations=True,
@@ -79,7 +82,9 @@ def main() -> None:
     parser.add_argument("--settings", nargs="+", default=["default", "benchmark"])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--cpu", type=int, default=1, help="the core to pin to (taskset); -1: none")
+    parser.add_argument("--json", help="append each figure to this JSON-lines record (with the commits compared)")
     args = parser.parse_args()
+    code = provenance.code_state()  # (as the run starts: what it measures here)
     cpu = None if args.cpu < 0 else args.cpu
     checkouts = [(HERE, args.module)] + [(Path(p), m) for p, m in (pair.rsplit(":", 1) for pair in args.against)]
     print(f"{'checkout':<28} {'scene':<20} {'form':<12} {'setting':<10} {'steps/s':>12} {'vs here':>8}")
@@ -97,6 +102,20 @@ def main() -> None:
                 shown = "n/a" if value is None else f"{value:,.0f}"
                 ratio = "" if value is None or here is None else f"{value / here:.2f}"
                 print(f"{label:<28} {module:<20} {form:<12} {setting:<10} {shown:>12} {ratio:>8}")
+                if args.json:
+                    row = {"checkout": label, "commit": code["commit"] if root == HERE else _commit_of(root),
+                           "scene": module, "form": form, "setting": setting, "repeats": args.repeats,
+                           "steps_per_s": None if value is None else round(value),
+                           "versus_here": None if value is None or here is None else round(value / here, 3),
+                           "runs": runs[(root, module)], "command": "python benchmarks/versus_commit.py "
+                           + " ".join(sys.argv[1:]), "code": code}
+                    with open(args.json, "a") as handle:
+                        handle.write(json.dumps(row) + "\n")
+
+
+def _commit_of(root: Path) -> str:
+    done = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    return done.stdout.strip() or "unknown"
 
 
 if __name__ == "__main__":

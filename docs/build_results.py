@@ -270,12 +270,18 @@ def bad_input_round() -> Table:
 def jax_env_scale() -> Table:
     path = "benchmarks/results/jax_env_cpu_2026-12-01.jsonl"
     table = Table(["worlds", "steps", "finite", "the same for the same key", "worlds compared with numpy",
-                   "largest difference", "state bytes a world", "env-steps/s", "compile and first run (s)"])
+                   "largest difference", "state bytes a world (float32)", "one step's bytes a world (XLA, at N)",
+                   "a million worlds' step", "env-steps/s", "compile and first run (s)"])
     rows = _read(path)
     for row in rows:
+        float32 = row.get("state_bytes_per_world_float32")
+        step = "-" if "step_bytes_per_world" not in row else \
+            f"{row['step_bytes_per_world']:,.0f} (N = {_count(row['memory_worlds'])})"
         table.rows.append([_count(row["worlds"]), _count(row["steps"]), "yes" if row["finite"] else "**no**",
                            "yes" if row["same_for_the_same_key"] else "**no**", str(row["worlds_compared"]),
-                           f"{row['max_difference_from_numpy']:.1e}", str(row["state_bytes_per_world"]),
+                           f"{row['max_difference_from_numpy']:.1e}",
+                           str(row["state_bytes_per_world"]) + ("" if float32 is None else f" ({float32})"), step,
+                           "-" if "million_worlds_step_gb" not in row else f"{row['million_worlds_step_gb']:.1f} GB",
                            _count(row["env_steps_per_s"]), f"{row['compile_and_first_run_seconds']:.0f}"])
         table.source(path, row["command"], row["code"]["commit"]
                      + (" (with " + ", ".join(row["code"]["modified"]) + " changed)" if row["code"]["modified"] else ""))
@@ -347,7 +353,10 @@ SECTIONS = (
      "CPU through JAX.", bad_input_round),
     ("The scene in JaxMARL's form, at scale", "`jax.jit(jax.vmap(env.step))` of `suction_debris_v8.jax_env()` inside "
      "one `lax.scan` on this 2-core CPU (beside other work): every observation and reward finite, the run the same "
-     "twice from one key, and the compared worlds equal to the numpy env's seeded `seed_of(key)`, step by step.",
+     "twice from one key, and the compared worlds equal to the numpy env's seeded `seed_of(key)`, step by step. The "
+     "state's bytes are one world's `EnvState` (float64; in brackets, were its floats float32); one step's bytes are "
+     "XLA's figures for a compiled `jit(vmap(step))` over N worlds (state in and out, actions and temporaries) per "
+     "world, and a million worlds scaled from them.",
      jax_env_scale),
     ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
      "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),
