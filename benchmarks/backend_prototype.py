@@ -87,19 +87,16 @@ def jax_step_seconds(n: int, rounds: int) -> float | None:
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
+    from dvrl_marl.core import scene_state
     from dvrl_marl.core.collaborative import CollaborativeCore
     from dvrl_marl.core.collaborative_task import SuctionDebrisParams
 
     core = CollaborativeCore(SuctionDebrisParams.from_task(), n)
     core.reset(seed=0)
 
-    def step(state, commands):
-        core.restore(state)
-        core.step(commands)
-        return core.snapshot()
-
-    compiled = jax.jit(step)
-    state = {key: jnp.asarray(value) for key, value in core.snapshot().items()}
+    scene_state.register_with_jax()
+    compiled = jax.jit(lambda state, commands: core.step_state(state, commands)[0])
+    state = scene_state.map_arrays(jnp.asarray, core.get_state())
     rng = np.random.default_rng(1)
     rounds_of_commands = [{agent: jnp.asarray(rng.uniform(-1, 1, (n, 4))) for agent in ("suction", "grasper")}
                           for _ in range(8)]

@@ -92,6 +92,7 @@ def test_the_benchmark_preset_is_one_argument_in_every_form_and_explicit_keyword
     single = suction_debris_v8.parallel_env(preset="benchmark")
     assert single.reward_type == "guided" and single.params.tool_speed == 0.1 and single.preset == "benchmark"
     assert single.params.jaw_command == "switch" and single.params.hold_until_handoff and single.state_observations
+    assert single.world.preset == "benchmark"  # (the world it wraps says the preset it was made with, too)
     explicit = suction_debris_v8.parallel_env(**PRESETS["benchmark"])
     a, _ = single.reset(seed=3)
     b, _ = explicit.reset(seed=3)
@@ -99,7 +100,7 @@ def test_the_benchmark_preset_is_one_argument_in_every_form_and_explicit_keyword
         np.testing.assert_array_equal(a[agent], b[agent])
     assert suction_debris_v8.parallel_env(preset="benchmark", tool_speed=0.5).params.tool_speed == 0.5
     batch = suction_debris_v8.batched_env(num_envs=2, preset="benchmark")
-    assert batch.reward_type == "guided" and batch.params.tool_speed == 0.1
+    assert batch.reward_type == "guided" and batch.params.tool_speed == 0.1 and batch.preset == "benchmark"
     seat = gym.make("dvrl_marl/SurgeonSeat-v8", partner="scripted", preset="benchmark")
     assert seat.unwrapped.scene.params.hold_until_handoff
     assert "reward_type" not in scene_options("benchmark") and scene_options("benchmark")["tool_speed"] == 0.1

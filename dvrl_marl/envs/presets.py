@@ -51,9 +51,9 @@ def accepts_preset(init):
 
     @functools.wraps(init)
     def wrapper(self, *args, **kwargs):
-        preset = kwargs.get("preset", "default")
-        init(self, *args, **with_preset(kwargs))
-        self.preset = preset
+        options = with_preset(kwargs)  # (checked first: an unknown preset is named before anything is made)
+        self.preset = kwargs.get("preset", "default")  # (set first: a shell passes it on to the env it wraps)
+        init(self, *args, **options)
 
     return wrapper
 

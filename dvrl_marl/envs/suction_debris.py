@@ -54,7 +54,8 @@ class SuctionDebrisEnv(ParallelEnv):
             raise ValueError(f"{TASK}: render_mode 'human' opens a window through parallel_env(render_mode='human')")
         #: one world of the scene: the core's step, the options, the spaces
         self.world = SuctionDebrisBatchedEnv(1, reward_type=reward_type, max_cycles=max_cycles, render_mode=render_mode,
-                                             autoreset_mode="disabled", width=width, height=height, **options)
+                                             autoreset_mode="disabled", width=width, height=height,
+                                             preset=self.preset, **options)
         for attribute in _SHARED:
             setattr(self, attribute, getattr(self.world, attribute))
         self.metadata = {**self.metadata, "name": self.name,

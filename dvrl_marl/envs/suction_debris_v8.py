@@ -148,6 +148,9 @@ the sparse rule in every case. All: each agent in an instrument-instrument conta
 - **A bleeding field** (``bleeding_ml_s``, off by default): each cavity starts bleeding at a seeded time in
   ``[0, bleeding_onset_s]`` (10 s) at a seeded rate in ``[0.5, 1] x bleeding_ml_s`` ml/s, up to its capacity. Success
   is unchanged, so the suction must keep the field clear while the grasper works.
+- **Clotting** (``clotting_ml_s``, off by default; the worked example of "Adding a rule" in the design page): liquid
+  blood clots at that rate in every cavity, up to the blood there, and suction draws none of a clot, so a cavity
+  whose clot passes ``blood_threshold_ml`` cannot be cleared by suction alone (irrigation, to come, breaks clots up).
 
 ## Starting State
 Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper jaw open, valve closed; blood
