@@ -58,6 +58,11 @@ def test_the_device_env_steps_as_the_numpy_env(pair):
         got = device.step({agent: torch.from_numpy(value).to(DEVICE) for agent, value in actions.items()})
         np.testing.assert_allclose(got[0]["grasper"].cpu().numpy(), expected[0]["grasper"], rtol=0, atol=1e-9)
     np.testing.assert_allclose(device.state().cpu().numpy(), host.state(), rtol=0, atol=1e-9)
+    # the two hold one record of the worlds' state, the same one
+    host_state, device_state = _arrays(host.world_state), _arrays(device.world_state)
+    assert set(host_state) == set(device_state)
+    for key, value in host_state.items():
+        np.testing.assert_allclose(device_state[key], value, rtol=0, atol=1e-9, err_msg=key)
 
 
 @pytest.fixture(scope="module")

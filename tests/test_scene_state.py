@@ -141,3 +141,26 @@ def test_the_record_is_a_pytree_that_jit_and_vmap_carry_and_a_wrong_one_is_named
     commands = {agent: jnp.zeros((WORLDS, 4)) for agent in ("suction", "grasper")}
     with pytest.raises(ValueError, match=r"state.debris_yaw must be float of shape \(3, 3\)"):
         jax.jit(core.step_state)(device.replace(debris_yaw=device.debris_yaw[:, :2]), commands)
+
+
+def test_the_numpy_env_gives_and_takes_its_worlds_state_as_one_record():
+    env = suction_debris.batched_env(num_envs=WORLDS, preset="benchmark")
+    env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    actions = [{agent: rng.uniform(-1, 1, (WORLDS, 4)) for agent in env.possible_agents} for _ in range(30)]
+    saved = env.world_state
+    assert sorted(saved.potential) == sorted(env.possible_agents)
+    first = [env.step(a)[:2] for a in actions]
+    env.world_state = saved  # back where it was: the same steps again give the same figures
+    again = [env.step(a)[:2] for a in actions]
+    for (obs_a, rew_a), (obs_b, rew_b) in zip(first, again):
+        for agent in env.possible_agents:
+            np.testing.assert_array_equal(obs_a[agent], obs_b[agent])
+            np.testing.assert_array_equal(rew_a[agent], rew_b[agent])
+    before = env.world_state
+    for bad, message in ((saved.replace(levels=np.zeros(2)), "state.levels must have shape"),
+                         (saved.replace(potential={}), "state.potential must hold"),
+                         (saved.scene, "world_state must be an EnvState record")):
+        with pytest.raises(ValueError, match=message):
+            env.world_state = bad
+    _equal(env.world_state.scene, before.scene)  # (nothing changed)

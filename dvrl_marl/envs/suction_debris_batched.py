@@ -65,6 +65,7 @@ from dvrl_marl.core import layout
 from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
+from dvrl_marl.core.scene_state import EnvState, SceneState, check_state
 from dvrl_marl.core.worlds import check_action_batch
 from dvrl_marl.envs import features, start_levels
 from dvrl_marl.envs.appearance import APPEARANCES, Appearance
@@ -585,10 +586,38 @@ class SuctionDebrisBatchedEnv:
         core.try_grasper_starts(easy & put(no, rows, mask, has), put(xp.zeros((mask.shape[0], 3)), rows, mask,
                                                                     targets))
 
-    def restore(self, state: dict) -> None:
+    def restore(self, state: SceneState) -> None:
         """Put every world back in a state :meth:`CollaborativeCore.snapshot` took (the guided terms restart there)."""
         self.core.restore(state)
+        self._last_features = None
         self._restart_potential()
+
+    @property
+    def world_state(self) -> EnvState:
+        """The worlds' state as one record (copies): the scene's :class:`~dvrl_marl.core.scene_state.SceneState`, each
+        world's start level and the guided reward's potentials; the device env's ``world_state`` is the same record
+        of JAX arrays. Setting it puts every world there (checked first: a wrong field is named and nothing
+        changes); a seat's filler keeps its own state."""
+        potential = {} if self._guided is None or self._potential is None else \
+            {agent: value.copy() for agent, value in self._potential.items()}
+        return EnvState(scene=self.core.get_state(), levels=self.levels.copy(), potential=potential)
+
+    @world_state.setter
+    def world_state(self, state: EnvState) -> None:
+        if not isinstance(state, EnvState):
+            raise ValueError(f"{self.name}: world_state must be an EnvState record, got {type(state).__name__}")
+        check_state(state.scene, self.core.world_shapes, self.num_envs, self.name)
+        levels = np.asarray(state.levels, dtype=np.float64)
+        if levels.shape != (self.num_envs,):
+            raise ValueError(f"{self.name}: state.levels must have shape ({self.num_envs},), got {levels.shape}")
+        wanted = set(self.possible_agents) if self._guided is not None else set()
+        if set(state.potential) != wanted:
+            raise ValueError(f"{self.name}: state.potential must hold {sorted(wanted)}, got {sorted(state.potential)}")
+        self.core.set_state(state.scene)
+        self.levels = levels.copy()
+        self._last_features = None
+        self._potential = {agent: np.array(value, dtype=np.float64) for agent, value in state.potential.items()} \
+            if wanted else self._potential
 
     def guided_potentials(self) -> dict:
         """``{agent: (N,)}``: the guided reward's potentials in the worlds' present state (empty without it)."""
