@@ -272,7 +272,7 @@ def jax_env_scale() -> Table:
     table = Table(["worlds", "steps", "finite", "the same for the same key", "worlds compared with numpy",
                    "largest difference", "state bytes a world (float32)", "one step's bytes a world (XLA, at N)",
                    "a million worlds' step", "env-steps/s", "compile and first run (s)"])
-    rows = _read(path)
+    rows = _read(path)[-1:]  # (the latest run: the code as it is; the record keeps the earlier ones)
     for row in rows:
         float32 = row.get("state_bytes_per_world_float32")
         step = "-" if "step_bytes_per_world" not in row else \
@@ -285,6 +285,22 @@ def jax_env_scale() -> Table:
                            _count(row["env_steps_per_s"]), f"{row['compile_and_first_run_seconds']:.0f}"])
         table.source(path, row["command"], row["code"]["commit"]
                      + (" (with " + ", ".join(row["code"]["modified"]) + " changed)" if row["code"]["modified"] else ""))
+    return table
+
+
+def speed_side_by_side() -> Table:
+    path = "benchmarks/results/versus_commit_2026-12-01.jsonl"
+    table = Table(["form", "setting", "checkout", "scene", "steps/s (median)", "its steps/s over here's"])
+    rows = _read(path)
+    for row in rows:
+        here = row["checkout"] == "here"
+        checkout = f"here ({row['commit']})" if here else row["commit"]
+        table.rows.append([row["form"], row["setting"], checkout, f"`{row['scene']}`", _count(row["steps_per_s"]),
+                           "-" if row["versus_here"] is None else f"{row['versus_here']:.2f}"])
+    if rows:
+        code = rows[0]["code"]
+        table.source(path, rows[0]["command"], code["commit"]
+                     + (" (with " + ", ".join(code["modified"]) + " changed)" if code["modified"] else ""))
     return table
 
 
@@ -358,6 +374,11 @@ SECTIONS = (
      "XLA's figures for a compiled `jit(vmap(step))` over N worlds (state in and out, actions and temporaries) per "
      "world, and a million worlds scaled from them.",
      jax_env_scale),
+    ("The collaborative step against earlier commits, side by side", "Env-steps per second of this checkout and "
+     "earlier ones (`benchmarks/versus_commit.py`: each measurement a fresh process pinned to one core, checkouts "
+     "alternating, the median of the repeats, random actions); the parallel env is one world with its resets, N = "
+     "4,096 the numpy batched env. 7599cfb is where issue 77 measured the scene; 91b6cb8 the commit before the state "
+     "became a record; 36a42a0 the last commit with the scalar-path versions.", speed_side_by_side),
     ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
      "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),
     ("Training to the target: the compiled trainer", "`dvrl-marl train suction_debris_mappo_large_batch --trainer jax` "
