@@ -290,12 +290,12 @@ def jax_env_scale() -> Table:
 
 def speed_side_by_side() -> Table:
     path = "benchmarks/results/versus_commit_2026-12-01.jsonl"
-    table = Table(["form", "setting", "checkout", "scene", "steps/s (median)", "its steps/s over here's"])
+    table = Table(["form", "setting", "checkout", "scene's version", "steps/s (median)", "its steps/s over here's"])
     rows = _read(path)
     for row in rows:
         here = row["checkout"] == "here"
         checkout = f"here ({row['commit']})" if here else row["commit"]
-        table.rows.append([row["form"], row["setting"], checkout, f"`{row['scene']}`", _count(row["steps_per_s"]),
+        table.rows.append([row["form"], row["setting"], checkout, row["scene"].rsplit("_", 1)[-1], _count(row["steps_per_s"]),
                            "-" if row["versus_here"] is None else f"{row['versus_here']:.2f}"])
     if rows:
         code = rows[0]["code"]
