@@ -422,6 +422,59 @@ def host_address(text: str) -> str:
     return text
 SEED = cli_number(int, low=0, name="seed (>= 0)")
 PORT = cli_number(int, low=0, high=65535, name="port (0-65535)")
+METRES = cli_number(float, low=-1.0, high=1.0, name="position in metres (-1..1)")
+SECONDS = cli_number(float, low=0.0, high=600.0, name="seconds (0-600)")
+
+
+def _robot(args) -> int:
+    """A shipped single-arm policy on a dVRK arm through its socket streamer (dvrl_marl.dvrk), or a dry run."""
+    import time
+
+    import numpy as np
+
+    from dvrl_marl import frames, policies
+    from dvrl_marl.dvrk import ArmLink, DatagramLog, EchoLink, RobotSeat, StreamerLink, SystemLink
+
+    policy = policies.load(args.policy)
+    if policy.spec.get("env_id", "").split("/")[-1].split("-")[0] not in ("PSMReach", "PSMReachDense"):
+        raise ValueError(f"--policy {args.policy}: the robot seat runs Reach policies (reach-lnd, "
+                         f"reach-suction-irrigation); this one is for {policy.spec.get('env_id')!r}")
+    tool = (policy.spec.get("env_kwargs") or {}).get("tool", "lnd")
+    log_path = Path(args.log or Path("runs") / f"robot-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
+    log = DatagramLog(log_path)
+    links = []
+    try:
+        if args.dry_run:
+            start = np.asarray(args.start if args.start else (0.0, 0.0, -0.11))
+            link = EchoLink(args.arm, frames.servo_cp_goal(start, tool=tool), log=log)
+        else:
+            link = StreamerLink(args.arm, args.host, args.port, args.local_port, log=log)
+            links.append(link)
+            if args.power_on or args.home:
+                system = StreamerLink("system", args.host, args.system_port, args.system_local_port, log=log)
+                links.append(system)
+                system_link = SystemLink(system)
+                if args.power_on:
+                    system_link.power_on()
+                    time.sleep(2.0)
+                if args.home:
+                    system_link.home()
+                    time.sleep(args.home_wait)
+        seat = RobotSeat(ArmLink(args.arm, link), policy, goal=args.goal, tool=tool, log=log)
+        summary = seat.run(args.steps)
+    finally:
+        for link in links:
+            link.close()
+        log.close()
+    figures = summary.figures()
+    print(f"{args.arm}{' (dry run: nothing sent)' if args.dry_run else ''}: {summary.stopped}; "
+          f"{figures['steps']} commands, goal {'reached at step ' + str(summary.success_step) if summary.success else 'not reached'}"
+          f" (distance {figures['final_distance_mm']:.1f} mm), period median {figures['period_ms_median']} ms, "
+          f"p99 {figures['period_ms_p99']} ms, tracking error {figures['tracking_error_mm']} mm; log {log_path}")
+    if args.dry_run:
+        for command in summary.commands[: args.show]:
+            print("servo_cp", [round(v, 6) for v in command])
+    return 0 if summary.success or args.dry_run else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -469,6 +522,31 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--width", type=COUNT, default=640)
     render.add_argument("--height", type=COUNT, default=480)
     render.set_defaults(func=_render)
+
+    robot = sub.add_parser("robot", help="a shipped Reach policy on a dVRK arm through the dVRK's socket streamer "
+                           "(UDP, no ROS; docs/robot.md), or --dry-run")
+    robot.add_argument("--policy", default="reach-lnd", help="a shipped Reach policy or its folder (default reach-lnd)")
+    robot.add_argument("--arm", default="PSM1", help="the arm's name, as in the logs (default PSM1)")
+    robot.add_argument("--goal", type=METRES, nargs=3, required=True, metavar=("X", "Y", "Z"),
+                       help="the goal (m) in the arm's base frame, the measured_cp point, inside the env's workspace")
+    robot.add_argument("--host", type=host_address, default="127.0.0.1", help="the dVRK's machine (default 127.0.0.1)")
+    robot.add_argument("--port", type=PORT, default=10001, help="the arm's streamer's port (default 10001)")
+    robot.add_argument("--local-port", type=PORT, default=10002,
+                       help="the port the arm's streamer sends to (its configuration's port; default 10002)")
+    robot.add_argument("--power-on", action="store_true", help="power the system on first (through its streamer)")
+    robot.add_argument("--home", action="store_true", help="home the arms first (through the system's streamer)")
+    robot.add_argument("--home-wait", type=SECONDS, default=10.0, help="seconds to wait after homing (default 10)")
+    robot.add_argument("--system-port", type=PORT, default=10003, help="the system's streamer's port (default 10003)")
+    robot.add_argument("--system-local-port", type=PORT, default=10004,
+                       help="the port the system's streamer sends to (default 10004)")
+    robot.add_argument("--steps", type=COUNT, default=100, help="control periods at most (default 100, the env's)")
+    robot.add_argument("--log", type=output_file, help="the datagrams' log, JSON lines (default runs/robot-<time>.jsonl)")
+    robot.add_argument("--dry-run", action="store_true", help="send nothing: a perfect kinematic arm at --start "
+                       "answers, and the commands are printed")
+    robot.add_argument("--start", type=METRES, nargs=3, metavar=("X", "Y", "Z"),
+                       help="the dry run's start (m; default the workspace centre)")
+    robot.add_argument("--show", type=COUNT, default=5, help="commands a dry run prints (default 5)")
+    robot.set_defaults(func=_robot)
 
     train = sub.add_parser("train", help="train a policy from a configuration (baselines/configs/*.toml)")
     train.add_argument("config", help="configuration TOML file, or the name of a shipped one (e.g. "

@@ -55,7 +55,7 @@ LAYERS = (
     ("envs", "registration", ""),  # ("": the package itself, which registers the environments)
     ("policies",),
     ("agents", "pipeline"),
-    ("seats", "teleop"),
+    ("seats", "teleop", "dvrk"),
     ("datasets",),
     ("teleop.session", "teleop.web", "teleop.person", "integrations", "training"),
     ("demo", "cli"),

@@ -1,0 +1,204 @@
+"""A shipped single-arm policy driving a dVRK PSM, at the environment's control rate, as the environment moves.
+
+Each control period (20 ms: the env's 50 Hz) the seat reads the arm's latest ``measured_cp``, builds the observation
+the policy saw in training from it (the env's frame and normalisation: :func:`dvrl_marl.frames.dvrk_to_env`), asks
+the policy for Delta, moves the environment's own kinematic arm from the measured tip as the env's step does
+(``p <- p + eta * Delta`` in the workspace box, within the joint limits) and sends the result as ``servo_cp`` (the
+tool pointing as in the env: :func:`dvrl_marl.frames.servo_cp_goal`).
+
+Safety first:
+
+- it refuses to move an arm that is not enabled and homed (nothing is sent);
+- a ``measured_cp`` older than ``stale_after_s`` (100 ms), invalid, or unreachable by the kinematics holds the arm
+  (``hold``) and ends the run, saying why;
+- a move the workspace box clamps is clamped and logged;
+- Ctrl-C or SIGTERM holds the arm and ends the run; the log (every datagram both ways) is flushed line by line.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dvrl_marl import frames
+from dvrl_marl.dvrk.arm import ArmLink
+
+__all__ = ["RobotSeat", "RunSummary"]
+
+
+@dataclass
+class RunSummary:
+    """What a run did: steps sent, whether the goal was reached (and at which step), why it stopped, and the
+    figures of its timing and tracking."""
+
+    steps: int = 0
+    success: bool = False
+    success_step: int | None = None
+    final_distance_mm: float | None = None
+    stopped: str = ""
+    clamped: int = 0
+    periods_ms: list = field(default_factory=list)
+    largest_age_ms: float = 0.0
+    tracking_error_mm: float | None = None
+    commands: list = field(default_factory=list)
+
+    def figures(self) -> dict:
+        periods = np.asarray(self.periods_ms) if self.periods_ms else np.zeros(0)
+        return {"steps": self.steps, "success": self.success, "success_step": self.success_step,
+                "final_distance_mm": self.final_distance_mm, "stopped": self.stopped, "clamped": self.clamped,
+                "period_ms_median": None if not len(periods) else round(float(np.median(periods)), 3),
+                "period_ms_p99": None if not len(periods) else round(float(np.percentile(periods, 99)), 3),
+                "largest_measurement_age_ms": round(self.largest_age_ms, 3),
+                "tracking_error_mm": self.tracking_error_mm}
+
+
+class RobotSeat:
+    """``policy`` (a shipped Reach policy: ``policies.load("reach-lnd")``) on ``arm`` towards ``goal`` (metres, the
+    env's frame: the PSM base frame, the measured_cp point). ``env``: the environment whose step it repeats (by
+    default ``PSMReach-v1`` with the policy's tool)."""
+
+    def __init__(self, arm: ArmLink, policy, *, goal, env=None, tool: str = "lnd", rate_hz: float = 50.0,
+                 stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
+        if env is None:
+            import gymnasium as gym
+
+            import dvrl_marl  # noqa: F401  (registers the environments)
+
+            env = gym.make("dvrl_marl/PSMReach-v1", tool=tool)
+        self.env = env.unwrapped
+        self.env.reset(seed=0)  # (its arm and goal made; each step then starts from the measured tip)
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
+            raise ValueError(f"rate_hz must be in (0, 1000], got {rate_hz!r}")
+        if not (isinstance(stale_after_s, (int, float)) and math.isfinite(stale_after_s) and stale_after_s > 0):
+            raise ValueError(f"stale_after_s must be a positive number of seconds, got {stale_after_s!r}")
+        self.arm, self.policy = arm, policy
+        self.tool = self.env.tool.name if hasattr(self.env.tool, "name") else tool
+        self.goal = self.env.parse_reset_options({"goal": goal})["goal"]  # (checked as the env checks a goal)
+        self.period = 1.0 / rate_hz
+        self.stale_after = float(stale_after_s)
+        self.clock, self.sleep = clock, sleep
+        self.log = log if log is not None else arm.link.log
+        self.tip_frame = getattr(self.env, "tip_frame", "measured_cp")
+
+    # --- one control period -------------------------------------------------------------------------------------
+    def observation(self, tip) -> dict:
+        """The env's observation for a tip ``p`` (metres, env frame) and the seat's goal."""
+        tip = self.env.normalise(np.asarray(tip, dtype=np.float64))
+        return {"observation": tip.copy(), "achieved_goal": tip.copy(),
+                "desired_goal": self.env.normalise(self.goal)}
+
+    def target(self, tip, action) -> tuple[np.ndarray, bool]:
+        """Where the env's step takes the tip from ``tip`` by ``action``, and whether the box clamped it."""
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1)[:3], -1.0, 1.0)
+        self.env.set_state(tip=tip, goal=self.goal)
+        self.env.step(action.astype(np.float32))
+        reached = np.asarray(self.env.arm.tip, dtype=np.float64)
+        unclamped = np.asarray(tip, dtype=np.float64) + self.env.step_size * action
+        return reached, not np.allclose(reached, unclamped, atol=1e-9)
+
+    def _stop(self, summary: RunSummary, reason: str, **details) -> None:
+        self.arm.hold()
+        summary.stopped = reason
+        self.log.note(self.clock(), "hold", reason=reason, **details)
+
+    # --- a run --------------------------------------------------------------------------------------------------
+    def wait_until_ready(self, timeout_s: float = 2.0) -> tuple[bool, str]:
+        """Read the streamer until the arm says it is enabled and homed and a measured_cp has come (or the time is
+        up)."""
+        deadline = self.clock() + timeout_s
+        while True:
+            self.arm.update()
+            ready, why = self.arm.ready()
+            if ready and self.arm.measured_cp() is None:
+                ready, why = False, f"{self.arm.name}: no measured_cp received"
+            if ready or self.clock() >= deadline:
+                return ready, why
+            self.sleep(0.01)
+
+    def run(self, steps: int = 100, *, stop_on_success: bool = True, settle_s: float = 0.5) -> RunSummary:
+        """Up to ``steps`` control periods (the env's episode: 100); returns a :class:`RunSummary`."""
+        if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+            raise ValueError(f"steps must be a positive integer, got {steps!r}")
+        summary = RunSummary()
+        ready, why = self.wait_until_ready()
+        if not ready:  # refuse to move: nothing is sent
+            summary.stopped = f"refused: {why}"
+            self.log.note(self.clock(), "refused", reason=why)
+            return summary
+        previous_handler = None
+        if threading.current_thread() is threading.main_thread():
+            previous_handler = signal.signal(signal.SIGTERM, _raise_interrupt)
+        last_target = None
+        try:
+            start = self.clock()
+            deadline = start
+            last_sent = None
+            for step in range(steps):
+                self.arm.update()
+                measured = self.arm.measured_cp()
+                now = self.clock()
+                age = math.inf if measured is None else now - measured.received
+                summary.largest_age_ms = max(summary.largest_age_ms, 1000.0 * age if math.isfinite(age) else 0.0)
+                if measured is None or not measured.valid or age > self.stale_after:
+                    why = "no measured_cp" if measured is None else \
+                        "measured_cp invalid" if not measured.valid else f"measured_cp {1000 * age:.0f} ms old"
+                    self._stop(summary, f"stale measurement: {why}", step=step)
+                    break
+                tip = frames.dvrk_to_env(measured.position, tool=self.tool, env_tip_frame=self.tip_frame)
+                distance = float(np.linalg.norm(tip - self.goal))
+                summary.final_distance_mm = 1000.0 * distance
+                if distance <= self.env.distance_threshold and not summary.success:
+                    summary.success, summary.success_step = True, step
+                    if stop_on_success:
+                        break
+                try:
+                    target, clamped = self.target(tip, self.policy(self.observation(tip)))
+                except Exception as error:  # noqa: BLE001  (an unreachable measured tip, a policy that fails)
+                    self._stop(summary, f"cannot act: {error}", step=step)
+                    break
+                if clamped:
+                    summary.clamped += 1
+                    self.log.note(now, "clamped", step=step, target=target.tolist())
+                goal = frames.servo_cp_goal(target, tool=self.tool, env_tip_frame=self.tip_frame)
+                self.arm.servo_cp(goal)
+                sent = self.clock()
+                if last_sent is not None:
+                    summary.periods_ms.append(1000.0 * (sent - last_sent))
+                last_sent, last_target = sent, goal[:3, 3]
+                summary.steps += 1
+                summary.commands.append(goal[:3, 3].tolist())
+                deadline += self.period
+                self.sleep(max(0.0, deadline - self.clock()))
+            else:
+                summary.stopped = "steps done"
+            if not summary.stopped:
+                summary.stopped = "goal reached" if summary.success else "steps done"
+            if last_target is not None and settle_s > 0 and not summary.stopped.startswith(("stale", "cannot")):
+                summary.tracking_error_mm = self._settled_error(last_target, settle_s)
+        except KeyboardInterrupt:
+            self._stop(summary, "interrupted (Ctrl-C or SIGTERM)")
+        finally:
+            if previous_handler is not None:
+                signal.signal(signal.SIGTERM, previous_handler)
+        self.log.note(self.clock(), "end", **summary.figures())
+        return summary
+
+    def _settled_error(self, commanded, settle_s: float) -> float | None:
+        """|commanded - measured| (mm) of the last goal, ``settle_s`` after it was sent."""
+        end = self.clock() + settle_s
+        while self.clock() < end:
+            self.sleep(min(0.01, max(0.0, end - self.clock())))
+            self.arm.update()
+        measured = self.arm.measured_cp()
+        if measured is None:
+            return None
+        return round(1000.0 * float(np.linalg.norm(measured.position - np.asarray(commanded))), 4)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt

@@ -1,0 +1,227 @@
+"""The dVRK bridge without a robot: the wire's rules (datagram size, JSON both ways over a real UDP socket), the
+robot seat's safety stops (not ready, a stale or invalid measurement, Ctrl-C / SIGTERM, a clamped move), the
+observation and the commands it builds against the environment's own, and the command line's dry run. The recorded
+runs against the dVRK's own software are replayed in ``test_dvrk_recorded.py``."""
+
+import json
+import signal
+import socket
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dvrl_marl  # noqa: F401
+from dvrl_marl import frames, policies
+from dvrl_marl.cli import main
+from dvrl_marl.dvrk import MAX_DATAGRAM, ArmLink, DatagramLog, EchoLink, ReplayLink, RobotSeat, StreamerLink, read_log
+from dvrl_marl.dvrk.link import encode
+
+
+class Clock:
+    """A clock the seat reads and sleeps on (no real waiting)."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+    def sleep(self, seconds):
+        self.t += max(seconds, 0.0)
+
+
+def _episode(seed=3):
+    env = gym.make("dvrl_marl/PSMReach-v1")
+    observation, _ = env.reset(seed=seed)
+    return env, observation, np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
+
+
+def test_a_datagram_the_streamer_would_cut_is_refused_by_name():
+    goal = frames.servo_cp_goal(np.array([0.01, -0.02, -0.1]))
+    from dvrl_marl.dvrk.arm import cartesian_goal
+
+    assert len(encode({"servo_cp": {"Goal": cartesian_goal(goal)}}, "PSM1")) <= MAX_DATAGRAM
+    with pytest.raises(ValueError, match=r"PSM1: the datagram for \['servo_cp'\] is \d+ bytes; the streamer reads at "
+                                         r"most 1023"):
+        encode({"servo_cp": {"Goal": "x" * 2000}}, "PSM1")
+    with pytest.raises(ValueError, match="Out of range float values are not JSON compliant"):
+        encode({"jaw/servo_jp": {"Goal": [float("nan")]}}, "PSM1")
+    with pytest.raises(ValueError, match="a finite 4x4 pose"):
+        cartesian_goal(np.eye(3))
+
+
+def test_the_link_talks_json_over_udp_and_logs_both_ways(tmp_path):
+    streamer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    streamer.bind(("127.0.0.1", 0))
+    streamer.settimeout(2.0)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        local_port = probe.getsockname()[1]
+    log = DatagramLog(tmp_path / "run.jsonl")
+    link = StreamerLink("PSM1", "127.0.0.1", streamer.getsockname()[1], local_port, log=log)
+    try:
+        measured = {"measured_cp": {"Position": {"Translation": [0.0, 0.0, -0.1], "Rotation": np.eye(3).tolist()},
+                                    "Valid": True, "Timestamp": 1.5}}
+        streamer.sendto(json.dumps(measured).encode(), ("127.0.0.1", local_port))
+        streamer.sendto(b"not json", ("127.0.0.1", local_port))
+        for _ in range(200):
+            link.receive()
+            if link.received and link.unreadable:
+                break
+            import time
+
+            time.sleep(0.005)
+        arm = ArmLink("PSM1", link)
+        assert arm.measured_cp().timestamp == 1.5 and link.unreadable == 1
+        arm.servo_cp(frames.servo_cp_goal(np.array([0.0, 0.0, -0.1])))
+        data, sender = streamer.recvfrom(2048)
+        assert sender[1] == local_port  # (sent from the port the streamer sends to: it answers whoever wrote last)
+        assert json.loads(data)["servo_cp"]["Goal"]["Translation"] == [0.0, 0.0, -0.1]
+    finally:
+        link.close()
+        streamer.close()
+        log.close()
+    lines = read_log(tmp_path / "run.jsonl")
+    assert [line["dir"] for line in lines] == ["in", "in", "out"] and lines[1]["data"] == {"unreadable": "not json"}
+    with pytest.raises(ValueError, match="cannot listen on UDP port"):
+        StreamerLink("PSM1", "127.0.0.1", 1, local_port=_busy_port(), log=log)
+
+
+def _busy_port():
+    held = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    held.bind(("", 0))
+    _busy_port.held = held  # (kept open while the test asks for it)
+    return held.getsockname()[1]
+
+
+def test_the_dry_run_sends_what_the_env_does_from_the_same_tip():
+    env, observation, start, goal = _episode()
+    policy = policies.load("reach-lnd")
+    clock = Clock()
+    link = EchoLink("PSM1", frames.servo_cp_goal(start), clock=clock)
+    seat = RobotSeat(ArmLink("PSM1", link), policy, goal=goal, clock=clock, sleep=clock.sleep)
+    np.testing.assert_allclose(seat.observation(start)["observation"], observation["observation"], atol=1e-12)
+    np.testing.assert_allclose(seat.observation(start)["desired_goal"], observation["desired_goal"], atol=1e-12)
+    summary = seat.run(100)
+    for index, (_, payload) in enumerate(link.outbox):
+        observation, _, _, _, info = env.step(policy(observation))
+        np.testing.assert_allclose(payload["servo_cp"]["Goal"]["Translation"], env.unwrapped.arm.tip, atol=1e-9,
+                                   err_msg=f"command {index}")
+    assert summary.success and info["is_success"] and summary.stopped == "goal reached"
+    assert summary.figures()["period_ms_p99"] == pytest.approx(20.0)
+
+
+def _replay(lines, clock):
+    return ReplayLink("PSM1", lines, clock=clock)
+
+
+def _measured(t, position, valid=True):
+    return {"t": t, "link": "PSM1", "dir": "in",
+            "data": {"measured_cp": {"Position": {"Translation": list(position), "Rotation": np.eye(3).tolist()},
+                                     "Valid": valid, "Timestamp": t}}}
+
+
+def _state(t, state="ENABLED", homed=True):
+    return {"t": t, "link": "PSM1", "dir": "in", "data": {"operating_state": {"State": state, "IsHomed": homed}}}
+
+
+@pytest.mark.parametrize("state, homed, why", [("DISABLED", True, "operating state is 'DISABLED'"),
+                                               ("ENABLED", False, "not homed"), (None, None, "no operating_state")])
+def test_an_arm_that_is_not_enabled_and_homed_is_never_moved(state, homed, why):
+    _, _, start, goal = _episode()
+    clock = Clock()
+    lines = [_measured(0.0, start)] + ([] if state is None else [_state(0.0, state, homed)])
+    link = _replay(lines, clock)
+    summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, clock=clock,
+                        sleep=clock.sleep).run(100)
+    assert summary.stopped.startswith("refused") and why in summary.stopped
+    assert link.outbox == [] and summary.steps == 0
+
+
+def test_a_stale_measurement_holds_the_arm_within_100_ms():
+    _, _, start, goal = _episode()
+    clock = Clock()
+    link = _replay([_state(0.0), _measured(0.0, start)], clock)  # one measurement, then the streamer falls silent
+    summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, clock=clock,
+                        sleep=clock.sleep).run(100)
+    sent = [payload for _, payload in link.outbox]
+    assert summary.stopped.startswith("stale measurement: measured_cp") and sent[-1] == {"hold": ""}
+    hold_time = link.outbox[-1][0]
+    assert hold_time - 100.0 <= 0.1 + 0.02 + 1e-9  # (at the first period past 100 ms)
+    assert all("servo_cp" in payload for payload in sent[:-1]) and len(sent) - 1 == summary.steps == 6
+
+
+def test_an_invalid_measurement_holds_the_arm():
+    _, _, start, goal = _episode()
+    clock = Clock()
+    link = _replay([_state(0.0), _measured(0.0, start, valid=False)], clock)
+    summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, clock=clock,
+                        sleep=clock.sleep).run(10)
+    assert summary.stopped == "stale measurement: measured_cp invalid"
+    assert [payload for _, payload in link.outbox] == [{"hold": ""}]
+
+
+class Interrupted:
+    """A policy that is interrupted (Ctrl-C, or SIGTERM raised as one) at its ``at``-th call."""
+
+    def __init__(self, at, signum=None):
+        self.calls, self.at, self.signum = 0, at, signum
+        self.policy = policies.load("reach-lnd")
+
+    def __call__(self, observation):
+        self.calls += 1
+        if self.calls == self.at:
+            if self.signum is None:
+                raise KeyboardInterrupt
+            signal.raise_signal(self.signum)
+        return self.policy(observation)
+
+
+@pytest.mark.parametrize("signum", [None, signal.SIGTERM])
+def test_ctrl_c_or_sigterm_holds_the_arm_and_keeps_the_log(tmp_path, signum):
+    _, _, start, goal = _episode()
+    clock = Clock()
+    log = DatagramLog(tmp_path / "run.jsonl")
+    link = EchoLink("PSM1", frames.servo_cp_goal(start), clock=clock, log=log)
+    before = signal.getsignal(signal.SIGTERM)
+    summary = RobotSeat(ArmLink("PSM1", link), Interrupted(5, signum), goal=goal, clock=clock,
+                        sleep=clock.sleep, log=log).run(100)
+    log.close()
+    assert summary.stopped == "interrupted (Ctrl-C or SIGTERM)" and link.outbox[-1][1] == {"hold": ""}
+    assert summary.steps == 4 and signal.getsignal(signal.SIGTERM) is before
+    notes = [line["data"]["what"] for line in read_log(tmp_path / "run.jsonl") if line["dir"] == "note"]
+    assert notes == ["hold", "end"]
+
+
+def test_a_move_the_workspace_box_clamps_is_clamped_and_logged(tmp_path):
+    env = gym.make("dvrl_marl/PSMReach-v1").unwrapped
+    env.reset(seed=0)
+    corner = np.array(env.tip_high)  # (the box's corner: every outward move is clamped)
+    clock = Clock()
+    log = DatagramLog(tmp_path / "run.jsonl")
+    link = EchoLink("PSM1", frames.servo_cp_goal(corner), clock=clock, log=log)
+    outward = lambda observation: np.ones(3, dtype=np.float32)  # noqa: E731
+    summary = RobotSeat(ArmLink("PSM1", link), outward, goal=env.goal, clock=clock, sleep=clock.sleep,
+                        log=log).run(5)
+    log.close()
+    assert summary.clamped == 5 and summary.steps == 5
+    for _, payload in link.outbox:
+        assert np.all(np.asarray(payload["servo_cp"]["Goal"]["Translation"]) <= corner + 1e-12)
+    assert sum(line["data"].get("what") == "clamped" for line in read_log(tmp_path / "run.jsonl")) == 5
+
+
+def test_the_command_line_dry_run_and_its_refusals(tmp_path, capsys):
+    _, _, start, goal = _episode()
+    log = tmp_path / "dry.jsonl"
+    assert main(["robot", "--dry-run", "--goal", *map(str, goal), "--start", *map(str, start), "--log",
+                 str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "PSM1 (dry run: nothing sent): goal reached" in out and out.count("servo_cp [") == 5
+    assert len([line for line in read_log(log) if line["dir"] == "out"]) > 10
+    assert main(["robot", "--dry-run", "--goal", "0.5", "0", "-0.1"]) == 2  # outside the workspace: said, no traceback
+    assert "goal" in capsys.readouterr().err
+    assert main(["robot", "--dry-run", "--policy", "pick-lnd", "--goal", "0", "0", "-0.1"]) == 2
+    assert "runs Reach policies" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["robot", "--goal", "0", "0", "nan"])
