@@ -435,6 +435,16 @@ def _robot(args) -> int:
     from dvrl_marl import frames, policies
     from dvrl_marl.dvrk import ArmLink, DatagramLog, EchoLink, RobotSeat, StreamerLink, SystemLink
 
+    if args.write_configs:
+        from dvrl_marl.dvrk.configs import write_configs
+
+        manager = write_configs(args.write_configs, arm=args.arm, ip=args.seat_ip, arm_port=args.local_port,
+                                system_port=args.system_local_port)
+        print(f"wrote the streamers' files in {manager.parent}; start the dVRK's system program there with "
+              f"-m {manager.name} (docs/robot.md)")
+        return 0
+    if args.goal is None:
+        raise ValueError("robot: --goal X Y Z is needed (metres, the arm's base frame)")
     policy = policies.load(args.policy)
     if policy.spec.get("env_id", "").split("/")[-1].split("-")[0] not in ("PSMReach", "PSMReachDense"):
         raise ValueError(f"--policy {args.policy}: the robot seat runs Reach policies (reach-lnd, "
@@ -448,15 +458,16 @@ def _robot(args) -> int:
             start = np.asarray(args.start if args.start else (0.0, 0.0, -0.11))
             link = EchoLink(args.arm, frames.servo_cp_goal(start, tool=tool), log=log)
         else:
-            link = StreamerLink(args.arm, args.host, args.port, args.local_port, log=log)
+            link = StreamerLink(args.arm, args.local_port, host=args.host, log=log)
             links.append(link)
             if args.power_on or args.home:
-                system = StreamerLink("system", args.host, args.system_port, args.system_local_port, log=log)
+                system = StreamerLink("system", args.system_local_port, host=args.host, log=log)
                 links.append(system)
                 system_link = SystemLink(system)
+                system_link.wait_heard(timeout_s=5.0)
                 if args.power_on:
                     system_link.power_on()
-                    time.sleep(2.0)
+                    time.sleep(args.home_wait / 2)
                 if args.home:
                     system_link.home()
                     time.sleep(args.home_wait)
@@ -527,16 +538,15 @@ def build_parser() -> argparse.ArgumentParser:
                            "(UDP, no ROS; docs/robot.md), or --dry-run")
     robot.add_argument("--policy", default="reach-lnd", help="a shipped Reach policy or its folder (default reach-lnd)")
     robot.add_argument("--arm", default="PSM1", help="the arm's name, as in the logs (default PSM1)")
-    robot.add_argument("--goal", type=METRES, nargs=3, required=True, metavar=("X", "Y", "Z"),
+    robot.add_argument("--goal", type=METRES, nargs=3, metavar=("X", "Y", "Z"),
                        help="the goal (m) in the arm's base frame, the measured_cp point, inside the env's workspace")
-    robot.add_argument("--host", type=host_address, default="127.0.0.1", help="the dVRK's machine (default 127.0.0.1)")
-    robot.add_argument("--port", type=PORT, default=10001, help="the arm's streamer's port (default 10001)")
+    robot.add_argument("--host", type=host_address, default="127.0.0.1",
+                       help="the dVRK's machine: datagrams from elsewhere are ignored (default 127.0.0.1)")
     robot.add_argument("--local-port", type=PORT, default=10002,
                        help="the port the arm's streamer sends to (its configuration's port; default 10002)")
     robot.add_argument("--power-on", action="store_true", help="power the system on first (through its streamer)")
     robot.add_argument("--home", action="store_true", help="home the arms first (through the system's streamer)")
     robot.add_argument("--home-wait", type=SECONDS, default=10.0, help="seconds to wait after homing (default 10)")
-    robot.add_argument("--system-port", type=PORT, default=10003, help="the system's streamer's port (default 10003)")
     robot.add_argument("--system-local-port", type=PORT, default=10004,
                        help="the port the system's streamer sends to (default 10004)")
     robot.add_argument("--steps", type=COUNT, default=100, help="control periods at most (default 100, the env's)")
@@ -546,6 +556,11 @@ def build_parser() -> argparse.ArgumentParser:
     robot.add_argument("--start", type=METRES, nargs=3, metavar=("X", "Y", "Z"),
                        help="the dry run's start (m; default the workspace centre)")
     robot.add_argument("--show", type=COUNT, default=5, help="commands a dry run prints (default 5)")
+    robot.add_argument("--write-configs", metavar="DIR", type=output_folder, help="write the streamers' "
+                       "configuration files (the arm's, the system's and the component manager's) into DIR and stop")
+    robot.add_argument("--seat-ip", type=host_address, default="127.0.0.1",
+                       help="with --write-configs: the address the streamers send to (this machine's; default "
+                       "127.0.0.1)")
     robot.set_defaults(func=_robot)
 
     train = sub.add_parser("train", help="train a policy from a configuration (baselines/configs/*.toml)")

@@ -59,8 +59,10 @@ def test_the_link_talks_json_over_udp_and_logs_both_ways(tmp_path):
         probe.bind(("127.0.0.1", 0))
         local_port = probe.getsockname()[1]
     log = DatagramLog(tmp_path / "run.jsonl")
-    link = StreamerLink("PSM1", "127.0.0.1", streamer.getsockname()[1], local_port, log=log)
+    link = StreamerLink("PSM1", local_port, host="127.0.0.1", log=log)
     try:
+        with pytest.raises(RuntimeError, match="nothing heard from its streamer yet"):
+            link.send({"hold": ""})  # (its address comes with its datagrams)
         measured = {"measured_cp": {"Position": {"Translation": [0.0, 0.0, -0.1], "Rotation": np.eye(3).tolist()},
                                     "Valid": True, "Timestamp": 1.5}}
         streamer.sendto(json.dumps(measured).encode(), ("127.0.0.1", local_port))
@@ -76,7 +78,7 @@ def test_the_link_talks_json_over_udp_and_logs_both_ways(tmp_path):
         assert arm.measured_cp().timestamp == 1.5 and link.unreadable == 1
         arm.servo_cp(frames.servo_cp_goal(np.array([0.0, 0.0, -0.1])))
         data, sender = streamer.recvfrom(2048)
-        assert sender[1] == local_port  # (sent from the port the streamer sends to: it answers whoever wrote last)
+        assert sender[1] == local_port  # (sent from the port the streamer sends to, to the port it sends from)
         assert json.loads(data)["servo_cp"]["Goal"]["Translation"] == [0.0, 0.0, -0.1]
     finally:
         link.close()
@@ -85,7 +87,9 @@ def test_the_link_talks_json_over_udp_and_logs_both_ways(tmp_path):
     lines = read_log(tmp_path / "run.jsonl")
     assert [line["dir"] for line in lines] == ["in", "in", "out"] and lines[1]["data"] == {"unreadable": "not json"}
     with pytest.raises(ValueError, match="cannot listen on UDP port"):
-        StreamerLink("PSM1", "127.0.0.1", 1, local_port=_busy_port(), log=log)
+        StreamerLink("PSM1", _busy_port(), log=log)
+    with pytest.raises(ValueError, match="local_port must be a UDP port"):
+        StreamerLink("PSM1", 70000)
 
 
 def _busy_port():
@@ -225,3 +229,20 @@ def test_the_command_line_dry_run_and_its_refusals(tmp_path, capsys):
     assert "runs Reach policies" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["robot", "--goal", "0", "0", "nan"])
+
+
+def test_the_streamers_files_carry_what_the_seat_reads_and_sends(tmp_path, capsys):
+    assert main(["robot", "--write-configs", str(tmp_path / "seat"), "--arm", "PSM2", "--local-port", "12000",
+                 "--system-local-port", "12001"]) == 0
+    assert "-m manager-PSM2.json" in capsys.readouterr().out
+    arm = json.loads((tmp_path / "seat" / "streamer-PSM2.json").read_text())
+    system = json.loads((tmp_path / "seat" / "streamer-system.json").read_text())
+    manager = json.loads((tmp_path / "seat" / "manager-PSM2.json").read_text())
+    assert (arm["ip"], arm["port"], system["port"]) == ("127.0.0.1", "12000", "12001")
+    assert {"measured_cp", "operating_state"} <= {c["name"] for c in arm["read-commands"]}
+    assert {c["name"] for c in arm["write-commands"]} == {"servo_cp", "jaw/servo_jp"} and "hold" in arm["void-commands"]
+    assert {"power_on", "home"} <= set(system["void-commands"]) and system["read-commands"]
+    assert [c["configure-parameter"] for c in manager["components"]] == ["streamer-PSM2.json", "streamer-system.json"]
+    assert [c["provided"] for c in manager["connections"]] == [{"component": "PSM2", "interface": "Arm"},
+                                                               {"component": "system", "interface": "Main"}]
+    assert main(["robot"]) == 2 and "--goal X Y Z is needed" in capsys.readouterr().err

@@ -124,3 +124,18 @@ class SystemLink:
 
     def update(self) -> int:
         return self.link.receive()
+
+    def wait_heard(self, timeout_s: float = 5.0, sleep=None) -> None:
+        """Read until the system's streamer has been heard (its address is learnt from its datagrams)."""
+        import time
+
+        sleep = sleep or time.sleep
+        deadline = self.link.clock() + timeout_s
+        while not self.link.latest:
+            self.link.receive()
+            if self.link.latest:
+                return
+            if self.link.clock() >= deadline:
+                raise RuntimeError(f"system: nothing heard from its streamer in {timeout_s:.0f} s (is the dVRK's system "
+                                   "program running with the streamers' files, sending to this machine?)")
+            sleep(0.01)

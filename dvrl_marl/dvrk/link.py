@@ -8,8 +8,10 @@ The streamer's protocol, as its sources (release 1.2.0, the dVRK 2.4.0's) have i
   and the events as they come (``{"operating_state": {...}}``);
 - its receive buffer is 1,024 bytes and it writes a terminator after what it read: a datagram longer than 1,023
   bytes would be cut, so :meth:`StreamerLink.send` refuses one;
-- it sends to the ``ip:port`` of its configuration file and reads what reaches its own port: the link binds the
-  configured port and sends from that socket.
+- it sends to the ``ip:port`` of its configuration file from a socket it never binds (the system gives it a port
+  when it first sends) and takes commands from whoever writes to that socket: the link binds the configured port,
+  learns the streamer's address from the datagrams it receives and sends to it from the same socket (nothing can be
+  sent before the streamer has been heard).
 
 Every datagram in and out is written to a :class:`DatagramLog` (JSON lines, flushed line by line: a run that is
 stopped keeps what it logged) that :class:`ReplayLink` plays back.
@@ -85,16 +87,17 @@ def encode(payload: dict, who: str) -> bytes:
 
 
 class StreamerLink:
-    """A UDP socket bound to ``local_port`` (the port the streamer's configuration sends to) that sends to the
-    streamer at ``host:port``. :meth:`receive` drains what has arrived and keeps the latest value of each key with
-    the time it arrived (:attr:`latest`)."""
+    """A UDP socket bound to ``local_port`` (the port the streamer's configuration sends to) that answers the
+    streamer at the address its datagrams come from (from ``host`` only, when given: others are logged and
+    ignored). :meth:`receive` drains what has arrived and keeps the latest value of each key with the time it arrived
+    (:attr:`latest`)."""
 
-    def __init__(self, name: str, host: str, port: int, local_port: int, *, log: DatagramLog | None = None,
+    def __init__(self, name: str, local_port: int, *, host: str | None = None, log: DatagramLog | None = None,
                  clock=time.monotonic):
-        for label, value in (("port", port), ("local_port", local_port)):
-            if not isinstance(value, int) or isinstance(value, bool) or not 0 < value < 65536:
-                raise ValueError(f"{name}: {label} must be a UDP port in 1..65535, got {value!r}")
-        self.name, self.address = name, (host, port)
+        if not isinstance(local_port, int) or isinstance(local_port, bool) or not 0 < local_port < 65536:
+            raise ValueError(f"{name}: local_port must be a UDP port in 1..65535, got {local_port!r}")
+        self.name, self.host = name, host
+        self.address = None  # the streamer's, once heard
         self.log = log or DatagramLog()
         self.clock = clock
         self.latest: dict[str, tuple[float, object]] = {}
@@ -108,9 +111,13 @@ class StreamerLink:
             self._socket.close()
             raise ValueError(f"{name}: cannot listen on UDP port {local_port}: {error}") from None
         self._socket.setblocking(False)
+        self.local_port = local_port
 
     def send(self, payload: dict) -> None:
         data = encode(payload, self.name)
+        if self.address is None:
+            raise RuntimeError(f"{self.name}: nothing heard from its streamer yet (its address comes with its "
+                               f"datagrams); is it running and sending to this machine's port {self.local_port}?")
         self._socket.sendto(data, self.address)
         self.sent += 1
         self.log.write(self.clock(), self.name, "out", payload)
@@ -121,10 +128,14 @@ class StreamerLink:
         count = 0
         while True:
             try:
-                data, _ = self._socket.recvfrom(65536)
+                data, sender = self._socket.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 return count
+            if self.host is not None and sender[0] != self.host:
+                self.log.write(self.clock(), self.name, "note", {"what": "ignored", "from": list(sender)})
+                continue
             count += 1
+            self.address = sender  # (the streamer answers from the socket it sends from)
             self._take(data.decode(errors="replace"))
 
     def _take(self, text: str) -> None:
