@@ -240,7 +240,8 @@ def test_the_streamers_files_carry_what_the_seat_reads_and_sends(tmp_path, capsy
     manager = json.loads((tmp_path / "seat" / "manager-PSM2.json").read_text())
     assert (arm["ip"], arm["port"], system["port"]) == ("127.0.0.1", "12000", "12001")
     assert {"measured_cp", "operating_state"} <= {c["name"] for c in arm["read-commands"]}
-    assert {c["name"] for c in arm["write-commands"]} == {"servo_cp", "jaw/servo_jp"} and "hold" in arm["void-commands"]
+    assert {c["name"] for c in arm["write-commands"]} == {"servo_cp", "move_cp", "jaw/servo_jp"}
+    assert "hold" in arm["void-commands"]
     assert {"power_on", "home"} <= set(system["void-commands"]) and system["read-commands"]
     assert [c["configure-parameter"] for c in manager["components"]] == ["streamer-PSM2.json", "streamer-system.json"]
     assert [c["provided"] for c in manager["connections"]] == [{"component": "PSM2", "interface": "Arm"},

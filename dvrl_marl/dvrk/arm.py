@@ -3,7 +3,7 @@
 What the arm's streamer must carry (its configuration file's ``read-commands``, ``write-commands``,
 ``void-commands`` and ``write-events``; ``docs/robot.md`` gives the files): it reads ``measured_cp``
 (``prmPositionCartesianGet``), ``measured_js`` and ``jaw/measured_js`` (``prmStateJoint``) and ``operating_state``
-(``prmOperatingState``, and its event); it writes ``servo_cp`` (``prmPositionCartesianSet``) and ``jaw/servo_jp``
+(``prmOperatingState``, and its event); it writes ``servo_cp`` and ``move_cp`` (``prmPositionCartesianSet``) and ``jaw/servo_jp``
 (``prmPositionJointSet``); ``hold`` and ``freeze`` are void commands. The system's streamer carries the void
 commands ``power_on`` and ``home`` (an arm's ``state_command`` takes a string, which the streamer cannot carry).
 """
@@ -96,6 +96,11 @@ class ArmLink:
 
     def servo_cp(self, pose) -> None:
         self.link.send({"servo_cp": {"Goal": cartesian_goal(pose)}})
+
+    def move_cp(self, pose) -> None:
+        """Go to ``pose`` by the dVRK's own trajectory generator (``move_cp``): a start pose, reached safely; the
+        operating state's ``IsBusy`` says when it is done."""
+        self.link.send({"move_cp": {"Goal": cartesian_goal(pose)}})
 
     def jaw_servo_jp(self, angle: float) -> None:
         if not np.isfinite(angle):

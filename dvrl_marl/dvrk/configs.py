@@ -19,7 +19,8 @@ ARM_READS = (("measured_cp", "prmPositionCartesianGet"), ("measured_js", "prmSta
              ("jaw/measured_js", "prmStateJoint"), ("setpoint_cp", "prmPositionCartesianGet"),
              ("operating_state", "prmOperatingState"))
 #: What it sends an arm.
-ARM_WRITES = (("servo_cp", "prmPositionCartesianSet"), ("jaw/servo_jp", "prmPositionJointSet"))
+ARM_WRITES = (("servo_cp", "prmPositionCartesianSet"), ("move_cp", "prmPositionCartesianSet"),
+              ("jaw/servo_jp", "prmPositionJointSet"))
 ARM_VOIDS = ("hold", "freeze")
 
 

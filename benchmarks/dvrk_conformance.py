@@ -1,0 +1,176 @@
+"""The robot seat against the dVRK's own software: ``reach-lnd`` on the dVRK's kinematically simulated PSM1 (Large
+Needle Driver), through its socket streamer, for seeded goals; then the stale-measurement hold, timed with the dVRK's
+process stopped mid-run.
+
+Needs the dVRK's system program built with the socket streamer (release 2.4.0; the project does not build it:
+``docs/robot.md``). Each episode is the env's: ``PSMReach-v1`` reset with the seed gives the start and the goal; the
+arm goes to the start by the dVRK's own trajectory (``move_cp``), then the seat runs at most 100 steps. Every datagram
+both ways is logged (``--logs``), and the figures go to a JSON record:
+
+    python benchmarks/dvrk_conformance.py --system /path/to/sawIntuitiveResearchKitSystem \\
+        --share /path/to/sawIntuitiveResearchKit/share --library-path /path/to/lib:/path/to/other/lib \\
+        --episodes 20 --json benchmarks/results/dvrk_conformance_2026-12-01.json --logs tests/dvrk_recordings
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import provenance  # noqa: E402
+
+ARM_PORT, SYSTEM_PORT = 10002, 10004
+
+
+def start_system(system: str, share: Path, folder: Path, library_path: str) -> subprocess.Popen:
+    """The dVRK's system program with PSM1 in kinematic simulation and the streamers, text only (its standard input
+    kept open: a pipe)."""
+    environment = {**os.environ, "LD_LIBRARY_PATH": library_path + ":" + os.environ.get("LD_LIBRARY_PATH", "")}
+    command = [system, "-t", "-j", str(share / "system" / "system-PSM1_Classic_KIN_SIMULATED.json"),
+               "-m", "manager-PSM1.json"]
+    return subprocess.Popen(command, cwd=folder, env=environment, stdin=subprocess.PIPE,
+                            stdout=open(folder / "system.out", "w"), stderr=subprocess.STDOUT)
+
+
+def wait_for(predicate, arm, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        arm.update()
+        if predicate():
+            return
+        time.sleep(0.01)
+    raise RuntimeError(f"timed out waiting for {what}; operating_state: {arm.operating_state}")
+
+
+def go_to(arm, pose, timeout_s: float = 10.0) -> float:
+    """The dVRK's own trajectory to ``pose`` (``move_cp``); returns how far (mm) the measured tip ended from it."""
+    arm.move_cp(pose)
+    time.sleep(0.1)
+    wait_for(lambda: arm.operating_state and not arm.operating_state.get("IsBusy", False), arm, timeout_s,
+             "the move to the start")
+    time.sleep(0.2)
+    arm.update()
+    return 1000.0 * float(np.linalg.norm(arm.measured_cp().position - pose[:3, 3]))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--system", required=True, help="the dVRK's sawIntuitiveResearchKitSystem")
+    parser.add_argument("--share", type=Path, required=True, help="sawIntuitiveResearchKit's share folder")
+    parser.add_argument("--library-path", default="", help="folders of the dVRK's and the streamer's libraries")
+    parser.add_argument("--version", default="2.4.0", help="the dVRK's release, as the record names it")
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--json", help="write the record here")
+    parser.add_argument("--logs", type=Path, help="keep each episode's datagram log here (gzipped JSON lines)")
+    args = parser.parse_args()
+    code = provenance.code_state()
+    import gymnasium as gym
+
+    import dvrl_marl  # noqa: F401
+    from dvrl_marl import frames, policies
+    from dvrl_marl.dvrk import ArmLink, DatagramLog, RobotSeat, StreamerLink, SystemLink
+    from dvrl_marl.dvrk.configs import write_configs
+
+    folder = Path(tempfile.mkdtemp(prefix="dvrk-seat-"))
+    write_configs(folder, arm="PSM1", arm_port=ARM_PORT, system_port=SYSTEM_PORT)
+    process = start_system(args.system, args.share, folder, args.library_path)
+    log_folder = Path(tempfile.mkdtemp(prefix="dvrk-logs-"))
+    setup_log = DatagramLog(log_folder / "setup.jsonl")
+    arm_link = StreamerLink("PSM1", ARM_PORT, host="127.0.0.1", log=setup_log)
+    system_link = StreamerLink("system", SYSTEM_PORT, host="127.0.0.1", log=setup_log)
+    arm, system = ArmLink("PSM1", arm_link), SystemLink(system_link)
+    policy = policies.load("reach-lnd")
+    rows, stale = [], None
+    try:
+        system.wait_heard(timeout_s=30.0)
+        wait_for(lambda: arm.operating_state is not None and arm.measured_cp() is not None, arm, 30.0,
+                 "the arm's streamer")
+        system.power_on()
+        wait_for(lambda: arm.operating_state.get("State") == "ENABLED", arm, 30.0, "the arm to be enabled")
+        system.home()
+        wait_for(lambda: arm.operating_state.get("IsHomed") and not arm.operating_state.get("IsBusy"), arm, 60.0,
+                 "the arm to be homed")
+        for seed in range(args.episodes):
+            env = gym.make("dvrl_marl/PSMReach-v1")
+            env.reset(seed=seed)
+            start, goal = np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
+            start_error = go_to(arm, frames.servo_cp_goal(start))
+            log = DatagramLog(log_folder / f"episode-{seed:02d}.jsonl")
+            arm_link.log = log
+            summary = RobotSeat(arm, policy, goal=goal, log=log).run(100)
+            arm_link.log = setup_log
+            log.close()
+            rows.append({"seed": seed, "start": start.tolist(), "goal": goal.tolist(),
+                         "start_error_mm": round(start_error, 4), **summary.figures()})
+            print(json.dumps(rows[-1]))
+        # the stale-measurement hold: the dVRK's process stopped mid-run (no datagram comes), then let go on
+        env = gym.make("dvrl_marl/PSMReach-v1")
+        env.reset(seed=1000)
+        go_to(arm, frames.servo_cp_goal(np.array(env.unwrapped.arm.tip)))
+        log = DatagramLog(log_folder / "stale.jsonl")
+        arm_link.log = log
+        seat = RobotSeat(arm, policy, goal=env.unwrapped.goal.copy(), log=log)
+        calls = {"n": 0}
+        inner = seat.policy
+
+        def stop_the_dvrk_at_step_10(observation):
+            calls["n"] += 1
+            if calls["n"] == 10:
+                os.kill(process.pid, signal.SIGSTOP)
+            return inner(observation)
+
+        seat.policy = stop_the_dvrk_at_step_10
+        summary = seat.run(100)
+        os.kill(process.pid, signal.SIGCONT)
+        log.close()
+        arm_link.log = setup_log
+        lines = [json.loads(text) for text in (log_folder / "stale.jsonl").read_text().splitlines()]
+        last_in = max(line["t"] for line in lines if line["dir"] == "in")
+        hold = min(line["t"] for line in lines if line["dir"] == "out" and line["data"] == {"hold": ""})
+        stale = {"stopped": summary.stopped, "hold_after_last_measurement_ms": round(1000.0 * (hold - last_in), 2),
+                 "steps_before": summary.steps}
+        print(json.dumps(stale))
+    finally:
+        for link in (arm_link, system_link):
+            link.close()
+        setup_log.close()
+        process.stdin.close()
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+    successes = sum(row["success"] for row in rows)
+    tracking = [row["tracking_error_mm"] for row in rows if row["tracking_error_mm"] is not None]
+    periods = [row["period_ms_p99"] for row in rows if row["period_ms_p99"] is not None]
+    record = {"what": "reach-lnd on the dVRK's kinematically simulated PSM1 (LND) through its socket streamer",
+              "dvrk_version": args.version, "episodes": len(rows), "successes": successes,
+              "largest_tracking_error_mm": max(tracking) if tracking else None,
+              "largest_period_ms_p99": max(periods) if periods else None, "stale_hold": stale, "rows": rows,
+              "command": "python benchmarks/dvrk_conformance.py " + " ".join(sys.argv[1:]), "code": code}
+    print(json.dumps({key: value for key, value in record.items() if key not in ("rows", "code")}, indent=1))
+    if args.json:
+        Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
+    if args.logs:
+        args.logs.mkdir(parents=True, exist_ok=True)
+        for path in sorted(log_folder.glob("*.jsonl")):
+            with path.open("rb") as source, gzip.open(args.logs / (path.name + ".gz"), "wb") as target:
+                shutil.copyfileobj(source, target)
+    return 0 if successes >= 0.95 * len(rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
