@@ -478,9 +478,10 @@ def _robot(args) -> int:
             link.close()
         log.close()
     figures = summary.figures()
+    distance = "-" if figures["final_distance_mm"] is None else f"{figures['final_distance_mm']:.1f}"
     print(f"{args.arm}{' (dry run: nothing sent)' if args.dry_run else ''}: {summary.stopped}; "
           f"{figures['steps']} commands, goal {'reached at step ' + str(summary.success_step) if summary.success else 'not reached'}"
-          f" (distance {figures['final_distance_mm']:.1f} mm), period median {figures['period_ms_median']} ms, "
+          f" (distance {distance} mm), period median {figures['period_ms_median']} ms, "
           f"p99 {figures['period_ms_p99']} ms, tracking error {figures['tracking_error_mm']} mm; log {log_path}")
     if args.dry_run:
         for command in summary.commands[: args.show]:

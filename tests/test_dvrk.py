@@ -247,3 +247,13 @@ def test_the_streamers_files_carry_what_the_seat_reads_and_sends(tmp_path, capsy
     assert [c["provided"] for c in manager["connections"]] == [{"component": "PSM2", "interface": "Arm"},
                                                                {"component": "system", "interface": "Main"}]
     assert main(["robot"]) == 2 and "--goal X Y Z is needed" in capsys.readouterr().err
+
+
+def test_the_command_line_says_when_no_arm_answers(tmp_path, capsys):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    code = main(["robot", "--goal", "0", "0", "-0.1", "--local-port", str(port), "--log", str(tmp_path / "r.jsonl")])
+    out = capsys.readouterr().out
+    assert code == 1 and "refused: PSM1: no operating_state received" in out and "0 commands" in out
+    assert [line["data"]["what"] for line in read_log(tmp_path / "r.jsonl")] == ["refused", "end"]

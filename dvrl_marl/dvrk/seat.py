@@ -129,6 +129,7 @@ class RobotSeat:
         if not ready:  # refuse to move: nothing is sent
             summary.stopped = f"refused: {why}"
             self.log.note(self.clock(), "refused", reason=why)
+            self.log.note(self.clock(), "end", **summary.figures())
             return summary
         previous_handler = None
         if threading.current_thread() is threading.main_thread():
