@@ -4,7 +4,7 @@ What the arm's streamer must carry (its configuration file's ``read-commands``, 
 ``void-commands`` and ``write-events``; ``docs/robot.md`` gives the files): it reads ``measured_cp``
 (``prmPositionCartesianGet``), ``measured_js`` and ``jaw/measured_js`` (``prmStateJoint``) and ``operating_state``
 (``prmOperatingState``, and its event); it writes ``servo_cp`` and ``move_cp`` (``prmPositionCartesianSet``) and ``jaw/servo_jp``
-(``prmPositionJointSet``); ``hold`` and ``freeze`` are void commands. The system's streamer carries the void
+(``prmPositionJointSet``); ``hold`` is a void command. The system's streamer carries the void
 commands ``power_on`` and ``home`` (an arm's ``state_command`` takes a string, which the streamer cannot carry).
 """
 
@@ -111,8 +111,6 @@ class ArmLink:
         """Stop where it is (the arm's ``hold``)."""
         self.link.send({"hold": ""})
 
-    def freeze(self) -> None:
-        self.link.send({"freeze": ""})
 
 
 class SystemLink:

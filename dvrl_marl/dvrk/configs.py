@@ -21,7 +21,7 @@ ARM_READS = (("measured_cp", "prmPositionCartesianGet"), ("measured_js", "prmSta
 #: What it sends an arm.
 ARM_WRITES = (("servo_cp", "prmPositionCartesianSet"), ("move_cp", "prmPositionCartesianSet"),
               ("jaw/servo_jp", "prmPositionJointSet"))
-ARM_VOIDS = ("hold", "freeze")
+ARM_VOIDS = ("hold",)
 
 
 def arm_streamer(ip: str, port: int) -> dict:
@@ -29,14 +29,14 @@ def arm_streamer(ip: str, port: int) -> dict:
     return {"ip": ip, "port": str(port),
             "read-commands": [{"name": name, "type": kind} for name, kind in ARM_READS],
             "write-commands": [{"name": name, "type": kind} for name, kind in ARM_WRITES],
-            "void-commands": list(ARM_VOIDS), "write-events": ["operating_state"]}
+            "void-commands": list(ARM_VOIDS)}  # (operating_state read every period: no event handler needed)
 
 
 def system_streamer(ip: str, port: int) -> dict:
     """The system's streamer: power and homing (void commands)."""
     # (a read command the streamer sends every period: its datagrams give the seat its address, and show it is up)
     return {"ip": ip, "port": str(port), "read-commands": [{"name": "calibration_mode", "type": "mtsBool"}],
-            "void-commands": ["power_on", "power_off", "home"], "write-events": ["arm_current_state"]}
+            "void-commands": ["power_on", "power_off", "home"]}
 
 
 def component_manager(arm: str, arm_file: str, system_file: str, period_s: float = 0.01) -> dict:
