@@ -35,14 +35,18 @@ import provenance  # noqa: E402
 ARM_PORT, SYSTEM_PORT = 10002, 10004
 
 
-def start_system(system: str, share: Path, folder: Path, library_path: str) -> subprocess.Popen:
-    """The dVRK's system program with PSM1 in kinematic simulation and the streamers, text only (its standard input
-    kept open: a pipe)."""
+def start_system(system: str, share: Path, folder: Path, library_path: str):
+    """The dVRK's system program with PSM1 in kinematic simulation and the streamers, text only. Its standard input
+    is a pipe from ``sleep`` that stays open and silent (given this process's own pipe, its key loop spun and the
+    arm's homing never ended, here)."""
     environment = {**os.environ, "LD_LIBRARY_PATH": library_path + ":" + os.environ.get("LD_LIBRARY_PATH", "")}
     command = [system, "-t", "-j", str(share / "system" / "system-PSM1_Classic_KIN_SIMULATED.json"),
                "-m", "manager-PSM1.json"]
-    return subprocess.Popen(command, cwd=folder, env=environment, stdin=subprocess.PIPE,
-                            stdout=open(folder / "system.out", "w"), stderr=subprocess.STDOUT)
+    silence = subprocess.Popen(["sleep", "infinity"], stdout=subprocess.PIPE)
+    process = subprocess.Popen(command, cwd=folder, env=environment, stdin=silence.stdout,
+                               stdout=open(folder / "system.out", "w"), stderr=subprocess.STDOUT)
+    silence.stdout.close()
+    return process, silence
 
 
 def wait_for(predicate, arm, timeout_s: float, what: str) -> None:
@@ -86,18 +90,32 @@ def main() -> int:
 
     folder = Path(tempfile.mkdtemp(prefix="dvrk-seat-"))
     write_configs(folder, arm="PSM1", arm_port=ARM_PORT, system_port=SYSTEM_PORT)
-    process = start_system(args.system, args.share, folder, args.library_path)
     log_folder = Path(tempfile.mkdtemp(prefix="dvrk-logs-"))
     setup_log = DatagramLog(log_folder / "setup.jsonl")
-    arm_link = StreamerLink("PSM1", ARM_PORT, host="127.0.0.1", log=setup_log)
-    system_link = StreamerLink("system", SYSTEM_PORT, host="127.0.0.1", log=setup_log)
-    arm, system = ArmLink("PSM1", arm_link), SystemLink(system_link)
     policy = policies.load("reach-lnd")
+    for attempt in range(3):  # (a start whose streamers stay silent, seen now and then here, is tried again)
+        process, silence = start_system(args.system, args.share, folder, args.library_path)
+        arm_link = StreamerLink("PSM1", ARM_PORT, host="127.0.0.1", log=setup_log)
+        system_link = StreamerLink("system", SYSTEM_PORT, host="127.0.0.1", log=setup_log)
+        arm, system = ArmLink("PSM1", arm_link), SystemLink(system_link)
+        try:
+            system.wait_heard(timeout_s=10.0)
+            break
+        except RuntimeError:
+            print(f"start {attempt + 1}: the streamers stayed silent; starting the dVRK again", file=sys.stderr)
+            for link in (arm_link, system_link):
+                link.close()
+            process.kill()
+            silence.kill()
+            process.wait()
+            time.sleep(1.0)
     rows, stale = [], None
     try:
-        system.wait_heard(timeout_s=30.0)
+        system.wait_heard(timeout_s=10.0)
         wait_for(lambda: arm.operating_state is not None and arm.measured_cp() is not None, arm, 30.0,
                  "the arm's streamer")
+        time.sleep(3.0)  # (homing asked within a second of the start stayed HOMING for good, here: let it settle)
+        arm.update()
         system.power_on()
         wait_for(lambda: arm.operating_state.get("State") == "ENABLED", arm, 30.0, "the arm to be enabled")
         system.home()
@@ -139,20 +157,20 @@ def main() -> int:
         arm_link.log = setup_log
         lines = [json.loads(text) for text in (log_folder / "stale.jsonl").read_text().splitlines()]
         last_in = max(line["t"] for line in lines if line["dir"] == "in")
-        hold = min(line["t"] for line in lines if line["dir"] == "out" and line["data"] == {"hold": ""})
-        stale = {"stopped": summary.stopped, "hold_after_last_measurement_ms": round(1000.0 * (hold - last_in), 2),
-                 "steps_before": summary.steps}
+        holds = [line["t"] for line in lines if line["dir"] == "out" and line["data"] == {"hold": ""}]
+        stale = {"stopped": summary.stopped, "steps_before": summary.steps,
+                 "hold_after_last_measurement_ms": round(1000.0 * (min(holds) - last_in), 2) if holds else None}
         print(json.dumps(stale))
     finally:
         for link in (arm_link, system_link):
             link.close()
         setup_log.close()
-        process.stdin.close()
         process.send_signal(signal.SIGINT)
         try:
             process.wait(timeout=10)
         except subprocess.TimeoutExpired:
             process.kill()
+        silence.kill()
     successes = sum(row["success"] for row in rows)
     tracking = [row["tracking_error_mm"] for row in rows if row["tracking_error_mm"] is not None]
     periods = [row["period_ms_p99"] for row in rows if row["period_ms_p99"] is not None]

@@ -88,8 +88,8 @@ def encode(payload: dict, who: str) -> bytes:
 
 class StreamerLink:
     """A UDP socket bound to ``local_port`` (the port the streamer's configuration sends to) that answers the
-    streamer at the address its datagrams come from (from ``host`` only, when given: others are logged and
-    ignored). :meth:`receive` drains what has arrived and keeps the latest value of each key with the time it arrived
+    streamer at the address its datagrams come from: the first one heard (from ``host`` only, when given); datagrams
+    from any other address are logged and ignored (a restarted dVRK needs a new link). :meth:`receive` drains what has arrived and keeps the latest value of each key with the time it arrived
     (:attr:`latest`)."""
 
     def __init__(self, name: str, local_port: int, *, host: str | None = None, log: DatagramLog | None = None,
@@ -104,6 +104,7 @@ class StreamerLink:
         self.sent = 0
         self.received = 0
         self.unreadable = 0
+        self.ignored = 0
         self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self._socket.bind(("", local_port))
@@ -131,11 +132,15 @@ class StreamerLink:
                 data, sender = self._socket.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 return count
-            if self.host is not None and sender[0] != self.host:
+            if (self.host is not None and sender[0] != self.host) or (self.address is not None and
+                                                                      sender != self.address):
+                # Another sender (a second streamer on this port, a restarted dVRK): never mixed with the first one,
+                # whose commands would then go to whichever spoke last.
+                self.ignored += 1
                 self.log.write(self.clock(), self.name, "note", {"what": "ignored", "from": list(sender)})
                 continue
             count += 1
-            self.address = sender  # (the streamer answers from the socket it sends from)
+            self.address = sender  # (the first streamer heard: it answers from the socket it sends from)
             self._take(data.decode(errors="replace"))
 
     def _take(self, text: str) -> None:

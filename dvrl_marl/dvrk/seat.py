@@ -9,8 +9,9 @@ tool pointing as in the env: :func:`dvrl_marl.frames.servo_cp_goal`).
 Safety first:
 
 - it refuses to move an arm that is not enabled and homed (nothing is sent);
-- a ``measured_cp`` older than ``stale_after_s`` (100 ms), invalid, or unreachable by the kinematics holds the arm
-  (``hold``) and ends the run, saying why;
+- a ``measured_cp`` that would be older than ``stale_after_s`` (100 ms) by the next period's command, invalid, or
+  unreachable by the kinematics holds the arm (``hold``) and ends the run, saying why: the hold is sent within
+  100 ms of the last measurement;
 - a move the workspace box clamps is clamped and logged;
 - Ctrl-C or SIGTERM holds the arm and ends the run; the log (every datagram both ways) is flushed line by line.
 """
@@ -145,7 +146,8 @@ class RobotSeat:
                 now = self.clock()
                 age = math.inf if measured is None else now - measured.received
                 summary.largest_age_ms = max(summary.largest_age_ms, 1000.0 * age if math.isfinite(age) else 0.0)
-                if measured is None or not measured.valid or age > self.stale_after:
+                # (stale if it would pass the limit before the next period's check: the hold is sent within the limit)
+                if measured is None or not measured.valid or age + self.period > self.stale_after:
                     why = "no measured_cp" if measured is None else \
                         "measured_cp invalid" if not measured.valid else f"measured_cp {1000 * age:.0f} ms old"
                     self._stop(summary, f"stale measurement: {why}", step=step)
@@ -174,7 +176,7 @@ class RobotSeat:
                 summary.steps += 1
                 summary.commands.append(goal[:3, 3].tolist())
                 deadline += self.period
-                self.sleep(max(0.0, deadline - self.clock()))
+                self._wait_until(deadline)
             else:
                 summary.stopped = "steps done"
             if not summary.stopped:
@@ -188,6 +190,18 @@ class RobotSeat:
                 signal.signal(signal.SIGTERM, previous_handler)
         self.log.note(self.clock(), "end", **summary.figures())
         return summary
+
+    def _wait_until(self, deadline: float) -> None:
+        """Sleep to ``deadline``; on the real clock, the last millisecond is waited out by reading the clock (a
+        sleep overshoots by up to a millisecond or two, which the loop's period would carry)."""
+        remaining = deadline - self.clock()
+        if self.sleep is not time.sleep or self.clock is not time.monotonic:
+            self.sleep(max(0.0, remaining))
+            return
+        if remaining > 0.0015:
+            time.sleep(remaining - 0.001)
+        while time.monotonic() < deadline:
+            pass
 
     def _settled_error(self, commanded, settle_s: float) -> float | None:
         """|commanded - measured| (mm) of the last goal, ``settle_s`` after it was sent."""
