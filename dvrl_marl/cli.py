@@ -446,9 +446,12 @@ def _robot(args) -> int:
     if args.goal is None:
         raise ValueError("robot: --goal X Y Z is needed (metres, the arm's base frame)")
     policy = policies.load(args.policy)
-    if policy.spec.get("env_id", "").split("/")[-1].split("-")[0] not in ("PSMReach", "PSMReachDense"):
-        raise ValueError(f"--policy {args.policy}: the robot seat runs Reach policies (reach-lnd, "
-                         f"reach-suction-irrigation); this one is for {policy.spec.get('env_id')!r}")
+    task = policy.spec.get("env_id", "").split("/")[-1].split("-")[0]
+    if task not in ("PSMReach", "PSMReachDense", "PSMPick", "PSMPickDense"):
+        raise ValueError(f"--policy {args.policy}: the robot seat runs single-arm policies (reach-lnd, "
+                         f"reach-suction-irrigation, pick-lnd); this one is for {policy.spec.get('env_id')!r}")
+    if args.object is not None and not task.startswith("PSMPick"):
+        raise ValueError("--object is for a Pick policy (the object the env models; Reach has none)")
     tool = (policy.spec.get("env_kwargs") or {}).get("tool", "lnd")
     log_path = Path(args.log or Path("runs") / f"robot-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     log = DatagramLog(log_path)
@@ -471,7 +474,8 @@ def _robot(args) -> int:
                 if args.home:
                     system_link.home()
                     time.sleep(args.home_wait)
-        seat = RobotSeat(ArmLink(args.arm, link), policy, goal=args.goal, tool=tool, log=log)
+        seat = RobotSeat(ArmLink(args.arm, link), policy, goal=args.goal, tool=tool, log=log,
+                         object_position=args.object)
         summary = seat.run(args.steps)
     finally:
         for link in links:
@@ -535,9 +539,12 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--height", type=COUNT, default=480)
     render.set_defaults(func=_render)
 
-    robot = sub.add_parser("robot", help="a shipped Reach policy on a dVRK arm through the dVRK's socket streamer "
-                           "(UDP, no ROS; docs/robot.md), or --dry-run")
-    robot.add_argument("--policy", default="reach-lnd", help="a shipped Reach policy or its folder (default reach-lnd)")
+    robot = sub.add_parser("robot", help="a shipped single-arm policy on a dVRK arm through the dVRK's socket "
+                           "streamer (UDP, no ROS; docs/robot.md), or --dry-run")
+    robot.add_argument("--policy", default="reach-lnd", help="a shipped Reach or Pick policy or its folder (default "
+                       "reach-lnd; pick-lnd: the object is the env's model of it)")
+    robot.add_argument("--object", type=METRES, nargs=3, metavar=("X", "Y", "Z"),
+                       help="Pick: where the modelled object starts (m; default on the table below the start)")
     robot.add_argument("--arm", default="PSM1", help="the arm's name, as in the logs (default PSM1)")
     robot.add_argument("--goal", type=METRES, nargs=3, metavar=("X", "Y", "Z"),
                        help="the goal (m) in the arm's base frame, the measured_cp point, inside the env's workspace")

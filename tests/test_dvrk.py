@@ -17,6 +17,7 @@ from dvrl_marl import frames, policies
 from dvrl_marl.cli import main
 from dvrl_marl.dvrk import MAX_DATAGRAM, ArmLink, DatagramLog, EchoLink, ReplayLink, RobotSeat, StreamerLink, read_log
 from dvrl_marl.dvrk.link import encode
+from dvrl_marl.dvrk.seat import jaw_angle
 
 
 class Clock:
@@ -118,8 +119,8 @@ def test_the_dry_run_sends_what_the_env_does_from_the_same_tip():
     summary = seat.run(100)
     for index, (_, payload) in enumerate(link.outbox):
         observation, _, _, _, info = env.step(policy(observation))
-        np.testing.assert_allclose(payload["servo_cp"]["Goal"]["Translation"], env.unwrapped.arm.tip, atol=1e-9,
-                                   err_msg=f"command {index}")
+        np.testing.assert_allclose(payload["servo_cp"]["Goal"]["Translation"], env.unwrapped.arm.tip, atol=1e-8,
+                                   err_msg=f"command {index}")  # (goals go out to the nanometre)
     assert summary.success and info["is_success"] and summary.stopped == "goal reached"
     assert summary.figures()["period_ms_p99"] == pytest.approx(20.0)
 
@@ -233,8 +234,10 @@ def test_the_command_line_dry_run_and_its_refusals(tmp_path, capsys):
     assert len([line for line in read_log(log) if line["dir"] == "out"]) > 10
     assert main(["robot", "--dry-run", "--goal", "0.5", "0", "-0.1"]) == 2  # outside the workspace: said, no traceback
     assert "goal" in capsys.readouterr().err
-    assert main(["robot", "--dry-run", "--policy", "pick-lnd", "--goal", "0", "0", "-0.1"]) == 2
-    assert "runs Reach policies" in capsys.readouterr().err
+    assert main(["robot", "--dry-run", "--policy", "marl-grasper", "--goal", "0", "0", "-0.1"]) == 2
+    assert "runs single-arm policies" in capsys.readouterr().err
+    assert main(["robot", "--dry-run", "--object", "0", "0", "-0.11", "--goal", "0", "0", "-0.1"]) == 2
+    assert "--object is for a Pick policy" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["robot", "--goal", "0", "0", "nan"])
 
@@ -265,3 +268,25 @@ def test_the_command_line_says_when_no_arm_answers(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 1 and "refused: PSM1: no operating_state received" in out and "0 commands" in out
     assert [line["data"]["what"] for line in read_log(tmp_path / "r.jsonl")] == ["refused", "end"]
+
+
+def test_a_pick_dry_run_sends_what_the_env_does_with_its_modelled_object():
+    env = gym.make("dvrl_marl/PSMPick-v1")
+    observation, _ = env.reset(seed=3)
+    start, goal = np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
+    policy = policies.load("pick-lnd")
+    clock = Clock()
+    link = EchoLink("PSM1", frames.servo_cp_goal(start), clock=clock)
+    seat = RobotSeat(ArmLink("PSM1", link), policy, goal=goal, clock=clock, sleep=clock.sleep)
+    summary = seat.run(100)
+    sent = [payload for _, payload in link.outbox]
+    assert len(sent) == 2 * summary.steps  # (each period: servo_cp, then jaw/servo_jp)
+    for index in range(summary.steps):
+        observation, _, _, _, info = env.step(policy(observation))
+        np.testing.assert_allclose(sent[2 * index]["servo_cp"]["Goal"]["Translation"], env.unwrapped.arm.tip,
+                                   atol=1e-8, err_msg=f"command {index}")  # (goals go out to the nanometre)
+        assert sent[2 * index + 1]["jaw/servo_jp"]["Goal"][0] == pytest.approx(
+            jaw_angle(env.unwrapped.arm.jaw), abs=1e-6)
+    assert summary.success and info["is_success"] and info["grasped"]
+    with pytest.raises(ValueError, match="object_position is for a Pick policy"):
+        RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, object_position=[0, 0, -0.11])

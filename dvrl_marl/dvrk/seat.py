@@ -29,7 +29,7 @@ import numpy as np
 from dvrl_marl import frames
 from dvrl_marl.dvrk.arm import ArmLink
 
-__all__ = ["RobotSeat", "RunSummary"]
+__all__ = ["RobotSeat", "RunSummary", "jaw_angle", "JAW_OPEN_ANGLE"]
 
 
 @dataclass
@@ -59,19 +59,27 @@ class RunSummary:
 
 
 class RobotSeat:
-    """``policy`` (a shipped Reach policy: ``policies.load("reach-lnd")``) on ``arm`` towards ``goal`` (metres, the
-    env's frame: the PSM base frame, the measured_cp point). ``env``: the environment whose step it repeats (by
-    default ``PSMReach-v1`` with the policy's tool)."""
+    """``policy`` (a shipped single-arm policy: ``policies.load("reach-lnd")`` or ``"pick-lnd"``) on ``arm`` towards
+    ``goal`` (metres, the env's frame: the PSM base frame, the measured_cp point; Pick: the object's goal). ``env``:
+    the environment whose step it repeats (by default the policy's, with its tool). For Pick the object is the env's
+    own model of it, starting at ``object_position`` (default: on the table below the first measured tip), grasped and
+    carried by the env's rule as the measured tip moves; the jaw goes out as ``jaw/servo_jp``."""
 
     def __init__(self, arm: ArmLink, policy, *, goal, env=None, tool: str = "lnd", rate_hz: float = 50.0,
-                 stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
+                 stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None, object_position=None):
         if env is None:
             import gymnasium as gym
 
             import dvrl_marl  # noqa: F401  (registers the environments)
 
-            env = gym.make("dvrl_marl/PSMReach-v1", tool=tool)
+            env_id = getattr(policy, "spec", {}).get("env_id") or "dvrl_marl/PSMReach-v1"
+            env = gym.make(env_id, **({"tool": tool} if "Reach" in env_id else {}))
         self.env = env.unwrapped
+        #: Pick: the object is the environment's own model of it (no camera sees it), held to the measured tip
+        self.picks = hasattr(self.env, "object_position")
+        if object_position is not None and not self.picks:
+            raise ValueError("object_position is for a Pick policy; Reach has no object")
+        self.object_position = object_position
         self.env.reset(seed=0)  # (its arm and goal made; each step then starts from the measured tip)
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
             raise ValueError(f"rate_hz must be in (0, 1000], got {rate_hz!r}")
@@ -87,20 +95,48 @@ class RobotSeat:
         self.tip_frame = getattr(self.env, "tip_frame", "measured_cp")
 
     # --- one control period -------------------------------------------------------------------------------------
+    def start(self, tip) -> None:
+        """A Pick episode's object (given, else the env's: on the table below the tip) and goal, from the tip."""
+        if self.picks:
+            self.env.reset(options={"start": np.asarray(tip, dtype=np.float64), "goal": self.goal,
+                                    "object": self.object_position})
+
     def observation(self, tip) -> dict:
-        """The env's observation for a tip ``p`` (metres, env frame) and the seat's goal."""
+        """The env's observation for a tip ``p`` (metres, env frame) and the seat's goal (Pick: and the env's
+        object and jaw)."""
+        if self.picks:
+            self.env.arm.set_tip(*np.asarray(tip, dtype=np.float64).tolist())
+            if self.env.grasped:
+                self.env._carry_object()
+            self.env._update_object_normalised()
+            return self.env._observation()
         tip = self.env.normalise(np.asarray(tip, dtype=np.float64))
         return {"observation": tip.copy(), "achieved_goal": tip.copy(),
                 "desired_goal": self.env.normalise(self.goal)}
 
     def target(self, tip, action) -> tuple[np.ndarray, bool]:
-        """Where the env's step takes the tip from ``tip`` by ``action``, and whether the box clamped it."""
-        action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1)[:3], -1.0, 1.0)
-        self.env.set_state(tip=tip, goal=self.goal)
-        self.env.step(action.astype(np.float32))
+        """Where the env's step takes the tip from ``tip`` by ``action``, and whether the box clamped it (Pick:
+        the env's jaw and object follow, :attr:`jaw` says the jaw)."""
+        action = np.asarray(action, dtype=np.float64).reshape(-1)
+        move = np.clip(action[:3], -1.0, 1.0)
+        if self.picks:
+            self.env.arm.set_tip(*np.asarray(tip, dtype=np.float64).tolist())
+            self.env.step(np.clip(action[:4], -1.0, 1.0).astype(np.float32))
+        else:
+            self.env.set_state(tip=tip, goal=self.goal)
+            self.env.step(move.astype(np.float32))
         reached = np.asarray(self.env.arm.tip, dtype=np.float64)
-        unclamped = np.asarray(tip, dtype=np.float64) + self.env.step_size * action
+        unclamped = np.asarray(tip, dtype=np.float64) + self.env.step_size * move
         return reached, not np.allclose(reached, unclamped, atol=1e-9)
+
+    def reached(self, tip) -> tuple[bool, float]:
+        """Whether the env's goal is met (Reach: the measured tip within delta; Pick: the env's object), and the
+        distance (m)."""
+        if self.picks:
+            distance = float(np.linalg.norm(self.env.object_position() - self.goal))
+        else:
+            distance = float(np.linalg.norm(np.asarray(tip) - self.goal))
+        return distance <= self.env.distance_threshold, distance
 
     def _stop(self, summary: RunSummary, reason: str, **details) -> None:
         self.arm.hold()
@@ -153,9 +189,11 @@ class RobotSeat:
                     self._stop(summary, f"stale measurement: {why}", step=step)
                     break
                 tip = frames.dvrk_to_env(measured.position, tool=self.tool, env_tip_frame=self.tip_frame)
-                distance = float(np.linalg.norm(tip - self.goal))
+                if step == 0:
+                    self.start(tip)
+                success, distance = self.reached(tip)
                 summary.final_distance_mm = 1000.0 * distance
-                if distance <= self.env.distance_threshold and not summary.success:
+                if success and not summary.success:
                     summary.success, summary.success_step = True, step
                     if stop_on_success:
                         break
@@ -169,6 +207,8 @@ class RobotSeat:
                     self.log.note(now, "clamped", step=step, target=target.tolist())
                 goal = frames.servo_cp_goal(target, tool=self.tool, env_tip_frame=self.tip_frame)
                 self.arm.servo_cp(goal)
+                if self.picks:  # the env's jaw, as the dVRK's jaw angle
+                    self.arm.jaw_servo_jp(jaw_angle(self.env.arm.jaw))
                 sent = self.clock()
                 if last_sent is not None:
                     summary.periods_ms.append(1000.0 * (sent - last_sent))
@@ -213,6 +253,17 @@ class RobotSeat:
         if measured is None:
             return None
         return round(1000.0 * float(np.linalg.norm(measured.position - np.asarray(commanded))), 4)
+
+
+#: The jaw's opening angle (rad) at j = 1: the original dVRL scene turned each of the LND's two jaws 0.4106 * j rad
+#: (``shared/reference/psm_facts.md``), so the angle between them is twice that; it lies inside the dVRK's jaw range
+#: (-0.698 .. 1.396 rad).
+JAW_OPEN_ANGLE = 2 * 0.4106
+
+
+def jaw_angle(jaw: float) -> float:
+    """The dVRK's ``jaw/servo_jp`` angle (rad) for the env's jaw ``j`` in [0, 1]."""
+    return JAW_OPEN_ANGLE * float(np.clip(jaw, 0.0, 1.0))
 
 
 def _raise_interrupt(signum, frame):
