@@ -70,6 +70,10 @@ def go_to(arm, pose, timeout_s: float = 10.0) -> float:
     return 1000.0 * float(np.linalg.norm(arm.measured_cp().position - pose[:3, 3]))
 
 
+class _Done(Exception):
+    """The episodes are done and no stale-measurement run was asked for."""
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--system", required=True, help="the dVRK's sawIntuitiveResearchKitSystem")
@@ -77,6 +81,8 @@ def main() -> int:
     parser.add_argument("--library-path", default="", help="folders of the dVRK's and the streamer's libraries")
     parser.add_argument("--version", default="2.4.0", help="the dVRK's release, as the record names it")
     parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--policy", default="reach-lnd", help="reach-lnd, or pick-lnd (the object modelled by the env)")
+    parser.add_argument("--no-stale", action="store_true", help="skip the stale-measurement run")
     parser.add_argument("--json", help="write the record here")
     parser.add_argument("--logs", type=Path, help="keep each episode's datagram log here (gzipped JSON lines)")
     args = parser.parse_args()
@@ -92,7 +98,8 @@ def main() -> int:
     write_configs(folder, arm="PSM1", arm_port=ARM_PORT, system_port=SYSTEM_PORT)
     log_folder = Path(tempfile.mkdtemp(prefix="dvrk-logs-"))
     setup_log = DatagramLog(log_folder / "setup.jsonl")
-    policy = policies.load("reach-lnd")
+    policy = policies.load(args.policy)
+    env_id = policy.spec["env_id"]
     for attempt in range(3):  # (a start whose streamers stay silent, seen now and then here, is tried again)
         process, silence = start_system(args.system, args.share, folder, args.library_path)
         arm_link = StreamerLink("PSM1", ARM_PORT, host="127.0.0.1", log=setup_log)
@@ -122,7 +129,7 @@ def main() -> int:
         wait_for(lambda: arm.operating_state.get("IsHomed") and not arm.operating_state.get("IsBusy"), arm, 60.0,
                  "the arm to be homed")
         for seed in range(args.episodes):
-            env = gym.make("dvrl_marl/PSMReach-v1")
+            env = gym.make(env_id)
             env.reset(seed=seed)
             start, goal = np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
             start_error = go_to(arm, frames.servo_cp_goal(start))
@@ -134,6 +141,8 @@ def main() -> int:
             rows.append({"seed": seed, "start": start.tolist(), "goal": goal.tolist(),
                          "start_error_mm": round(start_error, 4), **summary.figures()})
             print(json.dumps(rows[-1]))
+        if args.no_stale:
+            raise _Done
         # the stale-measurement hold: the dVRK's process stopped mid-run (no datagram comes), then let go on
         env = gym.make("dvrl_marl/PSMReach-v1")
         env.reset(seed=1000)
@@ -161,6 +170,8 @@ def main() -> int:
         stale = {"stopped": summary.stopped, "steps_before": summary.steps,
                  "hold_after_last_measurement_ms": round(1000.0 * (min(holds) - last_in), 2) if holds else None}
         print(json.dumps(stale))
+    except _Done:
+        pass
     finally:
         for link in (arm_link, system_link):
             link.close()
@@ -174,8 +185,9 @@ def main() -> int:
     successes = sum(row["success"] for row in rows)
     tracking = [row["tracking_error_mm"] for row in rows if row["tracking_error_mm"] is not None]
     periods = [row["period_ms_p99"] for row in rows if row["period_ms_p99"] is not None]
-    record = {"what": "reach-lnd on the dVRK's kinematically simulated PSM1 (LND) through its socket streamer",
-              "dvrk_version": args.version, "episodes": len(rows), "successes": successes,
+    record = {"what": f"{args.policy} on the dVRK's kinematically simulated PSM1 (LND) through its socket streamer"
+              + (" (the object modelled by the env)" if "Pick" in env_id else ""),
+              "policy": args.policy, "dvrk_version": args.version, "episodes": len(rows), "successes": successes,
               "largest_tracking_error_mm": max(tracking) if tracking else None,
               "largest_period_ms_p99": max(periods) if periods else None, "stale_hold": stale, "rows": rows,
               "command": "python benchmarks/dvrk_conformance.py " + " ".join(sys.argv[1:]), "code": code}
