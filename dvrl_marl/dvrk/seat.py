@@ -191,6 +191,7 @@ class RobotSeat:
                 tip = frames.dvrk_to_env(measured.position, tool=self.tool, env_tip_frame=self.tip_frame)
                 if step == 0:
                     self.start(tip)
+                    self.log.note(now, "start", tip=tip.tolist(), measured=measured.position.tolist())
                 success, distance = self.reached(tip)
                 summary.final_distance_mm = 1000.0 * distance
                 if success and not summary.success:
