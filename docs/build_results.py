@@ -307,20 +307,24 @@ def speed_side_by_side() -> Table:
 
 
 def dvrk_conformance() -> Table:
-    path = "benchmarks/results/dvrk_conformance_2026-12-01.json"
-    record = _read(path)
-    rows = record["rows"]
     table = Table(["dVRK", "arm", "policy", "goals reached", "steps to the goal (median)", "loop period p99",
                    "tracking error once settled", "stale-measurement hold after the last measurement"])
-    steps = [row["success_step"] for row in rows if row["success"]]
-    table.rows.append([record["dvrk_version"], "PSM1, LND, kinematic simulation", "`reach-lnd`",
-                       f"**{record['successes']} of {record['episodes']}**",
-                       "-" if not steps else f"{float(np.median(steps)):.0f}",
-                       f"{record['largest_period_ms_p99']:.1f} ms (worst episode)",
-                       f"{record['largest_tracking_error_mm']:.2f} mm (worst episode)",
-                       f"{record['stale_hold']['hold_after_last_measurement_ms']:.0f} ms"])
-    table.source(path, record["command"].split(" --system")[0] + " --system ... (the dVRK's build)",
-                 record["code"]["commit"])
+    for path in ("benchmarks/results/dvrk_conformance_2026-12-01.json",
+                 "benchmarks/results/dvrk_conformance_pick_2026-12-01.json"):
+        record = _read(path)
+        rows = record["rows"]
+        steps = [row["success_step"] for row in rows if row["success"]]
+        policy = record.get("policy", "reach-lnd")
+        stale = record["stale_hold"]
+        table.rows.append([record["dvrk_version"], "PSM1, LND, kinematic simulation",
+                           f"`{policy}`" + (" (the object modelled by the env)" if policy.startswith("pick") else ""),
+                           f"**{record['successes']} of {record['episodes']}**",
+                           "-" if not steps else f"{float(np.median(steps)):.0f}",
+                           f"{record['largest_period_ms_p99']:.1f} ms (worst episode)",
+                           f"{record['largest_tracking_error_mm']:.2f} mm (worst episode)",
+                           "-" if stale is None else f"{stale['hold_after_last_measurement_ms']:.0f} ms"])
+        table.source(path, record["command"].split(" --system")[0] + " --system ... (the dVRK's build)",
+                     record["code"]["commit"])
     return table
 
 
@@ -396,8 +400,9 @@ SECTIONS = (
      jax_env_scale),
     ("A policy on the dVRK's own software", "`benchmarks/dvrk_conformance.py`: `reach-lnd` through the robot seat "
      "(`dvrl_marl.dvrk`) on the dVRK's system program (built from its public sources) with PSM1 in the dVRK's kinematic "
-     "simulation, through its socket streamer: 20 seeded goals of `PSMReach-v1` (the arm taken to each start by the "
-     "dVRK's `move_cp`), 100 steps at most; then the dVRK's process stopped mid-run for the stale-measurement hold. In "
+     "simulation, through its socket streamer: seeded episodes of `PSMReach-v1` and `PSMPick-v1` (the arm taken to "
+     "each start by the dVRK's `move_cp`; Pick's object the env's model of it), 100 steps at most; then, for Reach, "
+     "the dVRK's process stopped mid-run for the stale-measurement hold. In "
      "kinematic simulation the arm is where it was commanded, so the tracking error says nothing of a real arm's.",
      dvrk_conformance),
     ("The collaborative step against earlier commits, side by side", "Env-steps per second of this checkout and "

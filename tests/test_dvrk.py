@@ -204,7 +204,7 @@ def test_ctrl_c_or_sigterm_holds_the_arm_and_keeps_the_log(tmp_path, signum):
     assert summary.stopped == "interrupted (Ctrl-C or SIGTERM)" and link.outbox[-1][1] == {"hold": ""}
     assert summary.steps == 4 and signal.getsignal(signal.SIGTERM) is before
     notes = [line["data"]["what"] for line in read_log(tmp_path / "run.jsonl") if line["dir"] == "note"]
-    assert notes == ["hold", "end"]
+    assert notes == ["start", "hold", "end"]
 
 
 def test_a_move_the_workspace_box_clamps_is_clamped_and_logged(tmp_path):

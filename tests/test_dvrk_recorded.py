@@ -16,6 +16,7 @@ import dvrl_marl  # noqa: F401
 from dvrl_marl import frames, policies
 from dvrl_marl.dvrk import ArmLink, ReplayLink, RobotSeat
 from dvrl_marl.dvrk.link import encode
+from dvrl_marl.dvrk.seat import jaw_angle
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDINGS = ROOT / "tests" / "dvrk_recordings"
@@ -119,3 +120,37 @@ def test_a_replayed_run_reaches_the_goal_where_the_recorded_one_did():
     summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=row["goal"], clock=clock,
                         sleep=clock.sleep).run(100, settle_s=0.0)
     assert summary.success and abs(summary.success_step - row["success_step"]) <= 2
+
+
+PICK_RECORD = json.loads((ROOT / "benchmarks" / "results" / "dvrk_conformance_pick_2026-12-01.json").read_text())
+PICK_EPISODES = sorted((RECORDINGS / "pick").glob("episode-*.jsonl.gz"))
+
+
+def test_pick_on_the_dvrk_sent_what_the_env_makes_of_each_measurement_in_turn():
+    """pick-lnd on the dVRK's simulated PSM1, the object the env's model of it: replayed measurement by measurement,
+    the seat sends the recorded commands (servo_cp and the jaw), and its modelled object reaches the goal."""
+    assert PICK_RECORD["policy"] == "pick-lnd" and PICK_RECORD["episodes"] == len(PICK_EPISODES) >= 5
+    for path in PICK_EPISODES:
+        row = PICK_RECORD["rows"][int(path.name.split("-")[1].split(".")[0])]
+        seat = RobotSeat(ArmLink("PSM1", ReplayLink("PSM1", [], clock=Clock())), policies.load("pick-lnd"),
+                         goal=row["goal"])
+        lines = _lines(path)
+        start = next(line["data"] for line in lines if line["dir"] == "note" and line["data"]["what"] == "start")
+        measured, servo, jaws = np.asarray(start["measured"]), 0, 0
+        seat.start(frames.dvrk_to_env(measured))  # (the modelled object, on the table below where the run began)
+        expected_jaw = None
+        for line in lines:
+            if line["dir"] == "in" and "measured_cp" in line["data"]:
+                measured = np.asarray(line["data"]["measured_cp"]["Position"]["Translation"])
+            elif line["dir"] == "out" and "servo_cp" in line["data"]:
+                servo += 1
+                tip = frames.dvrk_to_env(measured)
+                target, _ = seat.target(tip, seat.policy(seat.observation(tip)))
+                expected_jaw = jaw_angle(seat.env.arm.jaw)
+                np.testing.assert_allclose(line["data"]["servo_cp"]["Goal"]["Translation"], target, rtol=0,
+                                           atol=2e-9, err_msg=f"{path.name}: command {servo}")
+            elif line["dir"] == "out" and "jaw/servo_jp" in line["data"]:
+                jaws += 1
+                assert line["data"]["jaw/servo_jp"]["Goal"][0] == pytest.approx(expected_jaw, abs=2e-9)
+        assert servo == jaws == row["steps"]
+        assert seat.reached(frames.dvrk_to_env(measured))[0] == row["success"]  # (the modelled object, after them)
