@@ -91,7 +91,7 @@ def main() -> int:
 
     import dvrl_marl  # noqa: F401
     from dvrl_marl import frames, policies
-    from dvrl_marl.dvrk import ArmLink, DatagramLog, RobotSeat, StreamerLink, SystemLink
+    from dvrl_marl.dvrk import ArmLink, DatagramLog, RobotSeat, SceneRobotSeat, StreamerLink, SystemLink
     from dvrl_marl.dvrk.configs import write_configs
 
     folder = Path(tempfile.mkdtemp(prefix="dvrk-seat-"))
@@ -100,6 +100,7 @@ def main() -> int:
     setup_log = DatagramLog(log_folder / "setup.jsonl")
     policy = policies.load(args.policy)
     env_id = policy.spec["env_id"]
+    scene = policy.spec.get("agent") is not None  # (a seat of the collaborative scene: the rest of it modelled)
     for attempt in range(3):  # (a start whose streamers stay silent, seen now and then here, is tried again)
         process, silence = start_system(args.system, args.share, folder, args.library_path)
         arm_link = StreamerLink("PSM1", ARM_PORT, host="127.0.0.1", log=setup_log)
@@ -129,16 +130,24 @@ def main() -> int:
         wait_for(lambda: arm.operating_state.get("IsHomed") and not arm.operating_state.get("IsBusy"), arm, 60.0,
                  "the arm to be homed")
         for seed in range(args.episodes):
-            env = gym.make(env_id)
-            env.reset(seed=seed)
-            start, goal = np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
-            start_error = go_to(arm, frames.servo_cp_goal(start))
-            log = DatagramLog(log_folder / f"episode-{seed:02d}.jsonl")
-            arm_link.log = log
-            summary = RobotSeat(arm, policy, goal=goal, log=log).run(100)
+            if scene:
+                pose = SceneRobotSeat.start_pose(policy, seed=seed)
+                start, goal = pose[:3, 3], None
+                start_error = go_to(arm, pose)
+                log = DatagramLog(log_folder / f"episode-{seed:02d}.jsonl")
+                arm_link.log = log
+                summary = SceneRobotSeat(arm, policy, seed=seed, log=log).run(1500)
+            else:
+                env = gym.make(env_id)
+                env.reset(seed=seed)
+                start, goal = np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
+                start_error = go_to(arm, frames.servo_cp_goal(start))
+                log = DatagramLog(log_folder / f"episode-{seed:02d}.jsonl")
+                arm_link.log = log
+                summary = RobotSeat(arm, policy, goal=goal, log=log).run(100)
             arm_link.log = setup_log
             log.close()
-            rows.append({"seed": seed, "start": start.tolist(), "goal": goal.tolist(),
+            rows.append({"seed": seed, "start": start.tolist(), "goal": None if goal is None else goal.tolist(),
                          "start_error_mm": round(start_error, 4), **summary.figures()})
             print(json.dumps(rows[-1]))
         if args.no_stale:
@@ -186,7 +195,8 @@ def main() -> int:
     tracking = [row["tracking_error_mm"] for row in rows if row["tracking_error_mm"] is not None]
     periods = [row["period_ms_p99"] for row in rows if row["period_ms_p99"] is not None]
     record = {"what": f"{args.policy} on the dVRK's kinematically simulated PSM1 (LND) through its socket streamer"
-              + (" (the object modelled by the env)" if "Pick" in env_id else ""),
+              + (" (the object modelled by the env)" if "Pick" in env_id else "")
+              + (" (the rest of the scene modelled, the scripted partner in the other seat)" if scene else ""),
               "policy": args.policy, "dvrk_version": args.version, "episodes": len(rows), "successes": successes,
               "largest_tracking_error_mm": max(tracking) if tracking else None,
               "largest_period_ms_p99": max(periods) if periods else None, "stale_hold": stale, "rows": rows,

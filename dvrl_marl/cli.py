@@ -433,7 +433,7 @@ def _robot(args) -> int:
     import numpy as np
 
     from dvrl_marl import frames, policies
-    from dvrl_marl.dvrk import ArmLink, DatagramLog, EchoLink, RobotSeat, StreamerLink, SystemLink
+    from dvrl_marl.dvrk import ArmLink, DatagramLog, EchoLink, RobotSeat, SceneRobotSeat, StreamerLink, SystemLink
 
     if args.write_configs:
         from dvrl_marl.dvrk.configs import write_configs
@@ -443,23 +443,35 @@ def _robot(args) -> int:
         print(f"wrote the streamers' files in {manager.parent}; start the dVRK's system program there with "
               f"-m {manager.name} (docs/robot.md)")
         return 0
-    if args.goal is None:
-        raise ValueError("robot: --goal X Y Z is needed (metres, the arm's base frame)")
     policy = policies.load(args.policy)
+    if policy.image_options is not None:
+        raise ValueError(f"--policy {args.policy}: it sees the endoscope's images, which the robot seat does not draw")
+    scene = policy.spec.get("agent") is not None  # (a seat of the collaborative scene)
     task = policy.spec.get("env_id", "").split("/")[-1].split("-")[0]
-    if task not in ("PSMReach", "PSMReachDense", "PSMPick", "PSMPickDense"):
+    if not scene and task not in ("PSMReach", "PSMReachDense", "PSMPick", "PSMPickDense"):
         raise ValueError(f"--policy {args.policy}: the robot seat runs single-arm policies (reach-lnd, "
-                         f"reach-suction-irrigation, pick-lnd); this one is for {policy.spec.get('env_id')!r}")
+                         f"reach-suction-irrigation, pick-lnd) and seats of the collaborative scene (marl-grasper, "
+                         f"...); this one is for {policy.spec.get('env_id')!r}")
     if args.object is not None and not task.startswith("PSMPick"):
         raise ValueError("--object is for a Pick policy (the object the env models; Reach has none)")
+    if scene and args.goal is not None:
+        raise ValueError(f"--goal is for a single-arm policy; {args.policy} works the collaborative scene's seat "
+                         "(its goals are the scene's)")
+    if not scene and args.goal is None:
+        raise ValueError("robot: --goal X Y Z is needed (metres, the arm's base frame)")
+    if not scene and (args.partner != "scripted" or args.preset != "default"):
+        raise ValueError("--partner and --preset are for a seat of the collaborative scene")
     tool = (policy.spec.get("env_kwargs") or {}).get("tool", "lnd")
     log_path = Path(args.log or Path("runs") / f"robot-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     log = DatagramLog(log_path)
     links = []
     try:
         if args.dry_run:
-            start = np.asarray(args.start if args.start else (0.0, 0.0, -0.11))
-            link = EchoLink(args.arm, frames.servo_cp_goal(start, tool=tool), log=log)
+            if scene:  # (where the scene's model starts the seat's arm)
+                link = EchoLink(args.arm, SceneRobotSeat.start_pose(policy, args.preset, args.seed), log=log)
+            else:
+                start = np.asarray(args.start if args.start else (0.0, 0.0, -0.11))
+                link = EchoLink(args.arm, frames.servo_cp_goal(start, tool=tool), log=log)
         else:
             link = StreamerLink(args.arm, args.local_port, host=args.host, log=log)
             links.append(link)
@@ -474,8 +486,12 @@ def _robot(args) -> int:
                 if args.home:
                     system_link.home()
                     time.sleep(args.home_wait)
-        seat = RobotSeat(ArmLink(args.arm, link), policy, goal=args.goal, tool=tool, log=log,
-                         object_position=args.object)
+        if scene:
+            seat = SceneRobotSeat(ArmLink(args.arm, link), policy, partner=args.partner, preset=args.preset,
+                                  seed=args.seed, log=log)
+        else:
+            seat = RobotSeat(ArmLink(args.arm, link), policy, goal=args.goal, tool=tool, log=log,
+                             object_position=args.object)
         summary = seat.run(args.steps)
     finally:
         for link in links:
@@ -543,6 +559,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "streamer (UDP, no ROS; docs/robot.md), or --dry-run")
     robot.add_argument("--policy", default="reach-lnd", help="a shipped Reach or Pick policy or its folder (default "
                        "reach-lnd; pick-lnd: the object is the env's model of it)")
+    robot.add_argument("--partner", default="scripted", help="a scene's seat: who works the other arm in the model "
+                       "(scripted, the default, or a shipped seat's name)")
+    robot.add_argument("--preset", choices=sorted(PRESETS), default="default", help="a scene's seat: the scene")
+    robot.add_argument("--seed", type=SEED, default=0, help="a scene's seat: the modelled scene's seed")
     robot.add_argument("--object", type=METRES, nargs=3, metavar=("X", "Y", "Z"),
                        help="Pick: where the modelled object starts (m; default on the table below the start)")
     robot.add_argument("--arm", default="PSM1", help="the arm's name, as in the logs (default PSM1)")

@@ -234,8 +234,12 @@ def test_the_command_line_dry_run_and_its_refusals(tmp_path, capsys):
     assert len([line for line in read_log(log) if line["dir"] == "out"]) > 10
     assert main(["robot", "--dry-run", "--goal", "0.5", "0", "-0.1"]) == 2  # outside the workspace: said, no traceback
     assert "goal" in capsys.readouterr().err
+    assert main(["robot", "--dry-run", "--policy", "marl-suction-pixels"]) == 2
+    assert "sees the endoscope's images" in capsys.readouterr().err
     assert main(["robot", "--dry-run", "--policy", "marl-grasper", "--goal", "0", "0", "-0.1"]) == 2
-    assert "runs single-arm policies" in capsys.readouterr().err
+    assert "--goal is for a single-arm policy" in capsys.readouterr().err
+    assert main(["robot", "--dry-run", "--partner", "marl-suction", "--goal", "0", "0", "-0.1"]) == 2
+    assert "--partner and --preset are for a seat of the collaborative scene" in capsys.readouterr().err
     assert main(["robot", "--dry-run", "--object", "0", "0", "-0.11", "--goal", "0", "0", "-0.1"]) == 2
     assert "--object is for a Pick policy" in capsys.readouterr().err
     with pytest.raises(SystemExit):
@@ -290,3 +294,28 @@ def test_a_pick_dry_run_sends_what_the_env_does_with_its_modelled_object():
     assert summary.success and info["is_success"] and info["grasped"]
     with pytest.raises(ValueError, match="object_position is for a Pick policy"):
         RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, object_position=[0, 0, -0.11])
+
+
+def test_a_seat_of_the_scene_on_an_arm_works_the_modelled_scene_as_the_env_does():
+    from dvrl_marl.dvrk import SceneRobotSeat
+    from dvrl_marl.envs import suction_debris
+
+    policy = policies.load("marl-grasper")
+    clock = Clock()
+    link = EchoLink("PSM2", SceneRobotSeat.start_pose(policy, seed=0), clock=clock)
+    seat = SceneRobotSeat(ArmLink("PSM2", link), policy, seed=0, clock=clock, sleep=clock.sleep)
+    summary = seat.run(1500)
+    env = suction_debris.batched_env(num_envs=1, autoreset_mode="disabled", surgeon="scripted", surgeon_seat="suction")
+    observations, _ = env.reset(seed=0)
+    servo = [payload["servo_cp"]["Goal"]["Translation"] for _, payload in link.outbox if "servo_cp" in payload]
+    base = env.core.arms["grasper"].base_position
+    for step in range(summary.steps):
+        observations, _, terminated, _, info = env.step({"grasper": policy(observations["grasper"])})
+        expected = frames.env_to_dvrk(env.core.arms["grasper"].tip_world()[0], frames.BasePose(tuple(base.tolist())),
+                                      tool="lnd", env_tip_frame="tool_point")
+        np.testing.assert_allclose(servo[step], expected, atol=1e-8, err_msg=f"command {step}")
+    assert summary.success and bool(terminated["grasper"][0]) and int(info["grasper"]["debris_delivered"][0]) == 3
+    assert len([payload for _, payload in link.outbox if "jaw/servo_jp" in payload]) == summary.steps
+    with pytest.raises(ValueError, match="needs a seat of the collaborative scene"):
+        SceneRobotSeat(ArmLink("PSM2", link), policies.load("reach-lnd"))
+    assert main(["robot", "--dry-run", "--policy", "marl-grasper", "--goal", "0", "0", "-0.1"]) == 2

@@ -8,7 +8,7 @@ them; ``docs/robot.md`` is the page.
 from dvrl_marl.dvrk.arm import ArmLink, Measured, SystemLink
 from dvrl_marl.dvrk.dry_run import EchoLink
 from dvrl_marl.dvrk.link import MAX_DATAGRAM, DatagramLog, ReplayLink, StreamerLink, read_log
-from dvrl_marl.dvrk.seat import RobotSeat, RunSummary
+from dvrl_marl.dvrk.seat import RobotSeat, RunSummary, SceneRobotSeat
 
 __all__ = ["ArmLink", "SystemLink", "Measured", "StreamerLink", "ReplayLink", "EchoLink", "DatagramLog", "read_log",
-           "MAX_DATAGRAM", "RobotSeat", "RunSummary"]
+           "MAX_DATAGRAM", "RobotSeat", "SceneRobotSeat", "RunSummary"]

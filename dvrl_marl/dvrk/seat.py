@@ -29,7 +29,7 @@ import numpy as np
 from dvrl_marl import frames
 from dvrl_marl.dvrk.arm import ArmLink
 
-__all__ = ["RobotSeat", "RunSummary", "jaw_angle", "JAW_OPEN_ANGLE"]
+__all__ = ["RobotSeat", "SceneRobotSeat", "RunSummary", "jaw_angle", "JAW_OPEN_ANGLE"]
 
 
 @dataclass
@@ -81,18 +81,34 @@ class RobotSeat:
             raise ValueError("object_position is for a Pick policy; Reach has no object")
         self.object_position = object_position
         self.env.reset(seed=0)  # (its arm and goal made; each step then starts from the measured tip)
+        self._loop(arm, policy, rate_hz, stale_after_s, clock, sleep, log)
+        self.tool = self.env.tool.name if hasattr(self.env.tool, "name") else tool
+        self.goal = self.env.parse_reset_options({"goal": goal})["goal"]  # (checked as the env checks a goal)
+        self.tip_frame = getattr(self.env, "tip_frame", "measured_cp")
+        self.base_pose = frames.BasePose()
+
+    def _loop(self, arm, policy, rate_hz, stale_after_s, clock, sleep, log) -> None:
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
             raise ValueError(f"rate_hz must be in (0, 1000], got {rate_hz!r}")
         if not (isinstance(stale_after_s, (int, float)) and math.isfinite(stale_after_s) and stale_after_s > 0):
             raise ValueError(f"stale_after_s must be a positive number of seconds, got {stale_after_s!r}")
         self.arm, self.policy = arm, policy
-        self.tool = self.env.tool.name if hasattr(self.env.tool, "name") else tool
-        self.goal = self.env.parse_reset_options({"goal": goal})["goal"]  # (checked as the env checks a goal)
         self.period = 1.0 / rate_hz
         self.stale_after = float(stale_after_s)
         self.clock, self.sleep = clock, sleep
         self.log = log if log is not None else arm.link.log
-        self.tip_frame = getattr(self.env, "tip_frame", "measured_cp")
+
+    def from_dvrk(self, position) -> np.ndarray:
+        """The env's tip for a measured_cp position."""
+        return frames.dvrk_to_env(position, self.base_pose, tool=self.tool, env_tip_frame=self.tip_frame)
+
+    def to_dvrk(self, target) -> np.ndarray:
+        """The servo_cp goal (4x4, the arm's base frame) for an env tip."""
+        return frames.servo_cp_goal(target, self.base_pose, tool=self.tool, env_tip_frame=self.tip_frame)
+
+    def tool_command(self) -> float | None:
+        """The jaw angle to send after the pose (Pick), or None."""
+        return jaw_angle(self.env.arm.jaw) if self.picks else None
 
     # --- one control period -------------------------------------------------------------------------------------
     def start(self, tip) -> None:
@@ -188,12 +204,12 @@ class RobotSeat:
                         "measured_cp invalid" if not measured.valid else f"measured_cp {1000 * age:.0f} ms old"
                     self._stop(summary, f"stale measurement: {why}", step=step)
                     break
-                tip = frames.dvrk_to_env(measured.position, tool=self.tool, env_tip_frame=self.tip_frame)
+                tip = self.from_dvrk(measured.position)
                 if step == 0:
                     self.start(tip)
                     self.log.note(now, "start", tip=tip.tolist(), measured=measured.position.tolist())
                 success, distance = self.reached(tip)
-                summary.final_distance_mm = 1000.0 * distance
+                summary.final_distance_mm = None if distance is None else 1000.0 * distance
                 if success and not summary.success:
                     summary.success, summary.success_step = True, step
                     if stop_on_success:
@@ -206,10 +222,11 @@ class RobotSeat:
                 if clamped:
                     summary.clamped += 1
                     self.log.note(now, "clamped", step=step, target=target.tolist())
-                goal = frames.servo_cp_goal(target, tool=self.tool, env_tip_frame=self.tip_frame)
+                goal = self.to_dvrk(target)
                 self.arm.servo_cp(goal)
-                if self.picks:  # the env's jaw, as the dVRK's jaw angle
-                    self.arm.jaw_servo_jp(jaw_angle(self.env.arm.jaw))
+                jaw = self.tool_command()
+                if jaw is not None:  # the env's jaw, as the dVRK's jaw angle
+                    self.arm.jaw_servo_jp(jaw)
                 sent = self.clock()
                 if last_sent is not None:
                     summary.periods_ms.append(1000.0 * (sent - last_sent))
@@ -254,6 +271,73 @@ class RobotSeat:
         if measured is None:
             return None
         return round(1000.0 * float(np.linalg.norm(measured.position - np.asarray(commanded))), 4)
+
+
+class SceneRobotSeat(RobotSeat):
+    """A seat of the collaborative scene (``policies.load("marl-grasper")``, ...) on ``arm``: the arm is the seat's,
+    the rest of the scene (the other arm, worked by ``partner``, the blood and the pins) is the env's model of it, one
+    world of ``suction_debris`` with ``preset``'s scene, seeded ``seed``. Each period the seat's arm in the model is
+    put where the robot measured it, the policy acts on the scene's observation, and the model's step (the partner's
+    move, suction, grasps, the hand-off) gives the next goal. The run ends when the scene is cleared. The grasper's
+    jaw goes out as ``jaw/servo_jp``; the suction's valve has no dVRK command (it stays in the model)."""
+
+    def __init__(self, arm: ArmLink, policy, *, partner="scripted", preset: str = "default", seed: int = 0,
+                 rate_hz: float = 50.0, stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
+        from dvrl_marl.envs import suction_debris
+        from dvrl_marl.envs.presets import scene_options
+
+        self.agent = policy.spec.get("agent") if hasattr(policy, "spec") else None
+        if self.agent not in ("suction", "grasper"):
+            raise ValueError("SceneRobotSeat needs a seat of the collaborative scene (a policy trained for the "
+                             "'suction' or 'grasper' seat)")
+        other = "suction" if self.agent == "grasper" else "grasper"
+        self.env = suction_debris.batched_env(num_envs=1, autoreset_mode="disabled", surgeon=partner,
+                                              surgeon_seat=other, **scene_options(preset))
+        self.env.reset(seed=seed)
+        self._loop(arm, policy, rate_hz, stale_after_s, clock, sleep, log)
+        core_arm = self.env.core.arms[self.agent]
+        self.tool = core_arm.tool.name
+        self.tip_frame = "tool_point"  # (the scene's tips are the tools' points, in the world)
+        self.base_pose = frames.BasePose(tuple(np.asarray(core_arm.base_position).tolist()))
+        self.picks, self.goal = False, None
+
+    @staticmethod
+    def start_pose(policy, preset: str = "default", seed: int = 0) -> np.ndarray:
+        """The servo_cp pose (4x4, the arm's base frame) where the scene's model starts the seat's arm."""
+        from dvrl_marl.envs import suction_debris
+        from dvrl_marl.envs.presets import scene_options
+
+        agent = policy.spec["agent"]
+        env = suction_debris.batched_env(num_envs=1, autoreset_mode="disabled", **scene_options(preset))
+        env.reset(seed=seed)
+        arm = env.core.arms[agent]
+        return frames.servo_cp_goal(arm.tip_world()[0], frames.BasePose(tuple(np.asarray(arm.base_position).tolist())),
+                                    tool=arm.tool.name, env_tip_frame="tool_point")
+
+    def start(self, tip) -> None:
+        pass
+
+    def _place(self, tip) -> None:
+        self.env.set_tip_positions({self.agent: np.asarray(tip, dtype=np.float64)[None]})
+
+    def observation(self, tip):
+        self._place(tip)
+        return self.env.observations()[self.agent][0]
+
+    def target(self, tip, action) -> tuple[np.ndarray, bool]:
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
+        self._place(tip)
+        self.env.step({self.agent: action[None]})
+        reached = np.asarray(self.env.core.arms[self.agent].tip_world()[0])
+        unclamped = np.asarray(tip, dtype=np.float64) + self.env.params.step_size * action[:3]
+        return reached, not np.allclose(reached, unclamped, atol=1e-9)
+
+    def reached(self, tip) -> tuple[bool, None]:
+        """Whether the modelled scene is cleared (every cavity, every pin delivered)."""
+        return bool(self.env.core.complete[0]), None
+
+    def tool_command(self) -> float | None:
+        return jaw_angle(float(self.env.core.arms["grasper"].jaw[0])) if self.agent == "grasper" else None
 
 
 #: The jaw's opening angle (rad) at j = 1: the original dVRL scene turned each of the LND's two jaws 0.4106 * j rad
