@@ -189,10 +189,13 @@ class RobotSeat:
             previous_handler = signal.signal(signal.SIGTERM, _raise_interrupt)
         last_target = None
         try:
-            start = self.clock()
-            deadline = start
+            # Each period: sense and compute a few milliseconds before the tick, send on the tick (the command's
+            # timing then does not carry the computation's jitter; the measurement is that much old at most).
+            margin = min(0.003, self.period / 4)
+            deadline = self.clock() + margin
             last_sent = None
             for step in range(steps):
+                self._wait_until(deadline - margin)
                 self.arm.update()
                 measured = self.arm.measured_cp()
                 now = self.clock()
@@ -223,6 +226,7 @@ class RobotSeat:
                     summary.clamped += 1
                     self.log.note(now, "clamped", step=step, target=target.tolist())
                 goal = self.to_dvrk(target)
+                self._wait_until(deadline)
                 self.arm.servo_cp(goal)
                 jaw = self.tool_command()
                 if jaw is not None:  # the env's jaw, as the dVRK's jaw angle
@@ -234,7 +238,6 @@ class RobotSeat:
                 summary.steps += 1
                 summary.commands.append(goal[:3, 3].tolist())
                 deadline += self.period
-                self._wait_until(deadline)
             else:
                 summary.stopped = "steps done"
             if not summary.stopped:
