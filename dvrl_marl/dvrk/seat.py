@@ -253,14 +253,14 @@ class RobotSeat:
         return summary
 
     def _wait_until(self, deadline: float) -> None:
-        """Sleep to ``deadline``; on the real clock, the last millisecond is waited out by reading the clock (a
+        """Sleep to ``deadline``; on the real clock, the last two milliseconds are waited out by reading the clock (a
         sleep overshoots by up to a millisecond or two, which the loop's period would carry)."""
         remaining = deadline - self.clock()
         if self.sleep is not time.sleep or self.clock is not time.monotonic:
             self.sleep(max(0.0, remaining))
             return
-        if remaining > 0.0015:
-            time.sleep(remaining - 0.001)
+        if remaining > 0.003:
+            time.sleep(remaining - 0.002)
         while time.monotonic() < deadline:
             pass
 
