@@ -117,7 +117,7 @@ def main() -> int:
             silence.kill()
             process.wait()
             time.sleep(1.0)
-    rows, stale = [], None
+    rows, stale, periods = [], None, []
     try:
         system.wait_heard(timeout_s=10.0)
         wait_for(lambda: arm.operating_state is not None and arm.measured_cp() is not None, arm, 30.0,
@@ -147,6 +147,7 @@ def main() -> int:
                 summary = RobotSeat(arm, policy, goal=goal, log=log).run(100)
             arm_link.log = setup_log
             log.close()
+            periods += summary.periods_ms
             rows.append({"seed": seed, "start": start.tolist(), "goal": None if goal is None else goal.tolist(),
                          "start_error_mm": round(start_error, 4), **summary.figures()})
             print(json.dumps(rows[-1]))
@@ -193,13 +194,16 @@ def main() -> int:
         silence.kill()
     successes = sum(row["success"] for row in rows)
     tracking = [row["tracking_error_mm"] for row in rows if row["tracking_error_mm"] is not None]
-    periods = [row["period_ms_p99"] for row in rows if row["period_ms_p99"] is not None]
+    p99s = [row["period_ms_p99"] for row in rows if row["period_ms_p99"] is not None]
     record = {"what": f"{args.policy} on the dVRK's kinematically simulated PSM1 (LND) through its socket streamer"
               + (" (the object modelled by the env)" if "Pick" in env_id else "")
               + (" (the rest of the scene modelled, the scripted partner in the other seat)" if scene else ""),
               "policy": args.policy, "dvrk_version": args.version, "episodes": len(rows), "successes": successes,
               "largest_tracking_error_mm": max(tracking) if tracking else None,
-              "largest_period_ms_p99": max(periods) if periods else None, "stale_hold": stale, "rows": rows,
+              "largest_period_ms_p99": max(p99s) if p99s else None, "stale_hold": stale, "rows": rows,
+              "periods": len(periods), "period_ms_median_all": round(float(np.median(periods)), 3) if periods else None,
+              "period_ms_p99_all": round(float(np.percentile(periods, 99)), 3) if periods else None,
+              "period_ms_max_all": round(float(np.max(periods)), 3) if periods else None,
               "command": "python benchmarks/dvrk_conformance.py " + " ".join(sys.argv[1:]), "code": code}
     print(json.dumps({key: value for key, value in record.items() if key not in ("rows", "code")}, indent=1))
     if args.json:
