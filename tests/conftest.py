@@ -93,3 +93,16 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.slow)
     # (a stable sort: within each group, the collection's order)
     items.sort(key=lambda item: not f"{item.path.name}::{item.name}".startswith(LONG_FIRST))
+
+
+class DrivenClock:
+    """A clock a test drives: reading it gives the time, ``sleep`` moves it on (no real waiting)."""
+
+    def __init__(self, start: float = 0.0):
+        self.t = start
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += max(seconds, 0.0)

@@ -13,24 +13,12 @@ import numpy as np
 import pytest
 
 import dvrl_marl  # noqa: F401
+from conftest import DrivenClock as Clock
 from dvrl_marl import frames, policies
 from dvrl_marl.cli import main
 from dvrl_marl.dvrk import MAX_DATAGRAM, ArmLink, DatagramLog, EchoLink, ReplayLink, RobotSeat, StreamerLink, read_log
 from dvrl_marl.dvrk.link import encode
 from dvrl_marl.dvrk.seat import jaw_angle
-
-
-class Clock:
-    """A clock the seat reads and sleeps on (no real waiting)."""
-
-    def __init__(self):
-        self.t = 100.0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, seconds):
-        self.t += max(seconds, 0.0)
 
 
 def _episode(seed=3):
@@ -111,7 +99,7 @@ def _busy_port():
 def test_the_dry_run_sends_what_the_env_does_from_the_same_tip():
     env, observation, start, goal = _episode()
     policy = policies.load("reach-lnd")
-    clock = Clock()
+    clock = Clock(100.0)
     link = EchoLink("PSM1", frames.servo_cp_goal(start), clock=clock)
     seat = RobotSeat(ArmLink("PSM1", link), policy, goal=goal, clock=clock, sleep=clock.sleep)
     np.testing.assert_allclose(seat.observation(start)["observation"], observation["observation"], atol=1e-12)
@@ -143,7 +131,7 @@ def _state(t, state="ENABLED", homed=True):
                                                ("ENABLED", False, "not homed"), (None, None, "no operating_state")])
 def test_an_arm_that_is_not_enabled_and_homed_is_never_moved(state, homed, why):
     _, _, start, goal = _episode()
-    clock = Clock()
+    clock = Clock(100.0)
     lines = [_measured(0.0, start)] + ([] if state is None else [_state(0.0, state, homed)])
     link = _replay(lines, clock)
     summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, clock=clock,
@@ -154,7 +142,7 @@ def test_an_arm_that_is_not_enabled_and_homed_is_never_moved(state, homed, why):
 
 def test_a_stale_measurement_holds_the_arm_within_100_ms():
     _, _, start, goal = _episode()
-    clock = Clock()
+    clock = Clock(100.0)
     link = _replay([_state(0.0), _measured(0.0, start)], clock)  # one measurement, then the streamer falls silent
     summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, clock=clock,
                         sleep=clock.sleep).run(100)
@@ -167,7 +155,7 @@ def test_a_stale_measurement_holds_the_arm_within_100_ms():
 
 def test_an_invalid_measurement_holds_the_arm():
     _, _, start, goal = _episode()
-    clock = Clock()
+    clock = Clock(100.0)
     link = _replay([_state(0.0), _measured(0.0, start, valid=False)], clock)
     summary = RobotSeat(ArmLink("PSM1", link), policies.load("reach-lnd"), goal=goal, clock=clock,
                         sleep=clock.sleep).run(10)
@@ -194,7 +182,7 @@ class Interrupted:
 @pytest.mark.parametrize("signum", [None, signal.SIGTERM])
 def test_ctrl_c_or_sigterm_holds_the_arm_and_keeps_the_log(tmp_path, signum):
     _, _, start, goal = _episode()
-    clock = Clock()
+    clock = Clock(100.0)
     log = DatagramLog(tmp_path / "run.jsonl")
     link = EchoLink("PSM1", frames.servo_cp_goal(start), clock=clock, log=log)
     before = signal.getsignal(signal.SIGTERM)
@@ -211,7 +199,7 @@ def test_a_move_the_workspace_box_clamps_is_clamped_and_logged(tmp_path):
     env = gym.make("dvrl_marl/PSMReach-v1").unwrapped
     env.reset(seed=0)
     corner = np.array(env.tip_high)  # (the box's corner: every outward move is clamped)
-    clock = Clock()
+    clock = Clock(100.0)
     log = DatagramLog(tmp_path / "run.jsonl")
     link = EchoLink("PSM1", frames.servo_cp_goal(corner), clock=clock, log=log)
     outward = lambda observation: np.ones(3, dtype=np.float32)  # noqa: E731
@@ -279,7 +267,7 @@ def test_a_pick_dry_run_sends_what_the_env_does_with_its_modelled_object():
     observation, _ = env.reset(seed=3)
     start, goal = np.array(env.unwrapped.arm.tip), env.unwrapped.goal.copy()
     policy = policies.load("pick-lnd")
-    clock = Clock()
+    clock = Clock(100.0)
     link = EchoLink("PSM1", frames.servo_cp_goal(start), clock=clock)
     seat = RobotSeat(ArmLink("PSM1", link), policy, goal=goal, clock=clock, sleep=clock.sleep)
     summary = seat.run(100)
@@ -301,7 +289,7 @@ def test_a_seat_of_the_scene_on_an_arm_works_the_modelled_scene_as_the_env_does(
     from dvrl_marl.envs import suction_debris
 
     policy = policies.load("marl-grasper")
-    clock = Clock()
+    clock = Clock(100.0)
     link = EchoLink("PSM2", SceneRobotSeat.start_pose(policy, seed=0), clock=clock)
     seat = SceneRobotSeat(ArmLink("PSM2", link), policy, seed=0, clock=clock, sleep=clock.sleep)
     summary = seat.run(1500)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import dvrl_marl  # noqa: F401
+from conftest import DrivenClock as Clock
 from dvrl_marl import frames, policies
 from dvrl_marl.dvrk import ArmLink, ReplayLink, RobotSeat
 from dvrl_marl.dvrk.link import encode
-from dvrl_marl.dvrk.seat import jaw_angle
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDINGS = ROOT / "tests" / "dvrk_recordings"
@@ -27,17 +27,6 @@ EPISODES = sorted(RECORDINGS.glob("episode-*.jsonl.gz"))
 def _lines(path):
     with gzip.open(path, "rt") as handle:
         return [json.loads(line) for line in handle]
-
-
-class Clock:
-    def __init__(self):
-        self.t = 0.0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, seconds):
-        self.t += max(seconds, 0.0)
 
 
 def test_the_record_and_its_recordings_are_all_there():
@@ -126,6 +115,30 @@ PICK_RECORD = json.loads((ROOT / "benchmarks" / "results" / "dvrk_conformance_pi
 PICK_EPISODES = sorted((RECORDINGS / "pick").glob("episode-*.jsonl.gz"))
 
 
+def _replay_in_turn(seat, lines, name: str) -> int:
+    """Every recorded command (``servo_cp``, the jaw's) against what ``seat`` makes of the measurement before it,
+    measurement by measurement from the run's recorded start (the seat's model carries over: Pick's object, the
+    scene). Returns how many periods were replayed."""
+    start = next(line["data"] for line in lines if line["dir"] == "note" and line["data"]["what"] == "start")
+    measured = np.asarray(start["measured"])
+    seat.start(seat.from_dvrk(measured))  # (Pick: the modelled object, on the table below where the run began)
+    servo = jaws = 0
+    for line in lines:
+        if line["dir"] == "in" and "measured_cp" in line["data"]:
+            measured = np.asarray(line["data"]["measured_cp"]["Position"]["Translation"])
+        elif line["dir"] == "out" and "servo_cp" in line["data"]:
+            servo += 1
+            tip = seat.from_dvrk(measured)
+            target, _ = seat.target(tip, seat.policy(seat.observation(tip)))
+            np.testing.assert_allclose(line["data"]["servo_cp"]["Goal"]["Translation"], seat.to_dvrk(target)[:3, 3],
+                                       rtol=0, atol=2e-9, err_msg=f"{name}: command {servo}")
+        elif line["dir"] == "out" and "jaw/servo_jp" in line["data"]:
+            jaws += 1
+            assert line["data"]["jaw/servo_jp"]["Goal"][0] == pytest.approx(seat.tool_command(), abs=2e-9)
+    assert servo == jaws
+    return servo
+
+
 def test_pick_on_the_dvrk_sent_what_the_env_makes_of_each_measurement_in_turn():
     """pick-lnd on the dVRK's simulated PSM1, the object the env's model of it: replayed measurement by measurement,
     the seat sends the recorded commands (servo_cp and the jaw), and its modelled object reaches the goal."""
@@ -134,26 +147,8 @@ def test_pick_on_the_dvrk_sent_what_the_env_makes_of_each_measurement_in_turn():
         row = PICK_RECORD["rows"][int(path.name.split("-")[1].split(".")[0])]
         seat = RobotSeat(ArmLink("PSM1", ReplayLink("PSM1", [], clock=Clock())), policies.load("pick-lnd"),
                          goal=row["goal"])
-        lines = _lines(path)
-        start = next(line["data"] for line in lines if line["dir"] == "note" and line["data"]["what"] == "start")
-        measured, servo, jaws = np.asarray(start["measured"]), 0, 0
-        seat.start(frames.dvrk_to_env(measured))  # (the modelled object, on the table below where the run began)
-        expected_jaw = None
-        for line in lines:
-            if line["dir"] == "in" and "measured_cp" in line["data"]:
-                measured = np.asarray(line["data"]["measured_cp"]["Position"]["Translation"])
-            elif line["dir"] == "out" and "servo_cp" in line["data"]:
-                servo += 1
-                tip = frames.dvrk_to_env(measured)
-                target, _ = seat.target(tip, seat.policy(seat.observation(tip)))
-                expected_jaw = jaw_angle(seat.env.arm.jaw)
-                np.testing.assert_allclose(line["data"]["servo_cp"]["Goal"]["Translation"], target, rtol=0,
-                                           atol=2e-9, err_msg=f"{path.name}: command {servo}")
-            elif line["dir"] == "out" and "jaw/servo_jp" in line["data"]:
-                jaws += 1
-                assert line["data"]["jaw/servo_jp"]["Goal"][0] == pytest.approx(expected_jaw, abs=2e-9)
-        assert servo == jaws == row["steps"]
-        assert seat.reached(frames.dvrk_to_env(measured))[0] == row["success"]  # (the modelled object, after them)
+        assert _replay_in_turn(seat, _lines(path), path.name) == row["steps"]
+        assert seat.reached(None)[0] == row["success"]  # (the modelled object, after them)
 
 
 def test_a_scene_seat_on_the_dvrk_sent_what_the_modelled_scene_makes_of_each_measurement_in_turn():
@@ -166,20 +161,5 @@ def test_a_scene_seat_on_the_dvrk_sent_what_the_modelled_scene_makes_of_each_mea
     row = record["rows"][0]
     seat = SceneRobotSeat(ArmLink("PSM1", ReplayLink("PSM1", [], clock=Clock())), policies.load("marl-grasper"),
                           seed=row["seed"])
-    lines = _lines(RECORDINGS / "scene" / "episode-00.jsonl.gz")
-    measured = np.asarray(next(line["data"] for line in lines if line["dir"] == "note"
-                               and line["data"]["what"] == "start")["measured"])
-    servo = jaws = 0
-    for line in lines:
-        if line["dir"] == "in" and "measured_cp" in line["data"]:
-            measured = np.asarray(line["data"]["measured_cp"]["Position"]["Translation"])
-        elif line["dir"] == "out" and "servo_cp" in line["data"]:
-            servo += 1
-            tip = seat.from_dvrk(measured)
-            target, _ = seat.target(tip, seat.policy(seat.observation(tip)))
-            np.testing.assert_allclose(line["data"]["servo_cp"]["Goal"]["Translation"], seat.to_dvrk(target)[:3, 3],
-                                       rtol=0, atol=2e-9, err_msg=f"command {servo}")
-        elif line["dir"] == "out" and "jaw/servo_jp" in line["data"]:
-            jaws += 1
-            assert line["data"]["jaw/servo_jp"]["Goal"][0] == pytest.approx(seat.tool_command(), abs=2e-9)
-    assert servo == jaws == row["steps"] and seat.reached(None)[0]
+    assert _replay_in_turn(seat, _lines(RECORDINGS / "scene" / "episode-00.jsonl.gz"), "scene") == row["steps"]
+    assert seat.reached(None)[0]
