@@ -196,10 +196,10 @@ class RobotSeat:
             last_sent = None
             for step in range(steps):
                 self._wait_until(deadline - margin)
+                now = self.clock()  # (the period's time: what came by now counts, as it was read in this update)
                 self.arm.update()
                 measured = self.arm.measured_cp()
-                now = self.clock()
-                age = math.inf if measured is None else now - measured.received
+                age = math.inf if measured is None else max(0.0, now - measured.received)
                 summary.largest_age_ms = max(summary.largest_age_ms, 1000.0 * age if math.isfinite(age) else 0.0)
                 # (stale if it would pass the limit before the next period's check: the hold is sent within the limit)
                 if measured is None or not measured.valid or age + self.period > self.stale_after:
