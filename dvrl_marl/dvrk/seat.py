@@ -59,11 +59,17 @@ class RunSummary:
 
 
 class RobotSeat:
+    #: How long before each tick the seat reads and computes (s): a single-arm step takes well under a millisecond.
+    compute_margin_s = 0.003
+
     """``policy`` (a shipped single-arm policy: ``policies.load("reach-lnd")`` or ``"pick-lnd"``) on ``arm`` towards
     ``goal`` (metres, the env's frame: the PSM base frame, the measured_cp point; Pick: the object's goal). ``env``:
     the environment whose step it repeats (by default the policy's, with its tool). For Pick the object is the env's
     own model of it, starting at ``object_position`` (default: on the table below the first measured tip), grasped and
     carried by the env's rule as the measured tip moves; the jaw goes out as ``jaw/servo_jp``."""
+
+    #: How long before each tick the seat reads and computes (s): a single-arm step takes well under a millisecond.
+    compute_margin_s = 0.003
 
     def __init__(self, arm: ArmLink, policy, *, goal, env=None, tool: str = "lnd", rate_hz: float = 50.0,
                  stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None, object_position=None):
@@ -191,7 +197,7 @@ class RobotSeat:
         try:
             # Each period: sense and compute a few milliseconds before the tick, send on the tick (the command's
             # timing then does not carry the computation's jitter; the measurement is that much old at most).
-            margin = min(0.003, self.period / 4)
+            margin = min(self.compute_margin_s, self.period / 2)
             deadline = self.clock() + margin
             last_sent = None
             for step in range(steps):
@@ -283,6 +289,9 @@ class SceneRobotSeat(RobotSeat):
     put where the robot measured it, the policy acts on the scene's observation, and the model's step (the partner's
     move, suction, grasps, the hand-off) gives the next goal. The run ends when the scene is cleared. The grasper's
     jaw goes out as ``jaw/servo_jp``; the suction's valve has no dVRK command (it stays in the model)."""
+
+    #: The scene's step (the partner, suction, grasps) takes a few milliseconds, now and then more.
+    compute_margin_s = 0.008
 
     def __init__(self, arm: ArmLink, policy, *, partner="scripted", preset: str = "default", seed: int = 0,
                  rate_hz: float = 50.0, stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
