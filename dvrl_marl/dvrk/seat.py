@@ -59,9 +59,6 @@ class RunSummary:
 
 
 class RobotSeat:
-    #: How long before each tick the seat reads and computes (s): a single-arm step takes well under a millisecond.
-    compute_margin_s = 0.003
-
     """``policy`` (a shipped single-arm policy: ``policies.load("reach-lnd")`` or ``"pick-lnd"``) on ``arm`` towards
     ``goal`` (metres, the env's frame: the PSM base frame, the measured_cp point; Pick: the object's goal). ``env``:
     the environment whose step it repeats (by default the policy's, with its tool). For Pick the object is the env's
@@ -290,8 +287,9 @@ class SceneRobotSeat(RobotSeat):
     move, suction, grasps, the hand-off) gives the next goal. The run ends when the scene is cleared. The grasper's
     jaw goes out as ``jaw/servo_jp``; the suction's valve has no dVRK command (it stays in the model)."""
 
-    #: The scene's step (the partner, suction, grasps) takes a few milliseconds, now and then more.
-    compute_margin_s = 0.008
+    #: The scene's step (the partner, suction, grasps) takes a few milliseconds, now and then more. (Read much earlier
+    #: than that, the latest measurement may predate the last command: the streamer sends every 5 ms.)
+    compute_margin_s = 0.006
 
     def __init__(self, arm: ArmLink, policy, *, partner="scripted", preset: str = "default", seed: int = 0,
                  rate_hz: float = 50.0, stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
