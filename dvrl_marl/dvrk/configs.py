@@ -39,7 +39,7 @@ def system_streamer(ip: str, port: int) -> dict:
             "void-commands": ["power_on", "power_off", "home"]}
 
 
-def component_manager(arm: str, arm_file: str, system_file: str, period_s: float = 0.005) -> dict:
+def component_manager(arm: str, arm_file: str, system_file: str, period_s: float = 0.01) -> dict:
     """The component-manager file (``-m``): the two streamers, their files, and what each connects to."""
 
     def streamer(name, file):
@@ -55,7 +55,7 @@ def component_manager(arm: str, arm_file: str, system_file: str, period_s: float
 
 
 def write_configs(folder, *, arm: str = "PSM1", ip: str = "127.0.0.1", arm_port: int = 10002,
-                  system_port: int = 10004, period_s: float = 0.005) -> Path:
+                  system_port: int = 10004, period_s: float = 0.01) -> Path:
     """Writes ``streamer-<arm>.json``, ``streamer-system.json`` and ``manager-<arm>.json`` into ``folder``;
     returns the manager file's path (``-m`` takes it; run the system program from ``folder``)."""
     folder = Path(folder)

@@ -287,9 +287,10 @@ class SceneRobotSeat(RobotSeat):
     move, suction, grasps, the hand-off) gives the next goal. The run ends when the scene is cleared. The grasper's
     jaw goes out as ``jaw/servo_jp``; the suction's valve has no dVRK command (it stays in the model)."""
 
-    #: The scene's step (the partner, suction, grasps) takes a few milliseconds, now and then more. (Read much earlier
-    #: than that, the latest measurement may predate the last command: the streamer sends every 5 ms.)
-    compute_margin_s = 0.006
+    #: The scene's step (the partner, suction, grasps) takes a few milliseconds, now and then more; read much earlier,
+    #: the latest measurement (the streamer sends every 10 ms) may predate the last command: 8 ms before the tick
+    #: cost one of three seeded scenes, 3 ms keeps the measurement after it.
+    compute_margin_s = 0.003
 
     def __init__(self, arm: ArmLink, policy, *, partner="scripted", preset: str = "default", seed: int = 0,
                  rate_hz: float = 50.0, stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
