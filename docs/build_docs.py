@@ -34,7 +34,65 @@ def render() -> str:
         body = inspect.cleandoc(module.__doc__)
         first, _, rest = body.partition("\n")
         parts += [f"## {title}", "", first, rest.replace("\n## ", "\n### "), ""]
+        if module is suction_debris_v8:
+            parts += task_parameters()
     return "\n".join(parts).rstrip() + "\n"
+
+
+def task_parameters() -> list[str]:
+    """The collaborative task's parameters, each with its range (from its field's type: one place), the default of
+    the simple rule and the task file's value; every env form takes each as a keyword."""
+    from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, task_schema
+
+    schema, current = task_schema(), SuctionDebrisParams.from_task()
+    lines = ["### Parameters", "",
+             f"Generated from `SuctionDebrisParams` (its fields' types say the ranges; `tasks/{TASK}.toml` the values, "
+             "each with its source). Every form of the env takes each as a keyword, checked against the range.", "",
+             "| parameter | range | default (the simple rule) | the task file |", "|---|---|---|---|"]
+    for name, field in schema.model_fields.items():
+        if name == "description":
+            continue
+        lines.append(f"| `{name}` | {_range(field)} | {'required' if field.is_required() else f'`{field.default!r}`'} "
+                     f"| `{getattr(current, name)!r}` |")
+    return lines + [""]
+
+
+def _range(field) -> str:
+    """A field's range in words, from its annotation's constraints."""
+    return _described(field.annotation, list(field.metadata))
+
+
+def _described(annotation, metadata) -> str:
+    import typing
+
+    if typing.get_origin(annotation) is typing.Annotated:
+        kind, *extra = typing.get_args(annotation)
+        return _described(kind, metadata + extra)
+    if typing.get_origin(annotation) is typing.Literal:
+        return " or ".join(f"`{value!r}`" for value in typing.get_args(annotation))
+    if typing.get_origin(annotation) is tuple:
+        items = typing.get_args(annotation)
+        if len(items) == 2 and items[1] is Ellipsis:
+            return f"any number of ({_described(items[0], [])})"
+        return f"{len(items)} of ({_described(items[0], [])})"
+    if annotation is bool:
+        return "true / false"
+    if annotation is str:
+        return "text"
+    bounds = []
+    for item in metadata:
+        for constraint in [item, *getattr(item, "metadata", [])]:  # (a FieldInfo holds its constraints)
+            for attribute, word in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+                value = getattr(constraint, attribute, None)
+                if value is not None and f"{word} {value}" not in bounds:
+                    bounds.append(f"{word} {value}")
+            if getattr(constraint, "allow_inf_nan", None) is False and "finite" not in bounds:
+                bounds.insert(0, "finite")
+    kind = {int: "integer", float: "number"}.get(annotation, getattr(annotation, "__name__", "value"))
+    if "finite" in bounds:
+        bounds.remove("finite")
+        kind = "finite " + kind
+    return kind + ("" if not bounds else " " + ", ".join(bounds))
 
 
 def main() -> int:

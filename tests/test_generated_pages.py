@@ -110,3 +110,17 @@ def test_a_missing_record_or_a_table_without_rows_writes_no_page(tmp_path, monke
         assert build_results.main([]) == 2
         assert "no page was written" in capsys.readouterr().err
         assert page.read_text() == "the page as it was\n"
+
+
+def test_the_environments_page_lists_every_task_parameter_with_its_range():
+    """The collaborative task's parameter table is generated from SuctionDebrisParams: a row per field, none empty."""
+    from dataclasses import fields
+
+    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+
+    page = (ROOT / "docs" / "environments.md").read_text()
+    table = page.split("### Parameters", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in table.splitlines() if line.startswith("| `")]
+    assert [row.split("`")[1] for row in rows] == [f.name for f in fields(SuctionDebrisParams)]
+    assert all(cell.strip() for row in rows for cell in row.strip("|").split("|"))
+    assert "| `clotting_ml_s` | finite number >= 0 | `0.0` |" in table
