@@ -604,20 +604,29 @@ class SuctionDebrisBatchedEnv:
 
     @world_state.setter
     def world_state(self, state: EnvState) -> None:
-        if not isinstance(state, EnvState):
-            raise ValueError(f"{self.name}: world_state must be an EnvState record, got {type(state).__name__}")
-        check_state(state.scene, self.core.world_shapes, self.num_envs, self.name)
-        levels = np.asarray(state.levels, dtype=np.float64)
-        if levels.shape != (self.num_envs,):
-            raise ValueError(f"{self.name}: state.levels must have shape ({self.num_envs},), got {levels.shape}")
-        wanted = set(self.possible_agents) if self._guided is not None else set()
-        if set(state.potential) != wanted:
-            raise ValueError(f"{self.name}: state.potential must hold {sorted(wanted)}, got {sorted(state.potential)}")
+        self.check_state(state)
         self.core.set_state(state.scene)
-        self.levels = levels.copy()
+        self.levels = np.array(state.levels, dtype=np.float64)
         self._last_features = None
-        self._potential = {agent: np.array(value, dtype=np.float64) for agent, value in state.potential.items()} \
-            if wanted else self._potential
+        if self._guided is not None:
+            self._potential = {agent: np.array(value, dtype=np.float64) for agent, value in state.potential.items()}
+
+    def check_state(self, state, num_worlds="env") -> None:
+        """``ValueError`` naming what of ``state`` is not an :class:`EnvState` of this env's worlds (``num_worlds``:
+        the leading axis, None for one world's record); shapes and dtypes only, so it also runs at trace time (the
+        device env and ``jax_env`` check their records with it)."""
+        if not isinstance(state, EnvState):
+            raise ValueError(f"{self.name}: world_state must be an EnvState record; the state must be the EnvState "
+                             f"reset gave, got {type(state).__name__}")
+        count = self.num_envs if num_worlds == "env" else num_worlds
+        check_state(state.scene, self.core.world_shapes, count, self.name)
+        want = () if count is None else (count,)
+        if tuple(np.shape(state.levels)) != want:
+            raise ValueError(f"{self.name}: state.levels must have shape {want}, got {tuple(np.shape(state.levels))}")
+        agents = sorted(self.possible_agents) if self._guided is not None else []
+        if sorted(state.potential) != agents:
+            raise ValueError(f"{self.name}: state.potential must hold the guided reward's agents {agents}, got "
+                             f"{sorted(state.potential)}")
 
     def guided_potentials(self) -> dict:
         """``{agent: (N,)}``: the guided reward's potentials in the worlds' present state (empty without it)."""

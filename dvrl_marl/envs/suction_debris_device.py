@@ -40,7 +40,7 @@ import numpy as np
 
 from dvrl_marl.core import layout
 from dvrl_marl.core.collaborative_task import TASK
-from dvrl_marl.core.scene_state import EnvState, check_state, register_with_jax
+from dvrl_marl.core.scene_state import EnvState, register_with_jax
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
@@ -325,22 +325,9 @@ class SuctionDebrisDeviceEnv:
         self._global_state = None  # (computed from the new state when asked)
 
     def check_state(self, state, num_worlds="env") -> None:
-        """``ValueError`` naming what of ``state`` is not an :class:`EnvState` of this env's worlds (``num_worlds``:
-        the leading axis, None for one world's record); shapes and dtypes only, so it runs at trace time."""
-        if not isinstance(state, EnvState):
-            raise ValueError(f"{self.name}: the state must be the EnvState reset gave, got {type(state).__name__}")
-        count = self.num_envs if num_worlds == "env" else num_worlds
-        check_state(state.scene, self._tracing.core.world_shapes, count, self.name)
-        want = () if count is None else (count,)
-        if tuple(getattr(state.levels, "shape", ())) != want:
-            raise ValueError(f"{self.name}: state.levels must have shape {want}, got "
-                             f"{tuple(getattr(state.levels, 'shape', ()))}")
-        if set(state.potential) != set(self._resting_potentials()):
-            raise ValueError(f"{self.name}: state.potential must hold the guided reward's agents "
-                             f"{sorted(self._resting_potentials())}, got {sorted(state.potential)}")
-
-    def _resting_potentials(self) -> dict:
-        return dict.fromkeys(self.possible_agents) if self.host.reward_type == "guided" else {}
+        """``ValueError`` naming what of ``state`` is not an :class:`EnvState` of this env's worlds (the numpy env's
+        check: shapes and dtypes only, so it runs at trace time)."""
+        self.host.check_state(state, num_worlds)
 
     def _traced_global_state(self, state):
         self._load(state)
