@@ -708,8 +708,9 @@ class SuctionDebrisBatchedEnv:
         done = terminated | truncated
         if restart is None or not needed(done):
             return rewards, terminated, truncated, after, None
-        ended = {"done": done, "is_success": _copied(core.complete), "final_observation": self.observations(),
-                 "final_state": self.state(), "info": core.info()}
+        info = core.info()  # (its is_success: a copy of the ended episodes' completion)
+        ended = {"done": done, "is_success": info["is_success"], "final_observation": self.observations(),
+                 "final_state": self.state(), "info": info}
         restart(done)
         if after:
             xp = namespace(done)
@@ -824,10 +825,6 @@ class SuctionDebrisBatchedEnv:
             if renderer is not None:
                 renderer.close()
         self._endoscope = self._right_eye = None
-
-
-def _copied(value):
-    return value.copy() if isinstance(value, np.ndarray) else value
 
 
 def _rows_like(tree, count: int):
