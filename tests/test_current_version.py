@@ -110,7 +110,7 @@ def test_the_benchmark_preset_is_one_argument_in_every_form_and_explicit_keyword
 
 @pytest.mark.parametrize("bad", ["fast", None, 3])
 def test_an_unknown_preset_is_named(bad):
-    with pytest.raises(ValueError, match=r"preset must be one of \['benchmark', 'default'\]"):
+    with pytest.raises(ValueError, match=r"preset must be one of \['benchmark', 'default', 'irrigation'\]"):
         suction_debris_v8.parallel_env(preset=bad)
     with pytest.raises(ValueError, match="preset"):
         suction_debris_v8.batched_env(num_envs=2, preset=bad)

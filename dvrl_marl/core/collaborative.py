@@ -50,6 +50,9 @@ PIN_SENSOR_RANGE = PIN_RADIUS + 0.0015
 #: suction_debris_v8: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
 #: radius and a jaw's width: it lies wholly on the top, in the endoscope's view, where the grasper can take it again).
 PHANTOM_EDGE_MARGIN = 0.005
+#: A spill covers the phantom this far beyond its cavity's mouth (m): a pin's length, where a pin dropped by the
+#: cavity lies (a chosen value: the spill's extent is not modelled).
+SPILL_MARGIN = 0.028
 #: Tip start positions (world) before the seeded jitter.
 STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
@@ -167,6 +170,8 @@ class CollaborativeCore:
         self.handoff = np.asarray(geometry.handoff, dtype=np.float64)
         self.handoff_normalised = self.normalise(self.handoff)
         self.rewarded_agents = tuple(rewarded_agents)
+        #: the cavities hold more than blood: clots or saline (a rule's state in play; off: the earlier fast paths)
+        self.fluids = p.irrigation_ml_s > 0.0 or p.clot_share > 0.0 or p.clotting_ml_s > 0.0
         self.work_distance = {agent: np.zeros(n) for agent in AGENTS}
         self.blocked = {agent: np.zeros(n, dtype=bool) for agent in AGENTS}  # its last move was refused
         self.random = ResetStreams(n)
@@ -193,7 +198,7 @@ class CollaborativeCore:
     def _update_surfaces(self, worlds, cavity) -> None:
         surface = self.surface_z.copy()  # (a new array: a record the core was loaded from stays as it was)
         surface[worlds, cavity] = self.cavities.floor_z[cavity] + self.cavities.fill_depth(
-            cavity, self.remaining_ml[worlds, cavity])
+            cavity, self._fluid_ml()[worlds, cavity])
         self.surface_z = surface
 
     def set_blood(self, worlds, blood_ml) -> None:
@@ -262,6 +267,8 @@ class CollaborativeCore:
                 self._set(name, xp.where(started, xp.asarray(spec.start, dtype=value.dtype), value))
         initial = take(self.initial_ml, rows)
         self.remaining_ml = renew(self.remaining_ml, initial)
+        if p.clot_share > 0.0:  # that share of each cavity's blood starts clotted
+            self.clot_ml = renew(self.clot_ml, p.clot_share * initial)
         cavity_of = xp.broadcast_to(xp.arange(self.cavities.count)[None, :], initial.shape)
         surface = self.cavities.per_cavity(self.cavities.floor_z, cavity_of) + self.cavities.fill_depth(cavity_of,
                                                                                                            initial)
@@ -373,6 +380,10 @@ class CollaborativeCore:
             if agent == "suction":
                 opening = tools.moved_towards(self.valve_opening, tools.valve_target(tool), self.params.tool_speed)
                 self.valve_opening = xp.where(given, opening, self.valve_opening)
+                if self.params.irrigation_ml_s > 0.0:  # the signed valve: a negative command irrigates
+                    opening = tools.moved_towards(self.irrigation_opening, tools.irrigation_target(tool),
+                                                  self.params.tool_speed)
+                    self.irrigation_opening = xp.where(given, opening, self.irrigation_opening)
             else:
                 arm = self.arms["grasper"]
                 jaw = tools.moved_towards(arm.jaw, tools.jaw_target(tool, self.params.jaw_command),
@@ -381,6 +392,7 @@ class CollaborativeCore:
                     given = given & (self.holding < 0)
                 arm.jaw = xp.where(given, jaw, arm.jaw)
         removed = self.drawn_ml = self._suction()
+        self._irrigate()
         self._bleed()
         self._clot()
         lifted, delivered = self._grasping()
@@ -396,6 +408,11 @@ class CollaborativeCore:
     def valve_open(self) -> np.ndarray:
         """(N,) bool: the valve draws (more than half open; :mod:`dvrl_marl.core.tools`)."""
         return self.valve_opening > tools.VALVE_OPEN_ABOVE
+
+    @property
+    def irrigating(self) -> np.ndarray:
+        """(N,) bool: the valve irrigates (its irrigating side more than half open)."""
+        return self.irrigation_opening > tools.VALVE_OPEN_ABOVE
 
     def _floor(self, x, y):
         return self.cavities.surface_height(x, y) + self.params.tip_clearance
@@ -459,7 +476,11 @@ class CollaborativeCore:
         cavity = self.cavities.cavity_at(tip[:, 0], tip[:, 1])
         safe = xp.maximum(cavity, 0)
         remaining = _pick(self.remaining_ml, safe, xp)
-        liquid = remaining - _pick(self.clot_ml, safe, xp) if self.params.clotting_ml_s > 0.0 else remaining
+        liquid = remaining
+        if self.fluids:  # suction draws the liquid: blood not clotted, and saline
+            blood = xp.maximum(remaining - _pick(self.clot_ml, safe, xp), 0.0)
+            saline = _pick(self.saline_ml, safe, xp)
+            liquid = blood + saline
         height = tip[:, 2] - _pick(self.surface_z, safe, xp)
         reach = self.params.suction_reach
         if reach <= 0.0:  # the simple rule: full flow under the surface, none at or above it
@@ -471,6 +492,10 @@ class CollaborativeCore:
             return removed
         amount = xp.minimum(flow * self.params.suction_rate_ml_s * self.params.control_dt, liquid)
         drawn = self._in_cavity(safe, sucking)  # (N, C): the cavity each sucking world draws from
+        if self.fluids:  # the mix: blood in proportion to its share of the liquid
+            saline_drawn = amount * (saline / xp.maximum(liquid, 1e-300))
+            self.saline_ml = xp.where(drawn, xp.maximum(saline - saline_drawn, 0.0)[:, None], self.saline_ml)
+            amount = amount - saline_drawn
         self.remaining_ml = xp.where(drawn, xp.maximum(remaining - amount, 0.0)[:, None], self.remaining_ml)
         self._update_surfaces_where(drawn)
         removed = xp.where(sucking, amount, removed)
@@ -479,6 +504,65 @@ class CollaborativeCore:
                     & (self.debris_position[:, :, 2] + PIN_RADIUS > surface[:, None]))
         self.visible = self.visible | revealed
         return removed
+
+    def _fluid_ml(self):
+        """(N, C): what each cavity holds (ml): its blood, clotted or not, and with irrigation its saline."""
+        return self.remaining_ml + self.saline_ml if self.params.irrigation_ml_s > 0.0 else self.remaining_ml
+
+    def _irrigate(self) -> None:
+        """The S&I valve's other half (``irrigation_ml_s``): while it irrigates, saline flows from the tip. Over a
+        cavity with the tip below the phantom's top it enters that cavity (up to its capacity; the rest spills over
+        and covers the phantom around it for ``spill_s``) and breaks up ``clot_per_saline_ml`` of clot per ml of
+        flow into liquid blood; anywhere else it wets nothing useful and is wasted. Saline mixes with the liquid
+        blood, and suction draws the mix (:meth:`_suction`)."""
+        p = self.params
+        if p.irrigation_ml_s <= 0.0:
+            return
+        xp = namespace(self.remaining_ml)
+        self.spill_s = xp.maximum(self.spill_s - p.control_dt, 0.0)  # a spill dries
+        on = self.irrigating
+        if not needed(on):
+            self.spilling = self.spilling & False
+            return
+        flow = p.irrigation_ml_s * p.control_dt
+        tip = self.arms["suction"].tip_world()
+        cavity = self.cavities.cavity_at(tip[:, 0], tip[:, 1])
+        safe = xp.maximum(cavity, 0)
+        into = on & (cavity >= 0) & (tip[:, 2] < self.phantom.top_z)
+        self.saline_used_ml = self.saline_used_ml + xp.where(on, flow, 0.0)
+        self.saline_wasted_ml = self.saline_wasted_ml + xp.where(on & ~into, flow, 0.0)
+        saline, clot = _pick(self.saline_ml, safe, xp), _pick(self.clot_ml, safe, xp)
+        room = xp.maximum(self.cavities.per_cavity(self.cavities.capacity_ml, safe)
+                          - _pick(self.remaining_ml, safe, xp) - saline, 0.0)
+        added = xp.where(into, xp.minimum(flow, room), 0.0)
+        spilt = xp.where(into, flow - added, 0.0)
+        broken = xp.where(into, xp.minimum(clot, p.clot_per_saline_ml * flow), 0.0)
+        wetted = self._in_cavity(safe, into)  # (N, C): the cavity each irrigating world's saline enters
+        self.saline_ml = xp.where(wetted, (saline + added)[:, None], self.saline_ml)
+        self.clot_ml = xp.where(wetted, (clot - broken)[:, None], self.clot_ml)
+        overflowing = spilt > 0.0
+        spills = wetted & overflowing[:, None]
+        self.overflow_events = self.overflow_events + xp.sum(xp.astype(spills & ~self.spilling, xp.int64), axis=1)
+        self.overflow_steps = self.overflow_steps + xp.astype(overflowing, xp.int64)
+        self.overflow_ml = self.overflow_ml + spilt
+        self.spilling = spills
+        self.spill_s = xp.where(spills, p.spill_s, self.spill_s)
+        self._update_surfaces_where(wetted & (added > 0.0)[:, None])
+
+    def covered_pins(self):
+        """(N, D) bool: pins a spill covers now (within its cavity's mouth and a pin's length of it, on the
+        phantom): the observations and the endoscope show them as not seen."""
+        xp = namespace(self.debris_position)
+        position = self.debris_position
+        covered = xp.zeros(position.shape[:2], dtype=xp.bool)
+        if self.params.irrigation_ml_s <= 0.0 or not needed(self.spill_s > 0.0):
+            return covered
+        c = self.cavities
+        for index in range(c.count):
+            near = ((position[..., 0] - c.centre_x[index]) ** 2 + (position[..., 1] - c.centre_y[index]) ** 2
+                    < (c.mouth_radius[index] + SPILL_MARGIN) ** 2)
+            covered = covered | (near & (self.spill_s[:, index:index + 1] > 0.0))
+        return covered & ~self.held
 
     def _in_cavity(self, cavity, where):
         """(N, C): True at each world's ``cavity`` where ``where`` holds."""
@@ -494,7 +578,7 @@ class CollaborativeCore:
             return
         xp = namespace(changed)
         cavity = xp.broadcast_to(xp.arange(self.cavities.count)[None, :], changed.shape)
-        surfaces = xp.asarray(self.cavities.floor_z)[cavity] + self.cavities.fill_depth(cavity, self.remaining_ml)
+        surfaces = xp.asarray(self.cavities.floor_z)[cavity] + self.cavities.fill_depth(cavity, self._fluid_ml())
         self.surface_z = xp.where(changed, surfaces, self.surface_z)
 
     def _grasping(self):
@@ -571,7 +655,7 @@ class CollaborativeCore:
         bleeding = now[:, None] >= self.bleed_onset
         if not needed(bleeding):
             return
-        room = self.cavities.capacity_ml - self.remaining_ml
+        room = self.cavities.capacity_ml - self._fluid_ml()
         added = xp.where(bleeding, xp.minimum(self.bleed_rate * dt, room), 0.0)
         grew = added > 0.0
         self.remaining_ml = xp.where(grew, self.remaining_ml + added, self.remaining_ml)
@@ -679,24 +763,39 @@ class CollaborativeCore:
         n, d = self.debris_position.shape[:2]
         tips = {agent: self.normalise(self.arms[agent].tip_world()) for agent in AGENTS}
         tools_ = {"suction": 2.0 * self.valve_opening - 1.0, "grasper": 2.0 * self.arms["grasper"].jaw - 1.0}
-        shown = self.visible & ~self.delivered
-        pins = self._pins(xp.where(shown[..., None], self.normalise(self.shown_positions()), 0.0), xp)
+        seen = self.visible
+        if self.params.irrigation_ml_s > 0.0:  # a spill covers the pins around its cavity
+            seen = seen & ~self.covered_pins()
+        shown = seen & ~self.delivered
+        pins = self._pins(xp.where(shown[..., None], self.normalise(self.shown_positions()), 0.0), xp, seen)
         blood, handoff = self._blood_fraction(), self._handoff_rows(n, xp)
+        fluids = [self._fluid_rows(xp)] if self.fluids else []
         return {agent: join([tips[agent], tools_[agent][:, None], tips[AGENTS[1 - AGENTS.index(agent)]], blood, pins,
-                             handoff], xp) for agent in agents}
+                             handoff, *fluids], xp) for agent in agents}
 
-    def _pins(self, positions, xp):
+    def _fluid_rows(self, xp):
+        """(N, 1 + 4 C): what a scene with fluids adds to observations and the state (:data:`layout.FLUID_FIELDS`)."""
+        capacity = xp.asarray(self.cavities.capacity_ml, dtype=self.remaining_ml.dtype)[None, :]
+        blood = xp.maximum(self.remaining_ml - self.clot_ml, 0.0)
+        liquid = blood + self.saline_ml
+        concentration = xp.where(liquid > 0.0, blood / xp.maximum(liquid, 1e-300), 0.0)
+        spill = self.spill_s / self.params.spill_s if self.params.spill_s > 0.0 else xp.zeros_like(self.spill_s)
+        return join([(2.0 * self.irrigation_opening - 1.0)[:, None], liquid / capacity, concentration,
+                     self.clot_ml / capacity, spill], xp)
+
+    def _pins(self, positions, xp, visible=None):
         """(N, PIN_WIDTH D): each pin's slot (:mod:`dvrl_marl.core.layout`): its position, then whether it is visible,
         held, delivered."""
         n, d = positions.shape[:2]
         width = layout.PIN_WIDTH
+        visible = self.visible if visible is None else visible
         if xp is np:
             out = np.empty((n, d, width))
             out[..., layout.PIN_POSITION] = positions
-            out[..., layout.PIN_VISIBLE], out[..., layout.PIN_HELD] = self.visible, self.held
+            out[..., layout.PIN_VISIBLE], out[..., layout.PIN_HELD] = visible, self.held
             out[..., layout.PIN_DELIVERED] = self.delivered
             return out.reshape(n, width * d)
-        flags = [xp.astype(flag, positions.dtype)[..., None] for flag in (self.visible, self.held, self.delivered)]
+        flags = [xp.astype(flag, positions.dtype)[..., None] for flag in (visible, self.held, self.delivered)]
         return xp.reshape(xp.concat([positions, *flags], axis=-1), (n, width * d))  # (the layout's order)
 
     def _handoff_rows(self, n, xp):
@@ -722,7 +821,7 @@ class CollaborativeCore:
         return join([self.normalise(self.arms["suction"].tip_world()), (2.0 * self.valve_opening - 1.0)[:, None],
                      self.normalise(self.arms["grasper"].tip_world()), (2.0 * self.arms["grasper"].jaw - 1.0)[:, None],
                      self._blood_fraction(), self._pins(self.normalise(self.shown_positions()), xp),
-                     self._handoff_rows(n, xp)], xp)
+                     self._handoff_rows(n, xp), *([self._fluid_rows(xp)] if self.fluids else [])], xp)
 
     def info(self) -> dict:
         """Per-world figures (arrays of leading dimension N), the single env's info keys."""
@@ -733,7 +832,16 @@ class CollaborativeCore:
             "debris_delivered": xp.sum(xp.astype(self.delivered, xp.int64), axis=1),
             "collision": _copy(self.contact),
             "is_success": _copy(self.complete),
+            **(self.fluid_figures() if self.fluids else {}),
         }
+
+    def fluid_figures(self) -> dict:
+        """Per-world figures of a scene with fluids, as CRESSim reports them: blood left (ml) and its clotted part,
+        saline used and wasted (ml), overflows begun, time overflowing (s) and volume spilt (ml)."""
+        xp = namespace(self.remaining_ml)
+        return {"clot_remaining": xp.sum(self.clot_ml, axis=1), "saline_used_ml": _copy(self.saline_used_ml),
+                "saline_wasted_ml": _copy(self.saline_wasted_ml), "overflow_events": _copy(self.overflow_events),
+                "overflow_s": self.overflow_steps * self.params.control_dt, "overflow_ml": _copy(self.overflow_ml)}
 
     # --- the state as one record -------------------------------------------------------------------------
     def _get(self, name: str):

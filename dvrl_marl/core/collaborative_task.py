@@ -19,7 +19,8 @@ from dvrl_marl import assets
 from dvrl_marl.task import load_task_table
 
 if TYPE_CHECKING:  # (the fields' checked types, named for readers and IDEs; task_schema resolves them)
-    from dvrl_marl.schemas import Flag, NonNegative, Positive, PositiveInt, StepCount, Text, UnitInterval, Vector3
+    from dvrl_marl.schemas import (Flag, Fraction, NonNegative, Positive, PositiveInt, StepCount, Text,
+                                   UnitInterval, Vector3)
 
 __all__ = ["SuctionDebrisParams", "TASK", "env_name", "PIN_SLOTS", "task_schema"]
 
@@ -56,6 +57,11 @@ class SuctionDebrisParams:
     bleeding_ml_s: NonNegative = 0.0  # largest bleeding rate per cavity (0: no bleeding)
     bleeding_onset_s: NonNegative = 0.0  # each cavity starts bleeding at a seeded time in [0, this] (s)
     clotting_ml_s: NonNegative = 0.0  # liquid blood clots at this rate per cavity (ml/s); suction draws no clot
+    # Irrigation (the S&I valve's other half; core.collaborative, the irrigation rule): off by default.
+    irrigation_ml_s: NonNegative = 0.0  # saline flow while the valve irrigates (ml/s; 0: a negative command shuts it)
+    clot_share: Fraction = 0.0  # share of each cavity's starting blood that is clotted (suction draws no clot)
+    clot_per_saline_ml: NonNegative = 0.0  # clot broken up (made liquid) per ml of saline irrigated onto it (ml)
+    spill_s: NonNegative = 0.0  # how long an overflow's spill covers the phantom around its cavity (s)
     deliver_at_grip: Flag = False  # hand-off judged where the jaws hold the pin (simple: at the pin's centre)
     pins_stay_on_phantom: Flag = False  # a pin released beyond the phantom lands on its nearest edge (simple: table)
     blocked_moves: Literal["stop", "slide", "climb", "climb_ahead", "settle"] = "stop"  # how it slides (core.sliding)

@@ -53,6 +53,15 @@ SPECS = {
     "added_ml": FieldSpec(("C",), _F, 0.0), "bleed_onset": FieldSpec(("C",)), "bleed_rate": FieldSpec(("C",)),
     # clotted blood per cavity (ml; part of remaining_ml, which suction cannot draw)
     "clot_ml": FieldSpec(("C",), _F, 0.0),
+    # irrigation (core.collaborative's irrigation rule): the valve's irrigating stroke (0 shut .. 1 open), saline in
+    # each cavity (ml; with the liquid blood, the mix suction draws), seconds each cavity's spill still covers the
+    # phantom, whether it overflowed this step; the episode's saline used and wasted, spilt (ml), overflows begun and
+    # steps with a cavity overflowing
+    "irrigation_opening": FieldSpec((), _F, 0.0), "saline_ml": FieldSpec(("C",), _F, 0.0),
+    "spill_s": FieldSpec(("C",), _F, 0.0), "spilling": FieldSpec(("C",), _B, False),
+    "saline_used_ml": FieldSpec((), _F, 0.0), "saline_wasted_ml": FieldSpec((), _F, 0.0),
+    "overflow_ml": FieldSpec((), _F, 0.0), "overflow_events": FieldSpec((), _I, 0),
+    "overflow_steps": FieldSpec((), _I, 0),
     # the held pin (-1: none), its offset from the tip and where the jaws hold it
     "holding": FieldSpec((), _I, -1), "hold_offset": FieldSpec((3,), _F, 0.0), "grip_offset": FieldSpec((3,)),
     # the episode's clock and end
@@ -95,6 +104,15 @@ class SceneState:
     bleed_onset: object
     bleed_rate: object
     clot_ml: object
+    irrigation_opening: object
+    saline_ml: object
+    spill_s: object
+    spilling: object
+    saline_used_ml: object
+    saline_wasted_ml: object
+    overflow_ml: object
+    overflow_events: object
+    overflow_steps: object
     holding: object
     hold_offset: object
     grip_offset: object

@@ -26,6 +26,15 @@ from dvrl_marl.core.backend import namespace
 VALVE_OPEN_ABOVE = 0.5
 
 
+#: The Suction & Irrigation valve is signed when the scene irrigates (``irrigation_ml_s > 0``): a command above 0
+#: sucks (as ever), one below ``-IRRIGATE_BELOW`` irrigates, and between them the valve is shut (a script's "shut"
+#: is 0). Without irrigation every command not above 0 shuts it, as before. The band keeps a policy's "shut" near 0
+#: from spraying on noise, as the jaw's and valve's stroke speed does.
+IRRIGATE_BELOW = 0.5
+#: The command a script sends for a shut valve (neither sucking nor irrigating).
+SHUT = 0.0
+
+
 #: How the command sets the jaw's target: the paper's proportional mapping, or a switch (the valve's rule).
 JAW_COMMANDS = ("proportional", "switch")
 
@@ -41,6 +50,11 @@ def jaw_target(command, rule: str = "proportional"):
 def valve_target(command):
     """The valve's stroke the command asks for: fully open (1) when it is positive, else closed (0)."""
     return (command > 0.0) * 1.0  # (a float for a scalar command, an array for an array)
+
+
+def irrigation_target(command):
+    """The irrigating side's stroke the command asks for: fully open (1) below ``-IRRIGATE_BELOW``, else shut (0)."""
+    return (command < -IRRIGATE_BELOW) * 1.0
 
 
 def moved_towards(current, target, speed: float):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.core import layout
 from dvrl_marl.envs.observation_scaling import MEASURE_SEED, MEASURE_TASK, MEASURE_WORLDS, MIN_SPREAD, SCALES_FILE
 
 __all__ = ["measure", "write"]
@@ -31,7 +32,7 @@ def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_
     experts = {"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
     random = np.random.default_rng(seed)
     samples = {agent: [] for agent in env.agents} | {"state": []}
-    plain = env.observation_layout["handoff"].stop  # the experts read the plain observation
+    plain = layout.plain_width(env.observation_layout)  # the experts read the plain observation
     for scripted, episode_seed in ((True, seed), (False, seed + 1)):
         observations, _ = env.reset(seed=episode_seed)
         done = np.zeros(worlds, dtype=bool)

@@ -35,6 +35,20 @@ PRESETS = MappingProxyType({
         "hold_until_handoff": True,  # a held pin stays in the jaws until the hand-off: noise cannot drop it
     }),
 })
+#: ``"irrigation"``: the benchmark's setting on a clotted field (the benchmark's irrigation level): half of each
+#: cavity's blood starts clotted, which suction cannot draw until the valve's irrigating side (a negative command)
+#: has broken it up. The rate: clinical irrigators deliver a litre a minute or more, which would fill a cavity of this
+#: 11 ml phantom at once (as the suction's clinical rate would empty it: the task file); 1 ml/s is scaled to the
+#: phantom as the suction's 2.5 ml/s is, and kept below it, as an S&I instrument's suction outdraws its irrigation.
+#: A burst of a second adds 9 % of a cavity. The clotted share is the level's choice (CRESSim's contaminant has no
+#: clotted share to take). The scripted irrigating team needs about 1,500 steps (benchmarks/irrigation_field.py):
+#: the level's horizon is 2,500.
+PRESETS = MappingProxyType({**PRESETS, "irrigation": MappingProxyType({
+    **PRESETS["benchmark"],
+    "irrigation_ml_s": 1.0,
+    "clot_share": 0.5,
+    "max_cycles": 2500,
+})})
 
 
 def with_preset(kwargs: dict, owner: str = TASK) -> dict:

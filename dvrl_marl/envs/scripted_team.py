@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core import tools
 from dvrl_marl.core.instruments import keep_clear
 from dvrl_marl.core.layout import (ACTION_WIDTH, MOVE, PIN_DELIVERED, PIN_HELD, PIN_POSITION, PIN_VISIBLE, PIN_WIDTH,
                                    TOOL)
@@ -48,6 +49,8 @@ class _Scripted:
         self.near = 0.001 / workspace_range  # 1 mm
         self.cavity_centres = np.asarray(layout.cavity_centres, dtype=np.float64)  # (C, 2)
         self.threshold = np.asarray(layout.blood_threshold_fraction, dtype=np.float64)
+        #: the suction's shut valve: -1 as ever, but 0 where -1 would irrigate (core.tools.SHUT)
+        self.shut = tools.SHUT if getattr(layout, "irrigates", False) else -1.0
 
     @classmethod
     def for_env(cls, env):
@@ -114,14 +117,45 @@ class _Scripted:
 
 
 class ScriptedSuction(_Scripted):
-    """Clears each cavity in turn (valve open while inside it), then parks out of the surgeon's way."""
+    """Clears each cavity in turn (valve open while inside it), then parks out of the surgeon's way.
 
-    def __init__(self, layout, observation_layout, workspace_range: float):
+    Where the scene irrigates (``irrigation_ml_s``) and a cavity holds a clot, it irrigates there in short bursts and
+    sucks the mix between them: it irrigates once the liquid is drawn down to ``low`` (a share of the cavity's
+    capacity) until the liquid reaches ``high`` or the cavity holds ``full`` of its capacity, then sucks, the valve's
+    stroke (its observation) carrying the burst on between those marks; without a clot it sucks as before.
+    ``irrigate=False`` keeps today's suction-only plan in such a scene (its valve shut at 0, not -1, which
+    irrigates)."""
+
+    #: A burst's marks, shares of a cavity's capacity: irrigate from ``LOW`` liquid up to ``HIGH``, never past
+    #: ``FULL`` of fluid in all (liquid and clot); a clot under ``CLOT_LEFT`` is gone.
+    LOW, HIGH, FULL, CLOT_LEFT = 0.01, 0.2, 0.85, 1e-4
+
+    def __init__(self, layout, observation_layout, workspace_range: float, irrigate: bool | None = None):
         super().__init__(layout, observation_layout, workspace_range)
         self.order = _far_first(layout)
         self.park = suction_parking_place(layout, workspace_range)
+        irrigates = bool(getattr(layout, "irrigates", False))
+        if irrigate and not irrigates:
+            raise ValueError("ScriptedSuction: irrigate=True needs a scene whose valve irrigates (irrigation_ml_s > 0)")
+        #: it irrigates clotted cavities (by default wherever the scene irrigates)
+        self.irrigate = irrigates if irrigate is None else bool(irrigate)
+
+    def _valve_in(self, obs: np.ndarray, cavity: int) -> float:
+        """The valve's command for a tip working inside ``cavity``: suck, or irrigate a clot in bursts."""
+        s = self.slices
+        if not self.irrigate or obs[s["clot"]][cavity] <= self.CLOT_LEFT:
+            return 1.0
+        liquid = obs[s["liquid"]][cavity]
+        if liquid >= self.HIGH or liquid + obs[s["clot"]][cavity] >= self.FULL:
+            return 1.0
+        if liquid <= self.LOW:
+            return -1.0
+        irrigating = obs[s["irrigation"]][0] > obs[s["own_tool"]][0]  # the burst under way goes on
+        return -1.0 if irrigating else 1.0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        if self.irrigate or self.shut != -1.0:  # (the bursts read the valve row by row)
+            return np.stack([self.act_one(row) for row in obs])
         tip = obs[:, self.slices["own_tip"]]
         blood = obs[:, self.slices["blood"]]
         target = np.broadcast_to(self.park, tip.shape).copy()
@@ -141,13 +175,16 @@ class ScriptedSuction(_Scripted):
         tip = obs[self.slices["own_tip"]]
         blood = obs[self.slices["blood"]]
         for cavity in self.order:
-            if blood[cavity] >= self.layout.blood_threshold_fraction[cavity] and blood[cavity] > 0.0:
-                cx, cy = self.layout.cavity_centres[cavity]
+            cx, cy = self.layout.cavity_centres[cavity]
+            inside = np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius and tip[2] < self.layout.phantom_top
+            # irrigating, it works a cavity it is in down to half the threshold (the clot's last bits with it)
+            threshold = self.layout.blood_threshold_fraction[cavity] * (0.5 if self.irrigate and inside else 1.0)
+            if blood[cavity] >= threshold and blood[cavity] > 0.0:
                 bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
                 move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
-                inside = np.hypot(tip[0] - cx, tip[1] - cy) < self.layout.cavity_mouth_radius and tip[2] < self.layout.phantom_top
-                return np.append(move, 1.0 if inside else -1.0).astype(np.float32)
-        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.park, 4 * self.near)), -1.0).astype(np.float32)
+                return np.append(move, self._valve_in(obs, cavity) if inside else self.shut).astype(np.float32)
+        return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.park, 4 * self.near)),
+                         self.shut).astype(np.float32)
 
 
 class YieldingSuction(ScriptedSuction):
@@ -305,14 +342,14 @@ class _KeepClear(_Scripted):
     def _wait_outside(self, tip) -> np.ndarray:
         """The suction's move to its waiting place, the valve closed."""
         return np.append(self._towards_one(tip, self._via_safe_height_one(tip, self.wait, 4 * self.near)),
-                         -1.0).astype(np.float32)
+                         self.shut).astype(np.float32)
 
     def _suck(self, tip, cavity) -> np.ndarray:
         """Down to the cavity's floor, the valve open once inside it (the suction's move)."""
         cx, cy = self.cavity_centres[cavity]
         bottom = (cx, cy, self.layout.cavity_floor[cavity] + self.layout.clearance)
         move = self._towards_one(tip, self._via_safe_height_one(tip, bottom, 2 * self.near))
-        return np.append(move, 1.0 if self._inside(tip, cavity) else -1.0).astype(np.float32)
+        return np.append(move, 1.0 if self._inside(tip, cavity) else self.shut).astype(np.float32)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return np.stack([self.act_one(row) for row in obs])

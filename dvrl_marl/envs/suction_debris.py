@@ -256,6 +256,7 @@ class SuctionDebrisEnv(ParallelEnv):
             "debris_delivered": int(core.delivered[0].sum()),
             "collision": bool(core.contact[0]),
             "is_success": bool(core.complete[0]),
+            **({key: value[0].item() for key, value in core.fluid_figures().items()} if core.fluids else {}),
         }
 
 

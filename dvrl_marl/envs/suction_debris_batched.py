@@ -97,6 +97,7 @@ class SceneLayout:
     base_positions: dict  # agent -> RCM position~
     gain: float  # rho / eta: steps per normalised unit
     clearance: float  # tip clearance, normalised
+    irrigates: bool = False  # the suction's valve irrigates on a negative command (irrigation_ml_s > 0)
 
 
 class SuctionDebrisBatchedEnv:
@@ -193,10 +194,12 @@ class SuctionDebrisBatchedEnv:
         """Observation, action and state spaces and their layouts, with the observation options."""
         p, c = self.params, self.core.cavities.count
         d = p.debris_count
-        self.observation_layout = layout.observation_layout(c, d)
-        #: Slices of ``state()``: both tips and tools, blood, every debris (hidden ones too), hand-off point.
-        self.state_layout = layout.state_layout(c, d)
-        obs_dim, state_dim = self.observation_layout["handoff"].stop, self.state_layout["handoff"].stop
+        fluids = self.core.fluids
+        self.observation_layout = layout.observation_layout(c, d, fluids)
+        #: Slices of ``state()``: both tips and tools, blood, every debris (hidden ones too), hand-off point (and
+        #: with irrigation or clots, the fluids).
+        self.state_layout = layout.state_layout(c, d, fluids)
+        obs_dim, state_dim = layout.plain_width(self.observation_layout), layout.plain_width(self.state_layout)
         observation_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, shape=(obs_dim,), dtype=np.float64)
         if not isinstance(observation_features, str):
             raise ValueError(f"{self.name}: observation_features must be a feature set's name or '', "
@@ -439,6 +442,7 @@ class SuctionDebrisBatchedEnv:
             base_positions={a: tuple(norm(self.core.arms[a].base_position).tolist()) for a in AGENTS},
             gain=self.workspace_range / self.params.step_size,
             clearance=self.params.tip_clearance * k,
+            irrigates=self.params.irrigation_ml_s > 0.0,
         )
 
     @property

@@ -36,6 +36,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from dvrl_marl.core import layout
 from dvrl_marl.envs import suction_debris
 
 __all__ = ["SeatEnv", "PARTNERS"]
@@ -90,7 +91,7 @@ class SeatEnv(gym.Env):
         own = observations[self.partner_seat]
         if isinstance(own, dict):  # image observations: the partner reads the observation beside them
             own = own["observation"]
-        return own[: self.scene.observation_layout["handoff"].stop]
+        return own[: layout.plain_width(self.scene.observation_layout)]
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)

@@ -124,9 +124,11 @@ def partner(spec, agent: str, env=None, noise_from: int | None = None):
     return members[0] if isinstance(spec, str) else Partners(members, names)
 
 
-def seats(suction, grasper, noise_from: int | None = None) -> dict:
-    return {"suction": seat(suction, "suction", noise_from=noise_from),
-            "grasper": seat(grasper, "grasper", noise_from=noise_from)}
+def seats(suction, grasper, noise_from: int | None = None, env=None) -> dict:
+    """Both seats (:func:`seat`); ``env``: the scene they are made for (a scripted seat reads its layout: an
+    irrigating scene's experts irrigate), the default scene's parallel env if None."""
+    return {"suction": seat(suction, "suction", env, noise_from=noise_from),
+            "grasper": seat(grasper, "grasper", env, noise_from=noise_from)}
 
 
 def evaluate_team_batched(team: dict, episodes: int = 100, seed: int = EVAL_SEED, **env_kwargs) -> dict:
@@ -209,6 +211,7 @@ def _play(team: dict, episodes: int, seed: int, env_kwargs: dict) -> dict:
     path = {agent: np.zeros(episodes) for agent in env.agents}
     change = {agent: np.zeros(episodes) for agent in env.agents}
     last = {}
+    fluids: dict = {}
     while not done.all():
         actions = {agent: np.asarray(team[agent](seen_by(agent, observations[agent])), dtype=np.float64)
                    for agent in env.agents}
@@ -226,9 +229,13 @@ def _play(team: dict, episodes: int, seed: int, env_kwargs: dict) -> dict:
         remaining = np.where(live, info["blood_remaining"], remaining)
         delivered = np.where(live, info["debris_delivered"], delivered)
         success |= live & info["is_success"]
+        for key in FLUID_FIGURES:  # a scene with fluids: each figure as the episode left it
+            if key in info:
+                fluids.setdefault(key, np.zeros(episodes))[live] = np.asarray(info[key], dtype=np.float64)[live]
         done |= terminations[first] | truncations[first]
     env.close()
     return {"success": success, "steps": steps, "contacts": contacts, "initial": initial, "remaining": remaining,
+            "fluids": fluids,
             "delivered": delivered, "path_mm": {agent: 1000.0 * env.workspace_range * value
                                                 for agent, value in path.items()},
             "action_change": {agent: value / np.maximum(steps - 1, 1) for agent, value in change.items()}}
@@ -247,7 +254,31 @@ def _summary(played: dict, worlds: np.ndarray, seed: int) -> dict:
             "mean_tip_path_mm": {agent: float(value[worlds].mean()) for agent, value in played["path_mm"].items()},
             "mean_action_change": {agent: float(value[worlds].mean())
                                    for agent, value in played["action_change"].items()},
-            "success": success.tolist(), "steps": steps.tolist(), "contact_steps": contacts.tolist()}
+            "success": success.tolist(), "steps": steps.tolist(), "contact_steps": contacts.tolist(),
+            **_fluid_summary(played, worlds)}
+
+
+#: A scene with fluids' figures (``core.fluid_figures``) the evaluation reports, as CRESSim reports its teams'.
+FLUID_FIGURES = ("clot_remaining", "saline_used_ml", "saline_wasted_ml", "overflow_events", "overflow_s",
+                 "overflow_ml")
+
+
+def _fluid_summary(played: dict, worlds: np.ndarray) -> dict:
+    """Blood left as a share of the start, saline used and wasted, overflows (share of episodes with one, events and
+    seconds per episode): for a scene with fluids only."""
+    fluids = played.get("fluids") or {}
+    if not fluids:
+        return {}
+    start = played["initial"][worlds]
+    left = played["remaining"][worlds] / np.where(start > 0.0, start, 1.0)
+    return {"mean_blood_left_share": float(left.mean()), "max_blood_left_share": float(left.max()),
+            "mean_clot_left_ml": float(fluids["clot_remaining"][worlds].mean()),
+            "mean_saline_used_ml": float(fluids["saline_used_ml"][worlds].mean()),
+            "mean_saline_wasted_ml": float(fluids["saline_wasted_ml"][worlds].mean()),
+            "overflowed_episodes": float((fluids["overflow_events"][worlds] > 0).mean()),
+            "mean_overflow_events": float(fluids["overflow_events"][worlds].mean()),
+            "mean_overflow_s": float(fluids["overflow_s"][worlds].mean()),
+            "saline_used_ml": fluids["saline_used_ml"][worlds].tolist()}
 
 
 def cross_play(suctions, graspers, episodes: int = 100, seed: int = EVAL_SEED, noise: bool = False,

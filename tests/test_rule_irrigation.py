@@ -1,0 +1,248 @@
+"""The irrigation rule (issue 78): the Suction & Irrigation valve signed (a negative command irrigates), saline that
+mixes with the liquid blood and breaks clots up, suction drawing the mix, overflow and its spill, saline wasted in
+the air; off by default (the goldens hold: tests/test_golden.py)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dvrl_marl.core import layout, tools
+from dvrl_marl.envs import suction_debris
+from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
+
+WORLDS = 3
+IRRIGATE, SUCK = -1.0, 1.0
+
+
+def _env(**options):
+    env = suction_debris.batched_env(num_envs=WORLDS, autoreset_mode="disabled", **options)
+    env.reset(seed=5)
+    return env
+
+
+def _work(env, valve: float, steps: int, cavity: int = 0, height: float | None = None) -> None:
+    """The suction's tip driven to ``cavity``'s floor (or ``height`` above the phantom's top over its centre), its
+    valve commanded ``valve`` throughout; the grasper still."""
+    c = env.core.cavities
+    for _ in range(steps):
+        tip = env.core.arms["suction"].tip_world()
+        z = c.floor_z[cavity] if height is None else env.core.phantom.top_z + height
+        goal = np.array([c.centre_x[cavity], c.centre_y[cavity], z])
+        move = np.clip((goal - tip) / env.params.step_size, -1.0, 1.0)
+        env.step({"suction": np.concatenate([move, np.full((WORLDS, 1), valve)], axis=1),
+                  "grasper": np.zeros((WORLDS, 4))})
+
+
+def _at_floor(env, cavity: int = 0) -> None:
+    """The tip down in ``cavity``, the valve shut (it got there without drawing)."""
+    _work(env, tools.SHUT, 120, cavity)
+
+
+def test_off_by_default_a_negative_command_shuts_the_valve():
+    env = _env()
+    assert env.params.irrigation_ml_s == 0.0 and not env.core.fluids
+    assert layout.plain_width(env.observation_layout) == env.observation_layout["handoff"].stop
+    _work(env, IRRIGATE, 150)
+    state = env.core.get_state()
+    np.testing.assert_array_equal(state.saline_ml, 0.0)
+    np.testing.assert_array_equal(state.saline_used_ml, 0.0)
+    np.testing.assert_array_equal(state.remaining_ml, np.asarray(env.params.blood_ml)[None, :].repeat(WORLDS, 0))
+    assert "saline_used_ml" not in env.core.info()
+
+
+def test_irrigation_breaks_a_clot_up_and_suction_then_draws_the_mix():
+    env = _env(irrigation_ml_s=1.0, clot_share=0.5, clot_per_saline_ml=1.0)
+    p = env.params
+    start = env.core.get_state()
+    np.testing.assert_allclose(start.clot_ml, 0.5 * start.remaining_ml)
+    _at_floor(env)
+    _work(env, SUCK, 150)  # the liquid half drawn; the clot left
+    state = env.core.get_state()
+    np.testing.assert_allclose(state.remaining_ml[:, 0], state.clot_ml[:, 0], atol=1e-9)
+    clot_before = state.clot_ml[:, 0].copy()
+    _work(env, IRRIGATE, 50)  # 1 s of saline at 1 ml/s: 1 ml in, 1 ml of clot broken up
+    after = env.core.get_state()
+    flow = p.irrigation_ml_s * p.control_dt * 50
+    np.testing.assert_allclose(after.saline_ml[:, 0], flow, atol=1e-9)
+    np.testing.assert_allclose(after.clot_ml[:, 0], clot_before - p.clot_per_saline_ml * flow, atol=1e-9)
+    np.testing.assert_allclose(after.remaining_ml[:, 0], state.remaining_ml[:, 0], atol=1e-9)  # no blood added
+    np.testing.assert_allclose(after.saline_used_ml, flow)
+    np.testing.assert_array_equal(after.saline_wasted_ml, 0.0)
+    assert np.all(after.surface_z[:, 0] > state.surface_z[:, 0])  # the saline raised the fluid
+    # suction draws the mix: blood in proportion to its share of the liquid
+    blood = after.remaining_ml[:, 0] - after.clot_ml[:, 0]
+    share = blood / (blood + after.saline_ml[:, 0])
+    env.step({"suction": np.tile([0.0, 0.0, 0.0, SUCK], (WORLDS, 1)), "grasper": np.zeros((WORLDS, 4))})
+    drawn = env.core.get_state()
+    removed = after.remaining_ml[:, 0] - drawn.remaining_ml[:, 0]
+    saline_removed = after.saline_ml[:, 0] - drawn.saline_ml[:, 0]
+    np.testing.assert_allclose(removed + saline_removed, p.suction_rate_ml_s * p.control_dt, atol=1e-12)
+    np.testing.assert_allclose(removed, share * p.suction_rate_ml_s * p.control_dt, atol=1e-12)
+    np.testing.assert_allclose(drawn.drawn_ml, removed, atol=1e-12)  # the blood drawn is what the reward counts
+
+
+def test_saline_in_the_air_is_wasted():
+    env = _env(irrigation_ml_s=1.0)
+    _work(env, IRRIGATE, 60, height=0.01)  # 10 mm over the phantom's top
+    state = env.core.get_state()
+    assert np.all(state.saline_used_ml > 0.0)
+    np.testing.assert_allclose(state.saline_wasted_ml, state.saline_used_ml)
+    np.testing.assert_array_equal(state.saline_ml, 0.0)
+
+
+def test_an_overflow_spills_is_counted_and_covers_the_pins_around_it_for_a_while():
+    env = _env(irrigation_ml_s=5.0, spill_s=1.0, blood_ml=[10.5, 8.0])
+    core = env.core
+    capacity = core.cavities.capacity_ml
+    _at_floor(env)
+    # the tip irrigates a cavity already nearly full: it fills, then spills
+    _work(env, IRRIGATE, 40)
+    state = core.get_state()
+    fluid = state.remaining_ml + state.saline_ml
+    assert np.all(fluid <= capacity[None, :] + 1e-9)
+    np.testing.assert_allclose(fluid[:, 0], capacity[0], atol=1e-9)
+    assert np.all(state.overflow_ml > 0.0) and np.all(state.overflow_steps > 0)
+    np.testing.assert_array_equal(state.overflow_events, 1)  # one overflow, however long
+    assert np.all(state.spilling[:, 0]) and np.all(state.spill_s[:, 0] == 1.0)
+    # the spill covers the first cavity's pins: observations show them unseen, though they stay revealed
+    covered = core.covered_pins()
+    assert covered[core.debris_cavity == 0].all() and not covered[core.debris_cavity == 1].any()
+    core.visible[:] = True
+    slots = core.observation("suction")[:, env.observation_layout["debris"]].reshape(WORLDS, -1, layout.PIN_WIDTH)
+    np.testing.assert_array_equal(slots[..., layout.PIN_VISIBLE], ~covered)
+    fluids = core.observation("suction")
+    assert np.all(fluids[:, env.observation_layout["spill"]][:, 0] == 1.0)
+    # it dries when the irrigation stops
+    _work(env, tools.SHUT, 60)
+    state = core.get_state()
+    np.testing.assert_array_equal(state.spill_s, 0.0)
+    assert not core.covered_pins().any()
+    info = core.info()
+    np.testing.assert_allclose(info["overflow_s"], state.overflow_steps * env.params.control_dt)
+
+
+def test_the_observation_names_the_fluids_and_stays_in_its_space():
+    env = _env(preset="irrigation")
+    names = env.observation_layout
+    for name, _ in layout.FLUID_FIELDS:
+        assert name in names and name in env.state_layout
+    observations, _ = env.reset(seed=1)
+    for agent in env.agents:
+        assert all(env.observation_space(agent).contains(row) for row in observations[agent])
+        row = observations[agent][0]
+        np.testing.assert_allclose(row[names["clot"]], 0.5 * np.asarray(env.params.blood_ml) /
+                                   env.core.cavities.capacity_ml)
+        np.testing.assert_allclose(row[names["concentration"]], 1.0)  # liquid blood, no saline yet
+        assert row[names["irrigation"]][0] == -1.0
+    assert env.state().shape[1] == env.state_space.shape[0]
+
+
+@settings(max_examples=25, deadline=None)
+@given(valves=st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=40), rate=st.floats(0.0, 30.0),
+       share=st.floats(0.0, 1.0), moves=st.tuples(*[st.floats(-1.0, 1.0)] * 3))
+def test_volumes_stay_finite_non_negative_and_within_capacity(valves, rate, share, moves):
+    env = _env(irrigation_ml_s=max(rate, 1e-3), clot_share=share, clot_per_saline_ml=2.0, spill_s=0.5,
+               clotting_ml_s=0.2, bleeding_ml_s=0.3, bleeding_onset_s=0.0)
+    capacity = env.core.cavities.capacity_ml[None, :]
+    for valve in valves:
+        env.step({"suction": np.tile([*moves, valve], (WORLDS, 1)), "grasper": np.zeros((WORLDS, 4))})
+        s = env.core.get_state()
+        for name in ("remaining_ml", "clot_ml", "saline_ml", "spill_s", "saline_used_ml", "saline_wasted_ml",
+                     "overflow_ml"):
+            value = getattr(s, name)
+            assert np.all(np.isfinite(value)) and np.all(value >= 0.0), name
+        assert np.all(s.clot_ml <= s.remaining_ml + 1e-12)
+        assert np.all(s.remaining_ml + s.saline_ml <= capacity + 1e-9)
+        assert np.all(s.saline_wasted_ml <= s.saline_used_ml + 1e-12)
+        obs = env.core.observation("suction")
+        assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= 10.0)
+
+
+@pytest.mark.parametrize("option, value", [("irrigation_ml_s", -1.0), ("irrigation_ml_s", float("nan")),
+                                           ("clot_share", 1.5), ("clot_share", -0.1), ("clot_share", float("nan")),
+                                           ("clot_per_saline_ml", -2.0), ("spill_s", float("inf"))])
+def test_a_bad_value_is_named(option, value):
+    with pytest.raises(ValueError, match=option):
+        suction_debris.batched_env(num_envs=1, **{option: value})
+    with pytest.raises(ValueError, match=option):
+        suction_debris.parallel_env(**{option: value})
+
+
+def test_irrigation_asked_where_the_valve_cannot_irrigate_is_named():
+    env = _env()  # the scene's valve only sucks
+    with pytest.raises(ValueError, match="irrigat"):
+        ScriptedSuction.for_env(env).__class__(env.layout(), env.observation_layout, env.workspace_range,
+                                               irrigate=True)
+
+
+def test_the_scripted_team_irrigates_where_the_scene_has_clots_and_the_suction_only_plan_cannot_finish():
+    env = suction_debris.batched_env(num_envs=4, preset="irrigation", autoreset_mode="disabled")
+    for irrigate, finishes in ((True, True), (False, False)):
+        suction = ScriptedSuction(env.layout(), env.observation_layout, env.workspace_range, irrigate=irrigate)
+        surgeon = ScriptedSurgeon.for_env(env)
+        env.reset(seed=11)
+        done = np.zeros(4, dtype=bool)
+        success = np.zeros(4, dtype=bool)
+        while not done.all():
+            actions = {"suction": suction(env.core.observation("suction")),
+                       "grasper": surgeon(env.core.observation("grasper"))}
+            _, _, terminated, truncated, infos = env.step(actions)
+            success |= terminated["suction"] & ~done
+            done |= terminated["suction"] | truncated["suction"]
+        info = infos["suction"]
+        assert success.all() == finishes and success.any() == finishes
+        if finishes:
+            assert np.all(info["saline_used_ml"] > 0.0) and np.all(info["overflow_events"] == 0)
+            assert np.all(info["blood_remaining"] <= 0.05 * np.sum(env.params.blood_ml))
+        else:
+            np.testing.assert_array_equal(info["saline_used_ml"], 0.0)  # its shut valve (0) never irrigates
+
+
+def test_the_scripted_suction_acts_alike_on_a_batch_and_on_one_row():
+    env = _env(preset="irrigation")
+    suction = ScriptedSuction.for_env(env)
+    for _ in range(300):
+        obs = env.core.observation("suction")
+        np.testing.assert_array_equal(suction(obs), np.stack([suction(row) for row in obs]))
+        env.step({"suction": suction(obs), "grasper": np.zeros((WORLDS, 4))})
+
+
+def test_the_single_env_reports_the_fluid_figures():
+    env = suction_debris.parallel_env(preset="irrigation")
+    env.reset(seed=2)
+    for _ in range(10):  # (the preset's valve opens a tenth of its stroke a step)
+        _, _, _, _, infos = env.step({agent: np.array([0.0, 0.0, 0.0, -1.0]) for agent in env.agents})
+    info = infos["suction"]
+    assert info["saline_used_ml"] > 0.0 and info["saline_wasted_ml"] == info["saline_used_ml"]  # in the air
+    for key in ("clot_remaining", "overflow_events", "overflow_s", "overflow_ml"):
+        assert key in info
+
+
+def test_the_rule_runs_alike_under_jax():
+    jax = pytest.importorskip("jax")
+    jax.config.update("jax_enable_x64", True)
+    from dvrl_marl.core import scene_state
+
+    env = _env(preset="irrigation", spill_s=0.5, blood_ml=[10.0, 8.0])
+    core = env.core
+    scene_state.register_with_jax()
+    step = jax.jit(core.step_state)
+    state = core.get_state()
+    device = scene_state.map_arrays(jax.numpy.asarray, state)
+    plan = [(np.array([0.0, 0.0, -1.0, 0.0]), 60), (np.array([0.0, 0.0, -1.0, -1.0]), 80),
+            (np.array([0.0, 0.0, -1.0, 1.0]), 60)]
+    c = core.cavities
+    for command, steps in plan:
+        for _ in range(steps):
+            tip = np.asarray(state.suction_tip) + core.arms["suction"].base_position
+            goal = np.array([c.centre_x[0], c.centre_y[0], c.floor_z[0]])
+            move = np.clip((goal - tip) / env.params.step_size, -1.0, 1.0)
+            suction = np.concatenate([move, np.full((WORLDS, 1), command[3])], axis=1)
+            commands = {"suction": suction, "grasper": np.zeros((WORLDS, 4))}
+            state = core.step_state(state, commands)[0]
+            device = step(device, {agent: jax.numpy.asarray(value) for agent, value in commands.items()})[0]
+    assert np.all(np.asarray(state.saline_used_ml) > 0.0)
+    for name in ("clot_ml", "saline_ml", "remaining_ml", "surface_z", "spill_s", "overflow_ml", "overflow_events",
+                 "saline_wasted_ml"):
+        np.testing.assert_allclose(np.asarray(getattr(device, name)), getattr(state, name), rtol=0, atol=1e-9)
