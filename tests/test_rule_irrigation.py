@@ -246,3 +246,21 @@ def test_the_rule_runs_alike_under_jax():
     for name in ("clot_ml", "saline_ml", "remaining_ml", "surface_z", "spill_s", "overflow_ml", "overflow_events",
                  "saline_wasted_ml"):
         np.testing.assert_allclose(np.asarray(getattr(device, name)), getattr(state, name), rtol=0, atol=1e-9)
+
+
+def test_pins_under_a_clot_stay_hidden_until_it_is_broken_up():
+    env = _env(irrigation_ml_s=1.0, clot_share=0.5, blood_ml=[8.0, 8.0])
+    core = env.core
+    mine = core.debris_cavity == 0
+    _at_floor(env)
+    _work(env, SUCK, 150)  # the liquid drawn: the clot (half the blood) stays on the floor
+    clot_level = core.cavities.floor_z[0] + core.cavities.fill_depth(np.zeros(WORLDS, np.int64), core.clot_ml[:, 0])
+    top = core.debris_position[..., 2] + 0.0015
+    under = mine & (top <= clot_level[:, None])
+    assert under.any()
+    assert not core.visible[under].any()
+    for _ in range(8):  # bursts: irrigate, then draw the mix
+        _work(env, IRRIGATE, 40)
+        _work(env, SUCK, 60)
+    assert np.all(core.clot_ml[:, 0] < 1e-9)
+    assert core.visible[mine].all()

@@ -171,7 +171,7 @@ class CollaborativeCore:
         self.handoff_normalised = self.normalise(self.handoff)
         self.rewarded_agents = tuple(rewarded_agents)
         #: the cavities hold more than blood: clots or saline (a rule's state in play; off: the earlier fast paths)
-        self.fluids = p.irrigation_ml_s > 0.0 or p.clot_share > 0.0 or p.clotting_ml_s > 0.0
+        self.fluids = p.fluids
         self.work_distance = {agent: np.zeros(n) for agent in AGENTS}
         self.blocked = {agent: np.zeros(n, dtype=bool) for agent in AGENTS}  # its last move was refused
         self.random = ResetStreams(n)
@@ -500,6 +500,10 @@ class CollaborativeCore:
         self._update_surfaces_where(drawn)
         removed = xp.where(sucking, amount, removed)
         surface = _pick(self.surface_z, safe, xp)
+        if self.fluids:  # a clot settles on the floor: a pin under its level stays hidden until it is broken up
+            clot_level = (self.cavities.per_cavity(self.cavities.floor_z, safe)
+                          + self.cavities.fill_depth(safe, _pick(self.clot_ml, safe, xp)))
+            surface = xp.maximum(surface, clot_level)
         revealed = ((self.debris_cavity == safe[:, None]) & ~self.visible & sucking[:, None]
                     & (self.debris_position[:, :, 2] + PIN_RADIUS > surface[:, None]))
         self.visible = self.visible | revealed
@@ -946,14 +950,24 @@ class CollaborativeCore:
             "debris_yaws": state.debris_yaw,
             "visible": state.visible,
             "delivered": state.delivered,
+            # a scene with fluids: each cavity's saline and clot (ml) and whether a spill covers the phantom around it
+            **({"saline_ml": state.saline_ml, "clot_ml": state.clot_ml, "spill": state.spill_s > 0.0}
+               if self.fluids else {}),
         }
 
     def set_world(self, world: int, *, tips, jaw, valve_open, blood_ml, debris_positions, debris_yaws, visible,
-                  delivered, valve_opening=None, joints=None) -> None:
+                  delivered, valve_opening=None, joints=None, saline_ml=None, clot_ml=None, spill=None) -> None:
         """Put world ``world`` in a given state (tips in each arm's base frame, metres; ``joints`` the arms' joint
         values where known, else inverse kinematics finds them), e.g. to set up a scene or show a recorded one.
-        ``valve_opening`` (0..1, :mod:`dvrl_marl.core.tools`): the valve's stroke; by default all or nothing."""
+        ``valve_opening`` (0..1, :mod:`dvrl_marl.core.tools`): the valve's stroke; by default all or nothing. A scene
+        with fluids also takes each cavity's ``saline_ml`` and ``clot_ml`` and whether a ``spill`` covers it."""
         rows = np.array([int(world)])
+        if self.fluids:
+            c = self.cavities.count
+            self.saline_ml[world] = 0.0 if saline_ml is None else np.maximum(np.asarray(saline_ml, np.float64), 0.0)
+            self.clot_ml[world] = 0.0 if clot_ml is None else np.maximum(np.asarray(clot_ml, np.float64), 0.0)
+            shown = np.zeros(c, dtype=bool) if spill is None else np.asarray(spill, dtype=bool)
+            self.spill_s[world] = np.where(shown, max(self.params.spill_s, self.params.control_dt), 0.0)
         for agent in AGENTS:
             tip = np.asarray(tips[agent], dtype=np.float64).reshape(1, 3)
             if joints is None:
@@ -964,6 +978,10 @@ class CollaborativeCore:
         self.valve_opening[world] = float(bool(valve_open)) if valve_opening is None else float(valve_opening)
         volumes = np.asarray(blood_ml, dtype=np.float64)
         self.remaining_ml[world] = np.minimum(np.maximum(volumes, 0.0), self.cavities.capacity_ml)
+        if self.fluids:  # a clot is part of the blood; saline fills at most the rest of a cavity
+            self.clot_ml[world] = np.minimum(self.clot_ml[world], self.remaining_ml[world])
+            self.saline_ml[world] = np.minimum(self.saline_ml[world],
+                                               self.cavities.capacity_ml - self.remaining_ml[world])
         for cavity in range(self.cavities.count):
             self._update_surfaces(rows, np.array([cavity]))
         self.debris_position[world] = np.asarray(debris_positions, dtype=np.float64)

@@ -71,6 +71,12 @@ class SuctionDebrisParams:
     jaw_command: Literal["proportional", "switch"] = "proportional"  # "switch": the jaw's target by the command's sign
     hold_until_handoff: Flag = False  # a held pin's jaw stays shut, whatever the command, until the hand-off
 
+    @property
+    def fluids(self) -> bool:
+        """The cavities hold more than liquid blood: clots, or saline from the irrigating valve (observations, the
+        state and the endoscope then show the fluids: :data:`dvrl_marl.core.layout.FLUID_FIELDS`)."""
+        return self.irrigation_ml_s > 0.0 or self.clot_share > 0.0 or self.clotting_ml_s > 0.0
+
     @classmethod
     def from_task(cls, task: str = TASK, **overrides) -> "SuctionDebrisParams":
         """The task file's values (checked against :func:`task_schema`: a misspelt key in

@@ -14,13 +14,21 @@ import numpy as np
 from dvrl_marl import assets
 from dvrl_marl.arm import Arm
 from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
-from dvrl_marl.core.collaborative import AGENTS, TOOLS
+from dvrl_marl.core.collaborative import AGENTS, SPILL_MARGIN, TOOLS
 from dvrl_marl.core.phantom import Cavity, Phantom
 from dvrl_marl.core.scene_geometry import ARM_PREFIXES, SceneGeometry
 from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.scene import geom_top, load_model, object_id
 
-__all__ = ["SceneMirror"]
+__all__ = ["SceneMirror", "fluid_colour", "FLUID_COLOURS"]
+
+#: The fluids' colours (rgb) beside liquid blood's (the scene file's blood material): a clot darker, saline nearly
+#: clear; a mix takes each part's colour by its volume (red blood thinned to pink, then to clear).
+FLUID_COLOURS = {"clot": (0.18, 0.01, 0.02), "saline": (0.86, 0.9, 0.93)}
+#: The state's fluid keys (:meth:`CollaborativeCore.world_states` of a scene with fluids).
+FLUID_KEYS = ("saline_ml", "clot_ml", "spill")
+#: A spill is drawn this far above the phantom's top (m).
+SPILL_LIFT = 0.0003
 
 
 class SceneMirror:
@@ -35,6 +43,10 @@ class SceneMirror:
         self._blood_geoms = [object_id(self.model, "geom", f"blood_{i}") for i in range(len(self.cavities))]
         self._blood_rgba = [self.model.geom_rgba[g].copy() for g in self._blood_geoms]
         self._blood_surfaces: dict[tuple[int, float], tuple[float, float]] = {}  # (cavity, ml) -> (depth, radius)
+        self._spill_radius = np.array([cavity.mouth_radius + SPILL_MARGIN for cavity in self.cavities])
+        material = self.model.geom_matid[self._blood_geoms[0]]  # liquid blood's colour: the scene file's
+        self._blood_rgb = (self.model.mat_rgba[material, :3] if material >= 0
+                           else self.model.geom_rgba[self._blood_geoms[0], :3]).copy()
         bodies = [object_id(self.model, "body", f"debris_{i}") for i in range(params.debris_count)]
         self._debris_qpos = [int(self.model.jnt_qposadr[self.model.body_jntadr[b]]) for b in bodies]
         self.renderer = SceneRenderer(self.model, self.data, render_mode, **renderer_options)
@@ -62,8 +74,15 @@ class SceneMirror:
             else:
                 self.arms[agent].set_solved_tip(*tip, tuple(np.asarray(joints[agent], dtype=np.float64).tolist()))
         self.arms["grasper"].set_jaw(float(state["jaw"]))
-        for index, volume in enumerate(np.asarray(state["blood_ml"], dtype=np.float64).tolist()):
-            self._show_blood(index, volume)
+        if "saline_ml" in state:  # a scene with fluids: the surface, its colour and a spill as poses() works them out
+            one = {key: np.asarray(state[key])[None] for key in ("blood_ml", "saline_ml", "clot_ml", "spill")}
+            rgba, radius, z = self._fluid_poses(one)
+            for index, geom in enumerate(self._blood_geoms):
+                self.model.geom_rgba[geom], self.model.geom_size[geom][0] = rgba[0, index], radius[0, index]
+                self.model.geom_pos[geom][2] = z[0, index]
+        else:
+            for index, volume in enumerate(np.asarray(state["blood_ml"], dtype=np.float64).tolist()):
+                self._show_blood(index, volume)
         for index, address in enumerate(self._debris_qpos):
             if state["delivered"][index]:  # handed to the assistant: out of the scene
                 self.data.qpos[address:address + 3] = (0.0, 0.0, -1.0)
@@ -85,8 +104,9 @@ class SceneMirror:
             states = list(states)
             if any(state.get("joints") is None for state in states):
                 raise ValueError("poses: each state needs the arms' joints (the core's world_state has them)")
+            keys = ("jaw", "blood_ml", "debris_positions", "debris_yaws", "delivered")
             stacked = {key: np.stack([np.asarray(state[key]) for state in states])
-                       for key in ("jaw", "blood_ml", "debris_positions", "debris_yaws", "delivered")}
+                       for key in keys + (FLUID_KEYS if "saline_ml" in states[0] else ())}
             stacked["joints"] = {agent: np.stack([np.asarray(state["joints"][agent], np.float64) for state in states])
                                  for agent in AGENTS}
         jaw = np.asarray(stacked["jaw"], np.float64)
@@ -104,16 +124,40 @@ class SceneMirror:
             turned = np.stack([c * cos, -c * sin, c * cos, c * sin], axis=-1)
             qpos[:, address + 3:address + 7] = np.where(delivered[:, index, None], qpos[:, address + 3:address + 7],
                                                         turned)
+        if "saline_ml" in stacked:
+            rgba, radius, z = self._fluid_poses(stacked)
+            return {"qpos": qpos, "blood_rgba": rgba, "blood_radius": radius, "blood_z": z}
         volumes = np.asarray(stacked["blood_ml"], np.float64)
-        surfaces = np.array([[self._blood_surface(index, volume) for index, volume in enumerate(row)]
-                             for row in volumes.tolist()]).reshape(count, len(self.cavities), 2)
-        depth, radius = surfaces[..., 0], surfaces[..., 1]
+        depth, radius = self._surfaces(volumes)
         shown = (volumes > 0.0) & (radius > 1e-4)
         rgba = np.where(shown[..., None], np.array(self._blood_rgba), 0.0)
         rgba[..., :3] = np.where(shown[..., None], rgba[..., :3], self.model.geom_rgba[self._blood_geoms, :3])
         floors = np.array([cavity.floor_z for cavity in self.cavities])
         heights = self.model.geom_size[self._blood_geoms, 1]
         return {"qpos": qpos, "blood_rgba": rgba, "blood_radius": radius, "blood_z": floors + depth - heights}
+
+    def _surfaces(self, volumes: np.ndarray):
+        """Each cavity's surface holding ``volumes`` (W, C) ml: its height above the floor and its radius."""
+        surfaces = np.array([[self._blood_surface(index, volume) for index, volume in enumerate(row)]
+                             for row in volumes.tolist()]).reshape(*volumes.shape, 2)
+        return surfaces[..., 0], surfaces[..., 1]
+
+    def _fluid_poses(self, stacked: dict):
+        """A scene with fluids: each cavity's surface (blood and saline), coloured by what it holds (dark clot, red
+        blood, pink mix, clear saline: :func:`fluid_colour`), and a spill drawn as the mix spread over the phantom
+        around its cavity. Returns the geoms' rgba (W, C, 4), radii and centres' heights (W, C)."""
+        blood, saline = np.asarray(stacked["blood_ml"], np.float64), np.asarray(stacked["saline_ml"], np.float64)
+        clot, spill = np.asarray(stacked["clot_ml"], np.float64), np.asarray(stacked["spill"], bool)
+        depth, radius = self._surfaces(blood + saline)
+        heights = self.model.geom_size[self._blood_geoms, 1]
+        floors = np.array([cavity.floor_z for cavity in self.cavities])
+        z = np.where(spill, np.array([cavity.top_z for cavity in self.cavities]) + SPILL_LIFT, floors + depth) - heights
+        radius = np.where(spill, self._spill_radius, radius)
+        shown = spill | ((blood + saline > 0.0) & (radius > 1e-4))
+        alpha = np.array([self.model.mat_rgba[m, 3] if m >= 0 else 1.0 for m in self.model.geom_matid[self._blood_geoms]])
+        rgba = np.concatenate([fluid_colour(np.maximum(blood - clot, 0.0), clot, saline, self._blood_rgb),
+                               np.broadcast_to(alpha, blood.shape)[..., None]], axis=-1)
+        return np.where(shown[..., None], rgba, 0.0), radius, z
 
     def put(self, poses: dict, world: int) -> None:
         """Write world ``world`` of :meth:`poses` into the model (what :meth:`show` would)."""
@@ -171,6 +215,15 @@ class SceneMirror:
 
     def close(self) -> None:
         self.renderer.close()
+
+
+def fluid_colour(blood, clot, saline, blood_rgb) -> np.ndarray:
+    """The colour (..., 3) of a cavity's fluid from what it holds (ml, arrays alike): liquid blood ``blood_rgb``,
+    the others :data:`FLUID_COLOURS`, each weighted by its volume."""
+    parts = np.stack([np.asarray(blood, np.float64), np.asarray(clot, np.float64), np.asarray(saline, np.float64)], -1)
+    total = parts.sum(axis=-1, keepdims=True)
+    colours = np.array([blood_rgb, FLUID_COLOURS["clot"], FLUID_COLOURS["saline"]], np.float64)
+    return np.where(total > 0.0, parts @ colours / np.where(total > 0.0, total, 1.0), colours[0])
 
 
 def _model_with_debris(scene: str, count: int) -> mujoco.MjModel:
