@@ -420,3 +420,33 @@ def test_a_pin_gripped_off_centre_is_delivered_from_the_page(browser, served):
     final = wait_status(page, "s.state === 'over'")
     assert final["success"] and final["debris_delivered"] == 3, final
     page.close()
+
+
+def test_the_suction_seat_irrigates_while_i_is_held_on_the_irrigation_level(browser, tmp_path, monkeypatch):
+    from dvrl_marl.teleop.session import TeleopSession
+    from dvrl_marl.teleop.web import TeleopServer
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    server = TeleopServer(TeleopSession(seat="suction", partner="scripted", seed=2, record=False,
+                                        preset="irrigation"), port=0).start()
+    try:
+        page = browser.new_page()
+        page.goto(server.url)
+        page.wait_for_function("window.dvrl.frames >= 1", timeout=20000)
+        assert "irrigate" in page.inner_text("aside")  # the controls name the key
+        page.keyboard.press("Enter")
+        wait_status(page, "s.state === 'running'")
+        assert status(page)["saline_used_ml"] == 0.0
+        page.keyboard.down("KeyI")
+        irrigating = wait_status(page, "s.irrigating && s.saline_used_ml > 0")
+        assert not irrigating["valve_open"]
+        page.wait_for_function("document.querySelector('#tool').innerText.startsWith('IRRIGATING')", timeout=5000)
+        page.keyboard.up("KeyI")
+        shut = wait_status(page, "!s.irrigating")
+        assert not shut["valve_open"]  # on release the valve goes back to shut, not to sucking
+        used = shut["saline_used_ml"]
+        after = wait_status(page, f"s.step >= {shut['step'] + 20}")
+        assert after["saline_used_ml"] == used
+        page.close()
+    finally:
+        server.stop()

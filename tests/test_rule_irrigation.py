@@ -264,3 +264,52 @@ def test_pins_under_a_clot_stay_hidden_until_it_is_broken_up():
         _work(env, SUCK, 60)
     assert np.all(core.clot_ml[:, 0] < 1e-9)
     assert core.visible[mine].all()
+
+
+def test_the_keyboard_irrigates_while_i_is_held_and_its_shut_valve_is_zero():
+    from dvrl_marl.teleop import KeyboardDevice
+
+    plain = KeyboardDevice(initial_tool=-1.0)
+    plain.key_event(73, 1)
+    assert plain.action(None)[3] == -1.0 and not plain.irrigating  # (I means nothing where nothing irrigates)
+    device = KeyboardDevice(initial_tool=-1.0, irrigate=True)
+    assert device.action(None)[3] == tools.SHUT
+    device.key_event(73, 1)
+    assert device.action(None)[3] == -1.0 and device.irrigating
+    device.key_event(73, 0)
+    assert device.action(None)[3] == tools.SHUT
+    device.key_event(32, 1)  # SPACE: the valve sucks
+    assert device.action(None)[3] == 1.0
+    device.key_event(32, 1)
+    assert device.action(None)[3] == tools.SHUT
+    assert ("I (held)", "irrigate") in device.key_help
+    with pytest.raises(ValueError, match="irrigate"):
+        KeyboardDevice(irrigate="yes")
+
+
+def test_an_irrigating_device_in_the_grasper_seat_or_a_scene_that_does_not_irrigate_is_named():
+    from dvrl_marl.teleop import BrowserDevice, KeyboardDevice
+
+    with pytest.raises(ValueError, match="Needle Driver\\) cannot irrigate"):
+        suction_debris.parallel_env(preset="irrigation", surgeon=KeyboardDevice(irrigate=True),
+                                    surgeon_seat="grasper")
+    with pytest.raises(ValueError, match="does not irrigate"):
+        suction_debris.parallel_env(surgeon=KeyboardDevice(initial_tool=-1.0, irrigate=True),
+                                    surgeon_seat="suction")
+    assert BrowserDevice(irrigate=True).key_help[4] == ("I (held)", "irrigate")
+
+
+def test_a_person_in_the_suction_seat_irrigates_with_the_key_and_the_cues_say_so():
+    from dvrl_marl.envs.scene_view import SceneView
+    from dvrl_marl.teleop import KeyboardDevice
+
+    device = KeyboardDevice(initial_tool=-1.0, irrigate=True)
+    env = suction_debris.parallel_env(preset="irrigation", surgeon=device, surgeon_seat="suction")
+    env.reset(seed=0)
+    device.key_event(73, 1)
+    for _ in range(12):
+        env.step({"grasper": np.zeros(4, dtype=np.float32)})
+    view = SceneView(env)
+    assert view.cues("suction")["irrigating"] and view.progress()["saline_used_ml"] > 0.0
+    labels, values = view.cue_rows("suction")
+    assert values[labels.index("Valve")].startswith("IRRIGATING") and "Saline" in labels

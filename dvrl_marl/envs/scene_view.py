@@ -37,7 +37,17 @@ class SceneView:
             "tips": {agent: [float(v) for v in env.arms[agent].tip_world()] for agent in AGENTS},
             "jaw": float(env.arms["grasper"].jaw),
             "valve_open": bool(env.valve_open),
+            "irrigating": bool(env.core.irrigating[0]),
+            **(self._fluids() if env.core.fluids else {}),
         }
+
+    def _fluids(self) -> dict:
+        """A scene with fluids: each cavity's clot and saline (ml), the saline used (ml), overflows so far and
+        whether a spill covers the phantom now."""
+        core = self.env.core
+        return {"clot_ml": [float(v) for v in core.clot_ml[0]], "saline_ml": [float(v) for v in core.saline_ml[0]],
+                "saline_used_ml": float(core.saline_used_ml[0]), "overflow_events": int(core.overflow_events[0]),
+                "spilling": bool((core.spill_s[0] > 0.0).any())}
 
     def blood_text(self) -> list[str]:
         """Each cavity's blood as a person reads it: ml left, or "clear" once below ``blood_threshold_ml`` (a
@@ -63,6 +73,8 @@ class SceneView:
             wet = cavity >= 0 and env.blood.remaining_ml[cavity] > 0.0
             cues["above_blood_mm"] = 1000.0 * (z - env.blood.surface_z[cavity]) if wet else None
             cues["drawing"] = env.valve_open and float(env.core.drawn_ml[0]) > 0.0
+            cues["irrigating"] = bool(env.core.irrigating[0])
+            cues["spill"] = bool((env.core.spill_s[0] > 0.0).any())
             return cues
         tip = (x, y, z)
         held_pin = self._held_pin()
@@ -139,8 +151,14 @@ class SceneView:
             labels.append("Valve")
             depth = ("not over blood" if cues["above_blood_mm"] is None
                      else f"{cues['above_blood_mm']:.1f} mm above the blood")
-            values.append(("open" if self.env.valve_open else "closed") + (", drawing" if cues["drawing"] else "")
-                          + f", {depth}")
+            valve = "IRRIGATING" if cues["irrigating"] else "open" if self.env.valve_open else "closed"
+            values.append(valve + (", drawing" if cues["drawing"] else "") + f", {depth}")
+            if self.env.params.irrigation_ml_s > 0.0:
+                labels.append("Saline")
+                values.append(f"{float(self.env.core.saline_used_ml[0]):.1f} ml used (hold I to irrigate)")
+            if cues["spill"]:
+                labels.append("SPILL")
+                values.append("a cavity overflowed: the pins around it are hidden a while")
         if cues["blocked"]:
             labels.append("BLOCKED")
             values.append("the other instrument is in the way")

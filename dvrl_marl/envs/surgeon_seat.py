@@ -81,6 +81,14 @@ class SurgeonSeat(BaseParallelWrapper):
 
             return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self.env), False
         if hasattr(surgeon, "action") and callable(surgeon.action):
+            if getattr(surgeon, "irrigate", False):  # a device with an irrigate key: the S&I valve's, where it irrigates
+                if seat != "suction":
+                    raise ValueError(f"{self.env.name}: the {seat} seat's tool (the Large Needle Driver) cannot "
+                                     f"irrigate; irrigate=True is the suction seat's (its Suction & Irrigation valve)")
+                if self.env.params.irrigation_ml_s <= 0.0:
+                    raise ValueError(f"{self.env.name}: irrigate=True, but this scene's valve does not irrigate "
+                                     f"(irrigation_ml_s = {self.env.params.irrigation_ml_s}; preset='irrigation' "
+                                     f"turns it on)")
             return surgeon, True
         if callable(surgeon):
             return surgeon, False
@@ -172,7 +180,8 @@ class SurgeonSeat(BaseParallelWrapper):
             labels += labels_
             values += values_
         overlays = [("top left", "\n".join(labels), "\n".join(values))]
-        help_rows = getattr(self._surgeon, "KEY_HELP", None) if self._surgeon_is_device else None
+        help_rows = (getattr(self._surgeon, "key_help", None) or getattr(self._surgeon, "KEY_HELP", None)
+                     if self._surgeon_is_device else None)
         if help_rows:
             overlays.append(("bottom right", "\n".join(k for k, _ in help_rows), "\n".join(v for _, v in help_rows)))
         if self._display is not None and self._display.waiting:

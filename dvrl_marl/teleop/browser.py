@@ -36,7 +36,7 @@ __all__ = ["BrowserDevice", "TeleopLost", "BadMessage", "BROWSER_KEYS"]
 
 #: Browser ``KeyboardEvent.code`` -> the GLFW key code :class:`KeyboardDevice` understands.
 BROWSER_KEYS = {"KeyA": 65, "KeyD": 68, "KeyS": 83, "KeyW": 87, "KeyF": 70, "KeyR": 82, "Space": 32,
-                "ShiftLeft": 340, "ShiftRight": 344}
+                "ShiftLeft": 340, "ShiftRight": 344, "KeyI": 73}
 _PRESS, _RELEASE = 1, 0
 
 
@@ -54,7 +54,8 @@ class BrowserDevice:
     ``silence_timeout``: seconds without a message after which the page counts as gone. ``speed`` and
     ``precision_speed`` as for :class:`KeyboardDevice`, whose key semantics (held keys, SHIFT, SPACE toggles) this
     device shares; gamepad sticks add to the keys and are clipped with them to [-1, 1]. ``initial_tool``: the jaw or
-    valve at each reset (+1 open: the LND's jaw; -1 closed: the suction valve).
+    valve at each reset (+1 open: the LND's jaw; -1 closed: the suction valve). ``irrigate``: ``KeyI`` held
+    irrigates (:class:`KeyboardDevice`'s), for the suction seat of a scene that irrigates.
     """
 
     human_operated = True
@@ -63,12 +64,15 @@ class BrowserDevice:
 
     def __init__(self, silence_timeout: float = 1.0, action_dim: int = ACTION_WIDTH, speed: float = 1.0,
                  precision_speed: float = 0.25, clock: Callable[[], float] = time.monotonic,
-                 initial_tool: float = 1.0):
+                 initial_tool: float = 1.0, irrigate: bool = False):
         if not silence_timeout > 0:
             raise ValueError(f"BrowserDevice: silence_timeout must be positive, got {silence_timeout!r}")
         self.silence_timeout = float(silence_timeout)
         self._keyboard = KeyboardDevice(action_dim=action_dim, speed=speed, precision_speed=precision_speed,
-                                        initial_tool=initial_tool)
+                                        initial_tool=initial_tool, irrigate=irrigate)
+        #: ``KeyI`` held irrigates (the suction seat of a scene that irrigates)
+        self.irrigate = irrigate
+        self.key_help = tuple(row for row in self._keyboard.key_help if row[0] not in ("TAB", "ESC"))
         self._clock = clock
         self._lock = threading.Lock()
         self._connected = False

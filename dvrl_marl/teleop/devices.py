@@ -10,6 +10,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from dvrl_marl.core import tools
 from dvrl_marl.core.layout import ACTION_WIDTH
 
 __all__ = [
@@ -79,6 +80,10 @@ class KeyboardDevice:
     (50 mm/s at full speed with eta = 1 mm). The jaw (or valve) starts at ``initial_tool``: +1, open (the LND's jaw
     at reset), by default; -1 closed for the suction valve, which a seat must not open by itself.
 
+    ``irrigate=True`` (the Suction & Irrigation seat of a scene that irrigates): ``I`` held irrigates (the command -1,
+    as the instrument's irrigation trumpet is held down), and the valve's shut state is 0 (-1 irrigates there); on
+    release the valve goes back to what SPACE last set. Without it ``I`` does nothing.
+
     In ``render_mode="human"`` the environment opens its window (:mod:`dvrl_marl.viewer`) and feeds
     :meth:`key_event` every key down, repeat and up; because the device is ``human_operated`` the environment waits
     for ENTER before each episode and paces steps to the 50 Hz control rate. Outside that window, call
@@ -90,6 +95,7 @@ class KeyboardDevice:
     label = "keyboard"
     KEYS = {65: (0, -1.0), 68: (0, 1.0), 83: (1, -1.0), 87: (1, 1.0), 70: (2, -1.0), 82: (2, 1.0)}
     TOGGLE = 32
+    IRRIGATE_KEY = 73  # GLFW's I
     SHIFT_KEYS = (340, 344)  # GLFW's left and right SHIFT
     _PRESS, _RELEASE, _REPEAT = 1, 0, 2
     #: The key map as the window's overlay shows it.
@@ -97,14 +103,22 @@ class KeyboardDevice:
                 ("SHIFT", "slow, precise"), ("TAB", "free camera"), ("ESC", "quit"))
 
     def __init__(self, repeat: int = 5, action_dim: int = ACTION_WIDTH, speed: float = 1.0, precision_speed: float = 0.25,
-                 initial_tool: float = 1.0):
+                 initial_tool: float = 1.0, irrigate: bool = False):
         for name, value in (("speed", speed), ("precision_speed", precision_speed)):
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"KeyboardDevice: {name} must be in (0, 1] (a fraction of the action range), "
                                  f"got {value!r}")
         if initial_tool not in (-1.0, 1.0):
             raise ValueError(f"KeyboardDevice: initial_tool must be 1 (open) or -1 (closed), got {initial_tool!r}")
+        if not isinstance(irrigate, bool):
+            raise ValueError(f"KeyboardDevice: irrigate must be true or false, got {irrigate!r}")
+        #: ``I`` held irrigates (the S&I valve's other half); the shut valve is then 0
+        self.irrigate = irrigate
         self.initial_tool = float(initial_tool)
+        self._shut = tools.SHUT if irrigate else -1.0
+        #: the key map as the window's overlay shows it (with irrigation, the ``I`` key too)
+        self.key_help = self.KEY_HELP if not irrigate else (*self.KEY_HELP[:4], ("I (held)", "irrigate"),
+                                                            *self.KEY_HELP[4:])
         self.repeat = int(repeat)
         self.action_dim = int(action_dim)
         self.speed, self.precision_speed = float(speed), float(precision_speed)
@@ -117,7 +131,8 @@ class KeyboardDevice:
             self._precise = False
             self._pending = np.zeros(3)
             self._remaining = 0
-            self._last = self.initial_tool
+            self._last = self.initial_tool if self.initial_tool > 0.0 else self._shut
+            self._irrigating = False
 
     def key_event(self, key: int, action: int, mods: int = 0) -> None:
         """One key event in GLFW's terms: ``action`` 1 press, 2 auto-repeat, 0 release; ``mods`` bit 1 = SHIFT."""
@@ -130,7 +145,15 @@ class KeyboardDevice:
                 else:
                     self._held.add(key)
             elif key == self.TOGGLE and action == self._PRESS:
-                self._last = -self._last
+                self._last = self._shut if self._last > 0.0 else 1.0
+            elif key == self.IRRIGATE_KEY and self.irrigate:
+                self._irrigating = action != self._RELEASE
+
+    @property
+    def irrigating(self) -> bool:
+        """True while ``I`` is held on an irrigating seat."""
+        with self._lock:
+            return self._irrigating
 
     def key_callback(self, keycode: int) -> None:
         """A key press from MuJoCo's passive viewer (no releases there): a move key moves for ``repeat`` steps."""
@@ -141,7 +164,7 @@ class KeyboardDevice:
                 self._pending[axis] = sign
                 self._remaining = self.repeat
             elif keycode == self.TOGGLE:
-                self._last = -self._last
+                self._last = self._shut if self._last > 0.0 else 1.0
 
     @property
     def moving(self) -> bool:
@@ -160,7 +183,7 @@ class KeyboardDevice:
                 move += self._pending
                 self._remaining -= 1
             np.clip(move, -1.0, 1.0, out=move)
-            return np.append(move, self._last)[: self.action_dim].astype(np.float32)
+            return np.append(move, -1.0 if self._irrigating else self._last)[: self.action_dim].astype(np.float32)
 
     def close(self) -> None:
         pass

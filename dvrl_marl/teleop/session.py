@@ -92,6 +92,9 @@ def scene_view(scene, seat: str, outline: dict | None = None) -> dict:
         "cues": _rounded(view.cues(seat)), "pins": _rounded(view.pins()),
         "outline": outline if outline is not None else _rounded(view.outline()),
         "jaw": round(progress["jaw"], 3), "valve_open": progress["valve_open"],
+        "irrigating": progress["irrigating"],
+        **({"saline_used_ml": round(progress["saline_used_ml"], 2), "overflow_events": progress["overflow_events"]}
+           if "saline_used_ml" in progress and scene.params.irrigation_ml_s > 0.0 else {}),
     }
 
 
@@ -134,11 +137,17 @@ class TeleopSession:
         self.jpeg_quality = int(jpeg_quality)
         # The seat's tool starts as the scene's reset leaves it: the jaw open, the valve closed (a valve that opened by
         # itself once the page spoke was a device defaulting to "open" in the suction seat).
-        self.device = device or BrowserDevice(silence_timeout=silence_timeout,
-                                              initial_tool=1.0 if seat == "grasper" else -1.0)
         env_partner = LEARNED_PARTNERS[seat] if partner == "learned" else partner
         self.env = gym.make(TELEOP_ENV_ID, seat=seat, partner=env_partner, max_cycles=self.max_cycles, **scene_kwargs)
         self.scene = self.env.unwrapped.scene
+        # the suction seat of a scene that irrigates gets the irrigate key (I)
+        irrigates = seat == "suction" and self.scene.params.irrigation_ml_s > 0.0
+        if device is not None and getattr(device, "irrigate", False) and not irrigates:
+            raise ValueError(f"TeleopSession: the device irrigates, but the {seat} seat "
+                             + ("(the Large Needle Driver) cannot" if seat != "suction"
+                                else "of this scene does not (irrigation_ml_s = 0; preset='irrigation' turns it on)"))
+        self.device = device or BrowserDevice(silence_timeout=silence_timeout,
+                                              initial_tool=1.0 if seat == "grasper" else -1.0, irrigate=irrigates)
         self.control_dt = float(self.scene.params.control_dt)
         self.frame_every = max(1, round(1.0 / (frames_per_second * self.control_dt)))
         self.width, self.height = int(width), int(height)

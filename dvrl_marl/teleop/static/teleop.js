@@ -3,7 +3,7 @@
 "use strict";
 const token = new URLSearchParams(location.search).get("token") || "";
 const MOVE_KEYS = new Set(["KeyA", "KeyD", "KeyS", "KeyW", "KeyF", "KeyR"]);
-const SEAT_KEYS = new Set([...MOVE_KEYS, "Space", "ShiftLeft", "ShiftRight"]);
+const SEAT_KEYS = new Set([...MOVE_KEYS, "Space", "ShiftLeft", "ShiftRight", "KeyI"]);
 const DEAD_ZONE = 0.15;
 const dvrl = window.dvrl = { frames: 0, latencies: [], status: null, role: null, connected: false, reconnect: true,
                              framesDrawnAt: [], sent: 0 };
@@ -169,7 +169,11 @@ function showCues(s) {
   } else {
     $("tool-label").textContent = "Valve";
     $("reach-label").textContent = "Blood surface";
-    $("tool").textContent = (s.valve_open ? "open" : "closed") + (q.drawing ? ", drawing blood" : "");
+    $("tool").textContent = (q.irrigating ? "IRRIGATING" : s.valve_open ? "open" : "closed") +
+      (q.drawing ? ", drawing blood" : "") +
+      (s.saline_used_ml !== undefined ? `; saline ${s.saline_used_ml.toFixed(1)} ml used (hold I)` : "");
+    if (q.irrigating) cue = `<span class="holding">Irrigating: saline breaks the clots up; then draw the mix</span>`;
+    if (q.spill) cue = `<span class="blocked">Spill: a cavity overflowed, the pins around it are hidden a while</span>`;
     $("reach").textContent = q.above_blood_mm === null ? "not over blood"
       : q.above_blood_mm > 0 ? `${q.above_blood_mm.toFixed(1)} mm above it (draws within 2 mm)` : "tip in the blood";
     $("reach-row").className = q.drawing ? "good" : "";
