@@ -224,6 +224,27 @@ def bleeding_field() -> Table:
     return table
 
 
+def irrigation_field() -> Table:
+    path = "benchmarks/results/irrigation_field_2026-12-02.json"
+    record = _read(path)
+    table = Table(["team", "success", "median steps", "blood left", "of the start", "clot left", "saline used",
+                   "saline wasted", "episodes overflowing", "overflow time", "contact steps"])
+    for row in record["rows"]:
+        table.rows.append([row["team"], _percent(row["success_rate"]), _count(row["median_steps_to_completion"]),
+                           f"{row['mean_blood_left_ml']:.2f} ml", _percent(row["mean_blood_left_share"]),
+                           f"{row['mean_clot_left_ml']:.2f} ml", f"{row['mean_saline_used_ml']:.2f} ml",
+                           f"{row['mean_saline_wasted_ml']:.2f} ml", _percent(row["overflowed_episodes"]),
+                           f"{row['mean_overflow_s']:.2f} s", f"{row['mean_contact_steps']:.1f}"])
+    table.source(path, record["command"], record["commit"])
+    path = "benchmarks/results/irrigation_speed_2026-12-02.jsonl"
+    for row in _read(path):
+        table.rows.append([f"the batched step, N = {row['worlds']:,}, one core: irrigation on", "-", "-", "-", "-",
+                           "-", "-", "-", "-", "-", f"{row['ratio']:.2f}x the step without it "
+                           f"({_count(row['irrigation_steps_s'])} vs {_count(row['benchmark_steps_s'])} steps/s)"])
+        table.source(path, row["command"], row["commit"])
+    return table
+
+
 def pixel_seat() -> Table:
     path = "baselines/results/pixel_seat_stereo_v8.json"
     record = _read(path)
@@ -381,6 +402,11 @@ SECTIONS = (
      cross_play),
     ("The bleeding field", "Teams on the field that bleeds (`bleeding_ml_s`), 100 held-out episodes per row, the "
      "task's 1,500 steps, by the policies' mean action.", bleeding_field),
+    ("The irrigation level", "Teams on `preset=\"irrigation\"` (half of each cavity's blood clotted; the "
+     "Suction & Irrigation valve signed), 100 held-out episodes per row, the level's 2,500 steps, with the figures "
+     "CRESSim reports for its irrigation agents: blood left (ml, and as a share of the start), clot left, saline used "
+     "and wasted (irrigated anywhere but into a cavity), the episodes in which a cavity overflowed and the time it "
+     "did. The last row: the step's cost, side by side (`benchmarks/irrigation_speed.py`).", irrigation_field),
     ("The suction seat from the stereo endoscope", "`marl-suction-pixels` by its default call beside every partner "
      "kind, in the looks it trained on, the scene's own and held-out ones, against its teacher with no image; 20 test "
      "episodes per cell, success and contact steps (the worlds that failed).", pixel_seat),

@@ -313,3 +313,19 @@ def test_a_person_in_the_suction_seat_irrigates_with_the_key_and_the_cues_say_so
     assert view.cues("suction")["irrigating"] and view.progress()["saline_used_ml"] > 0.0
     labels, values = view.cue_rows("suction")
     assert values[labels.index("Valve")].startswith("IRRIGATING") and "Saline" in labels
+
+
+def test_a_feature_set_of_a_scene_with_fluids_reads_its_whole_plain_observation():
+    from dvrl_marl.envs import features
+
+    env = _env(preset="irrigation")
+    spec = env.feature_spec
+    assert spec["fluids"] is True
+    features.check_spec(spec)
+    assert features.observation_width(spec) == layout.plain_width(env.observation_layout)
+    plain = env.core.observation("suction")
+    np.testing.assert_array_equal(features.apply(spec, plain), env.observe()["suction"]
+                                  if hasattr(env, "observe") else features.apply(spec, plain))
+    assert "fluids" not in _env(preset="benchmark").feature_spec  # (the other scenes' specs as before)
+    with pytest.raises(ValueError, match="fluids"):
+        features.check_spec({**spec, "fluids": 1})

@@ -153,6 +153,8 @@ def spec(name: str, layout, debris: int) -> dict:
     out = {"name": name, "cavities": len(layout.cavity_centres), "debris": int(debris)}
     if name in NEEDS_GEOMETRY:
         out.update(routes_geometry(layout))
+    if getattr(layout, "fluids", False):  # the observation ends with the fluids' slots (read by no feature)
+        out["fluids"] = True
     return out
 
 
@@ -364,7 +366,8 @@ def observation_width(spec: dict) -> int | None:
     """The observation length a feature set reads (the collaborative scene's: tips, tool, blood, pin slots, hand-off),
     or None where the set does not fix it (a single-arm set)."""
     if spec.get("name") in SCENE_FEATURE_SETS:
-        return layout.observation_layout(int(spec["cavities"]), int(spec["debris"]))["handoff"].stop
+        return layout.plain_width(layout.observation_layout(int(spec["cavities"]), int(spec["debris"]),
+                                                            bool(spec.get("fluids", False))))
     return None
 
 
@@ -378,6 +381,10 @@ def check_spec(spec) -> None:
     if name not in _PARTS:
         raise ValueError(f"unknown observation features {name!r} (known: {sorted(_PARTS)})")
     given, wanted = set(spec) - {"name"}, set(_ARGUMENTS[name])
+    if name in SCENE_FEATURE_SETS and "fluids" in spec:  # (optional: a scene with fluids says so)
+        if spec["fluids"] is not True:
+            raise ValueError(f"observation features {name!r}: fluids is true where given, got {spec['fluids']!r}")
+        given = given - {"fluids"}
     if given != wanted:
         raise ValueError(f"observation features {name!r} take the arguments {sorted(wanted)}"
                          + (f"; missing {sorted(wanted - given)}" if wanted - given else "")
@@ -410,7 +417,7 @@ def apply(spec: dict, observation):
     name = spec.get("name")
     if name not in _PARTS:
         raise ValueError(f"unknown observation features {name!r} (known: {sorted(_PARTS)})")
-    arguments = {k: v for k, v in spec.items() if k != "name"}
+    arguments = {k: v for k, v in spec.items() if k not in ("name", "fluids")}
     unknown = sorted(set(arguments) - set(_ARGUMENTS[name]))
     if unknown:
         raise ValueError(f"observation features {name!r}: unknown arguments {unknown}")

@@ -98,6 +98,7 @@ class SceneLayout:
     gain: float  # rho / eta: steps per normalised unit
     clearance: float  # tip clearance, normalised
     irrigates: bool = False  # the suction's valve irrigates on a negative command (irrigation_ml_s > 0)
+    fluids: bool = False  # observations end with the fluids' slots (irrigation or clots: core.layout.FLUID_FIELDS)
 
 
 class SuctionDebrisBatchedEnv:
@@ -443,6 +444,7 @@ class SuctionDebrisBatchedEnv:
             gain=self.workspace_range / self.params.step_size,
             clearance=self.params.tip_clearance * k,
             irrigates=self.params.irrigation_ml_s > 0.0,
+            fluids=self.params.fluids,
         )
 
     @property

@@ -34,7 +34,7 @@ window (or ESC) ends the episode at that step: every agent truncates with ``info
 ## Agents and Action Spaces
 | agent | tool | action ``Box(-1, 1, (4,), float32)`` |
 |---|---|---|
-| ``"suction"`` | Suction & Irrigation | [Delta (3), valve: open when > 0] |
+| ``"suction"`` | Suction & Irrigation | [Delta (3), valve: sucks when > 0; irrigates when < -0.5 where the scene irrigates] |
 | ``"grasper"`` | Large Needle Driver | [Delta (3), phi: jaw j = (phi + 1) / 2] |
 
 The tool is set at once, as in the paper, unless ``tool_speed`` (an option; 1, the default, is
@@ -76,7 +76,12 @@ x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris_v8.tom
 | 4:7 | other arm's tip~ |
 | 7:7+C | blood fraction left in each of the C = 2 cavities |
 | then 6 per debris | [position~ (zeros while hidden), visible, held, delivered] |
-| last 3 | hand-off point~ |
+| then 3 | hand-off point~ |
+| with fluids, last 1 + 4C | irrigating side (-1 shut .. +1 open); per cavity its liquid, its blood's share of that liquid (concentration), its clot (liquid and clot as shares of its capacity), and its spill's time left (share) |
+
+The fluids' slots (``observation_layout["irrigation"]``, ``["liquid"]``, ``["concentration"]``, ``["clot"]``,
+``["spill"]``; :data:`dvrl_marl.core.layout.FLUID_FIELDS`) come only in a scene with irrigation or clots
+(``irrigation_ml_s``, ``clot_share`` or ``clotting_ml_s`` above 0): elsewhere the observation is as before.
 
 ``state()`` / ``state_space`` give the global state for centralised critics: both tips, jaw, valve, blood
 fractions, every debris with its true position (hidden ones included) and flags, the hand-off point.
@@ -150,7 +155,20 @@ the sparse rule in every case. All: each agent in an instrument-instrument conta
   is unchanged, so the suction must keep the field clear while the grasper works.
 - **Clotting** (``clotting_ml_s``, off by default; the worked example of "Adding a rule" in the design page): liquid
   blood clots at that rate in every cavity, up to the blood there, and suction draws none of a clot, so a cavity
-  whose clot passes ``blood_threshold_ml`` cannot be cleared by suction alone (irrigation, to come, breaks clots up).
+  whose clot passes ``blood_threshold_ml`` cannot be cleared by suction alone (irrigation breaks clots up).
+- **Irrigation** (``irrigation_ml_s``, off by default; ``preset="irrigation"`` turns it on at 1 ml/s with
+  ``clot_share=0.5``): the Suction & Irrigation valve is signed: a command above 0 sucks, one below -0.5 irrigates,
+  and between them the valve is shut (a script's "shut" is 0 there; without irrigation every command not above 0
+  shuts it, as ever). The irrigating side has a stroke of its own, moved by ``tool_speed`` as the valve's is. Saline
+  flows from the tip at ``irrigation_ml_s``: over a cavity with the tip below the phantom's top it enters that
+  cavity, mixes with the liquid blood and breaks ``clot_per_saline_ml`` (1) ml of clot into liquid blood per ml of
+  flow; anywhere else it is wasted. Suction draws the mix: blood in proportion to its share of the liquid (what the
+  dense reward counts is the blood). A cavity filled past its capacity overflows: the rest spills over, counted, and
+  the spill covers the phantom around the cavity (a pin's length beyond its mouth) for ``spill_s`` (2 s) after it
+  stops, hiding the pins there from the observations (the endoscope draws it as the mix spread over the phantom). A
+  clot settles on the floor: ``clot_share`` of each cavity's blood starts clotted, and a pin under the clot's level
+  is not revealed until irrigation has broken it up. The endoscope draws each cavity's fluid by what it holds: dark
+  clot, red blood, pink mix, clear saline.
 
 ## Starting State
 Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper jaw open, valve closed; blood
@@ -170,7 +188,10 @@ library's curriculum can drive it at each reset (the batched env also takes one 
 Complete (every cavity below ``blood_threshold_ml`` and every debris delivered, at the same time): all agents terminate.
 ``max_cycles`` steps: all agents truncate. The person closed the window (``render_mode="human"``): all agents
 truncate, with ``viewer_closed``. ``infos[agent]``: ``blood_remaining`` (ml, total),
-``blood_remaining_per_cavity``, ``debris_delivered``, ``collision``, ``is_success``.
+``blood_remaining_per_cavity``, ``debris_delivered``, ``collision``, ``is_success``; in a scene with fluids also
+the episode's figures as CRESSim reports its irrigation agents': ``clot_remaining`` (ml), ``saline_used_ml``,
+``saline_wasted_ml`` (irrigated anywhere but into a cavity), ``overflow_events`` (overflows begun), ``overflow_s``
+(time with a cavity overflowing) and ``overflow_ml`` (spilt).
 
 ## Arguments
 ``surgeon``, ``surgeon_seat``, ``reward_type``, ``render_mode`` ("rgb_array" | "human": a window, stepped in
@@ -202,6 +223,9 @@ exposes it to TorchRL.
 (:data:`dvrl_marl.envs.presets.PRESETS`): ``reward_type="guided"``,
 ``observation_features="suction_debris_cleared_pins_zoom"``, ``state_observations=True``, ``contact_penalty=0.1``,
 ``tool_speed=0.1``, ``jaw_command="switch"``, ``hold_until_handoff=True``. Keywords given beside it win.
+``preset="irrigation"`` is the benchmark's setting on a clotted field, the benchmark's irrigation level:
+``irrigation_ml_s=1.0``, ``clot_share=0.5``, ``max_cycles=2500`` (the scripted irrigating team needs about 1,500
+steps; the suction-only plan of the other levels finishes none: ``benchmarks/irrigation_field.py``).
 ``preset="default"`` (the default) is the task file as it is. Every form takes it (parallel, AEC, batched, the seat
 env, the TorchRL and BenchMARL tasks).
 
