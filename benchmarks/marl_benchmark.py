@@ -20,8 +20,9 @@ evaluation interval set here; a record names its settings (``benchmarl_settings`
 ``dvrl-marl`` runs this project's trainer with the configuration of record
 (``baselines/configs/suction_debris_<algorithm>.toml``; the test figure is its final policies, as BenchMARL's), its
 ``[env]`` replaced by the same task file (its run folder keeps the ``config.toml`` it ran); at the easy
-level its start-level schedule is off (every episode easy), at the default level it keeps it (its curriculum,
-ending on the default task); BenchMARL's default-level runs get the same schedule through a callback
+level its start-level schedule is off (every episode easy), at the default and irrigation levels it keeps it (its
+curriculum, ending on the level's task; at the irrigation level its tool's command a Gaussian, not a switch, whose
+"shut" would irrigate); BenchMARL's runs at those levels get the same schedule through a callback
 (``StartLevelSchedule``, outside the algorithm). ``rllib`` runs RLlib's PPO with a policy and a critic per arm
 (IPPO) as ``examples/rllib_suction_debris.py --guided`` does (the PPO settings of BenchMARL's shipped files, its
 record's ``rllib_settings``; 2 env runners of 8 envs), on the PettingZoo env with the same options; its start level is
@@ -66,6 +67,9 @@ RLLIB_ENV_RUNNERS, RLLIB_ENVS_PER_RUNNER = 2, 8
 #: RLlib's validation episodes during training (BenchMARL's: experiment.yaml's evaluation_episodes).
 RLLIB_EVAL_EPISODES = 20
 LEVELS = ("easy", "default")
+#: The levels a run may take: the table's, and the irrigation level (``preset="irrigation"``), whose cells join the
+#: table once its runs are recorded (none are yet).
+RUN_LEVELS = (*LEVELS, "irrigation")
 TEST_EPISODES = 100
 #: The start-level schedule of the default level's runs, both libraries (the configuration of record's
 #: ``[curriculum] levels``): BenchMARL through :class:`dvrl_marl.integrations.benchmarl.StartLevelSchedule`.
@@ -201,7 +205,7 @@ def run_benchmarl(algorithm: str, level: str, seed: int, frames: int, worlds: in
                             model_config=model_config(shipped=False, **settings.get("model", {})),
                             critic_model_config=model_config(shipped=False, **settings.get("model", {})),
                             seed=seed, config=config,
-                            callbacks=[curve] + ([StartLevelSchedule(CURRICULUM)] if level == "default" else []))
+                            callbacks=[curve] + ([StartLevelSchedule(CURRICULUM)] if level != "easy" else []))
     try:
         experiment.run()
     except ValueError as error:  # its policy's actions became NaN, which the env refuses by name: it diverged
@@ -240,6 +244,8 @@ def run_dvrl_marl(algorithm: str, level: str, seed: int, frames: int, eval_every
     config.env = dict(options)
     if level == "easy":
         config.levels = []  # every episode easy (the task file's start level)
+    if level == "irrigation":  # the valve has three states: a switch's "shut" (-1) would irrigate
+        config.tool_head = "gaussian"
     config.eval_every = config.checkpoint_every = int(eval_every)
     config.evaluate_with_noise = False  # validation as BenchMARL's: the deterministic policy
     if eval_episodes:
@@ -356,7 +362,7 @@ def command_run(args) -> int:
            "frames_to_target": _first_reaching(curve, "frames"), "wall_to_target": _first_reaching(curve, "wall_seconds"),
            "target": TARGET, "env_options": options,
            **({f"{args.library}_settings": settings} if settings is not None else {}),
-           "curriculum": [list(point) for point in CURRICULUM] if args.level == "default" else None,
+           "curriculum": [list(point) for point in CURRICULUM] if args.level != "easy" else None,
            "command": "python benchmarks/marl_benchmark.py " + " ".join(sys.argv[1:]),
            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
            "code": code}  # (what a rerun must match to give this figure bit for bit)
@@ -585,7 +591,7 @@ def main(argv=None) -> int:
     run = sub.add_parser("run", help="one run: writes one JSON record")
     run.add_argument("--library", choices=LIBRARIES, required=True)
     run.add_argument("--algorithm", choices=sorted({a for v in ALGORITHMS.values() for a in v}), required=True)
-    run.add_argument("--level", choices=LEVELS, required=True)
+    run.add_argument("--level", choices=RUN_LEVELS, required=True)
     run.add_argument("--seed", type=int, required=True)
     run.add_argument("--frames", type=int, default=2_000_000, help="env steps of all worlds (default %(default)s)")
     run.add_argument("--worlds", type=int, default=256, help="BenchMARL: worlds per batch (default %(default)s)")

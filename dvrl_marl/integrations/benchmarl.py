@@ -51,7 +51,7 @@ __all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_d
 
 #: The shipped task files.
 TASK_FILES = Path(__file__).with_name("benchmarl_tasks")
-LEVELS = ("easy", "default")
+LEVELS = ("easy", "default", "irrigation")
 
 
 def _base(env):
@@ -239,7 +239,7 @@ def settings_overrides(path) -> dict:
 
 
 def suction_debris_task(level_or_file: str = "default", **overrides) -> SuctionDebrisTask:
-    """The task from a shipped level (``"easy"``, ``"default"``) or a YAML file of keyword arguments; ``overrides``
+    """The task from a shipped level (``"easy"``, ``"default"``, ``"irrigation"``) or a YAML file of keyword arguments; ``overrides``
     replace the file's values. Checked by building one world: a bad key or value is a ``ValueError`` naming it."""
     import yaml
 
