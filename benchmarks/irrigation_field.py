@@ -4,7 +4,8 @@ the Suction & Irrigation valve signed), with the figures CRESSim reports for its
     python benchmarks/irrigation_field.py [--episodes 100] [--out benchmarks/results/irrigation_field_<date>.json]
 
 Teams: the scripted irrigating team (``ScriptedSuction`` irrigates where the scene irrigates and a cavity holds a
-clot; the scripted surgeon as ever), the scripted team of the level without irrigation (the same suction with
+clot; the scripted surgeon as ever), the learned pipeline team (the shipped Reach and Pick policies composed,
+``pipeline/specs/learned_team.toml``: its suck stage irrigates in the same bursts), the scripted team of the level without irrigation (the same suction with
 ``irrigate=False``: today's plan) and the keep-clear scripted team (the bleeding field's experts, suction only).
 Held-out seeds (``teams.EVAL_SEED``), all worlds batched. Prints one row per team: success, median steps, blood left
 (ml and share of the start), clot left, saline used and wasted (ml), episodes with an overflow, overflow time, contact
@@ -34,6 +35,7 @@ def lineup(scene) -> dict:
     """The teams, each ``{agent: seat}``, made for ``scene`` (their scripts read its layout)."""
     return {
         "scripted irrigating team": teams.seats("scripted", "scripted", env=scene),
+        "learned pipeline team": teams.seats("pipeline", "pipeline", env=scene),
         "scripted team, suction only": {"suction": ScriptedSuction(*_scripted_args(scene), irrigate=False),
                                         "grasper": teams.seat("scripted", "grasper", scene)},
         "keep-clear scripted team": teams.seats("keep-clear", "keep-clear", env=scene),

@@ -5,11 +5,14 @@ expert play beside the same partners: the scripted one, the Reach + Pick pipelin
 (:data:`dvrl_marl.agents.partners.PERSON`), each held-out kind (:data:`~dvrl_marl.agents.partners.HELD_OUT`:
 late, slow, shaky, hesitant; drawn with ``ZOO_SEED``, never used in training) and, beside the suction, the held-out
 surgeons that rest in its way (:data:`dvrl_marl.agents.in_the_way.HELD_OUT`). Test seeds (``teams.EVAL_SEED`` on),
-``suction_debris_v8`` with a person's 6,000-step horizon.
+``suction_debris_v8`` with a person's 6,000-step horizon. ``--preset irrigation``: the irrigation level, where the
+zoo's suctions (the scripted expert and the person-like kinds made from it, the pipeline) irrigate clotted cavities;
+no learned seat reads its observation yet, so ``--grasper scripted --seats grasper`` plays the scripted surgeon
+beside them.
 
     python benchmarks/partner_zoo.py [--episodes 100] [--suction marl-suction] [--grasper marl-grasper]
                                      [--seats suction grasper] [--partners scripted in-the-way ...]
-                                     [--noise] [--json baselines/results/partner_zoo.json]
+                                     [--noise] [--preset irrigation] [--json baselines/results/partner_zoo.json]
 
 Prints, per seat and partner: success, median steps to success, instrument-contact steps, the seat's tip path (mm)
 and its mean absolute action change between steps (smoothness), learned beside scripted. The gap is the figure
@@ -33,10 +36,12 @@ SEAT_OF = {"in-the-way": "grasper"}
 
 def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, **env_kwargs) -> dict:
     """One row: ``player`` in ``seat`` beside ``partner`` (``env_kwargs``: the evaluation env's options, such as
-    ``image_appearance`` for a seat that sees the endoscope)."""
+    ``image_appearance`` for a seat that sees the endoscope, or a ``preset``)."""
     other = other_seat(seat)
-    team = {seat: teams.seat(player, seat, noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
-            other: partner_seat(partner, other)}
+    scene = suction_debris_v8.parallel_env(**{k: v for k, v in env_kwargs.items() if k == "preset"})
+    team = {seat: teams.seat(player, seat, scene,
+                             noise_from=teams.EVAL_SEED if noise and player != "scripted" else None),
+            other: partner_seat(partner, other, scene)}
     result = teams.evaluate_team_batched(team, episodes, max_cycles=6000, **env_kwargs)
     return {"seat": seat, "player": player, "partner": partner, "episodes": episodes,
             "success_rate": result["success_rate"], "median_steps_to_completion": result["median_steps_to_completion"],
@@ -46,11 +51,13 @@ def evaluate(seat: str, player: str, partner: str, episodes: int, noise: bool, *
             "success": result["success"], "contact_steps": result["contact_steps"]}
 
 
-def partner_seat(partner: str, seat: str):
-    """The partner kind ``partner`` (one of :data:`PARTNERS`) filling ``seat``."""
+def partner_seat(partner: str, seat: str, scene=None):
+    """The partner kind ``partner`` (one of :data:`PARTNERS`) filling ``seat`` of ``scene`` (the default scene's
+    parallel env if None: the seats read its layout)."""
+    scene = scene or suction_debris_v8.parallel_env()
     if partner in ("scripted", "pipeline"):
-        return teams.seat(partner, seat)
-    return zoo_partner(partner, seat, suction_debris_v8.parallel_env())
+        return teams.seat(partner, seat, scene)
+    return zoo_partner(partner, seat, scene)
 
 
 def other_seat(seat: str) -> str:
@@ -67,6 +74,8 @@ def main() -> None:
     parser.add_argument("--seats", nargs="+", choices=("suction", "grasper"), default=["suction", "grasper"],
                         help="the seats to measure")
     parser.add_argument("--partners", nargs="+", choices=PARTNERS, default=list(PARTNERS), help="the partner kinds")
+    parser.add_argument("--preset", choices=sorted(suction_debris_v8.PRESETS), default="default",
+                        help="the scene's preset (irrigation: the zoo's suctions irrigate)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     rows = []
@@ -77,15 +86,15 @@ def main() -> None:
         for partner in args.partners:
             if partner in SEAT_OF and SEAT_OF[partner] != other_seat(seat):
                 continue
-            for player in (learned, "scripted"):
-                row = evaluate(seat, player, partner, args.episodes, args.noise)
+            for player in dict.fromkeys((learned, "scripted")):  # (once, where the learned seat is the script)
+                row = evaluate(seat, player, partner, args.episodes, args.noise, preset=args.preset)
                 rows.append(row)
                 median = row["median_steps_to_completion"]
                 print(f"{seat:8s} {partner:10s} {player:14s} {row['success_rate']:8.2f} "
                       f"{'-' if median is None else f'{median:.0f}':>13s} {row['mean_contact_steps']:9.1f} "
                       f"{row['tip_path_mm']:12.0f} {row['action_change']:14.3f}", flush=True)
     if args.json:
-        args.json.write_text(json.dumps({"noise": args.noise, "rows": rows}, indent=2) + "\n")
+        args.json.write_text(json.dumps({"noise": args.noise, "preset": args.preset, "rows": rows}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -329,3 +329,15 @@ def test_a_feature_set_of_a_scene_with_fluids_reads_its_whole_plain_observation(
     assert "fluids" not in _env(preset="benchmark").feature_spec  # (the other scenes' specs as before)
     with pytest.raises(ValueError, match="fluids"):
         features.check_spec({**spec, "fluids": 1})
+
+
+def test_the_pipeline_and_a_person_like_suction_irrigate_where_the_scene_does():
+    from dvrl_marl.agents.partners import zoo_partner
+    from dvrl_marl.training import teams
+
+    scene = suction_debris.parallel_env(preset="irrigation")
+    for suction in (teams.seat("pipeline", "suction", scene), zoo_partner("person", "suction", scene)):
+        result = teams.evaluate_team_batched({"suction": suction, "grasper": teams.seat("scripted", "grasper", scene)},
+                                             3, preset="irrigation", max_cycles=4000)
+        assert result["success_rate"] == 1.0 and result["mean_saline_used_ml"] > 0.0
+        assert result["overflowed_episodes"] == 0.0

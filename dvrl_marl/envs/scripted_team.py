@@ -25,7 +25,7 @@ from dvrl_marl.core.layout import (ACTION_WIDTH, MOVE, PIN_DELIVERED, PIN_HELD, 
 from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
 
 __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "SweepingSuction",
-           "SweepingSurgeon", "YieldingSuction", "keep_clear_rule"]
+           "SweepingSurgeon", "YieldingSuction", "keep_clear_rule", "burst_valve"]
 
 
 
@@ -126,10 +126,6 @@ class ScriptedSuction(_Scripted):
     ``irrigate=False`` keeps today's suction-only plan in such a scene (its valve shut at 0, not -1, which
     irrigates)."""
 
-    #: A burst's marks, shares of a cavity's capacity: irrigate from ``LOW`` liquid up to ``HIGH``, never past
-    #: ``FULL`` of fluid in all (liquid and clot); a clot under ``CLOT_LEFT`` is gone.
-    LOW, HIGH, FULL, CLOT_LEFT = 0.01, 0.2, 0.85, 1e-4
-
     def __init__(self, layout, observation_layout, workspace_range: float, irrigate: bool | None = None):
         super().__init__(layout, observation_layout, workspace_range)
         self.order = _far_first(layout)
@@ -142,16 +138,7 @@ class ScriptedSuction(_Scripted):
 
     def _valve_in(self, obs: np.ndarray, cavity: int) -> float:
         """The valve's command for a tip working inside ``cavity``: suck, or irrigate a clot in bursts."""
-        s = self.slices
-        if not self.irrigate or obs[s["clot"]][cavity] <= self.CLOT_LEFT:
-            return 1.0
-        liquid = obs[s["liquid"]][cavity]
-        if liquid >= self.HIGH or liquid + obs[s["clot"]][cavity] >= self.FULL:
-            return 1.0
-        if liquid <= self.LOW:
-            return -1.0
-        irrigating = obs[s["irrigation"]][0] > obs[s["own_tool"]][0]  # the burst under way goes on
-        return -1.0 if irrigating else 1.0
+        return burst_valve(obs, self.slices, cavity) if self.irrigate else 1.0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         if self.irrigate or self.shut != -1.0:  # (the bursts read the valve row by row)
@@ -203,6 +190,28 @@ class YieldingSuction(ScriptedSuction):
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:
         return self.act(np.asarray(obs, dtype=np.float64)[None])[0]
+
+
+#: An irrigation burst's marks, shares of a cavity's capacity: irrigate from ``BURST_LOW`` liquid up to
+#: ``BURST_HIGH``, never past ``BURST_FULL`` of fluid in all (liquid and clot); a clot under ``CLOT_LEFT`` is gone.
+BURST_LOW, BURST_HIGH, BURST_FULL, CLOT_LEFT = 0.01, 0.2, 0.85, 1e-4
+
+
+def burst_valve(obs: np.ndarray, slices: dict, cavity: int) -> float:
+    """The suction valve's command (1 sucks, -1 irrigates) for a tip working inside ``cavity`` of a scene that
+    irrigates, from one observation (``slices``: its layout): where the cavity holds a clot, irrigate once the liquid
+    is drawn down to :data:`BURST_LOW` until it reaches :data:`BURST_HIGH` or the cavity :data:`BURST_FULL`, then
+    suck; between the marks the valve's stroke (observed) carries the burst on. Without a clot: suck."""
+    clot = obs[slices["clot"]][cavity]
+    if clot <= CLOT_LEFT:
+        return 1.0
+    liquid = obs[slices["liquid"]][cavity]
+    if liquid >= BURST_HIGH or liquid + clot >= BURST_FULL:
+        return 1.0
+    if liquid <= BURST_LOW:
+        return -1.0
+    irrigating = obs[slices["irrigation"]][0] > obs[slices["own_tool"]][0]  # the burst under way goes on
+    return -1.0 if irrigating else 1.0
 
 
 def keep_clear_rule(layout, observation_layout, workspace_range: float, agent: str, keep_mm: float) -> dict:

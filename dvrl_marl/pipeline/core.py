@@ -34,9 +34,10 @@ import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the single-arm environments)
 from dvrl_marl import policies
-from dvrl_marl.core import layout
+from dvrl_marl.core import layout, tools
 from dvrl_marl.schemas import STRICT, Finite, Flag, NonNegative, Positive, PositiveInt, Text
 from dvrl_marl.agents.experts import PickExpert, ReachExpert
+from dvrl_marl.envs.scripted_team import burst_valve
 from dvrl_marl.task import load_task
 
 __all__ = ["StageSpec", "RecentredFrame", "ArmPipeline", "load_pipeline", "available_pipelines"]
@@ -209,6 +210,9 @@ class ArmPipeline:
         self.scene_step = float(unwrapped.params.step_size)
         self.delta = float(unwrapped.params.distance_threshold)
         self.base = self._world(self.layout.base_positions[agent])
+        # a scene that irrigates: the suck stage irrigates clots in bursts, and a shut valve is 0 (-1 irrigates)
+        self.irrigates = agent == "suction" and bool(getattr(self.layout, "irrigates", False))
+        self.shut = tools.SHUT if self.irrigates else -1.0
         self.devices = dict(devices or {})
         self._policies: dict[tuple[str, str], _StagePolicy] = {}
         for stage in plan.stages + plan.idle + plan.final:
@@ -237,7 +241,7 @@ class ArmPipeline:
         self.frame = None
         self.steps = 0
         self.mode = "start"  # "item", "idle", "final"
-        self.tool = 1.0 if self.agent == "grasper" else -1.0
+        self.tool = 1.0 if self.agent == "grasper" else self.shut
         self.timeouts = 0
         self.log.clear()
         for device in self.devices.values():
@@ -472,11 +476,14 @@ class ArmPipeline:
             self.tool = float(action[3])
             return action
         if stage.type == "suck":
-            # Follow the falling surface down to the cavity floor with the valve open.
+            # Follow the falling surface down to the cavity floor with the valve open (irrigating a clot in bursts
+            # where the scene irrigates).
             self.tool = 1.0
+            if self.irrigates and self.item is not None and self._inside_cavity(state["tip"]):
+                self.tool = burst_valve(np.asarray(self._observation, dtype=np.float64), self.slices, self.item)
             floor = self._target(StageSpec("reach", target="cavity_floor"), state) if self.item is not None else state["tip"]
             step = np.clip((floor - state["tip"]) / self.scene_step, -1.0, 1.0)
-            return np.append(step, 1.0).astype(np.float32)
+            return np.append(step, self.tool).astype(np.float32)
         if stage.type == "release":
             self.tool = 1.0
             return np.array([0.0, 0.0, 0.0, 1.0], dtype=np.float32)
@@ -489,7 +496,7 @@ class ArmPipeline:
             delta = np.asarray(policy.act({"observation": tip, "achieved_goal": tip, "desired_goal": goal}))[:3]
             if self.agent == "suction":
                 inside = self._inside_cavity(state["tip"])
-                self.tool = {"off": -1.0, "on": 1.0, "inside": 1.0 if inside else -1.0}[stage.valve]
+                self.tool = {"off": self.shut, "on": 1.0, "inside": 1.0 if inside else self.shut}[stage.valve]
             else:
                 self.tool = 1.0 if stage.jaw == "open" and not stage.carry else -1.0
             return np.append(np.clip(delta * scale, -1, 1), self.tool).astype(np.float32)

@@ -95,8 +95,7 @@ def seat(name, agent: str, env=None, noise_from: int | None = None):
         from dvrl_marl.pipeline import ArmPipeline, load_pipeline
 
         plan = load_pipeline("learned_team")[agent]
-        single = suction_debris.parallel_env()
-        return _PerWorld(lambda: ArmPipeline(plan, agent, single))
+        return _PerWorld(lambda: ArmPipeline(plan, agent, env))  # (env: its layout, an irrigating scene's included)
     policy = policies.load(name)
     trained_for = policy.spec.get("agent")
     if trained_for is not None and trained_for != agent:
