@@ -98,7 +98,8 @@ def env_options(round_: Round, rng: random.Random, count: int) -> None:
                "render_world", "task", "guidance", "observation_features", "start_level", "easy_episode_steps",
                "state_observations", "normalize_observations", "image_size", "image_depth", "image_segmentation",
                "image_stereo", "image_appearance", "image_contexts", "width", "height", "preset", "tool_speed",
-               "jaw_command", "hold_until_handoff", "bleeding_ml_s", "teleop_timeout", "no_such_option"]
+               "jaw_command", "hold_until_handoff", "bleeding_ml_s", "teleop_timeout", "irrigation_ml_s", "clot_share",
+               "clot_per_saline_ml", "spill_s", "no_such_option"]
     for _ in range(count):
         option, value = rng.choice(options), rng.choice(BAD)
         kwargs = {option: value}
