@@ -334,7 +334,8 @@ def _teleop(args) -> int:
     from dvrl_marl.teleop.web import TeleopServer
 
     session = TeleopSession(seat=args.seat, partner=args.partner, seed=args.seed, record=not args.no_record,
-                            dataset_id=args.dataset, max_cycles=args.max_cycles)
+                            dataset_id=args.dataset, max_cycles=args.max_cycles,
+                            **({"preset": args.preset} if args.preset != "default" else {}))
     server = TeleopServer(session, args.host, args.port, allow_remote=args.allow_remote, token=args.token)
     print(f"dvrl-marl teleop: the {args.seat} seat beside the {args.partner} partner; open this URL in a browser "
           f"(Ctrl-C to stop):\n  {server.url}", flush=True)
@@ -545,6 +546,8 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--dataset", default="dvrl_marl/surgeon-teleop-v1",
                         help="Minari dataset id to record into (the next free version when taken)")
     teleop.add_argument("--no-record", action="store_true", help="do not record episodes")
+    teleop.add_argument("--preset", choices=sorted(PRESETS), default="default", help="the scene's preset (irrigation: "
+                        "a clotted field; in the suction seat, hold I to irrigate)")
     teleop.set_defaults(func=_teleop)
     render = sub.add_parser("render", help="render a scene from its endoscope camera and print a summary")
     render.add_argument("--scene", default="collaborative", help="a scene with an endoscope camera: collaborative "
