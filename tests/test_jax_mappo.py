@@ -2,6 +2,7 @@
 gradients, the reward scaling and GAE equal the torch learner's on the same weights and data; its compiled cycle is
 deterministic over many steps; a tiny run on the CPU validates and exports numpy policies that act as its actors."""
 
+import dataclasses
 import csv
 import os
 from dataclasses import replace
@@ -239,3 +240,19 @@ def test_the_device_env_gives_its_state_to_a_loop_of_its_own_and_takes_it_back()
     numpy_env = suction_debris_v8.batched_env(num_envs=4, autoreset_mode="disabled", **TINY.env)
     with pytest.raises(AttributeError):
         numpy_env.step_function  # noqa: B018  (the numpy env steps eagerly: no traced step to give)
+
+
+def test_a_tiny_run_on_the_irrigation_level_exports_policies_that_read_its_observations(tmp_path):
+    """The level's observations end with the fluids' slots: an exported policy's features read them whole (a run's
+    validation once refused its own policies over it)."""
+    config = dataclasses.replace(TINY, env={"preset": "irrigation", "max_cycles": 40}, tool_head="gaussian",
+                                 initial_tool_logit={}, total_steps=256, eval_every=256)
+    last = jax_mappo.train(config, 1, tmp_path / "run", validate_beside=False, cache=tmp_path / "compiled",
+                           log=lambda *_: None)
+    assert last["steps"] == 256
+    observations, _ = suction_debris_v8.parallel_env(preset="irrigation").reset(seed=0)
+    for agent in ("suction", "grasper"):
+        policy = policies.load(tmp_path / "run" / "policies" / f"marl-{agent}")
+        assert policy.spec["features"]["fluids"] is True
+        action = policy(observations[agent])
+        assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
