@@ -97,7 +97,7 @@ def test_bad_original_options_are_refused(bad):
 
 
 COLLABORATIVE_KEYS = {"pins_fall", "suction_reach", "bleeding_ml_s", "deliver_at_grip", "held_pin_at_grip",
-                      "pins_stay_on_phantom", "blocked_moves"}
+                      "pins_stay_on_phantom", "blocked_moves", "irrigation_ml_s", "clot_share"}
 
 
 def test_the_deviations_page_runs_and_every_argument_it_names_works():

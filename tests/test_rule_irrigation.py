@@ -341,3 +341,14 @@ def test_the_pipeline_and_a_person_like_suction_irrigate_where_the_scene_does():
                                              3, preset="irrigation", max_cycles=4000)
         assert result["success_rate"] == 1.0 and result["mean_saline_used_ml"] > 0.0
         assert result["overflowed_episodes"] == 0.0
+
+
+def test_the_guided_reward_counts_clot_broken_up_as_progress():
+    env = _env(preset="irrigation")
+    guided = env._guided
+    before = guided.potentials(env.state(), env.core.remaining_ml)["suction"]
+    env.core.clot_ml[:, 0] -= 1.0  # 1 ml of clot made liquid (the blood the same)
+    after = guided.potentials(env.state(), env.core.remaining_ml)["suction"]
+    np.testing.assert_allclose(after - before, env.guidance.clot_broken * 1.0, rtol=1e-9)
+    plain = _env(preset="benchmark")  # (no clot slots: the term is not there)
+    assert plain._guided.route.clot_broken == 0.0

@@ -9,7 +9,7 @@ as an env option:
 - :class:`GraspPathShaping` (the grasper): the way tip -> pin -> hand-off over the pins to collect, continuous
   through the grasp, a hold bonus, centred grasps, a charge for off-centre ones, a waiting place when idle;
 - :class:`SuctionRouteShaping` (the suction): the route over the cavities still to clear, continuous when one
-  clears, a clearing bonus, a parking place at the end;
+  clears, a clearing bonus, a parking place at the end, and in a scene with clots the clot broken up;
 - :class:`OverRims`: both measured around the phantom (a tip cannot pass through it).
 
 :class:`Guidance` holds the settings; its defaults are the configuration of record
@@ -67,6 +67,9 @@ class Guidance:
     clear_bonus: NonNegative = 2.0
     #: the suction's route ends at its parking place
     route_to_park: Flag = True
+    #: a scene with clots (irrigation): potential per ml of clot broken up (the dense reward pays 1 per ml drawn, but
+    #: only once the broken clot is drawn: irrigating itself earned nothing)
+    clot_broken: NonNegative = 1.0
     #: paths measured around the phantom's rims, not through it
     over_rims: Flag = True
 
@@ -100,7 +103,8 @@ class GuidedReward:
                                       cleared_only=guidance.cleared_pins_only, centred=guidance.centred_grasps,
                                       off_centre=guidance.off_centre_grasps)
         self.route = SuctionRouteShaping(scene, guidance.suction_route, agents, guidance.clear_bonus,
-                                         over_rims=guidance.over_rims, park=guidance.route_to_park)
+                                         over_rims=guidance.over_rims, park=guidance.route_to_park,
+                                         clot_broken=guidance.clot_broken)
         self.agents = agents
 
     def potentials(self, state: np.ndarray, blood_ml: np.ndarray) -> dict:
@@ -361,8 +365,12 @@ class SuctionRouteShaping:
     """
 
     def __init__(self, env, weight: float, agents, clear_bonus: float = 0.0, over_rims: bool = False,
-                 park: bool = False):
+                 park: bool = False, clot_broken: float = 0.0):
         env = env if isinstance(env, SceneFacts) else SceneFacts(env)
+        # a scene with clots: -clot_broken per ml of clot left (the state's clot slots: shares of each capacity)
+        self.clot = env.state_layout.get("clot")
+        self.clot_broken = float(clot_broken) if self.clot is not None else 0.0
+        self.capacity = np.asarray(env.cavities.capacity_ml, dtype=np.float64)
         self.over_rims = OverRims(env.cavities) if over_rims else None
         self.weight = float(weight)
         self.clear_bonus = float(clear_bonus)
@@ -380,7 +388,7 @@ class SuctionRouteShaping:
 
     @property
     def active(self) -> bool:
-        return (self.weight > 0.0 or self.clear_bonus > 0.0) and self.index is not None
+        return (self.weight > 0.0 or self.clear_bonus > 0.0 or self.clot_broken > 0.0) and self.index is not None
 
     def potential(self, state: np.ndarray, blood_ml: np.ndarray) -> np.ndarray:
         """``state``: (N, state_dim); ``blood_ml``: (N, C), each cavity's remaining blood."""
@@ -407,7 +415,11 @@ class SuctionRouteShaping:
                 length = length + xp.where(here < 0, to_park, xp.asarray(self.floor_to_park)[xp.maximum(here, 0)])
             route = xp.minimum(route, length)
         cleared = (~pending).sum(axis=1)
-        return -self.weight * (route - nearest) + self.clear_bonus * cleared
+        potential = -self.weight * (route - nearest) + self.clear_bonus * cleared
+        if self.clot_broken > 0.0:
+            clot_ml = (state[:, self.clot] * xp.asarray(self.capacity, dtype=state.dtype)).sum(axis=1)
+            potential = potential - self.clot_broken * clot_ml
+        return potential
 
     def _measure(self, start, goal):
         if self.over_rims is None:
