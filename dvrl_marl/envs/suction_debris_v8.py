@@ -136,8 +136,8 @@ image and its own tip and valve alone, is trained by ``dvrl-marl train suction_p
 10 x the decrease of each agent's own distance (m) to what it should work on next (potential-based shaping).
 ``"guided"``: the dense reward plus the potential-based terms that made the task learnable from scratch
 (:mod:`dvrl_marl.envs.guidance`: the grasper's path over a pin to the hand-off, centred grasps, a hold bonus and a
-waiting place; the suction's route over the cavities still to clear, a clearing bonus and a parking place; all
-measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.envs.guidance.Guidance`,
+waiting place; the suction's route over the cavities still to clear, a clearing bonus and a parking place, and
+where there are clots 1 per ml of clot broken up; all measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.envs.guidance.Guidance`,
 defaults: the configuration of record). Potential-based terms leave the optimal policy unchanged, and success is
 the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``.
 
