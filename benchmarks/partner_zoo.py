@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from dvrl_marl.agents.partners import HELD_OUT, zoo_partner
@@ -94,7 +95,12 @@ def main() -> None:
                       f"{'-' if median is None else f'{median:.0f}':>13s} {row['mean_contact_steps']:9.1f} "
                       f"{row['tip_path_mm']:12.0f} {row['action_change']:14.3f}", flush=True)
     if args.json:
-        args.json.write_text(json.dumps({"noise": args.noise, "preset": args.preset, "rows": rows}, indent=2) + "\n")
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import provenance
+
+        record = {"command": "python benchmarks/partner_zoo.py " + " ".join(sys.argv[1:]), **provenance.code_state(),
+                  "noise": args.noise, "preset": args.preset, "rows": rows}
+        args.json.write_text(json.dumps(record, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -245,6 +245,17 @@ def irrigation_field() -> Table:
     return table
 
 
+def irrigation_zoo() -> Table:
+    path = "benchmarks/results/partner_zoo_irrigation_2026-12-02.json"
+    record = _read(path)
+    table = Table(["the suction seat (it irrigates)", "the grasper seat", "success", "median steps", "contact steps"])
+    for row in record["rows"]:
+        table.rows.append([row["partner"], row["player"], _percent(row["success_rate"]),
+                           _count(row["median_steps_to_completion"]), f"{row['mean_contact_steps']:.1f}"])
+    table.source(path, record["command"], record["commit"])
+    return table
+
+
 def pixel_seat() -> Table:
     path = "baselines/results/pixel_seat_stereo_v8.json"
     record = _read(path)
@@ -407,6 +418,10 @@ SECTIONS = (
      "CRESSim reports for its irrigation agents: blood left (ml, and as a share of the start), clot left, saline used "
      "and wasted (irrigated anywhere but into a cavity), the episodes in which a cavity overflowed and the time it "
      "did. The last row: the step's cost, side by side (`benchmarks/irrigation_speed.py`).", irrigation_field),
+    ("The irrigation level beside the partner zoo's suctions", "The zoo's suctions on the irrigation level (the "
+     "scripted one, the Reach + Pick pipeline, the measured person and the held-out person-like kinds made from the "
+     "scripted suction, all irrigating clotted cavities) beside the scripted surgeon, 100 test episodes each, a "
+     "person's 6,000-step horizon (`benchmarks/partner_zoo.py --preset irrigation`).", irrigation_zoo),
     ("The suction seat from the stereo endoscope", "`marl-suction-pixels` by its default call beside every partner "
      "kind, in the looks it trained on, the scene's own and held-out ones, against its teacher with no image; 20 test "
      "episodes per cell, success and contact steps (the worlds that failed).", pixel_seat),
