@@ -235,6 +235,11 @@ def irrigation_field() -> Table:
                            f"{row['mean_clot_left_ml']:.2f} ml", f"{row['mean_saline_used_ml']:.2f} ml",
                            f"{row['mean_saline_wasted_ml']:.2f} ml", _percent(row["overflowed_episodes"]),
                            f"{row['mean_overflow_s']:.2f} s", f"{row['mean_contact_steps']:.1f}"])
+    learned = record.get("learned")
+    if learned:
+        low, high = learned["ci95"]
+        table.rows.append([f"MAPPO (the compiled trainer), IQM over {learned['seeds']} seeds", f"{learned['iqm_success']:.2f} "
+                           f"[{low:.2f}, {high:.2f}]", *["-"] * 9])
     table.source(path, record["command"], record["commit"])
     path = "benchmarks/results/irrigation_speed_2026-12-02.jsonl"
     for row in _read(path):
