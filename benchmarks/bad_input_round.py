@@ -80,11 +80,14 @@ class Defect(Exception):
 
 
 def _state(env) -> dict:
-    if hasattr(env, "world_state") and not callable(env.world_state) and isinstance(env.world_state, dict):
-        return {key: np.array(value) for key, value in env.world_state.items()}
-    core = env.core
-    return {"tips": np.array(core.arms["suction"].tip), "grasper": np.array(core.arms["grasper"].tip),
-            "blood": np.array(core.remaining_ml), "levels": np.array(env.levels)}
+    """Every field of the env's state record (the numpy and the device env alike give an ``EnvState``)."""
+    from dvrl_marl.core.scene_state import SPECS
+
+    state = env.world_state
+    out = {name: np.array(getattr(state.scene, name)) for name in SPECS}
+    out["levels"] = np.array(state.levels)
+    out.update({f"potential {agent}": np.array(value) for agent, value in (state.potential or {}).items()})
+    return out
 
 
 def _unchanged(before: dict, after: dict) -> bool:

@@ -148,3 +148,17 @@ def test_the_pixel_suction_clears_the_field_from_the_endoscope_beside_the_script
     team = {"suction": teams.seat("marl-suction-pixels", "suction"), "grasper": teams.seat("scripted", "grasper")}
     result = teams.evaluate_team_batched(team, episodes=8, **options)
     assert result["success_rate"] >= 0.85 and result["mean_contact_steps"] <= 2.0, result
+
+
+def test_the_irrigation_team_clears_a_clotted_field_by_irrigating():
+    """Learnt from scratch on the irrigation level (the compiled trainer, seed 0 of five); by its mean action on
+    held-out seeds, numpy alone: it irrigates (saline used), finishes, and never overflows a cavity."""
+    from dvrl_marl.envs import suction_debris_v8
+
+    for name in ("marl-suction-irrigation", "marl-grasper-irrigation"):
+        assert name in policies.available() and policies.load(name).spec["features"]["fluids"] is True
+    scene = suction_debris_v8.parallel_env(preset="irrigation")
+    result = teams.evaluate_team_batched(teams.seats("marl-suction-irrigation", "marl-grasper-irrigation", env=scene),
+                                         episodes=16, preset="irrigation")
+    assert result["success_rate"] >= 0.85, result["success_rate"]
+    assert result["mean_saline_used_ml"] > 4.0 and result["overflowed_episodes"] == 0.0

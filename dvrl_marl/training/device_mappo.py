@@ -323,7 +323,10 @@ def export(arrays: dict, config: MappoConfig, folder: Path, seed: int, steps: in
         write_actor(actor, folders[agent], name=f"marl-{agent}", agent=agent, tool_head=config.tool_head,
                     env_id=env_name(str(config.env.get("task", suction_debris.TASK))),
                     metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
-                                           "steps": steps, "trainer": trainer}},
+                                           "steps": steps, "trainer": trainer},
+                              # the scene it learnt on, which evaluations make (dvrl-marl evaluate-team)
+                              **({"preset": config.env["preset"]} if config.env.get("preset", "default") != "default"
+                                 else {})},
                     input_scaling=None if env.observation_scaling is None
                     else env.observation_scaling.observation_affine(agent), feature_spec=env.feature_spec)
     return folders
