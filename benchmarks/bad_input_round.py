@@ -3,7 +3,7 @@
 exception (numpy's, ctypes', a ``KeyError``), a traceback from the command line, a refused call that changed a world,
 or NaN where a number was due.
 
-    python benchmarks/bad_input_round.py --json baselines/results/bad_input_round_3.json
+    python benchmarks/bad_input_round.py --seed 11 --json baselines/results/bad_input_round_4.json
 
 Kinds of case: the env's options, actions and reset options (the numpy batched env, and the device env where JAX is
 installed: the same rules and messages), seeds, policy files with a field broken, what a policy is called on, and

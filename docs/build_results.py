@@ -307,7 +307,7 @@ def pixel_seat_without_reset() -> Table:
 
 
 def bad_input_round() -> Table:
-    path = "baselines/results/bad_input_round_3.json"
+    path = "baselines/results/bad_input_round_4.json"
     record = _read(path)
     table = Table(["kind of case", "cases"])
     table.rows = [[kind, str(count)] for kind, count in record["kinds"].items()]
