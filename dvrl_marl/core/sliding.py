@@ -61,6 +61,11 @@ __all__ = ["MoveRules", "BLOCKED_MOVES", "wall_slide", "surface_target", "fallba
 CONTACT_LIFT = 0.1
 #: ``climb``: a move whose made part is shorter than this share of it made no headway.
 NO_HEADWAY = 0.1
+#: numpy: blocked moves of at most this many rows x candidates are tried all at once (a numpy call on a few hundred
+#: rows costs about what one on a single row does), more one candidate after another, stopping once every row has
+#: made one. Measured side by side (farm-bench, one core): one world pressing into blockers every step 2.2x faster,
+#: N = 4,096 worlds of random actions unchanged (1.01x); the choice is the same row by row (tests/test_sliding_at_once.py).
+ALL_AT_ONCE_ROWS = 1024
 #: The joints that place the wrist (outer yaw, outer pitch, insertion); the wrist joints keep the tool pointing down.
 OUTER_JOINTS = 3
 
@@ -243,19 +248,15 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta, cavities, t
     lifted = along + (CONTACT_LIFT * _length(delta, xp) * xp.astype(into < 0.0, delta.dtype))[:, None] * normal
     candidates = [delta, along, lifted, *fallback_moves(delta)]
 
-    def attempt(carry, item):
-        made, tip, q, clearance = carry
-        move, first = item
-        live = ~made & xp.any(move != 0.0, axis=1)
-        if not needed(live):
-            return carry
+    def evaluate(start, partner, move, first, live):
+        """Each row's candidate ``move`` from ``start``: ``(accept, target, joints, gap)``, accepted where it can be
+        made (``live`` rows only; ``first``: the blocked move itself, which only a slide along the limits changes)."""
         target = surface_target(cavities, tip_clearance, step, low, high, start, move, climb=climb, ahead=ahead,
                                 settle=settle)
         own, joints, reachable = segment(tool, base, target)
-        # the blocked move itself (first): only its slide along the joint limits can differ from it
         live = xp.where(first, live & ~reachable, live)
         if not needed(live):
-            return carry
+            return live, target, joints, None
         if needed(live & ~reachable):
             slid = _clamped_to_joint_limits(tool, base, target)
             slid = xp.minimum(xp.maximum(slid, low), high)
@@ -264,7 +265,34 @@ def resolve_blocked(arm: dict, other: dict, is_suction: bool, delta, cavities, t
             own, joints, reachable = segment(tool, base, target)
         moved = xp.any(target != start, axis=1)
         gap = instrument_clearance(*own, *partner) if is_suction else instrument_clearance(*partner, *own)
-        accept = live & moved & reachable & (gap >= 0.0)
+        return live & moved & reachable & (gap >= 0.0), target, joints, gap
+
+    if xp is np and len(delta) * len(candidates) <= ALL_AT_ONCE_ROWS:
+        # numpy, few rows (one world, or a few stuck ones): every candidate of every row in one call (a call costs
+        # what a row does here), then each row's first that can be made: the loop's choice, row by row
+        count, rows = len(candidates), len(delta)
+        moves = np.concatenate(candidates)
+        first = np.repeat(np.arange(count) == 0, rows)
+        tiled = (partner[0], np.tile(partner[1], (count, 1)), np.tile(partner[2], (count, 1)))
+        accept, target, joints, gap = evaluate(np.tile(start, (count, 1)), tiled, moves, first,
+                                               np.any(moves != 0.0, axis=1))
+        accept = accept.reshape(count, rows)
+        made = accept.any(axis=0)
+        pick = np.argmax(accept, axis=0) * rows + np.arange(rows)  # the first accepted candidate's row
+        tip = np.where(made[:, None], target[pick], start)
+        q = np.where(made[:, None], joints[pick], start_q)
+        clearance = np.where(made, gap[pick] if gap is not None else np.nan, np.nan)
+        return made, tip, q, clearance
+
+    def attempt(carry, item):
+        made, tip, q, clearance = carry
+        move, first = item
+        live = ~made & xp.any(move != 0.0, axis=1)
+        if not needed(live):
+            return carry
+        accept, target, joints, gap = evaluate(start, partner, move, first, live)
+        if gap is None:  # (nothing left to try in this candidate)
+            return carry
         return (made | accept, xp.where(accept[:, None], target, tip), xp.where(accept[:, None], joints, q),
                 xp.where(accept, gap, clearance))
 
