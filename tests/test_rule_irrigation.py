@@ -352,3 +352,8 @@ def test_the_guided_reward_counts_clot_broken_up_as_progress():
     np.testing.assert_allclose(after - before, env.guidance.clot_broken * 1.0, rtol=1e-9)
     plain = _env(preset="benchmark")  # (no clot slots: the term is not there)
     assert plain._guided.route.clot_broken == 0.0
+
+
+def test_normalized_observations_of_a_scene_with_fluids_are_refused_by_name():
+    with pytest.raises(ValueError, match="normalize_observations.*fluids"):
+        suction_debris.batched_env(num_envs=1, preset="irrigation", normalize_observations=True)

@@ -234,6 +234,10 @@ class SuctionDebrisBatchedEnv:
         #: spreads (:mod:`dvrl_marl.envs.observation_scaling`); None without the option. The seat's observation stays
         #: plain (a scripted surgeon and an exported policy read the scene's units).
         self.observation_scaling = None
+        if normalize and fluids:
+            raise ValueError(f"{self.name}: normalize_observations' centres and spreads were measured on scenes without "
+                             "fluids; this one has irrigation or clots (irrigation_ml_s, clot_share, clotting_ml_s), "
+                             "whose observation slots were never measured: leave normalize_observations off")
         if normalize:
             scaling = ObservationScaling.for_env(self.name, observation_features, AGENTS, observation_space.shape[0],
                                                  state_dim, state_observations)
