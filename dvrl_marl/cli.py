@@ -205,8 +205,11 @@ def _evaluate(args) -> int:
         partner = "suction" if agent == "grasper" else "grasper"
         seed = teams.EVAL_SEED if args.seed == 1_000_000 else args.seed
         preset = policy.spec.get("preset", "default")  # the scene the seat learnt on (its manifest says)
-        result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner)}, args.episodes,
-                                             seed=seed, **scene_options(preset))
+        from dvrl_marl.envs import suction_debris
+
+        scene = suction_debris.parallel_env(**scene_options(preset))  # (the pipeline reads its layout: it irrigates there)
+        result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner, scene)},
+                                             args.episodes, seed=seed, **scene_options(preset))
         result = {k: v for k, v in result.items() if k not in ("success", "steps")}
         print(json.dumps({"policy": str(args.policy), "env_id": env_id, "preset": preset, "seat": agent,
                           "partner": "pipeline (learned_team)", **result}, indent=2))
