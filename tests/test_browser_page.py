@@ -332,11 +332,15 @@ def test_the_page_says_when_the_other_instrument_blocks_a_move(browser, served):
     # Steer the LND at the suction's tip, as a careless person, until the page says so: both cues from one frame's
     # status. (A blocked move may slide clear the next frame; a loaded machine can draw the page after that frame,
     # so the person keeps pushing, as one would, rather than the test waiting on one blocked frame.)
+    # The status and the page are read in one evaluation (the page draws each status as it takes it): read apart, a
+    # status arriving between the two reads showed the cue of a frame the test never saw blocked.
+    snapshot = f"(() => {{ const s = window.dvrl.status; return [s.cues.blocked, {said}]; }})()"
     while time.monotonic() < deadline and not shown:
         s = status(page)
         held = steer(page, held, np.subtract(s["tips_mm"]["suction"], s["tips_mm"]["grasper"]))
-        blocked = blocked or s["cues"]["blocked"]
-        shown = bool(page.evaluate(said))
+        now_blocked, now_shown = page.evaluate(snapshot)
+        blocked = blocked or bool(now_blocked)
+        shown = bool(now_blocked and now_shown)
         time.sleep(0.03)
     assert blocked and shown
     for key in held:
