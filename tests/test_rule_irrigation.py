@@ -200,8 +200,9 @@ def test_the_scripted_team_irrigates_where_the_scene_has_clots_and_the_suction_o
 
 
 def test_the_scripted_suction_acts_alike_on_a_batch_and_on_one_row():
+    """Its suction-only plan on the level takes the batched path (its shut valve 0 there); row by row the same."""
     env = _env(preset="irrigation")
-    suction = ScriptedSuction.for_env(env)
+    suction = ScriptedSuction(env.layout(), env.observation_layout, env.workspace_range, irrigate=False)
     for _ in range(300):
         obs = env.core.observation("suction")
         np.testing.assert_array_equal(suction(obs), np.stack([suction(row) for row in obs]))

@@ -53,6 +53,9 @@ PHANTOM_EDGE_MARGIN = 0.005
 #: A spill covers the phantom this far beyond its cavity's mouth (m): a pin's length, where a pin dropped by the
 #: cavity lies (a chosen value: the spill's extent is not modelled).
 SPILL_MARGIN = 0.028
+#: The figures of a scene with fluids that ``info()`` adds (:meth:`CollaborativeCore.fluid_figures`).
+FLUID_FIGURES = ("clot_remaining", "saline_used_ml", "saline_wasted_ml", "overflow_events", "overflow_s",
+                 "overflow_ml")
 #: Tip start positions (world) before the seeded jitter.
 STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
@@ -478,7 +481,8 @@ class CollaborativeCore:
         remaining = _pick(self.remaining_ml, safe, xp)
         liquid = remaining
         if self.fluids:  # suction draws the liquid: blood not clotted, and saline
-            blood = xp.maximum(remaining - _pick(self.clot_ml, safe, xp), 0.0)
+            clot = _pick(self.clot_ml, safe, xp)
+            blood = xp.maximum(remaining - clot, 0.0)
             saline = _pick(self.saline_ml, safe, xp)
             liquid = blood + saline
         height = tip[:, 2] - _pick(self.surface_z, safe, xp)
@@ -500,9 +504,9 @@ class CollaborativeCore:
         self._update_surfaces_where(drawn)
         removed = xp.where(sucking, amount, removed)
         surface = _pick(self.surface_z, safe, xp)
-        if self.fluids:  # a clot settles on the floor: a pin under its level stays hidden until it is broken up
-            clot_level = (self.cavities.per_cavity(self.cavities.floor_z, safe)
-                          + self.cavities.fill_depth(safe, _pick(self.clot_ml, safe, xp)))
+        if self.fluids and needed(clot > 0.0):  # a clot settles on the floor: a pin under its level stays hidden
+            clot_level = (self.cavities.per_cavity(self.cavities.floor_z, safe)  # (until it is broken up)
+                          + self.cavities.fill_depth(safe, clot))
             surface = xp.maximum(surface, clot_level)
         revealed = ((self.debris_cavity == safe[:, None]) & ~self.visible & sucking[:, None]
                     & (self.debris_position[:, :, 2] + PIN_RADIUS > surface[:, None]))
@@ -526,7 +530,7 @@ class CollaborativeCore:
         self.spill_s = xp.maximum(self.spill_s - p.control_dt, 0.0)  # a spill dries
         on = self.irrigating
         if not needed(on):
-            self.spilling = self.spilling & False
+            self.spilling = xp.zeros_like(self.spilling)
             return
         flow = p.irrigation_ml_s * p.control_dt
         tip = self.arms["suction"].tip_world()
@@ -555,7 +559,7 @@ class CollaborativeCore:
 
     def covered_pins(self):
         """(N, D) bool: pins a spill covers now (within its cavity's mouth and a pin's length of it, on the
-        phantom): the observations and the endoscope show them as not seen."""
+        phantom): the observations show them as not seen (the endoscope draws the spill over them)."""
         xp = namespace(self.debris_position)
         position = self.debris_position
         covered = xp.zeros(position.shape[:2], dtype=xp.bool)
@@ -840,12 +844,12 @@ class CollaborativeCore:
         }
 
     def fluid_figures(self) -> dict:
-        """Per-world figures of a scene with fluids, as CRESSim reports them: blood left (ml) and its clotted part,
-        saline used and wasted (ml), overflows begun, time overflowing (s) and volume spilt (ml)."""
+        """Per-world figures of a scene with fluids (:data:`FLUID_FIGURES`), as CRESSim reports them: clotted blood
+        left (ml), saline used and wasted (ml), overflows begun, time overflowing (s) and volume spilt (ml)."""
         xp = namespace(self.remaining_ml)
-        return {"clot_remaining": xp.sum(self.clot_ml, axis=1), "saline_used_ml": _copy(self.saline_used_ml),
-                "saline_wasted_ml": _copy(self.saline_wasted_ml), "overflow_events": _copy(self.overflow_events),
-                "overflow_s": self.overflow_steps * self.params.control_dt, "overflow_ml": _copy(self.overflow_ml)}
+        return dict(zip(FLUID_FIGURES, (xp.sum(self.clot_ml, axis=1), _copy(self.saline_used_ml),
+                                        _copy(self.saline_wasted_ml), _copy(self.overflow_events),
+                                        self.overflow_steps * self.params.control_dt, _copy(self.overflow_ml))))
 
     # --- the state as one record -------------------------------------------------------------------------
     def _get(self, name: str):

@@ -15,8 +15,8 @@ MOVE, TOOL, ACTION_WIDTH = slice(0, 3), 3, 4
 PIN_POSITION, PIN_VISIBLE, PIN_HELD, PIN_DELIVERED, PIN_WIDTH = slice(0, 3), 3, 4, 5, 6
 
 
-#: What a scene with fluids (irrigation or clots) appends to observations and the state, per cavity but the first:
-#: the valve's irrigating side (-1 shut .. 1 open), each cavity's liquid (blood not clotted and saline, a share of its
+#: What a scene with fluids (irrigation or clots) appends to observations and the state: the valve's irrigating side
+#: (-1 shut .. 1 open; one value), then one value per cavity of each: its liquid (blood not clotted and saline, a share of its
 #: capacity), the blood's share of that liquid (its concentration), its clot (a share of its capacity), and the
 #: share of its spill's time still to run.
 FLUID_FIELDS = (("irrigation", 1), ("liquid", "C"), ("concentration", "C"), ("clot", "C"), ("spill", "C"))

@@ -52,6 +52,12 @@ def valve_target(command):
     return (command > 0.0) * 1.0  # (a float for a scalar command, an array for an array)
 
 
+def shut_command(irrigates: bool) -> float:
+    """The command a script or a device sends for a shut suction valve: -1 as ever, but :data:`SHUT` (0) in a scene
+    whose valve irrigates, where -1 irrigates."""
+    return SHUT if irrigates else -1.0
+
+
 def irrigation_target(command):
     """The irrigating side's stroke the command asks for: fully open (1) below ``-IRRIGATE_BELOW``, else shut (0)."""
     return (command < -IRRIGATE_BELOW) * 1.0

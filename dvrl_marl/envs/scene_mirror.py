@@ -75,7 +75,7 @@ class SceneMirror:
                 self.arms[agent].set_solved_tip(*tip, tuple(np.asarray(joints[agent], dtype=np.float64).tolist()))
         self.arms["grasper"].set_jaw(float(state["jaw"]))
         if "saline_ml" in state:  # a scene with fluids: the surface, its colour and a spill as poses() works them out
-            one = {key: np.asarray(state[key])[None] for key in ("blood_ml", "saline_ml", "clot_ml", "spill")}
+            one = {key: np.asarray(state[key])[None] for key in ("blood_ml", *FLUID_KEYS)}
             rgba, radius, z = self._fluid_poses(one)
             for index, geom in enumerate(self._blood_geoms):
                 self.model.geom_rgba[geom], self.model.geom_size[geom][0] = rgba[0, index], radius[0, index]

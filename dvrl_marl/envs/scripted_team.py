@@ -50,7 +50,7 @@ class _Scripted:
         self.cavity_centres = np.asarray(layout.cavity_centres, dtype=np.float64)  # (C, 2)
         self.threshold = np.asarray(layout.blood_threshold_fraction, dtype=np.float64)
         #: the suction's shut valve: -1 as ever, but 0 where -1 would irrigate (core.tools.SHUT)
-        self.shut = tools.SHUT if getattr(layout, "irrigates", False) else -1.0
+        self.shut = tools.shut_command(getattr(layout, "irrigates", False))
 
     @classmethod
     def for_env(cls, env):
@@ -141,13 +141,13 @@ class ScriptedSuction(_Scripted):
         return burst_valve(obs, self.slices, cavity) if self.irrigate else 1.0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        if self.irrigate or self.shut != -1.0:  # (the bursts read the valve row by row)
+        if self.irrigate:  # (the bursts read the valve row by row)
             return np.stack([self.act_one(row) for row in obs])
         tip = obs[:, self.slices["own_tip"]]
         blood = obs[:, self.slices["blood"]]
         target = np.broadcast_to(self.park, tip.shape).copy()
         tolerance = np.full(len(obs), 4 * self.near)
-        valve = np.full(len(obs), -1.0)
+        valve = np.full(len(obs), self.shut)
         for cavity in reversed(self.order):  # the first cavity in the order that still needs clearing wins
             pending = (blood[:, cavity] >= self.threshold[cavity]) & (blood[:, cavity] > 0.0)
             cx, cy = self.cavity_centres[cavity]
@@ -155,7 +155,7 @@ class ScriptedSuction(_Scripted):
             tolerance[pending] = 2 * self.near
             inside = (np.hypot(tip[:, 0] - cx, tip[:, 1] - cy) < self.layout.cavity_mouth_radius) & (
                 tip[:, 2] < self.layout.phantom_top)
-            valve[pending] = np.where(inside[pending], 1.0, -1.0)
+            valve[pending] = np.where(inside[pending], 1.0, self.shut)
         return self._with_tool(self._towards(tip, self._via_safe_height(tip, target, tolerance)), valve)
 
     def act_one(self, obs: np.ndarray) -> np.ndarray:

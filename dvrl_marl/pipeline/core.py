@@ -212,7 +212,7 @@ class ArmPipeline:
         self.base = self._world(self.layout.base_positions[agent])
         # a scene that irrigates: the suck stage irrigates clots in bursts, and a shut valve is 0 (-1 irrigates)
         self.irrigates = agent == "suction" and bool(getattr(self.layout, "irrigates", False))
-        self.shut = tools.SHUT if self.irrigates else -1.0
+        self.shut = tools.shut_command(self.irrigates)
         self.devices = dict(devices or {})
         self._policies: dict[tuple[str, str], _StagePolicy] = {}
         for stage in plan.stages + plan.idle + plan.final:

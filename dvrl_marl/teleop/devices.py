@@ -115,7 +115,7 @@ class KeyboardDevice:
         #: ``I`` held irrigates (the S&I valve's other half); the shut valve is then 0
         self.irrigate = irrigate
         self.initial_tool = float(initial_tool)
-        self._shut = tools.SHUT if irrigate else -1.0
+        self._shut = tools.shut_command(irrigate)
         #: the key map as the window's overlay shows it (with irrigation, the ``I`` key too)
         self.key_help = self.KEY_HELP if not irrigate else (*self.KEY_HELP[:4], ("I (held)", "irrigate"),
                                                             *self.KEY_HELP[4:])

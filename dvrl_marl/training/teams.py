@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core.collaborative import FLUID_FIGURES
 from dvrl_marl.envs import suction_debris
 from dvrl_marl.agents.partners import Partners
 
@@ -255,11 +256,6 @@ def _summary(played: dict, worlds: np.ndarray, seed: int) -> dict:
                                    for agent, value in played["action_change"].items()},
             "success": success.tolist(), "steps": steps.tolist(), "contact_steps": contacts.tolist(),
             **_fluid_summary(played, worlds)}
-
-
-#: A scene with fluids' figures (``core.fluid_figures``) the evaluation reports, as CRESSim reports its teams'.
-FLUID_FIGURES = ("clot_remaining", "saline_used_ml", "saline_wasted_ml", "overflow_events", "overflow_s",
-                 "overflow_ml")
 
 
 def _fluid_summary(played: dict, worlds: np.ndarray) -> dict:
