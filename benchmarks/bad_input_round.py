@@ -339,7 +339,7 @@ def command_line(round_: Round, rng: random.Random, count: int, folder: Path) ->
         ["evaluate-team", "--preset", "nope"], ["evaluate-team", "--json", "{tmp}"],
         ["evaluate-team", "--grasper", "yielding", "--episodes", "1"],
         ["train", "nope"], ["train", "suction_debris_mappo", "--trainer", "tpu"],
-        ["train", "suction_debris_mappo", "--trainer", "device", "--device", "tpu"],
+        ["train", "suction_debris_mappo", "--trainer", "torchrl", "--device", "cuda"],
         ["train", "suction_debris_mappo", "--trainer", "jax", "--device", "cuda:x"],
         ["train", "suction_debris_mappo", "--trainer", "jax", "--device", "cpu:0"],
         ["train", "suction_debris_mappo", "--steps", "0"], ["train", "suction_debris_mappo", "--seed", "x"],

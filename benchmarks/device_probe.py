@@ -18,13 +18,11 @@ Sections (each a process of its own with its own time limit; one that fails or r
 ``--only NAME ...`` runs some alone):
 
 1. ``machine``: the GPU's name and memory, JAX's and torch's devices, the commit;
-2. ``trainer``, ``trainer_16384``: ``benchmarks/device_training.py``, the device trainer on the large-batch
-   configuration (``baselines/configs/suction_debris_mappo_large_batch.toml``) scaled up, minibatches of 16,384 rows:
-   4,096 worlds with a curriculum of 100M steps, validated every 8M, for the time to 0.9 validation success (or what
-   it reached in 60 s), and 16,384 worlds for the throughput (env-steps/s end to end);
+2. ``jax_trainer``: ``benchmarks/device_training.py``, the JAX trainer on the large-batch configuration
+   (``baselines/configs/suction_debris_mappo_large_batch.toml``) at 4,096 worlds, validated by eight validators at
+   once, for the time to 0.9 validation success; ``jax_speed``: its cycle's speed per N;
 3. ``tests``: the device tests on the GPU (``tests/test_device_env.py``, ``tests/test_backends.py``,
-   ``tests/test_streams.py`` and the trainer's run on the compiled env in ``tests/test_device_training.py``;
-   ``DVRL_MARL_TEST_DEVICE=cuda``; on 2026-11-27 the whole of ``test_device_training.py`` outran the limit);
+   ``tests/test_streams.py`` and the JAX trainer's determinism over many steps; ``DVRL_MARL_TEST_DEVICE=cuda``);
 4. ``speed_1m``, ``speed``, ``speed_benchmark``: ``benchmarks/device_speed.py`` on the GPU, the sim alone and with a
    torch policy's inference, N = 1,048,576, then 1,024 to 262,144 with the defaults and 16,384 and 262,144 with the
    benchmark's setting, the numpy env beside it up to N = 4,096;
@@ -32,8 +30,6 @@ Sections (each a process of its own with its own time limit; one that fails or r
    GPU's EGL, 1,024 and 4,096 worlds drawn by 1 to 16 GL contexts in threads, beside a bare ``mujoco.Renderer``
    (the libraries EGL needs travel as ``.gl/``, the device tool's README says how; MuJoCo's import needs them too,
    ``MUJOCO_GL=egl`` being set for every section); ``endoscope_tests``: ``tests/test_endoscope.py`` there.
-
-``benchmarks/device_trainer_profile.py`` (not a section) times the parts of the trainer's update cycle.
 
 Figures land in ``$OUT/probe.jsonl`` (one JSON line each) and ``$OUT/probe.log``.
 """
@@ -125,17 +121,9 @@ def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
     large = ["--config", "baselines/configs/suction_debris_mappo_large_batch.toml"]
     sections = {  # name: (command, time limit in seconds, extra environment), the least measured first
         "machine": ([python, "-c", machine], 45, {}),
-        # the large-batch configuration scaled up: 4,096 worlds (a curriculum of 768 batches, validated every 64) for
-        # the time to the target, 16,384 (minibatches of the same 16,384 rows) for the throughput
-        "trainer": (trainer + large + ["--seconds", "60", "--worlds", "4096" if gpu else "64", "--total-steps",
-                                       "100663296" if gpu else "1048576", "--eval-every",
-                                       "8388608" if gpu else "65536"], 120, {}),
-        "trainer_16384": (trainer + large + ["--seconds", "60", "--worlds", "16384" if gpu else "128",
-                                             "--minibatches", "32", "--eval-every", "16777216" if gpu else "131072"],
-                          120, {}),
         # the trainer compiled whole (dvrl_marl.training.jax_mappo) on the large-batch configuration at 4,096 worlds:
         # a curriculum of 512 batches, validated every 32 by eight validators at once, for the time to the target
-        "jax_trainer": (trainer + large + ["--trainer", "jax", "--validators", "8" if gpu else "1", "--worlds",
+        "jax_trainer": (trainer + large + ["--validators", "8" if gpu else "1", "--worlds",
                                            "4096" if gpu else "64", "--total-steps", "67108864" if gpu else "131072",
                                            "--eval-every", "4194304" if gpu else "65536",
                                            "--seconds", "100" if gpu else "60"], 150, {}),
@@ -144,8 +132,7 @@ def run(out: Path, device: str = "cuda", only: list[str] | None = None) -> int:
                        "--sizes", *(["4096", "16384", "65536", "262144"] if gpu else ["64"])], 150, {}),
         # (the trainer's tests on the GPU: its run on the compiled env; the others are the CPU's)
         "tests": ([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x", "tests/test_device_env.py",
-                   "tests/test_backends.py", "tests/test_streams.py", "tests/test_device_training.py::"
-                   "test_a_run_on_the_compiled_env_learns_from_what_the_numpy_env_would_give",
+                   "tests/test_backends.py", "tests/test_streams.py",
                    "tests/test_jax_mappo.py::test_the_compiled_cycle_is_deterministic_over_many_steps"], 120,
                   {"DVRL_MARL_TEST_DEVICE": device}),
         # (a size per process: each N compiles its own step)

@@ -1,5 +1,6 @@
-"""The device trainer's figures: env-steps/s end to end (collection, update, validation) and the wall clock from
-process start to a validation success (the mean action, the exported policies), on one device.
+"""The JAX trainer's figures (dvrl_marl.training.jax_mappo): env-steps/s end to end (collection, update, validation)
+and the wall clock from process start to a validation success (the mean action, the exported policies), on one
+device.
 
 A MAPPO configuration (``--config``; default the record's, ``baselines/configs/suction_debris_mappo.toml``;
 ``suction_debris_mappo_large_batch.toml`` is its retuning for a large batch on a CPU), any of its settings replaced
@@ -10,9 +11,10 @@ policies are tested by their mean action on ``--test-episodes`` held-out seeds. 
 ``--json`` (the device probe reads it).
 
     python benchmarks/device_training.py --device cpu --config baselines/configs/suction_debris_mappo_large_batch.toml
-    python benchmarks/device_training.py --device cuda --worlds 16384 --eval-every 4194304 --json out.jsonl
-    python benchmarks/device_training.py --trainer jax --device cuda --worlds 4096 --validators 4 \
+    python benchmarks/device_training.py --device cuda --worlds 4096 --validators 4 \
         --config baselines/configs/suction_debris_mappo_large_batch.toml
+
+(Rows with ``"what": "device_trainer"`` in ``benchmarks/results`` were made by the torch device trainer, retired.)
 """
 
 from __future__ import annotations
@@ -32,7 +34,6 @@ HERE = Path(__file__).resolve().parents[1]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--backend", choices=("numpy", "jax"), default=None, help="default: jax on a GPU, else numpy")
     parser.add_argument("--config", type=Path, default=HERE / "baselines" / "configs" / "suction_debris_mappo.toml",
                         help="a MAPPO configuration (default: the record's; suction_debris_mappo_large_batch.toml is "
                              "its retuning for a large batch on a CPU)")
@@ -45,9 +46,6 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=180.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--test-episodes", type=int, default=100, help="held-out test episodes of the last policies")
-    parser.add_argument("--collector", choices=("inline", "process"), default="inline",
-                        help="process: the worlds step in a worker process while the learner updates (numpy's env "
-                             "on a CPU)")
     parser.add_argument("--epochs", type=int, default=None, help="PPO epochs per rollout (default: the "
                         "configuration's)")
     parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (default: the "
@@ -56,20 +54,17 @@ def main() -> None:
     parser.add_argument("--total-steps", type=int, default=None,
                         help="the run's length, which paces the curriculum (default: the configuration's; with "
                              "--worlds, that or 1,000 batches, whichever is more)")
-    parser.add_argument("--trainer", choices=("device", "jax"), default="device",
-                        help="device: dvrl_marl.training.device_mappo (torch, the env stepped from Python); jax: "
-                             "dvrl_marl.training.jax_mappo (the update cycle compiled whole)")
-    parser.add_argument("--validators", type=int, default=1, help="validations scored at once (the JAX trainer)")
+    parser.add_argument("--validators", type=int, default=1, help="validations scored at once")
     parser.add_argument("--cache", default="", help="the JAX trainer's compilation cache folder (default none: a "
                         "fresh machine's compile is timed; 'auto': the trainer's own default)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
-    from dvrl_marl.training import device_mappo
+    from dvrl_marl.training import jax_mappo
     from dvrl_marl.training.mappo_config import load_config
 
     config = load_config(args.config)
-    # validated by the mean action (the record's validation acts with its noise); torch takes every core
+    # validated by the mean action (the record's validation acts with its noise)
     config = replace(config, torch_threads=0, evaluate_with_noise=False)
     for field, value in (("num_envs", args.worlds), ("rollout_steps", args.rollout), ("eval_every", args.eval_every),
                          ("epochs", args.epochs), ("minibatches", args.minibatches),
@@ -81,28 +76,19 @@ def main() -> None:
     config = replace(config, total_steps=args.total_steps or (max(config.total_steps, 1000 * batch) if args.worlds
                                                               else config.total_steps))
     with tempfile.TemporaryDirectory() as folder:
-        collector = args.collector
         before_training = time.perf_counter() - STARTED  # (imports and configuration)
-        if args.trainer == "jax":
-            from dvrl_marl.training import jax_mappo
-
-            collector = "compiled"
-            last = jax_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, stop_at=args.target,
-                                   max_seconds=args.seconds, validators=args.validators, cache=args.cache or None)
-        else:
-            last = device_mappo.train(config, args.seed, Path(folder) / "run", device=args.device,
-                                      backend=args.backend, stop_at=args.target, max_seconds=args.seconds,
-                                      collector=collector)
+        last = jax_mappo.train(config, args.seed, Path(folder) / "run", device=args.device, stop_at=args.target,
+                               max_seconds=args.seconds, validators=args.validators, cache=args.cache or None)
         # the clock stops at the result of the validation that ended the run (not when the validations still in
         # flight have finished: the run waits for them before it returns)
         seconds = before_training + last.get("wall_seconds", time.perf_counter() - STARTED - before_training)
         test = _test(Path(folder) / "run" / "policies", config, args.test_episodes) if args.test_episodes else None
-    import torch
+    import jax
 
-    name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else args.device
-    row = {"what": "device_trainer" if args.trainer == "device" else "jax_trainer", "config": config.name, "device": name, "worlds": config.num_envs,
-           "rollout": config.rollout_steps,
-           "eval_every": config.eval_every, "collector": collector, "validators": args.validators,
+    name = jax.devices("gpu")[0].device_kind if args.device.startswith("cuda") else args.device
+    row = {"what": "jax_trainer", "config": config.name, "device": name, "worlds": config.num_envs,
+           "rollout": config.rollout_steps, "eval_every": config.eval_every, "collector": "compiled",
+           "validators": args.validators,
            "cache": args.cache,
            "epochs": config.epochs, "minibatches": config.minibatches, "learning_rate": config.learning_rate,
            "total_steps": config.total_steps,

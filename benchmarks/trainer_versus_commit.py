@@ -1,11 +1,11 @@
-"""The device trainer's env-steps/s here against the trainer of record of another checkout, side by side in one run.
+"""The JAX trainer's env-steps/s here against the TorchRL trainer of another checkout, side by side in one run.
 
 Each run is a fresh process training for ``--steps`` env steps from scratch, the runs alternating (``--repeats``
 times each) so that a busy machine slows both alike; a run's figure is the trainer's own env-steps/s over its
 training (collection and updates, no validation: each run validates only at its end, after its figure is taken).
 
-- the checkout (``--against``, e.g. a worktree of commit 36a42a0, the issue's "today"): ``python -m dvrl_marl.cli
-  train`` on its configuration of record (``baselines/configs/suction_debris_mappo.toml`` there), as it stands
+- the checkout (``--against``, e.g. a worktree of commit 36a42a0, the issue's "today", whose ``train`` ran TorchRL's
+  trainer): ``python -m dvrl_marl.cli train`` on its configuration of record (``baselines/configs/suction_debris_mappo.toml`` there), as it stands
   (``torch_threads = 1``: the issue's "today") or with ``--record-threads`` (0: every core);
 - this checkout: ``benchmarks/device_training.py``'s run with the options given after ``--`` (the configuration of
   record, or a large-batch one: ``--worlds 1024 --epochs 1 --minibatches 16``).
@@ -50,7 +50,7 @@ def record_rate(checkout: Path, steps: int, threads: int | None) -> float:
 
 
 def device_rate(steps: int, options: list) -> float:
-    """This checkout's device trainer for ``steps`` steps (no validation before the last): its env-steps/s."""
+    """This checkout's JAX trainer for ``steps`` steps (no validation before the last): its env-steps/s."""
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "row.jsonl"
         done = subprocess.run([sys.executable, str(HERE / "benchmarks" / "device_training.py"), "--device", "cpu",
@@ -58,7 +58,7 @@ def device_rate(steps: int, options: list) -> float:
                                "--test-episodes", "0", "--json", str(out), *options],
                               cwd=HERE, capture_output=True, text=True)
         if done.returncode != 0:
-            raise SystemExit(f"the device trainer failed (exit {done.returncode}):\n{done.stderr[-2000:]}")
+            raise SystemExit(f"the JAX trainer failed (exit {done.returncode}):\n{done.stderr[-2000:]}")
         return float(json.loads(out.read_text().splitlines()[-1])["env_steps_per_s"])
 
 
@@ -80,7 +80,7 @@ def main() -> None:
                       "record_threads": args.record_threads,
                       "device_options": args.options, "record_env_steps_per_s": rates["record"],
                       "device_env_steps_per_s": rates["device"], "median_ratio": device / record}))
-    print(f"trainer of record at {args.against}: {record:,.0f} env-steps/s; device trainer {' '.join(args.options)}: "
+    print(f"trainer of record at {args.against}: {record:,.0f} env-steps/s; JAX trainer {' '.join(args.options)}: "
           f"{device:,.0f}; {device / record:.2f}x (medians of {args.repeats})")
 
 

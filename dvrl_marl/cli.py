@@ -33,132 +33,21 @@ def _render(args) -> int:
 
 def _train(args) -> int:
     from dvrl_marl.files import read_extended_toml
-    from dvrl_marl.training import mappo as multi_agent, runner as goal_env
+    # each trainer's module registers it on import (dvrl_marl.training.trainers)
+    from dvrl_marl.training import clone, jax_mappo, mappo, marl, pixel_seat, runner, trainers  # noqa: F401
 
     args.config = resolve_config(args.config)
     run_table = read_extended_toml(args.config).get("run", {})  # (a file that extends another: the chain's [run])
-    algorithm = run_table.get("algorithm") if isinstance(run_table, dict) else None
-    known = ("bc", "pixel-dagger", *multi_agent.ALGORITHMS, *goal_env.ALGORITHMS)  # (ppo: a goal env's or the team's)
-    if algorithm is not None and algorithm not in known or (algorithm is None and "env_id" in run_table):
-        # never a silent fallback: "mapo" once trained SB3 PPO and ignored every table but [env]
-        raise ValueError(f"{args.config}: [run] algorithm: must be one of {', '.join(known)}, got {algorithm!r}")
-    if run_table.get("algorithm") not in ("mappo", "ippo"):
-        for flag, value in (("--trainer", args.trainer != "record"), ("--device", args.device),
-                            ("--validators", args.validators)):
-            if value:
-                raise ValueError(f"{args.config}: {flag} is for MAPPO/IPPO configurations; this one's algorithm is "
-                                 f"{algorithm!r}")
-    if run_table.get("algorithm") in ("mappo", "ippo") and args.trainer != "record":
-        return _train_on_device(args)
-    if args.device or args.validators:
-        raise ValueError(f"{'--device' if args.device else '--validators'} is for --trainer device or jax (the "
-                         "trainer of record takes the configuration's device)")
-    if algorithm == "bc":  # behaviour cloning of a seat from a Minari dataset
-        from dvrl_marl.training import clone
-
-        config = clone.load_config(args.config)
-        out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
-        result = clone.train(config, args.seed, out, progress=not args.no_progress)
-        print(f"{config.name} seed {args.seed}: the clone succeeds in {result['success_rate']:.0%} of "
-              f"{result['episodes']} held-out episodes beside the {result['partner']} partner; policy in "
-              f"{result['policy']}; run folder {out}")
-        return 0
-    if algorithm == "pixel-dagger":  # a seat that sees the endoscope, distilled from a privileged seat
-        from dvrl_marl.training import pixel_seat
-
-        name, config = pixel_seat.load_config(args.config)
-        out = Path(args.out or Path("runs") / f"{name}-seed{args.seed}")
-        result = pixel_seat.train(name, config, args.seed, out, progress=not args.no_progress)
-        chosen = result["rounds"][result["selected_round"]]["validation"]
-        print(f"{name} seed {args.seed}: validation success {chosen['success_rate']:.0%} (round "
-              f"{result['selected_round']}) in {result['wall_seconds']:.0f} s; policy in {result['policy']}")
-        if args.export:
-            import shutil
-
-            shutil.copytree(result["policy"], args.export, dirs_exist_ok=True)
-            print(f"exported the policy to {args.export}")
-        return 0
-    if run_table.get("algorithm") in ("mappo", "ippo"):  # multi-agent PPO on TorchRL, fed by the batched env
-        from dvrl_marl.training import mappo
-
-        config = mappo.load_config(args.config)
-        out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
-        final = mappo.train(config, args.seed, out, total_steps=args.steps, resume=args.resume,
-                            progress=not args.no_progress, ray_address=args.ray_address,
-                            num_collectors=args.num_collectors or 0)
-        print(f"{config.name} seed {args.seed}: success {final['success_rate']:.2f} after {final['steps']:,d} steps; "
-              f"policies in {out / 'policies'}; run folder {out}")
-        _export_policies(out, args.export)
-        return 0
-    # Goal-env configurations name a Gymnasium env_id (or extend one that does), PPO's among them; the
-    # collaborative SB3 PPO ones do not.
-    if algorithm in ("ppo", None) and "env_id" not in run_table:
-        from dvrl_marl.training.marl import train_ppo
-
-        out = Path(args.out or Path("runs") / f"{Path(args.config).stem}-seed{args.seed}")
-        result = train_ppo(args.config, args.seed, out, total_timesteps=args.steps, tensorboard=args.tensorboard)
-        print(f"{Path(args.config).stem} seed {args.seed}: {result}; run folder {out}")
-        return 0
-    from dvrl_marl.training.runner import load_config, train
-
-    config = load_config(args.config)
-    out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
-    history = train(config, args.seed, out, total_timesteps=args.steps, progress=not args.no_progress,
-                    resume=args.resume, tensorboard=args.tensorboard)
-    final = history[-1]
-    print(f"{config.name} seed {args.seed}: success {final['success_rate']:.2f} after {int(final['timesteps'])} steps; "
-          f"run folder {out}")
-    if args.export:
-        import gymnasium as gym
-
-        from dvrl_marl.training.export import export_policy
-        from dvrl_marl.training.runner import load_final_model
-
-        model = load_final_model(config, out)
-        export_policy(model, args.export, name=Path(args.export).name, env_id=config.env_id,
-                      **config.export_metadata(),
-                      training={"config": config.name, "seed": args.seed, "timesteps": int(final["timesteps"]),
-                                "success_rate": final["success_rate"]})
-        print(f"exported the policy to {args.export}")
-    return 0
-
-
-def _train_on_device(args) -> int:
-    """MAPPO/IPPO with everything on one device: the device trainer, or the trainer compiled whole by JAX."""
-    from dvrl_marl.training.mappo_config import load_config
-
-    for flag, value in (("--resume", args.resume), ("--ray-address", args.ray_address),
-                        ("--num-collectors", args.num_collectors), ("--tensorboard", args.tensorboard)):
-        if value:
-            raise ValueError(f"{flag} is the trainer of record's; --trainer {args.trainer} keeps no checkpoints, uses "
-                             "no Ray and writes progress.csv")
-    if args.validators and args.trainer != "jax":
-        raise ValueError("--validators is for --trainer jax")
-    config = load_config(args.config)
-    out = Path(args.out or Path("runs") / f"{config.name}-seed{args.seed}")
-    device = args.device or "cpu"
-    if args.trainer == "jax":
-        from dvrl_marl.training import jax_mappo
-
-        final = jax_mappo.train(config, args.seed, out, device=device, total_steps=args.steps,
-                                validators=args.validators or 1)
-    else:
-        from dvrl_marl.training import device_mappo
-
-        final = device_mappo.train(config, args.seed, out, device=device, total_steps=args.steps)
-    print(f"{config.name} seed {args.seed}: validation success {final['success_rate']:.2f} after "
-          f"{final['steps']:,d} steps; policies in {out / 'policies'}; run folder {out}")
-    _export_policies(out, args.export)
-    return 0
-
-
-def _export_policies(out: Path, export) -> None:
-    """``--export``: a multi-agent run's policies (``out/policies``) copied there."""
-    if export:
-        import shutil
-
-        shutil.copytree(out / "policies", export, dirs_exist_ok=True)
-        print(f"exported the policies to {export}")
+    if not isinstance(run_table, dict):
+        raise ValueError(f"{args.config}: [run] must be a table")
+    request = trainers.TrainRequest(
+        config=Path(args.config), seed=args.seed, out=args.out, progress=not args.no_progress, steps=args.steps,
+        export=args.export, resume=args.resume, tensorboard=args.tensorboard, ray_address=args.ray_address,
+        num_collectors=args.num_collectors, device=args.device, validators=args.validators)
+    trainer, note = trainers.choose(request, run_table, asked=args.trainer)
+    if note:
+        print(note)
+    return trainer.run(request, run_table)
 
 
 def resolve_config(name: str) -> str:
@@ -611,12 +500,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "this machine joined with `ray start`; host:port; local: a Ray instance of this process)")
     train.add_argument("--num-collectors", type=COUNT, help="MAPPO/IPPO: Ray collector actors (each steps "
                        "num_envs / N worlds; default 1 with --ray-address); without --ray-address, starts Ray here")
-    train.add_argument("--trainer", choices=("record", "device", "jax"), default="record",
-                       help="MAPPO/IPPO: record, the trainer of record (TorchRL; checkpoints, partners, Ray); device, "
-                       "everything on --device (dvrl_marl.training.device_mappo); jax, each update cycle compiled "
-                       'whole by JAX (dvrl_marl.training.jax_mappo; pip install "dvrl-marl[jax]")')
-    train.add_argument("--device", type=device_name, help="--trainer device or jax: cpu (default), cuda or "
-                       "cuda:<index>")
+    train.add_argument("--trainer", help="who trains it (default: the first that can): MAPPO/IPPO: jax, each update "
+                       'cycle compiled whole by JAX (the default; pip install "dvrl-marl[jax]"), or torchrl (TorchRL: '
+                       "checkpoints, Ray collectors, partners in a seat, pretraining); other configurations have one")
+    train.add_argument("--device", type=device_name, help="--trainer jax: cpu, cuda or cuda:<index> (default: the "
+                       "configuration's device)")
     train.add_argument("--validators", type=COUNT, help="--trainer jax: validations scored at once (default 1)")
     train.set_defaults(func=_train)
 

@@ -60,18 +60,26 @@ def test_a_progress_file_without_its_columns_is_named(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("argv,named", [
-    (["train", "reach_lnd_ddpg_her", "--trainer", "jax"], "--trainer is for MAPPO/IPPO configurations"),
-    (["train", "reach_lnd_ddpg_her", "--device", "cuda"], "--device is for MAPPO/IPPO configurations"),
-    (["train", "suction_debris_mappo", "--device", "cuda"], "--device is for --trainer device or jax"),
-    (["train", "suction_debris_mappo", "--validators", "2"], "--validators is for --trainer device or jax"),
-    (["train", "suction_debris_mappo", "--trainer", "jax", "--resume"], "--resume is the trainer of record's"),
-    (["train", "suction_debris_mappo", "--trainer", "device", "--ray-address", "local"],
-     "--ray-address is the trainer of record's"),
-    (["train", "suction_debris_mappo", "--trainer", "device", "--validators", "2"], "--validators is for --trainer jax"),
-    (["train", "suction_debris_mappo", "--trainer", "compiled"], "invalid choice: 'compiled'"),
+    (["train", "reach_lnd_ddpg_her", "--trainer", "jax"], "--trainer jax: {config} (ddpg_bc) is trained by sb3"),
+    (["train", "reach_lnd_ddpg_her", "--device", "cuda"], "sb3: it does not take --device (jax does)"),
+    (["train", "surgeon_bc", "--steps", "10"], "bc: it does not take --steps"),
+    (["train", "suction_debris_mappo", "--trainer", "torchrl", "--device", "cuda"],
+     "--trainer torchrl cannot train {config}: it does not take --device (jax does)"),
+    (["train", "suction_debris_mappo", "--trainer", "torchrl", "--validators", "2"], "it does not take --validators"),
+    (["train", "suction_debris_mappo", "--trainer", "jax", "--resume"],
+     "--trainer jax cannot train {config}: it does not take --resume (sb3, torchrl do)"),
+    (["train", "suction_debris_mappo", "--device", "cuda", "--ray-address", "local"],
+     "no trainer can train {config}: jax: it does not take --ray-address (torchrl does); torchrl: it does not take "
+     "--device (jax does)"),
+    (["train", "suction_debris_mappo", "--trainer", "device"], "--trainer device was retired: the compiled JAX trainer"),
+    (["train", "suction_debris_mappo", "--trainer", "record"], "--trainer record was retired: the TorchRL trainer"),
+    (["train", "suction_debris_mappo", "--trainer", "compiled"], "--trainer compiled: {config} (mappo) is trained by "
+     "jax, torchrl"),
 ])
 def test_a_trainer_flag_that_does_not_apply_is_named(capsys, argv, named):
-    assert named in _refused(argv, capsys)
+    from dvrl_marl.cli import resolve_config
+
+    assert named.format(config=resolve_config(argv[1])) in _refused(argv, capsys)
 
 
 def test_evaluate_team_checks_every_seat_before_any_pair_runs(capsys):
@@ -110,7 +118,7 @@ def test_a_seat_policy_that_does_not_name_its_seat_is_refused(capsys, tmp_path):
 @pytest.mark.parametrize("argv,named", [
     (["render", "--out", "{tmp}/scene"], "has no image suffix"),
     (["render", "--out", "{tmp}/scene.xyz"], "has no image suffix"),
-    (["train", "suction_debris_mappo", "--trainer", "device", "--device", "tpu"], "'tpu' is not a device"),
+    (["train", "suction_debris_mappo", "--trainer", "jax", "--device", "tpu"], "'tpu' is not a device"),
     (["train", "suction_debris_mappo", "--trainer", "jax", "--device", "cpu:abc"], "'cpu:abc' is not a device"),
     (["train", "suction_debris_mappo", "--trainer", "jax", "--device", "cuda:x"], "'cuda:x' is not a device"),
     (["evaluate", "reach-lnd", "--env", "dvrl_marl/Nope-v1", "--episodes", "1"],

@@ -1,6 +1,7 @@
-"""The JAX trainer (dvrl_marl.training.jax_mappo) is the device trainer's algorithm: a minibatch's losses and
-gradients, the reward scaling and GAE equal the torch learner's on the same weights and data; its compiled cycle is
-deterministic over many steps; a tiny run on the CPU validates and exports numpy policies that act as its actors."""
+"""The JAX trainer (dvrl_marl.training.jax_mappo): a minibatch's losses and gradients, the reward scaling and GAE
+equal the same algorithm written in torch (tests/torch_reference.py) on the same weights and data; its compiled cycle
+is deterministic over many steps; a tiny run on the CPU validates and exports numpy policies that act as its actors;
+what it does not do is refused by name."""
 
 import dataclasses
 import csv
@@ -18,8 +19,10 @@ import torch  # noqa: E402
 
 from dvrl_marl import policies  # noqa: E402
 from dvrl_marl.envs import suction_debris_v8  # noqa: E402
-from dvrl_marl.training import device_mappo, jax_mappo  # noqa: E402
+from dvrl_marl.training import jax_mappo, run_progress  # noqa: E402
 from dvrl_marl.training.mappo_config import MappoConfig  # noqa: E402
+
+import torch_reference as reference  # noqa: E402
 
 TINY = MappoConfig(total_steps=512, num_envs=8, rollout_steps=16, eval_every=256, eval_episodes=2, hidden=[16, 16],
                    env={"preset": "benchmark", "max_cycles": 40}, tool_head="switch", epochs=2, minibatches=2,
@@ -56,13 +59,13 @@ def _batch(config, rows: int, seed: int):
     norms = jax_mappo.init_norms(config, obs_dim, state_dim)
     norms = {name: jax_mappo._merged(norm, batch["states"] if name == "state" else batch["observations"])
              for name, norm in norms.items()}
-    models = device_mappo.build_learner(config, env, torch.device("cpu"), torch)
-    jax_mappo.load_into_torch(params, norms, models, critic=True)
+    models = reference.build_learner(config, env, torch.device("cpu"))
+    reference.load_into_torch(params, norms, models, critic=True)
     return agents, batch, params, norms, models
 
 
 class _Recorder:
-    """An optimiser that keeps the gradients it is given (device_mappo.update's loss, no step taken)."""
+    """An optimiser that keeps the gradients it is given (the reference update's loss, no step taken)."""
 
     def __init__(self, parameters):
         self.parameters = list(parameters)
@@ -78,19 +81,19 @@ class _Recorder:
 
 @pytest.mark.parametrize("critic", sorted(CRITICS))
 @pytest.mark.parametrize("tool_head", ["switch", "gaussian"])
-def test_a_minibatch_loss_and_its_gradients_equal_the_torch_learners(critic, tool_head):
+def test_a_minibatch_loss_and_its_gradients_equal_the_torch_references(critic, tool_head):
     config = replace(TINY, tool_head=tool_head, epochs=1, minibatches=1, **CRITICS[critic])
     agents, batch, params, norms, models = _batch(config, 64, seed=5)
     (loss, parts), gradients = jax.value_and_grad(jax_mappo.minibatch_loss, has_aux=True)(
         params, norms, config, {key: jax.numpy.asarray(value) for key, value in batch.items()})
     as_time_major = lambda x: torch.from_numpy(np.asarray(x))[None]  # noqa: E731  (T = 1, N = rows)
-    rollout = device_mappo.Rollout(
+    rollout = reference.Rollout(
         observations=as_time_major(batch["observations"]), states=as_time_major(batch["states"]),
         actions=as_time_major(batch["actions"]), log_probs=as_time_major(batch["log_probs"]), values=None,
         rewards=None, done=None, terminated=None, next_values=None)
     recorder = _Recorder(models["parameters"])
-    sums = device_mappo.update(models, recorder, rollout, as_time_major(batch["advantages"]),
-                               as_time_major(batch["returns"]), config, torch)
+    sums = reference.update(models, recorder, rollout, as_time_major(batch["advantages"]),
+                            as_time_major(batch["returns"]), config)
     for name, value in zip(("policy", "value", "entropy"), parts):
         assert float(value) == pytest.approx(sums[name], rel=1e-5, abs=1e-6), name
     assert abs(float(parts[0])) > 1e-3 and float(parts[1]) > 1e-3  # (a loss that moves, not zeros compared)
@@ -108,7 +111,7 @@ def test_a_minibatch_loss_and_its_gradients_equal_the_torch_learners(critic, too
         np.testing.assert_allclose(np.asarray(mine), theirs.numpy(), rtol=2e-4, atol=2e-6)
 
 
-def test_the_reward_scaling_and_gae_equal_the_torch_learners():
+def test_the_reward_scaling_and_gae_equal_the_torch_references():
     random = np.random.default_rng(2)
     steps, worlds, agents = 12, 5, 2
     rewards = random.normal(0.0, 1.0, (steps, worlds, agents)).astype(np.float32)
@@ -116,18 +119,18 @@ def test_the_reward_scaling_and_gae_equal_the_torch_learners():
     terminated = done & (random.random((steps, worlds)) < 0.5)
     values = random.normal(0.0, 1.0, (steps, worlds, agents)).astype(np.float32)
     next_values = random.normal(0.0, 1.0, (steps, worlds, agents)).astype(np.float32)
-    theirs = device_mappo._ReturnScale(agents, 0.9, torch, torch.device("cpu"))
+    theirs = reference.ReturnScale(agents, 0.9, torch.device("cpu"))
     scale = {"mean": jax.numpy.zeros(agents), "var": jax.numpy.ones(agents), "count": jax.numpy.asarray(1e-4),
              "discounted": jax.numpy.zeros((worlds, agents))}
     for _ in range(2):  # twice: the discounted returns carry over to the next rollout
         mine, scale = jax_mappo.scaled_rewards(jax.numpy.asarray(rewards), jax.numpy.asarray(done), scale, 0.9)
         expected = torch.from_numpy(rewards) / theirs.update(torch.from_numpy(rewards), torch.from_numpy(done))
         np.testing.assert_allclose(np.asarray(mine), expected.numpy(), rtol=1e-5)
-    rollout = device_mappo.Rollout(observations=None, states=None, actions=None, log_probs=None,
-                                   values=torch.from_numpy(values), rewards=torch.from_numpy(rewards),
-                                   done=torch.from_numpy(done), terminated=torch.from_numpy(terminated),
-                                   next_values=torch.from_numpy(next_values))
-    expected = device_mappo.advantages(rollout, 0.9, 0.8, torch)
+    rollout = reference.Rollout(observations=None, states=None, actions=None, log_probs=None,
+                                values=torch.from_numpy(values), rewards=torch.from_numpy(rewards),
+                                done=torch.from_numpy(done), terminated=torch.from_numpy(terminated),
+                                next_values=torch.from_numpy(next_values))
+    expected = reference.advantages(rollout, 0.9, 0.8)
     mine = jax_mappo.advantages(*(jax.numpy.asarray(x) for x in (rewards, values, next_values, terminated, done)),
                                 0.9, 0.8)
     for a, b in zip(mine, expected):
@@ -162,23 +165,23 @@ def test_the_compiled_cycle_is_kept_for_the_next_run(tiny_run):
 
 def test_the_exported_policies_act_as_the_jax_actors(tmp_path):
     """What the numpy policy computes from the env's observation is the JAX actor's mean, clipped to the box (the
-    switch tool: the sign of its logit), the normaliser folded into its first layer: the policy the torch learner
+    switch tool: the sign of its logit), the normaliser folded into its first layer: the policy the torch reference
     exports from the same weights."""
     agents, _, params, norms, models = _batch(TINY, 16, seed=4)
     params["actors"] = [[*layers[:-1], {**layers[-1], "weight": layers[-1]["weight"] * 10.0}]
                         for layers in params["actors"]]  # (means past the box: the clip is exercised)
-    jax_mappo.load_into_torch(params, norms, models)
+    reference.load_into_torch(params, norms, models)
     env = suction_debris_v8.batched_env(num_envs=16, **TINY.env)
     observations, _ = env.reset(seed=9)
     seen = np.stack([observations[agent] for agent in agents], axis=1)
     loc = np.asarray(jax_mappo.actor_loc(params, norms, seen.astype(np.float32)))
-    folders = device_mappo.export(jax_mappo.actors(params, norms, agents), TINY, tmp_path, 0, 0, env)
-    torch_folders = device_mappo.export(device_mappo.actors(models), TINY, tmp_path / "torch", 0, 0, env)
+    folders = run_progress.export(jax_mappo.actors(params, norms, agents), TINY, tmp_path, 0, 0, env)
+    torch_folders = run_progress.export(reference.actors(models), TINY, tmp_path / "torch", 0, 0, env)
     for index, agent in enumerate(agents):
         expected = np.concatenate([np.clip(loc[:, index, :3], -1.0, 1.0), np.sign(loc[:, index, 3:])], axis=1)
         assert np.abs(loc[:, index, :3]).max() > 1.0  # (the clip is exercised)
         np.testing.assert_allclose(policies.load(folders[agent])(seen[:, index]), expected, atol=2e-4)
-        # the same policy as the torch learner's export of the same weights
+        # the same policy as the export of the torch reference's actors of the same weights
         mine, theirs = policies.load(folders[agent]), policies.load(torch_folders[agent])
         np.testing.assert_allclose(mine(seen[:, index]), theirs(seen[:, index]), atol=1e-6)
         assert mine.spec["exploration"] == theirs.spec["exploration"]
@@ -204,14 +207,58 @@ def test_the_compiled_cycle_is_deterministic_over_many_steps():
 
 
 def test_what_it_does_not_do_is_refused_by_name(tmp_path):
-    with pytest.raises(ValueError, match="bc_expert"):
-        jax_mappo.train(replace(TINY, bc_expert="scripted"), 0, tmp_path / "a", cache=None)
-    with pytest.raises(ValueError, match="surgeon"):
-        jax_mappo.train(replace(TINY, surgeon="scripted"), 0, tmp_path / "b", cache=None)
+    for option, value in (("bc_expert", "scripted"), ("surgeon", "scripted"), ("critic_warmup_steps", 64),
+                          ("init_policy", {"suction": "marl-suction"})):
+        with pytest.raises(ValueError, match=f"{option} = .* is the TorchRL trainer's"):
+            jax_mappo.train(replace(TINY, **{option: value}), 0, tmp_path / option, cache=None)
+        assert not (tmp_path / option).exists()  # (refused before the run folder is made)
+    (tmp_path / "used").mkdir()
+    (tmp_path / "used" / "progress.csv").write_text("steps\n")
+    with pytest.raises(ValueError, match="holds a run already"):
+        jax_mappo.train(TINY, 0, tmp_path / "used", cache=None)
+
+
+def test_advantages_bootstrap_truncations_and_not_terminations():
+    values, rewards, next_values = np.zeros((2, 1, 1)), np.ones((2, 1, 1)), np.full((2, 1, 1), 10.0)
+    done = np.array([[True], [False]])
+    advantage, _ = jax_mappo.advantages(rewards, values, next_values, np.array([[False], [False]]), done, 0.5, 1.0)
+    # step 0 was truncated: 1 + 0.5 x 10 (its final state's value), nothing carried over from the next episode
+    assert float(advantage[0, 0, 0]) == pytest.approx(6.0)
+    advantage, _ = jax_mappo.advantages(rewards, values, next_values, np.array([[True], [False]]), done, 0.5, 1.0)
+    assert float(advantage[0, 0, 0]) == pytest.approx(1.0)  # terminated: no bootstrap
+
+
+@pytest.mark.parametrize("beside", [True, pytest.param(False, marks=pytest.mark.extended)])
+def test_a_run_stops_at_its_first_validation_that_reaches_the_target(tmp_path, beside):
+    """Validations score beside the learner or in its process alike: the run stops at the first that reaches
+    ``stop_at``, keeps the policies that validation scored and leaves no half-validated folder."""
+    last = jax_mappo.train(replace(TINY, total_steps=2048), 3, tmp_path / "run", stop_at=0.0, validate_beside=beside,
+                           cache=tmp_path / "compiled", log=lambda *_: None)
+    rows = list(csv.DictReader((tmp_path / "run" / "progress.csv").open()))
+    assert len(rows) == 1 and int(rows[0]["steps"]) == last["steps"] and last["steps"] < 2048
+    spec = policies.load(tmp_path / "run" / "policies" / "marl-suction").spec
+    assert spec["training"]["steps"] == last["steps"]
+    assert not (tmp_path / "run" / "validating").exists()
 
 
 @pytest.mark.extended
-def test_the_command_line_trains_with_it(tmp_path, capsys, monkeypatch):
+def test_diverged_networks_stop_the_run_by_name(tmp_path, monkeypatch):
+    """Networks that diverge (NaN weights) stop the run at its next validation with an error that says so, never
+    a validation of NaN actors."""
+    made = jax_mappo.init_params
+
+    def diverged(*args, **kwargs):
+        params = made(*args, **kwargs)
+        params["critic"] = jax.tree_util.tree_map(lambda x: x * float("nan"), params["critic"])
+        return params
+
+    monkeypatch.setattr(jax_mappo, "init_params", diverged)
+    with pytest.raises(FloatingPointError, match="not finite"):
+        jax_mappo.train(TINY, 3, tmp_path / "run", validate_beside=False, cache=None, log=lambda *_: None)
+
+
+@pytest.mark.extended
+def test_the_command_line_trains_with_it_by_default(tmp_path, capsys, monkeypatch):
     from dvrl_marl.cli import main
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))  # (the compiled cycle kept there, not in ~)
@@ -219,10 +266,11 @@ def test_the_command_line_trains_with_it(tmp_path, capsys, monkeypatch):
     config.write_text('[run]\nalgorithm = "mappo"\ntotal_steps = 128\nnum_envs = 8\nrollout_steps = 16\n'
                       'eval_every = 128\neval_episodes = 2\n[env]\npreset = "benchmark"\nmax_cycles = 40\n'
                       '[model]\nhidden = [16, 16]\n')
-    assert main(["train", str(config), "--trainer", "jax", "--out", str(tmp_path / "run"),
-                 "--export", str(tmp_path / "exported")]) == 0
-    assert "validation success" in capsys.readouterr().out
-    assert policies.load(tmp_path / "exported" / "marl-grasper").spec["agent"] == "grasper"
+    assert main(["train", str(config), "--out", str(tmp_path / "run"), "--export", str(tmp_path / "exported")]) == 0
+    printed = capsys.readouterr().out
+    assert "validation success" in printed and "trainer:" not in printed  # (the default: nothing passed over)
+    spec = policies.load(tmp_path / "exported" / "marl-grasper").spec
+    assert spec["agent"] == "grasper" and spec["training"]["trainer"] == "jax_mappo"
 
 
 @pytest.mark.extended

@@ -43,6 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dvrl_marl.training import trainers
+
 __all__ = ["CloneConfig", "load_config", "clone", "train", "dagger_round", "DAGGER_SEED"]
 
 #: DAgger's worlds are seeded from here: apart from the recorded episodes' seeds (0...) and from the validation and
@@ -266,3 +268,20 @@ def train(config: CloneConfig, seed: int, out, progress: bool = True) -> dict:
                **{k: v for k, v in result.items() if k not in ("success", "steps")}}
     (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def train_from_request(request, run_table: dict) -> int:
+    """``dvrl-marl train`` with a behaviour-cloning configuration."""
+    config = load_config(request.config)
+    out = request.out_folder(config.name)
+    result = train(config, request.seed, out, progress=request.progress)
+    print(f"{config.name} seed {request.seed}: the clone succeeds in {result['success_rate']:.0%} of "
+          f"{result['episodes']} held-out episodes beside the {result['partner']} partner; policy in "
+          f"{result['policy']}; run folder {out}")
+    return 0
+
+
+TRAINER = trainers.register(trainers.Trainer(
+    name="bc", algorithms=("bc",), run=train_from_request, needs=("torch", "minari"),
+    install='pip install "dvrl-marl[train,data]"',
+    summary="a seat cloned from a Minari dataset of demonstrations (behaviour cloning)"))

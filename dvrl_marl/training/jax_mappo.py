@@ -1,22 +1,26 @@
-"""MAPPO / IPPO on JAX: the worlds, the policy, the rollout and the update compiled into one function per update.
+"""MAPPO / IPPO on JAX, the trainer of record for the collaborative scene: the worlds, the policy, the rollout and
+the update compiled into one function per update.
 
-The device trainer (:mod:`dvrl_marl.training.device_mappo`) keeps the worlds on the device but drives them from
-Python: each env step, each minibatch and each host sync is a launch of its own, and on a GPU a cycle of 4,096
-worlds x 32 steps is paid per launch, not per flop (docs/speed.md). Here one update cycle is one compiled function
-(the PureJaxRL way): ``jax.lax.scan`` steps the worlds with the actors' samples (the env's
-:attr:`~dvrl_marl.envs.suction_debris_device.SuctionDebrisDeviceEnv.step_function`, the core's one step), then the
-return scaling, GAE, the PPO epochs (optax's Adam) and the running normalisers run in the same program. Python only
-sets each cycle's schedules (the start level, the learning rate, the exploration) and exports the actors for
-validation.
+One update cycle is one compiled function (the PureJaxRL way): ``jax.lax.scan`` steps the worlds with the actors'
+samples (the env's :attr:`~dvrl_marl.envs.suction_debris_device.SuctionDebrisDeviceEnv.step_function`, the core's one
+step), then the return scaling, GAE, the PPO epochs (optax's Adam) and the running normalisers run in the same program.
+Python only sets each cycle's schedules (the start level, the learning rate, the exploration) and exports the actors
+for validation (:mod:`dvrl_marl.training.run_progress`: beside the learner, in worker processes). Read top to bottom:
+the networks (torch's layouts, so that the export writes them as they are), the distributions (the switch tool head),
+the loss (:func:`minibatch_loss`: clipped objective, per-agent advantage normalisation, smooth-L1 value loss, bounds
+loss, global gradient clipping), the reward scaling and GAE (:func:`scaled_rewards`, :func:`advantages`), the cycle
+(:func:`make_cycle`) and the run (:func:`train`).
 
-It is the device trainer's algorithm on the same configurations (:class:`~dvrl_marl.training.mappo_config.MappoConfig`):
-the same networks (torch's layouts and initial distributions), distributions (the switch tool head), losses
-(clipped objective, per-agent advantage normalisation, smooth-L1 value loss, bounds loss, global gradient clipping)
-and schedules; ``tests/test_jax_mappo.py`` holds a minibatch's loss and gradients equal to the torch learner's.
-Its random draws are JAX's, so a seed's run is its own. The actors are written by the same numpy export
+It reads the configurations of the TorchRL trainer (:class:`~dvrl_marl.training.mappo_config.MappoConfig`,
+``baselines/configs/*.toml``); ``tests/test_jax_mappo.py`` holds a minibatch's loss and gradients, the reward scaling
+and GAE equal to the same algorithm written in torch. What it leaves to the TorchRL trainer
+(:mod:`dvrl_marl.training.mappo`), refused by name: partners in a seat, pretraining from demonstrations, warm starts
+from torch policies and the critic's warm-up; checkpoints (``--resume``) and Ray collectors. Its random draws are
+JAX's, so a seed's run is its own. The actors are written by the same numpy export
 (:func:`~dvrl_marl.training.models.write_actor`) and scored by the same validation.
 
-    dvrl-marl train suction_debris_mappo_gpu --trainer jax --device cuda --validators 8
+    dvrl-marl train suction_debris_mappo                                  # the default trainer of MAPPO/IPPO
+    dvrl-marl train suction_debris_mappo_gpu --device cuda --validators 8
     python -m dvrl_marl.training.jax_mappo baselines/configs/suction_debris_mappo_gpu.toml --device cuda --out runs/x
 
 Needs JAX and optax (``pip install "dvrl-marl[jax]"``; a GPU needs JAX's CUDA build), not torch.
@@ -35,12 +39,11 @@ import numpy as np
 from dvrl_marl.core.layout import ACTION_WIDTH, MOVE
 from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.observation_scaling import MIN_SPREAD
-from dvrl_marl.training import device_mappo
+from dvrl_marl.training import run_progress, trainers
 from dvrl_marl.training.mappo_config import MappoConfig, load_config
-from dvrl_marl.training.models import require_torch
 
 __all__ = ["train", "compilation_cache", "init_params", "init_norms", "actor_loc", "critic_values", "minibatch_loss",
-           "scaled_rewards", "advantages", "make_cycle", "start", "actors", "load_into_torch"]
+           "scaled_rewards", "advantages", "make_cycle", "start", "actors", "refuse_options", "TORCHRL_ONLY"]
 
 #: JAX's float32 for the networks (the process runs with float64 on: the core's arrays are float64).
 _F32 = "float32"
@@ -202,8 +205,9 @@ def _sample(key, loc, log_std, switch: bool):
 # --- the loss -------------------------------------------------------------------------------------------------
 def minibatch_loss(params: dict, norms: dict, config: MappoConfig, batch: dict):
     """PPO's loss on a minibatch (rows of ``observations`` (B, A, d), ``states`` (B, S), ``actions`` (B, A, 4),
-    ``log_probs``, ``advantages`` and ``returns`` (B, A)), as the device trainer's :func:`device_mappo.update`
-    computes it; returns ``(loss, (policy loss, value loss, entropy))``."""
+    ``log_probs``, ``advantages`` and ``returns`` (B, A)): the clipped objective on advantages normalised per agent,
+    the smooth-L1 value loss, the entropy bonus and the bounds loss; returns ``(loss, (policy loss, value loss,
+    entropy))``."""
     import jax.numpy as jnp
 
     switch = config.tool_head == "switch"
@@ -368,7 +372,7 @@ def make_cycle(env, config: MappoConfig):
                  "advantages": flat(advantage), "returns": flat(returns)}
         opt_state.hyperparams["learning_rate"] = learning_rate
         params, opt_state, losses = update(params, norms, opt_state, batch, update_key)
-        # the normalisers move after the update, as in the device trainer
+        # the normalisers move after the update (the update reads the ones its rollout was taken with)
         norms = {name: _merged(norm, record["states"] if name == "state" else record["observations"])
                  for name, norm in norms.items()}
         figures = {"successes": record["won"].sum(), "ended": record["done"].sum(), "losses": losses}
@@ -380,48 +384,13 @@ def make_cycle(env, config: MappoConfig):
 # --- the export: numpy arrays, as the torch trainers' actors give them ------------------------------------------
 def actors(params: dict, norms: dict, agents) -> dict:
     """The actors as numpy arrays per agent (:func:`models.actor_arrays`'s form: ``layers``, the normaliser's
-    ``mean`` and ``std``, ``log_std``), what :func:`device_mappo.export` writes; no torch."""
+    ``mean`` and ``std``, ``log_std``), what :func:`run_progress.export` writes; no torch."""
     mean = np.array(norms["observation"]["mean"], dtype=np.float64)
     std = np.maximum(np.sqrt(np.array(norms["observation"]["var"], dtype=np.float64)), MIN_SPREAD)
     log_std = np.array(params["log_std"])
     return {agent: {"layers": [(np.array(layer["weight"]), np.array(layer["bias"])) for layer in layers],
                     "mean": mean, "std": std, "log_std": log_std[index]}
             for index, (agent, layers) in enumerate(zip(agents, params["actors"]))}
-
-
-def load_into_torch(params: dict, norms: dict, models: dict, *, critic: bool = False) -> None:
-    """Copy the actors, their log standard deviations and the actors' normaliser (``critic``: the critic and its
-    normalisers too) into the torch ``models`` of :func:`device_mappo.build_learner` (the torch learner on the same
-    weights: the tests hold the two equal)."""
-    torch = require_torch()
-
-    def copy_net(net, layers):
-        for linear, layer in zip([m for m in net if hasattr(m, "weight")], layers):
-            linear.weight.copy_(torch.from_numpy(np.array(layer["weight"], dtype=np.float32)))
-            linear.bias.copy_(torch.from_numpy(np.array(layer["bias"], dtype=np.float32)))
-
-    def copy_norm(module, norm):
-        for name in ("mean", "var", "count"):
-            getattr(module, name).copy_(torch.as_tensor(np.array(norm[name])))
-
-    actor_net = models["actor_net"]
-    with torch.no_grad():
-        for net, layers in zip(actor_net.nets, params["actors"]):
-            copy_net(net, layers)
-        models["log_std"].copy_(torch.from_numpy(np.array(params["log_std"], dtype=np.float32)))
-        copy_norm(actor_net.norm, norms["observation"])
-        if not critic:
-            return
-        critic_net = models["critic_net"]
-        if hasattr(critic_net, "net"):  # MAPPO's critic on the state alone
-            copy_net(critic_net.net, params["critic"])
-        else:  # one network per agent: on the state and the observation, or (IPPO) the observation
-            per_agent = getattr(critic_net, "observation", critic_net)
-            for net, layers in zip(per_agent.nets, params["critic"]):
-                copy_net(net, layers)
-            copy_norm(per_agent.norm, norms["critic_observation"])
-        if "state" in norms:
-            copy_norm(critic_net.norm, norms["state"])
 
 
 # --- the run --------------------------------------------------------------------------------------------------
@@ -459,27 +428,40 @@ def compilation_cache(folder="auto") -> str | None:
     return folder or None
 
 
+#: What this trainer does not do (the TorchRL trainer does): the option, and the value that turns it off.
+TORCHRL_ONLY = {"surgeon": "none", "bc_expert": "", "init_policy": {}, "critic_warmup_steps": 0}
+
+
+def refuse_options(config: MappoConfig) -> None:
+    """Refuse, by name, the options of the TorchRL trainer this one does not have."""
+    for option, off in TORCHRL_ONLY.items():
+        if getattr(config, option) != off:
+            raise ValueError(f"{config.name}: {option} = {getattr(config, option)!r} is the TorchRL trainer's "
+                             "(dvrl-marl train --trainer torchrl); the JAX trainer takes none")
+
+
 def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total_steps: int | None = None,
           stop_at: float | None = None, max_seconds: float | None = None, validate_beside: bool = True,
           validators: int = 1, cache="auto", log=print) -> dict:
     """Train ``config`` with seed ``seed``, the worlds and the learner on ``device`` (JAX's ``"cpu"`` or
-    ``"cuda"``); writes ``progress.csv`` and the policies last validated as :func:`device_mappo.train` does, and
-    returns the last row. ``validators``: validations scored at once, each in a worker process of its own (each
-    falls due every ``eval_every`` steps; on a machine of many cores several keep up with a fast learner).
+    ``"cuda"``); writes ``progress.csv`` (one row per validation), ``result.json`` and the policies last validated
+    (``policies/marl-<agent>``), and returns the last row. ``validators``: validations scored at once, each in a
+    worker process of its own (each falls due every ``eval_every`` steps; on a machine of many cores several keep up
+    with a fast learner).
     ``cache``: where compiled cycles are kept (:func:`compilation_cache`; None keeps none)."""
     jax = _jax()
     compilation_cache(cache)
-    device_mappo.refuse_options(config, "the JAX trainer")
+    refuse_options(config)
     began = time.perf_counter()
-    out = device_mappo.new_run_folder(out_dir)
+    out = run_progress.new_run_folder(out_dir)
     env = suction_debris.batched_env(num_envs=config.num_envs, device=device, arrays="jax", check_actions=False,
                                         **dict(config.env))
     carry = list(start(env, config, seed))
     cycle = jax.jit(make_cycle(env, config), donate_argnums=(0,))
     learnt_std = not config.final_std
     total = int(total_steps or config.total_steps)
-    progress = device_mappo.Progress(out, config, seed, began, stop_at=stop_at, max_seconds=max_seconds, log=log)
-    validations = device_mappo.Validations(out, config, seed, beside=validate_beside, workers=validators,
+    progress = run_progress.Progress(out, config, seed, began, stop_at=stop_at, max_seconds=max_seconds, log=log)
+    validations = run_progress.Validations(out, config, seed, beside=validate_beside, workers=validators,
                                            trainer="jax_mappo")
     done_steps, next_validation, batch = 0, config.eval_every, config.num_envs * config.rollout_steps
     tally = (0, 0)  # training episodes completed and ended since the last validation (summed on the device)
@@ -514,6 +496,41 @@ def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total
         validations.close()
     progress.finish(device=str(env.device), backend="jax")
     return progress.last
+
+
+def _device_of(config: MappoConfig) -> str:
+    """The configuration's ``device`` as JAX's: ``"auto"`` is a GPU where JAX has one, else the CPU."""
+    if config.device != "auto":
+        return config.device
+    return "cuda" if any(device.platform == "gpu" for device in _jax().devices()) else "cpu"
+
+
+def train_from_request(request: trainers.TrainRequest, run_table: dict) -> int:
+    """``dvrl-marl train`` with this trainer: ``--device`` (else the configuration's), ``--validators``,
+    ``--steps``, ``--export``."""
+    config = load_config(request.config)
+    out = request.out_folder(config.name)
+    final = train(config, request.seed, out, device=request.device or _device_of(config), total_steps=request.steps,
+                  validators=request.validators or 1)
+    print(f"{config.name} seed {request.seed}: validation success {final['success_rate']:.2f} after "
+          f"{final['steps']:,d} steps; policies in {out / 'policies'}; run folder {out}")
+    run_progress.copy_policies(out, request.export)
+    return 0
+
+
+def _cannot(run_table: dict, path) -> str | None:
+    config = load_config(path)
+    for option, off in TORCHRL_ONLY.items():
+        if getattr(config, option) != off:
+            return f"{option} = {getattr(config, option)!r} is the TorchRL trainer's"
+    return None
+
+
+TRAINER = trainers.register(trainers.Trainer(
+    name="jax", algorithms=("mappo", "ippo"), run=train_from_request, rank=0, cannot=_cannot,
+    takes=frozenset({"steps", "export", "device", "validators"}), needs=("jax", "optax"),
+    install='pip install "dvrl-marl[jax]"',
+    summary="MAPPO/IPPO, each update cycle compiled whole by JAX (the default; CPU or GPU)"))
 
 
 def main() -> None:

@@ -62,7 +62,7 @@ import numpy as np
 from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.presets import scene_options
 from dvrl_marl.envs.suction_debris import TASK, env_name
-from dvrl_marl.training import teams
+from dvrl_marl.training import run_progress, teams, trainers
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
                                              MappoConfig, config_toml, demonstrations, load_config, partner, partners)
 from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, learner_device,
@@ -450,3 +450,24 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
             seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
     return seats
 
+
+
+def train_from_request(request: trainers.TrainRequest, run_table: dict) -> int:
+    """``dvrl-marl train`` with this trainer: ``--steps``, ``--resume``, ``--ray-address``, ``--num-collectors``,
+    ``--export`` (TensorBoard logs are always written, ``--tensorboard`` or not)."""
+    config = load_config(request.config)
+    out = request.out_folder(config.name)
+    final = train(config, request.seed, out, total_steps=request.steps, resume=request.resume,
+                  progress=request.progress, ray_address=request.ray_address,
+                  num_collectors=request.num_collectors or 0)
+    print(f"{config.name} seed {request.seed}: success {final['success_rate']:.2f} after {final['steps']:,d} steps; "
+          f"policies in {out / 'policies'}; run folder {out}")
+    run_progress.copy_policies(out, request.export)
+    return 0
+
+
+TRAINER = trainers.register(trainers.Trainer(
+    name="torchrl", algorithms=ALGORITHMS, run=train_from_request, rank=1,
+    takes=frozenset({"steps", "export", "resume", "tensorboard", "ray_address", "num_collectors"}),
+    needs=("torch", "torchrl"), install='pip install "dvrl-marl[torchrl]"',
+    summary="MAPPO/IPPO on TorchRL: checkpoints (--resume), Ray collectors, partners in a seat, pretraining"))

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.envs import suction_debris
+from dvrl_marl.training import trainers
 
 __all__ = ["make_vec_env", "train_ppo", "TeamPolicy", "evaluate_team"]
 
@@ -135,3 +136,20 @@ def train_ppo(config_path, seed: int, out_dir, total_timesteps: int | None = Non
                    "wall_seconds": time.perf_counter() - start})
     (out_dir / "result.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
+
+
+def train_from_request(request, run_table: dict) -> int:
+    """``dvrl-marl train`` with a collaborative PPO configuration (SB3, one policy shared by both arms)."""
+    name = Path(request.config).stem
+    out = request.out_folder(name)
+    result = train_ppo(request.config, request.seed, out, total_timesteps=request.steps,
+                       tensorboard=request.tensorboard)
+    print(f"{name} seed {request.seed}: {result}; run folder {out}")
+    return 0
+
+
+TRAINER = trainers.register(trainers.Trainer(
+    name="sb3-team", algorithms=("ppo", None), goal_env=False, run=train_from_request,
+    takes=frozenset({"steps", "tensorboard"}), needs=("stable_baselines3", "supersuit"),
+    install='pip install "dvrl-marl[train]"',
+    summary="the collaborative scene's two arms as one shared SB3 PPO policy (SuperSuit)"))

@@ -48,6 +48,7 @@ from dvrl_marl.core.layout import MOVE, TOOL
 from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.schemas import (STRICT, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval, validated)
+from dvrl_marl.training import trainers
 
 __all__ = ["PixelSeatConfig", "load_config", "PixelActor", "collect", "fit", "validate", "export", "train",
            "PIXEL_SEED"]
@@ -742,3 +743,25 @@ def keep_best(out, name: str, rounds: list[dict]) -> int:
                                        f"rounds (ties to the later): round {index}")
     (folder / "policy.json").write_text(json.dumps(spec, indent=2) + "\n")
     return index
+
+
+def train_from_request(request, run_table: dict) -> int:
+    """``dvrl-marl train`` with a pixel seat's configuration (``--export``: the chosen policy copied there)."""
+    name, config = load_config(request.config)
+    out = request.out_folder(name)
+    result = train(name, config, request.seed, out, progress=request.progress)
+    chosen = result["rounds"][result["selected_round"]]["validation"]
+    print(f"{name} seed {request.seed}: validation success {chosen['success_rate']:.0%} (round "
+          f"{result['selected_round']}) in {result['wall_seconds']:.0f} s; policy in {result['policy']}")
+    if request.export:
+        import shutil
+
+        shutil.copytree(result["policy"], request.export, dirs_exist_ok=True)
+        print(f"exported the policy to {request.export}")
+    return 0
+
+
+TRAINER = trainers.register(trainers.Trainer(
+    name="pixel-dagger", algorithms=("pixel-dagger",), run=train_from_request, takes=frozenset({"export"}),
+    needs=("torch",), install='pip install "dvrl-marl[train]"',
+    summary="a seat that sees the endoscope, distilled from a privileged seat (DAgger)"))

@@ -50,6 +50,7 @@ from dvrl_marl.training.demonstrations import (
     observation_batch,
     save_demonstrations,
 )
+from dvrl_marl.training import trainers
 
 __all__ = ["RunConfig", "load_config", "train", "evaluate_policy", "ALGORITHMS"]
 
@@ -413,3 +414,31 @@ def log_formats(tensorboard: bool) -> list[str]:
             raise ImportError("TensorBoard logs need the tensorboard package: pip install 'dvrl-marl[train]'") from None
         return ["csv", "tensorboard"]
     return ["csv"]
+
+
+def train_from_request(request, run_table: dict) -> int:
+    """``dvrl-marl train`` with a goal env's configuration (``[run] env_id``; ``--export``: the final policy)."""
+    config = load_config(request.config)
+    out = request.out_folder(config.name)
+    history = train(config, request.seed, out, total_timesteps=request.steps, progress=request.progress,
+                    resume=request.resume, tensorboard=request.tensorboard)
+    final = history[-1]
+    print(f"{config.name} seed {request.seed}: success {final['success_rate']:.2f} after {int(final['timesteps'])} "
+          f"steps; run folder {out}")
+    if request.export:
+        from dvrl_marl.training.export import export_policy
+
+        model = load_final_model(config, out)
+        export_policy(model, request.export, name=Path(request.export).name, env_id=config.env_id,
+                      **config.export_metadata(),
+                      training={"config": config.name, "seed": request.seed, "timesteps": int(final["timesteps"]),
+                                "success_rate": final["success_rate"]})
+        print(f"exported the policy to {request.export}")
+    return 0
+
+
+TRAINER = trainers.register(trainers.Trainer(
+    name="sb3", algorithms=ALGORITHMS, goal_env=True, run=train_from_request,
+    takes=frozenset({"steps", "export", "resume", "tensorboard"}), needs=("stable_baselines3", "sb3_contrib"),
+    install='pip install "dvrl-marl[train]"',
+    summary="a Gymnasium goal env (PSM Reach, PSM Pick) with SB3: DDPG + HER, TD3, SAC, TQC, PPO"))

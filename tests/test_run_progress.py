@@ -1,0 +1,34 @@
+"""A compiled trainer's run (dvrl_marl.training.run_progress): validations beside the learner that are still scoring
+when the run stops are stopped, not waited for, and leave no worker behind."""
+
+import multiprocessing
+import time
+
+from dvrl_marl.training.mappo_config import MappoConfig
+from dvrl_marl.training.run_progress import Progress, Validations, new_run_folder
+
+TINY = MappoConfig(num_envs=8, eval_episodes=2, env={"preset": "benchmark", "max_cycles": 40})
+
+
+def test_validations_still_scoring_when_a_run_stops_are_stopped_not_waited_for(tmp_path):
+    before = set(multiprocessing.active_children())
+    validations = Validations(tmp_path, TINY, 0, beside=True, workers=1)
+    validations.pending.append((0, 0.0, tmp_path / "validating" / "0", validations.pool.apply_async(time.sleep, (60,))))
+    began = time.perf_counter()
+    validations.close()
+    assert time.perf_counter() - began < 20.0  # (its worker's start included; the 60 s job was not waited for)
+    assert not set(multiprocessing.active_children()) - before  # (no worker left behind)
+
+
+def test_progress_writes_a_row_per_validation_and_says_when_the_run_stops(tmp_path):
+    out = new_run_folder(tmp_path / "run")
+    lines = []
+    progress = Progress(out, TINY, 0, time.perf_counter(), stop_at=0.5, log=lines.append)
+    progress.count(3, 4)
+    result = {"success_rate": 0.25, "mean_blood_removed_ml": 10.0, "mean_contact_steps": 1.0}
+    assert progress.report(512, 2.0, result) is False
+    assert progress.report(1024, 4.0, {**result, "success_rate": 0.5}) is True
+    rows = (out / "progress.csv").read_text().splitlines()
+    assert rows[0].split(",") == list(Progress.COLUMNS) and len(rows) == 3
+    assert rows[1].split(",")[4] == "0.75" and rows[2].split(",")[4] == "0.0"  # (train success since the last row)
+    assert len(lines) == 2 and "validation 0.50" in lines[1]
