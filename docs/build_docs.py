@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import inspect
 import sys
 from pathlib import Path
@@ -35,7 +36,7 @@ def render() -> str:
         first, _, rest = body.partition("\n")
         parts += [f"## {title}", "", first, rest.replace("\n## ", "\n### "), ""]
         if module is suction_debris_v8:
-            parts += task_parameters()
+            parts += task_parameters() + keywords_by_form()
     return "\n".join(parts).rstrip() + "\n"
 
 
@@ -54,6 +55,30 @@ def task_parameters() -> list[str]:
             continue
         lines.append(f"| `{name}` | {_range(field)} | {'required' if field.is_required() else f'`{field.default!r}`'} "
                      f"| `{getattr(current, name)!r}` |")
+    return lines + [""]
+
+
+def keywords_by_form() -> list[str]:
+    """The env's own keywords (beside the task's parameters above), from the forms' signatures: which form takes
+    each, and its default."""
+    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+    from dvrl_marl.envs import suction_debris_v8
+
+    forms = {"`parallel_env`, `env`": suction_debris_v8.parallel_env, "`batched_env`": suction_debris_v8.batched_env,
+             "`jax_env`": suction_debris_v8.jax_env}
+    taken = {name: inspect.signature(form).parameters for name, form in forms.items()}
+    task = {field.name for field in dataclasses.fields(SuctionDebrisParams)}
+    names = list(dict.fromkeys(name for parameters in taken.values() for name in parameters if name not in task))
+    lines = ["### Keywords, form by form", "",
+             "Generated from the forms' signatures (`inspect.signature`, what `help()` and IPython show; "
+             "`dvrl_marl.envs.scene_keywords`): the env's own keywords, beside the task's parameters above, which "
+             "every form takes. A dash: the form does not take it.", "",
+             "| keyword | default | " + " | ".join(forms) + " |", "|---|---|" + "---|" * len(forms)]
+    for name in names:
+        default = next(parameters[name].default for parameters in taken.values() if name in parameters)
+        shown = "required" if default is inspect.Parameter.empty else f"`{default!r}`"
+        lines.append(f"| `{name}` | {shown} | " + " | ".join("yes" if name in taken[form] else "-" for form in forms)
+                     + " |")
     return lines + [""]
 
 

@@ -24,6 +24,7 @@ from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_nam
 from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.one_world import WorldArm, WorldBlood, WorldPin
 from dvrl_marl.envs.presets import accepts_preset
+from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import REWARD_TYPES, SceneLayout, SuctionDebrisBatchedEnv
 from dvrl_marl.envs.surgeon_seat import SurgeonSeat, check_seat
 from dvrl_marl.rendering import render_modes_here
@@ -281,6 +282,12 @@ raw_env = parallel_env
 def env(**kwargs):
     """The AEC form, through PettingZoo's parallel-to-AEC conversion."""
     return parallel_to_aec(parallel_env(**kwargs))
+
+
+#: What one world in PettingZoo's form does not take (the batch's) or takes in ``SurgeonSeat`` (the seat's).
+_NOT_PETTINGZOO = ("num_envs", "autoreset_mode", "render_world")
+parallel_env.__signature__ = form_signature(parallel_env, SuctionDebrisBatchedEnv.__init__, without=_NOT_PETTINGZOO)
+env.__signature__ = parallel_env.__signature__
 
 
 # The scene's every form, from this unversioned module: the library imports it (PettingZoo's way); only users and

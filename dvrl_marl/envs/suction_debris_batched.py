@@ -72,6 +72,7 @@ from dvrl_marl.envs.appearance import APPEARANCES, Appearance
 from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
 from dvrl_marl.envs.observation_scaling import ObservationScaling
 from dvrl_marl.envs.presets import accepts_preset
+from dvrl_marl.envs.scene_keywords import form_signature
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "IMAGE_PARTS", "SceneLayout", "batched_env",
            "takes_worlds"]
@@ -887,3 +888,6 @@ def batched_env(num_envs: int = 1, **kwargs) -> SuctionDebrisBatchedEnv:
     """N worlds stepped as numpy arrays; the keyword arguments of ``parallel_env``, plus ``num_envs``,
     ``autoreset_mode`` and ``render_world``."""
     return SuctionDebrisBatchedEnv(num_envs, **kwargs)
+
+
+batched_env.__signature__ = form_signature(batched_env, SuctionDebrisBatchedEnv.__init__)

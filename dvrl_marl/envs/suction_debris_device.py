@@ -41,6 +41,7 @@ import numpy as np
 from dvrl_marl.core import layout
 from dvrl_marl.core.collaborative_task import TASK
 from dvrl_marl.core.scene_state import EnvState, register_with_jax
+from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
@@ -373,11 +374,20 @@ class SuctionDebrisDeviceEnv:
 
 
 
-def batched_env(num_envs: int = 1, *, device=None, **kwargs):
+def batched_env(num_envs: int = 1, *, device=None, arrays: str = "torch", check_actions: bool = True, **kwargs):
     """N worlds stepped as arrays; the keyword arguments of ``parallel_env``, plus ``num_envs``, ``autoreset_mode``
     and ``render_world``. ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``): the step compiled by JAX and run there,
-    torch tensors in and out (:class:`SuctionDebrisDeviceEnv`); None (the default): numpy
-    (:class:`~dvrl_marl.envs.suction_debris_batched.SuctionDebrisBatchedEnv`)."""
+    torch tensors in and out, or JAX arrays with ``arrays="jax"``; ``check_actions=False`` leaves a compiled step's
+    actions unchecked (:class:`SuctionDebrisDeviceEnv`); None (the default): numpy
+    (:class:`~dvrl_marl.envs.suction_debris_batched.SuctionDebrisBatchedEnv`), whose actions are always checked."""
     if device is None:
+        if arrays != "torch" or check_actions is not True:
+            option = "arrays" if arrays != "torch" else "check_actions"
+            raise ValueError(f"{TASK}: {option}= is a device env's (batched_env(device=...)); the numpy env gives "
+                             "numpy arrays and checks every action")
         return SuctionDebrisBatchedEnv(num_envs, **kwargs)
-    return SuctionDebrisDeviceEnv(num_envs, device=device, **kwargs)
+    return SuctionDebrisDeviceEnv(num_envs, device=device, arrays=arrays, check_actions=check_actions, **kwargs)
+
+
+# (written out: the device env's own keywords, then the batched env's, then the preset and the task's parameters)
+batched_env.__signature__ = form_signature(batched_env, SuctionDebrisDeviceEnv.__init__, SuctionDebrisBatchedEnv.__init__)

@@ -36,6 +36,8 @@ that world and says so in ``infos["actions_finite"]``.
 from __future__ import annotations
 
 from dvrl_marl.core.scene_state import SPECS, EnvState
+from dvrl_marl.envs.scene_keywords import form_signature
+from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SuctionDebrisJaxEnv", "jax_env", "seed_of"]
 
@@ -152,5 +154,13 @@ class SuctionDebrisJaxEnv:
 
 
 def jax_env(**options) -> SuctionDebrisJaxEnv:
-    """The scene in JaxMARL's form (:class:`SuctionDebrisJaxEnv`); the parallel env's keyword arguments."""
+    """The scene in JaxMARL's form (:class:`SuctionDebrisJaxEnv`); the parallel env's keyword arguments but those of
+    the host (a seat's filler, rendering, images: refused on a device) and the batch's."""
     return SuctionDebrisJaxEnv(**options)
+
+
+#: What one world stepped by JAX does not take: the batch's keywords and the host's (a seat, a window, images).
+_NOT_ONE_JAX_WORLD = ("num_envs", "autoreset_mode", "render_world", "surgeon", "surgeon_seat", "render_mode", "width",
+                      "height", "image_size", "image_depth", "image_segmentation", "image_stereo", "image_appearance",
+                      "image_contexts")
+jax_env.__signature__ = form_signature(jax_env, SuctionDebrisBatchedEnv.__init__, without=_NOT_ONE_JAX_WORLD)
