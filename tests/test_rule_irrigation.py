@@ -220,6 +220,23 @@ def test_the_single_env_reports_the_fluid_figures():
         assert key in info
 
 
+def test_saline_costs_every_agent_its_penalty_per_ml():
+    """``saline_penalty``: each ml irrigated costs every agent that much (off by default: the rewards unchanged)."""
+    rewards = {}
+    for penalty in (0.0, 0.5):
+        env = _env(irrigation_ml_s=1.0, reward_type="dense", saline_penalty=penalty)
+        _work(env, IRRIGATE, 20, height=0.01)  # (saline flowing, into the air)
+        before = env.core.get_state().saline_used_ml.copy()
+        command = {"suction": np.array([[0.0, 0.0, 0.0, IRRIGATE]] * WORLDS), "grasper": np.zeros((WORLDS, 4))}
+        rewards[penalty] = env.step(command)[1]
+        used = env.core.get_state().saline_used_ml - before
+    assert np.all(used > 0.0)
+    for agent in ("suction", "grasper"):
+        np.testing.assert_allclose(rewards[0.5][agent] - rewards[0.0][agent], -0.5 * used, rtol=0, atol=1e-12)
+    presets = suction_debris.PRESETS
+    assert presets["irrigation"]["saline_penalty"] == 0.5 and "saline_penalty" not in presets["benchmark"]
+
+
 def test_the_rule_runs_alike_under_jax():
     jax = pytest.importorskip("jax")
     jax.config.update("jax_enable_x64", True)
@@ -241,8 +258,11 @@ def test_the_rule_runs_alike_under_jax():
             move = np.clip((goal - tip) / env.params.step_size, -1.0, 1.0)
             suction = np.concatenate([move, np.full((WORLDS, 1), command[3])], axis=1)
             commands = {"suction": suction, "grasper": np.zeros((WORLDS, 4))}
-            state = core.step_state(state, commands)[0]
-            device = step(device, {agent: jax.numpy.asarray(value) for agent, value in commands.items()})[0]
+            state, rewards = core.step_state(state, commands)[:2]
+            device, device_rewards = step(device, {agent: jax.numpy.asarray(value)
+                                                   for agent, value in commands.items()})[:2]
+            for agent in rewards:  # (the saline's cost among them: the preset's penalty)
+                np.testing.assert_allclose(np.asarray(device_rewards[agent]), rewards[agent], rtol=0, atol=1e-9)
     assert np.all(np.asarray(state.saline_used_ml) > 0.0)
     for name in ("clot_ml", "saline_ml", "remaining_ml", "surface_z", "spill_s", "overflow_ml", "overflow_events",
                  "saline_wasted_ml"):

@@ -139,7 +139,9 @@ image and its own tip and valve alone, is trained by ``dvrl-marl train suction_p
 waiting place; the suction's route over the cavities still to clear, a clearing bonus and a parking place, and
 where there are clots 1 per ml of clot broken up; all measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.envs.guidance.Guidance`,
 defaults: the configuration of record). Potential-based terms leave the optimal policy unchanged, and success is
-the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``.
+the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``, and
+each agent ``-saline_penalty`` per ml of saline irrigated (0 unless asked; ``preset="irrigation"``: 0.5, half of the
+guided reward's 1 for each ml of clot broken up, so saline onto a clot pays and saline elsewhere costs).
 
 ## The scene's physics
 - **Released pins fall** under gravity (one 20 ms step at a time) onto the surface below them, never through it; a
@@ -194,6 +196,8 @@ the episode's figures as CRESSim reports its irrigation agents': ``clot_remainin
 (time with a cavity overflowing) and ``overflow_ml`` (spilt).
 
 ## Arguments
+Every form spells out the keywords it takes (``inspect.signature``, what ``help()`` and IPython show and complete;
+generated below, form by form, with the task's parameters and their ranges):
 ``surgeon``, ``surgeon_seat``, ``reward_type``, ``render_mode`` ("rgb_array" | "human": a window, stepped in
 real time at 50 Hz), ``max_cycles``,
 ``blood_ml``, ``blood_threshold_ml``, ``suction_rate_ml_s``, ``debris_count``, ``contact_penalty``,
@@ -224,8 +228,8 @@ exposes it to TorchRL.
 ``observation_features="suction_debris_cleared_pins_zoom"``, ``state_observations=True``, ``contact_penalty=0.1``,
 ``tool_speed=0.1``, ``jaw_command="switch"``, ``hold_until_handoff=True``. Keywords given beside it win.
 ``preset="irrigation"`` is the benchmark's setting on a clotted field, the benchmark's irrigation level:
-``irrigation_ml_s=1.0``, ``clot_share=0.5``, ``max_cycles=2500`` (the scripted irrigating team needs about 1,500
-steps; the suction-only plan of the other levels finishes none: ``benchmarks/irrigation_field.py``).
+``irrigation_ml_s=1.0``, ``clot_share=0.5``, ``saline_penalty=0.5``, ``max_cycles=2500`` (the scripted irrigating
+team needs about 1,500 steps; the suction-only plan of the other levels finishes none: ``benchmarks/irrigation_field.py``).
 ``preset="default"`` (the default) is the task file as it is. Every form takes it (parallel, AEC, batched, the seat
 env, the TorchRL and BenchMARL tasks).
 

@@ -541,12 +541,14 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="JAX's device: cpu, cuda or cuda:<index>")
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--stop-at", type=float, default=None, help="stop once validation reaches this success")
+    parser.add_argument("--max-seconds", type=float, default=None, help="stop at the first validation after this long")
     parser.add_argument("--validators", type=int, default=1, help="validations scored at once (worker processes)")
     parser.add_argument("--cache", default="auto", help="JAX's compilation cache folder (auto: ~/.cache/dvrl_marl/jax "
                         "unless JAX has one; '' keeps none)")
     args = parser.parse_args()
     train(load_config(args.config), args.seed, args.out, device=args.device, total_steps=args.steps,
-          stop_at=args.stop_at, validators=args.validators, cache=args.cache)
+          stop_at=args.stop_at, max_seconds=args.max_seconds, validators=args.validators,
+          cache=args.cache)
 
 
 if __name__ == "__main__":
