@@ -240,8 +240,9 @@ def test_partner_seat_runs(tmp_path):
 @pytest.mark.extended
 def test_cli_train_mappo(tmp_path):
     config = _config(tmp_path)
-    result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "train", str(config), "--out", str(tmp_path / "r"),
-                             "--steps", "1024", "--no-progress", "--export", str(tmp_path / "exported")],
+    result = subprocess.run([sys.executable, "-m", "dvrl_marl.cli", "train", str(config), "--trainer", "torchrl",
+                             "--out", str(tmp_path / "r"), "--steps", "1024", "--no-progress", "--export",
+                             str(tmp_path / "exported")],
                             capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     assert "success" in result.stdout

@@ -220,21 +220,25 @@ def test_the_single_env_reports_the_fluid_figures():
         assert key in info
 
 
-def test_saline_costs_every_agent_its_penalty_per_ml():
-    """``saline_penalty``: each ml irrigated costs every agent that much (off by default: the rewards unchanged)."""
-    rewards = {}
-    for penalty in (0.0, 0.5):
-        env = _env(irrigation_ml_s=1.0, reward_type="dense", saline_penalty=penalty)
-        _work(env, IRRIGATE, 20, height=0.01)  # (saline flowing, into the air)
-        before = env.core.get_state().saline_used_ml.copy()
-        command = {"suction": np.array([[0.0, 0.0, 0.0, IRRIGATE]] * WORLDS), "grasper": np.zeros((WORLDS, 4))}
-        rewards[penalty] = env.step(command)[1]
-        used = env.core.get_state().saline_used_ml - before
-    assert np.all(used > 0.0)
-    for agent in ("suction", "grasper"):
-        np.testing.assert_allclose(rewards[0.5][agent] - rewards[0.0][agent], -0.5 * used, rtol=0, atol=1e-12)
+def test_saline_wasted_costs_every_agent_its_penalty_per_ml():
+    """``waste_penalty``: each ml irrigated into no cavity costs every agent that much; saline into a cavity costs
+    nothing (off by default: the rewards unchanged)."""
+    for height, wasting in ((0.01, True), (None, False)):  # over the phantom, then down in a cavity
+        rewards = {}
+        for penalty in (0.0, 0.5):
+            env = _env(irrigation_ml_s=1.0, reward_type="dense", waste_penalty=penalty)
+            _work(env, tools.SHUT, 120, height=height)  # (there, the valve shut)
+            before = env.core.get_state().saline_used_ml.copy()
+            command = {"suction": np.array([[0.0, 0.0, 0.0, IRRIGATE]] * WORLDS), "grasper": np.zeros((WORLDS, 4))}
+            for _ in range(3):  # (the irrigating side's stroke opens at once: tool_speed 1)
+                rewards[penalty] = env.step(command)[1]
+            state = env.core.get_state()
+        assert np.all(state.saline_used_ml > before)
+        wasted = 0.5 * env.params.irrigation_ml_s * env.params.control_dt if wasting else 0.0
+        for agent in ("suction", "grasper"):
+            np.testing.assert_allclose(rewards[0.5][agent] - rewards[0.0][agent], -wasted, rtol=0, atol=1e-12)
     presets = suction_debris.PRESETS
-    assert presets["irrigation"]["saline_penalty"] == 0.5 and "saline_penalty" not in presets["benchmark"]
+    assert presets["irrigation"]["waste_penalty"] == 0.5 and "waste_penalty" not in presets["benchmark"]
 
 
 def test_the_rule_runs_alike_under_jax():

@@ -395,7 +395,7 @@ class CollaborativeCore:
                     given = given & (self.holding < 0)
                 arm.jaw = xp.where(given, jaw, arm.jaw)
         removed = self.drawn_ml = self._suction()
-        saline_before = self.saline_used_ml
+        wasted_before = self.saline_wasted_ml
         self._irrigate()
         self._bleed()
         self._clot()
@@ -405,7 +405,7 @@ class CollaborativeCore:
         self.contact = contact
         self.complete = self._complete()
         truncated = (self.elapsed >= self.limit) & ~self.complete
-        rewards = self._rewards(removed, lifted, delivered, contact, self.saline_used_ml - saline_before)
+        rewards = self._rewards(removed, lifted, delivered, contact, self.saline_wasted_ml - wasted_before)
         return rewards, _copy(self.complete), truncated
 
     @property
@@ -715,7 +715,7 @@ class CollaborativeCore:
         """(N,) whether each world's field is clear now: every cavity cleared, every pin delivered."""
         return self._complete()
 
-    def _rewards(self, removed, lifted, delivered, contact, irrigated) -> dict:
+    def _rewards(self, removed, lifted, delivered, contact, wasted) -> dict:
         xp = namespace(removed)
         if self.sparse:
             team = xp.where(self.complete, 0.0, -1.0)
@@ -731,9 +731,9 @@ class CollaborativeCore:
         if needed(contact):
             for agent in rewards:
                 rewards[agent] = xp.where(contact, rewards[agent] - self.params.contact_penalty, rewards[agent])
-        if self.params.saline_penalty > 0.0:  # (the ml irrigated this step: a cost, not shaping)
+        if self.params.waste_penalty > 0.0:  # (the ml of saline wasted this step: a cost, not shaping)
             for agent in rewards:
-                rewards[agent] = rewards[agent] - self.params.saline_penalty * irrigated
+                rewards[agent] = rewards[agent] - self.params.waste_penalty * wasted
         return rewards
 
     def _work_distance(self, agent: str):

@@ -62,7 +62,7 @@ class SuctionDebrisParams:
     clot_share: Fraction = 0.0  # share of each cavity's starting blood that is clotted (suction draws no clot)
     clot_per_saline_ml: NonNegative = 0.0  # clot broken up (made liquid) per ml of saline irrigated onto it (ml)
     spill_s: NonNegative = 0.0  # how long an overflow's spill covers the phantom around its cavity (s)
-    saline_penalty: NonNegative = 0.0  # per ml of saline irrigated, off every agent's reward (the saline a team uses)
+    waste_penalty: NonNegative = 0.0  # per ml of saline wasted (irrigated but into no cavity), off every agent's reward
     deliver_at_grip: Flag = False  # hand-off judged where the jaws hold the pin (simple: at the pin's centre)
     pins_stay_on_phantom: Flag = False  # a pin released beyond the phantom lands on its nearest edge (simple: table)
     blocked_moves: Literal["stop", "slide", "climb", "climb_ahead", "settle"] = "stop"  # how it slides (core.sliding)
