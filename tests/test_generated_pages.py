@@ -119,8 +119,24 @@ def test_the_environments_page_lists_every_task_parameter_with_its_range():
     from dvrl_marl.core.collaborative_task import SuctionDebrisParams
 
     page = (ROOT / "docs" / "environments.md").read_text()
-    table = page.split("### Parameters", 1)[1].split("\n## ", 1)[0]
+    table = page.split("### Parameters", 1)[1].split("\n## ", 1)[0].split("\n### ", 1)[0]
     rows = [line for line in table.splitlines() if line.startswith("| `")]
     assert [row.split("`")[1] for row in rows] == [f.name for f in fields(SuctionDebrisParams)]
     assert all(cell.strip() for row in rows for cell in row.strip("|").split("|"))
     assert "| `clotting_ml_s` | finite number >= 0 | `0.0` |" in table
+
+
+def test_the_environments_page_lists_each_forms_keywords():
+    """The keywords table is generated from the forms' signatures: a row per keyword, each form taking some."""
+    import inspect
+
+    from dvrl_marl.envs import suction_debris_v8
+
+    page = (ROOT / "docs" / "environments.md").read_text()
+    table = page.split("### Keywords, form by form", 1)[1].split("\n## ", 1)[0]
+    rows = [line.strip("|").split("|") for line in table.splitlines() if line.startswith("| `")]
+    assert {row[0].strip().strip("`") for row in rows} >= {"reward_type", "preset", "num_envs", "image_size"}
+    for column, form in ((2, suction_debris_v8.parallel_env), (3, suction_debris_v8.batched_env),
+                         (4, suction_debris_v8.jax_env)):
+        taken = {row[0].strip().strip("`") for row in rows if row[column].strip() == "yes"}
+        assert taken and taken <= set(inspect.signature(form).parameters)
