@@ -271,6 +271,7 @@ def test_the_command_line_trains_with_it_by_default(tmp_path, capsys, monkeypatc
     assert "validation success" in printed and "trainer:" not in printed  # (the default: nothing passed over)
     spec = policies.load(tmp_path / "exported" / "marl-grasper").spec
     assert spec["agent"] == "grasper" and spec["training"]["trainer"] == "jax_mappo"
+    assert spec["preset"] == "benchmark"  # (the scene it learnt on, named in its configuration file)
 
 
 @pytest.mark.extended

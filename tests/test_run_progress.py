@@ -4,6 +4,8 @@ when the run stops are stopped, not waited for, and leave no worker behind."""
 import multiprocessing
 import time
 
+import numpy as np
+
 from dvrl_marl.training.mappo_config import MappoConfig
 from dvrl_marl.training.run_progress import Progress, Validations, new_run_folder
 
@@ -32,3 +34,29 @@ def test_progress_writes_a_row_per_validation_and_says_when_the_run_stops(tmp_pa
     assert rows[0].split(",") == list(Progress.COLUMNS) and len(rows) == 3
     assert rows[1].split(",")[4] == "0.75" and rows[2].split(",")[4] == "0.0"  # (train success since the last row)
     assert len(lines) == 2 and "validation 0.50" in lines[1]
+
+
+def test_an_export_records_the_preset_its_configuration_file_names(tmp_path):
+    """A configuration file's ``[env] preset`` is expanded into the scene's options and its name kept, so that the
+    policies exported record the scene they learnt on (evaluations make it)."""
+    from dvrl_marl import policies
+    from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.training.jax_mappo import actors  # (numpy in, numpy out: no JAX)
+    from dvrl_marl.training.mappo_config import load_config, scene_metadata
+    from dvrl_marl.training.run_progress import export
+
+    config = tmp_path / "irrigation.toml"
+    config.write_text('[run]\nalgorithm = "mappo"\n[env]\npreset = "irrigation"\n[model]\ntool_head = "gaussian"\n')
+    loaded = load_config(config)
+    assert loaded.env["preset"] == "irrigation" and loaded.env["irrigation_ml_s"] == 1.0
+    assert scene_metadata(loaded) == {"preset": "irrigation"}
+    default = tmp_path / "default.toml"
+    default.write_text('[run]\nalgorithm = "mappo"\n')
+    assert scene_metadata(load_config(default)) == {}
+    env = suction_debris_v8.batched_env(num_envs=1, **loaded.env)
+    width = env.observation_space("suction").shape[0]
+    layer = {"weight": np.zeros((4, width), np.float32), "bias": np.zeros(4, np.float32)}
+    params = {"actors": [[layer], [layer]], "log_std": np.zeros((2, 4), np.float32)}
+    norms = {"observation": {"mean": np.zeros(width), "var": np.ones(width)}}
+    folders = export(actors(params, norms, env.possible_agents), loaded, tmp_path / "out", 0, 0, env)
+    assert policies.load(folders["suction"]).spec["preset"] == "irrigation"

@@ -64,7 +64,8 @@ from dvrl_marl.envs.presets import scene_options
 from dvrl_marl.envs.suction_debris import TASK, env_name
 from dvrl_marl.training import run_progress, teams, trainers
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
-                                             MappoConfig, config_toml, demonstrations, load_config, partner, partners)
+                                             MappoConfig, config_toml, demonstrations, load_config, partner, partners,
+                                             scene_metadata)
 from dvrl_marl.training.models import (bounds_loss, build_models, export_actor, learner_device,
                                        limit_threads, require_torch, update_norms)
 from dvrl_marl.training.teams import evaluate_team_batched
@@ -442,7 +443,7 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
                      env_id=env_name(str(config.env.get("task", TASK))),
                      metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                             "steps": steps, "partners": partners(config),
-                                            **demonstrations(config)}},
+                                            **demonstrations(config)}, **scene_metadata(config)},
                      log_std=None if log_std is None else log_std[index],
                      input_scaling=None if scaling is None else scaling.observation_affine(agent))
         seats[agent] = policies.load(folder)

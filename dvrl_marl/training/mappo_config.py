@@ -192,8 +192,10 @@ def load_config(path) -> MappoConfig:
         if section not in TABLE_KEYS or not isinstance(content, dict):
             raise ValueError(f"{path}: unknown table [{section}] (known: {', '.join(TABLE_KEYS)})")
         if section == "env":
-            # a preset becomes its options here, so the trainer reads every option the scene runs with
-            values["env"], where["env"] = with_preset(dict(content), f"{path}: [env]"), "env"
+            # a preset becomes its options here, so the trainer reads every option the scene runs with; its name
+            # stays (the same scene either way: the options given win over the preset's) for the exports to record
+            named = {"preset": content["preset"]} if content.get("preset", "default") != "default" else {}
+            values["env"], where["env"] = {**named, **with_preset(dict(content), f"{path}: [env]")}, "env"
             continue
         for key, value in content.items():
             allowed = TABLE_KEYS[section]
@@ -217,6 +219,13 @@ def load_config(path) -> MappoConfig:
         raise ValueError(f"{path}: [pretrain] bc_expert = \"yielding\" clones the suction seat's expert: the suction "
                          "must be the only learning seat (a surgeon in surgeon_seat = \"grasper\")")
     return config
+
+
+def scene_metadata(config: MappoConfig) -> dict:
+    """What an exported policy records of the scene it learnt on: its preset, where not the default (evaluations
+    make that scene: ``dvrl-marl evaluate-team``)."""
+    preset = config.env.get("preset", "default")
+    return {} if preset == "default" else {"preset": preset}
 
 
 def _check_init_policy(path, config: MappoConfig) -> None:

@@ -18,7 +18,7 @@ from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.presets import scene_options
 from dvrl_marl.envs.suction_debris import env_name
 from dvrl_marl.training import teams
-from dvrl_marl.training.mappo_config import MappoConfig
+from dvrl_marl.training.mappo_config import MappoConfig, scene_metadata
 from dvrl_marl.training.models import write_actor
 
 __all__ = ["export", "score", "Validations", "Progress", "new_run_folder", "copy_policies"]
@@ -35,9 +35,7 @@ def export(arrays: dict, config: MappoConfig, folder: Path, seed: int, steps: in
                     env_id=env_name(str(config.env.get("task", suction_debris.TASK))),
                     metadata={"training": {"config": config.name, "algorithm": config.algorithm, "seed": seed,
                                            "steps": steps, "trainer": trainer},
-                              # the scene it learnt on, which evaluations make (dvrl-marl evaluate-team)
-                              **({"preset": config.env["preset"]} if config.env.get("preset", "default") != "default"
-                                 else {})},
+                              **scene_metadata(config)},
                     input_scaling=None if env.observation_scaling is None
                     else env.observation_scaling.observation_affine(agent), feature_spec=env.feature_spec)
     return folders
