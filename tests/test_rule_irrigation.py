@@ -237,8 +237,7 @@ def test_saline_wasted_costs_every_agent_its_penalty_per_ml():
         wasted = 0.5 * env.params.irrigation_ml_s * env.params.control_dt if wasting else 0.0
         for agent in ("suction", "grasper"):
             np.testing.assert_allclose(rewards[0.5][agent] - rewards[0.0][agent], -wasted, rtol=0, atol=1e-12)
-    presets = suction_debris.PRESETS
-    assert presets["irrigation"]["waste_penalty"] == 0.5 and "waste_penalty" not in presets["benchmark"]
+    assert not any("waste_penalty" in preset for preset in suction_debris.PRESETS.values())  # (a learning choice)
 
 
 def test_the_rule_runs_alike_under_jax():

@@ -42,16 +42,11 @@ PRESETS = MappingProxyType({
 #: phantom as the suction's 2.5 ml/s is, and kept below it, as an S&I instrument's suction outdraws its irrigation.
 #: A burst of a second adds 9 % of a cavity. The clotted share is the level's choice (CRESSim's contaminant has no
 #: clotted share to take). The scripted irrigating team needs about 1,500 steps (benchmarks/irrigation_field.py):
-#: the level's horizon is 2,500. Saline wasted (irrigated into no cavity) costs every agent 0.5 a ml
-#: (``waste_penalty``): without a cost the learnt teams sprayed 0.7-3.4 ml outside the cavities, a tenth to a quarter
-#: of their saline (the script none); a cost on all saline (0.5 a ml, half the guided reward's clot term) kept a seed
-#: at 0.00 validation for 16.8M steps: a Gaussian tool's noise irrigates a third of the time at first, and that cost
-#: taught it not to irrigate at all.
+#: the level's horizon is 2,500.
 PRESETS = MappingProxyType({**PRESETS, "irrigation": MappingProxyType({
     **PRESETS["benchmark"],
     "irrigation_ml_s": 1.0,
     "clot_share": 0.5,
-    "waste_penalty": 0.5,
     "max_cycles": 2500,
 })})
 

@@ -141,7 +141,7 @@ where there are clots 1 per ml of clot broken up; all measured around the phanto
 defaults: the configuration of record). Potential-based terms leave the optimal policy unchanged, and success is
 the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``, and
 each agent ``-waste_penalty`` per ml of saline wasted, irrigated into no cavity (0 unless asked;
-``preset="irrigation"``: 0.5).
+``suction_debris_mappo_irrigation_frugal.toml`` learns the irrigation level with 0.5).
 
 ## The scene's physics
 - **Released pins fall** under gravity (one 20 ms step at a time) onto the surface below them, never through it; a
@@ -228,7 +228,7 @@ exposes it to TorchRL.
 ``observation_features="suction_debris_cleared_pins_zoom"``, ``state_observations=True``, ``contact_penalty=0.1``,
 ``tool_speed=0.1``, ``jaw_command="switch"``, ``hold_until_handoff=True``. Keywords given beside it win.
 ``preset="irrigation"`` is the benchmark's setting on a clotted field, the benchmark's irrigation level:
-``irrigation_ml_s=1.0``, ``clot_share=0.5``, ``waste_penalty=0.5``, ``max_cycles=2500`` (the scripted irrigating
+``irrigation_ml_s=1.0``, ``clot_share=0.5``, ``max_cycles=2500`` (the scripted irrigating
 team needs about 1,500 steps; the suction-only plan of the other levels finishes none: ``benchmarks/irrigation_field.py``).
 ``preset="default"`` (the default) is the task file as it is. Every form takes it (parallel, AEC, batched, the seat
 env, the TorchRL and BenchMARL tasks).
