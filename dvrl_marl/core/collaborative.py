@@ -405,7 +405,7 @@ class CollaborativeCore:
         self.contact = contact
         self.complete = self._complete()
         truncated = (self.elapsed >= self.limit) & ~self.complete
-        rewards = self._rewards(removed, lifted, delivered, contact, self.saline_wasted_ml - wasted_before)
+        rewards = self._rewards(removed, lifted, delivered, contact, wasted_before)
         return rewards, _copy(self.complete), truncated
 
     @property
@@ -715,7 +715,7 @@ class CollaborativeCore:
         """(N,) whether each world's field is clear now: every cavity cleared, every pin delivered."""
         return self._complete()
 
-    def _rewards(self, removed, lifted, delivered, contact, wasted) -> dict:
+    def _rewards(self, removed, lifted, delivered, contact, wasted_before) -> dict:
         xp = namespace(removed)
         if self.sparse:
             team = xp.where(self.complete, 0.0, -1.0)
@@ -732,8 +732,9 @@ class CollaborativeCore:
             for agent in rewards:
                 rewards[agent] = xp.where(contact, rewards[agent] - self.params.contact_penalty, rewards[agent])
         if self.params.waste_penalty > 0.0:  # (the ml of saline wasted this step: a cost, not shaping)
+            cost = self.params.waste_penalty * (self.saline_wasted_ml - wasted_before)
             for agent in rewards:
-                rewards[agent] = rewards[agent] - self.params.waste_penalty * wasted
+                rewards[agent] = rewards[agent] - cost
         return rewards
 
     def _work_distance(self, agent: str):

@@ -41,7 +41,7 @@ def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_
                 samples[agent].append(observations[agent][~done])
             samples["state"].append(env.core.state()[~done])
             actions = {agent: (experts[agent](observations[agent][:, :plain]) if scripted
-                               else random.uniform(-1.0, 1.0, (worlds, 4))) for agent in env.agents}
+                               else random.uniform(-1.0, 1.0, (worlds, layout.ACTION_WIDTH))) for agent in env.agents}
             observations, _, terminations, truncations, _ = env.step(actions)
             done |= terminations[env.agents[0]] | truncations[env.agents[0]]
     env.close()
