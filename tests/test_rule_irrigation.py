@@ -381,3 +381,23 @@ def test_the_guided_reward_counts_clot_broken_up_as_progress():
 def test_normalized_observations_of_a_scene_with_fluids_are_refused_by_name():
     with pytest.raises(ValueError, match="normalize_observations.*fluids"):
         suction_debris.batched_env(num_envs=1, preset="irrigation", normalize_observations=True)
+
+
+def test_a_look_tints_the_fluids_as_it_tints_the_blood():
+    """Domain randomisation's colour gain reaches the fluids' colours (drawn per cavity by what they hold), as it
+    reaches liquid blood's material in a scene without fluids; the pins and the phantom's segments stay."""
+    pytest.importorskip("OpenGL")
+    from dvrl_marl.envs.appearance import Appearance
+
+    colour_only = Appearance(colour=0.3, light=0.0, light_degrees=0.0, camera_mm=0.0, camera_degrees=0.0, noise=0.0)
+    images = {}
+    for name, look in (("own", None), ("tinted", colour_only)):
+        env = suction_debris.batched_env(num_envs=2, preset="irrigation", image_size=48, image_segmentation=True,
+                                         image_appearance=look)
+        observations, _ = env.reset(seed=4)
+        images[name] = observations["suction"]
+    blood = images["own"]["segmentation"] == 2
+    assert blood.sum() > 20
+    np.testing.assert_array_equal(images["own"]["segmentation"], images["tinted"]["segmentation"])
+    own, tinted = (images[name]["image"][blood].astype(float) for name in ("own", "tinted"))
+    assert np.abs(own - tinted).mean() > 2.0  # (of 255: the fluids drawn in the look's colours, not the scene's)

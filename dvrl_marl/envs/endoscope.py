@@ -259,6 +259,11 @@ class EndoscopeRenderer:
         """:meth:`render`, garbage collection held off."""
         poses = self.mirror.poses(states)
         count, s = len(poses["qpos"]), self.size
+        if looks is not None and "saline_ml" in (states if isinstance(states, dict) else states[0]):
+            # the fluids are drawn in colours of their own (what each cavity holds), not the blood's material's,
+            # which a look tints: the look's blood gain goes onto them
+            gains = np.array([look["blood"] for look in looks], np.float64).reshape(count, 1, 3)
+            poses["blood_rgba"][..., :3] = np.clip(poses["blood_rgba"][..., :3] * gains, 0.0, 1.0)
         ids = list(range(count)) if worlds is None else [int(world) for world in worlds]
         parts = self.parts(parts)
         segmentation, colour = "segmentation" in parts, "rgb" in parts or "depth" in parts

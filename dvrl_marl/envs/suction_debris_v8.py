@@ -117,7 +117,7 @@ held out and the rest drawn as in training; an ``endoscope.Appearance`` is a ran
 
 | quantity | ``"train"``: at most | ``"held_out"``: between |
 |---|---|---|
-| tissue and blood colour, per channel (gain) | 1 +/- 0.15 | 0.15 and 0.3 off 1 |
+| tissue and blood colour (a clot, the mix and saline too), per channel (gain) | 1 +/- 0.15 | 0.15 and 0.3 off 1 |
 | instruments' colour (gain) | 1 +/- 0.15 | 0.15 and 0.3 off 1 |
 | light brightness (gain) / direction | 1 +/- 0.2 / 15 degrees | 0.2-0.4 off 1 / 15-30 degrees |
 | endoscope position, per axis / direction | 3 mm / 2 degrees | 3-6 mm / 2-4 degrees |
