@@ -2,6 +2,7 @@
 scene keywords in each, with defaults that are the defaults (every keyword given its written default makes the scene
 that none makes), and a keyword no form takes named."""
 
+import dataclasses
 import inspect
 
 import numpy as np
@@ -30,7 +31,7 @@ def test_every_form_names_the_same_scene_keywords():
     assert _names(suction_debris_v8.env) == parallel
     assert parallel - SEAT == batched - BATCH
     assert jax_world == parallel - SEAT - HOST
-    task = {field.name for field in __import__("dataclasses").fields(SuctionDebrisParams)}
+    task = {field.name for field in dataclasses.fields(SuctionDebrisParams)}
     assert task | {"preset", "reward_type", "guidance", "observation_features", "start_level"} <= jax_world
     assert "irrigation_ml_s" in inspect.signature(suction_debris_v8.parallel_env).parameters
     # each task parameter's default is the task file's value, its annotation its checked type (its range)

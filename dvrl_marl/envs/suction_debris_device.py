@@ -390,4 +390,5 @@ def batched_env(num_envs: int = 1, *, device=None, arrays: str = "torch", check_
 
 
 # (written out: the device env's own keywords, then the batched env's, then the preset and the task's parameters)
-batched_env.__signature__ = form_signature(batched_env, SuctionDebrisDeviceEnv.__init__, SuctionDebrisBatchedEnv.__init__)
+batched_env.__signature__ = form_signature(batched_env, SuctionDebrisDeviceEnv.__init__,
+                                           SuctionDebrisBatchedEnv.__init__)

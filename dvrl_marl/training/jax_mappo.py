@@ -432,12 +432,19 @@ def compilation_cache(folder="auto") -> str | None:
 TORCHRL_ONLY = {"surgeon": "none", "bc_expert": "", "init_policy": {}, "critic_warmup_steps": 0}
 
 
-def refuse_options(config: MappoConfig) -> None:
-    """Refuse, by name, the options of the TorchRL trainer this one does not have."""
+def torchrl_only(config: MappoConfig) -> str | None:
+    """The first option ``config`` sets that only the TorchRL trainer has, said by name (None: none)."""
     for option, off in TORCHRL_ONLY.items():
         if getattr(config, option) != off:
-            raise ValueError(f"{config.name}: {option} = {getattr(config, option)!r} is the TorchRL trainer's "
-                             "(dvrl-marl train --trainer torchrl); the JAX trainer takes none")
+            return f"{option} = {getattr(config, option)!r} is the TorchRL trainer's"
+    return None
+
+
+def refuse_options(config: MappoConfig) -> None:
+    """Refuse, by name, the options of the TorchRL trainer this one does not have."""
+    why = torchrl_only(config)
+    if why is not None:
+        raise ValueError(f"{config.name}: {why} (dvrl-marl train --trainer torchrl); the JAX trainer takes none")
 
 
 def train(config: MappoConfig, seed: int, out_dir, *, device: str = "cpu", total_steps: int | None = None,
@@ -518,16 +525,9 @@ def train_from_request(request: trainers.TrainRequest, run_table: dict) -> int:
     return 0
 
 
-def _cannot(run_table: dict, path) -> str | None:
-    config = load_config(path)
-    for option, off in TORCHRL_ONLY.items():
-        if getattr(config, option) != off:
-            return f"{option} = {getattr(config, option)!r} is the TorchRL trainer's"
-    return None
-
-
 TRAINER = trainers.register(trainers.Trainer(
-    name="jax", algorithms=("mappo", "ippo"), run=train_from_request, rank=0, cannot=_cannot,
+    name="jax", algorithms=("mappo", "ippo"), run=train_from_request, rank=0,
+    cannot=lambda run_table, path: torchrl_only(load_config(path)),
     takes=frozenset({"steps", "export", "device", "validators"}), needs=("jax", "optax"),
     install='pip install "dvrl-marl[jax]"',
     summary="MAPPO/IPPO, each update cycle compiled whole by JAX (the default; CPU or GPU)"))

@@ -452,7 +452,6 @@ def _learned_seats(actor_net, agents, out: Path, config: MappoConfig, seed: int,
     return seats
 
 
-
 def train_from_request(request: trainers.TrainRequest, run_table: dict) -> int:
     """``dvrl-marl train`` with this trainer: ``--steps``, ``--resume``, ``--ray-address``, ``--num-collectors``,
     ``--export`` (TensorBoard logs are always written, ``--tensorboard`` or not)."""
