@@ -23,6 +23,7 @@ from dvrl_marl.core import layout, scene_state, sliding, tools
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.backend import join, namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
+from dvrl_marl.core.lean_move import LeanMove
 from dvrl_marl.core.phantom import Cavities
 from dvrl_marl.core.scene_geometry import SceneGeometry
 from dvrl_marl.core.scene_state import SceneState
@@ -47,6 +48,9 @@ PIN_RADIUS = 0.0015
 PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28 mm
 #: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
 PIN_SENSOR_RANGE = PIN_RADIUS + 0.0015
+#: No pin whose centre lies farther from the jaws than this is within the sensor's range of its axis (the triangle
+#: inequality, with room for rounding): a closing jaw without one takes nothing, and numpy skips the grasp's work.
+_CENTRE_IN_REACH = PIN_SENSOR_RANGE + PIN_HALF_LENGTH + 1e-9
 #: suction_debris_v8: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
 #: radius and a jaw's width: it lies wholly on the top, in the endoscope's view, where the grasper can take it again).
 PHANTOM_EDGE_MARGIN = 0.005
@@ -172,6 +176,7 @@ class CollaborativeCore:
         self.high = self.centre + p.workspace_range
         self.handoff = np.asarray(geometry.handoff, dtype=np.float64)
         self.handoff_normalised = self.normalise(self.handoff)
+        self._handoff_block = np.broadcast_to(self.handoff_normalised[None, :], (n, 3))
         self.rewarded_agents = tuple(rewarded_agents)
         #: the cavities hold more than blood: clots or saline (a rule's state in play; off: the earlier fast paths)
         self.fluids = p.fluids
@@ -190,6 +195,8 @@ class CollaborativeCore:
         self.bleed_onset = np.full((n, self.cavities.count), np.inf)  # s; inf: no bleeding
         self.limit = np.full(n, p.max_cycles, dtype=np.int64)  # each episode's time limit (start levels shorten it)
         self._rows = np.arange(n)
+        #: one numpy world (the parallel env): its moves' common case in Python floats, bit for bit the arrays'
+        self._lean = LeanMove(self) if n == 1 and not any(arm.tool_point_drop for arm in self.arms.values()) else None
 
     # --- helpers ------------------------------------------------------------------------------------------
     def normalise(self, position) -> np.ndarray:
@@ -423,6 +430,15 @@ class CollaborativeCore:
 
     def _move(self, agent: str, delta: np.ndarray) -> np.ndarray:
         arm = self.arms[agent]
+        if self._lean is not None and isinstance(delta, np.ndarray):  # one numpy world: its common case in floats
+            other = self.arms[AGENTS[1 - AGENTS.index(agent)]]
+            made = self._lean.move(agent, AGENTS[1 - AGENTS.index(agent)], arm.tip[0].tolist(), other.q[0].tolist(),
+                                   other.tip[0].tolist(), delta[0].tolist())
+            if made is not None:
+                tip, q, clearance = made
+                arm.tip, arm.q = np.array([tip]), np.array([q])
+                self.blocked[agent] = np.zeros(1, dtype=bool)
+                return np.array([clearance < CONTACT_MARGIN])
         old = arm.tip_world()
         p, rules = self.params, self.move_rules[agent]
         target = sliding.surface_target(self.cavities, p.tip_clearance, p.step_size, self.low, self.high, old, delta,
@@ -617,6 +633,8 @@ class CollaborativeCore:
             self.held = self.held & ~dropped
             self.holding = xp.where(release, -1, self.holding)
         grab = ~holding & closed
+        if isinstance(grab, np.ndarray) and grab.any():  # numpy: only worlds with a pin's centre within reach
+            grab = grab & xp.any(distance(tip[:, None, :], self.debris_position) <= _CENTRE_IN_REACH, axis=1)
         if needed(grab):  # (numpy: on the closing worlds only)
             rows = rows_of(grab)
             position, yaw, tip_here = take(self.debris_position, rows), take(self.debris_yaw, rows), take(tip, rows)
@@ -708,8 +726,11 @@ class CollaborativeCore:
         return (self.remaining_ml < self.params.blood_threshold_ml) | (self.remaining_ml <= 0.0)
 
     def _complete(self):
-        xp = namespace(self.remaining_ml)
-        return xp.all(self._cleared(), axis=1) & xp.all(self.delivered, axis=1)
+        cleared = self._cleared()
+        if isinstance(cleared, np.ndarray):  # (the arrays' own methods: numpy's functions cost more a call)
+            return cleared.all(axis=1) & self.delivered.all(axis=1)
+        xp = namespace(cleared)
+        return xp.all(cleared, axis=1) & xp.all(self.delivered, axis=1)
 
     def is_complete(self):
         """(N,) whether each world's field is clear now: every cavity cleared, every pin delivered."""
@@ -812,6 +833,8 @@ class CollaborativeCore:
         return xp.reshape(xp.concat([positions, *flags], axis=-1), (n, width * d))  # (the layout's order)
 
     def _handoff_rows(self, n, xp):
+        if xp is np and n == self.num_worlds:  # (numpy: made once; a read-only view)
+            return self._handoff_block
         return xp.broadcast_to(xp.asarray(self.handoff_normalised, dtype=self.remaining_ml.dtype)[None, :], (n, 3))
 
     def shown_positions(self):

@@ -128,6 +128,7 @@ class Cavities:
         self.sphere_radius = np.array([c.sphere_radius for c in cavities])
         self.floor_z = np.array([c.floor_z for c in cavities])
         self.capacity_ml = np.array([c.capacity_ml for c in cavities])
+        self._mouth_radius2 = self.mouth_radius ** 2
         self.phantom = phantom
 
     def _r2(self, x, y):
@@ -157,6 +158,10 @@ class Cavities:
     def cavity_at(self, x, y):
         """Index of the first cavity whose mouth contains (x, y), or -1."""
         xp = namespace(x)
+        if xp is np:  # (numpy: every cavity in one call; the same arithmetic, element by element)
+            dx, dy = np.asarray(x)[..., None] - self.centre_x, np.asarray(y)[..., None] - self.centre_y
+            inside = dx * dx + dy * dy < self._mouth_radius2
+            return np.where(inside.any(axis=-1), inside.argmax(axis=-1), -1)
         index = -1
         for cavity in reversed(range(self.count)):  # (a few cavities: no (..., C) array to reduce)
             dx, dy = x - self.centre_x[cavity], y - self.centre_y[cavity]

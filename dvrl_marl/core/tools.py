@@ -69,5 +69,5 @@ def moved_towards(current, target, speed: float):
     if speed >= 1.0:
         return target
     if isinstance(current, (float, int, np.ndarray, np.generic)):
-        return current + np.clip(target - current, -speed, speed)
+        return current + np.minimum(np.maximum(target - current, -speed), speed)  # (np.clip's values, faster)
     return current + namespace(current).clip(target - current, -speed, speed)
