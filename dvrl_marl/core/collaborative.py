@@ -49,7 +49,7 @@ PIN_HALF_LENGTH = 0.0125  # capsule axis half length: 2 * (0.0125 + 0.0015) = 28
 #: The proximity sensor sees a pin whose axis passes within this distance of the jaw's control point.
 PIN_SENSOR_RANGE = PIN_RADIUS + 0.0015
 #: No pin whose centre lies farther from the jaws than this is within the sensor's range of its axis (the triangle
-#: inequality, with room for rounding): a closing jaw without one takes nothing, and numpy skips the grasp's work.
+#: inequality, with room for rounding): a closing jaw without one takes nothing, and one world skips the grasp's work.
 _CENTRE_IN_REACH = PIN_SENSOR_RANGE + PIN_HALF_LENGTH + 1e-9
 #: suction_debris_v8: a pin released beyond the phantom lands this far inside its top's nearest edge (about a pin's
 #: radius and a jaw's width: it lies wholly on the top, in the endoscope's view, where the grasper can take it again).
@@ -633,7 +633,7 @@ class CollaborativeCore:
             self.held = self.held & ~dropped
             self.holding = xp.where(release, -1, self.holding)
         grab = ~holding & closed
-        if isinstance(grab, np.ndarray) and grab.any():  # numpy: only worlds with a pin's centre within reach
+        if self._lean is not None and grab.any():  # one numpy world: only with a pin's centre within reach
             grab = grab & xp.any(distance(tip[:, None, :], self.debris_position) <= _CENTRE_IN_REACH, axis=1)
         if needed(grab):  # (numpy: on the closing worlds only)
             rows = rows_of(grab)

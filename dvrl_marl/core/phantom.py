@@ -115,6 +115,11 @@ class Phantom:
         return -1
 
 
+#: numpy: points up to this many find their cavity in one call over every cavity (numpy's per-call cost dominates
+#: there); more, cavity by cavity (a reduction over the short cavity axis costs more than it saves).
+_ONE_CALL_BELOW = 64
+
+
 class Cavities:
     """The phantom's cavities as arrays, as arrays: :class:`Phantom`'s geometry for many points at once."""
 
@@ -158,7 +163,7 @@ class Cavities:
     def cavity_at(self, x, y):
         """Index of the first cavity whose mouth contains (x, y), or -1."""
         xp = namespace(x)
-        if xp is np:  # (numpy: every cavity in one call; the same arithmetic, element by element)
+        if xp is np and np.size(x) < _ONE_CALL_BELOW:  # (the same arithmetic, element by element, in fewer calls)
             dx, dy = np.asarray(x)[..., None] - self.centre_x, np.asarray(y)[..., None] - self.centre_y
             inside = dx * dx + dy * dy < self._mouth_radius2
             return np.where(inside.any(axis=-1), inside.argmax(axis=-1), -1)
