@@ -10,6 +10,7 @@ import argparse
 import dataclasses
 import inspect
 import sys
+import types
 from pathlib import Path
 
 PAGE = Path(__file__).resolve().parent / "environments.md"
@@ -36,7 +37,7 @@ def render() -> str:
         first, _, rest = body.partition("\n")
         parts += [f"## {title}", "", first, rest.replace("\n## ", "\n### "), ""]
         if module is suction_debris_v8:
-            parts += task_parameters() + keywords_by_form()
+            parts += task_parameters() + options_by_concern() + keywords_by_form()
     return "\n".join(parts).rstrip() + "\n"
 
 
@@ -56,6 +57,38 @@ def task_parameters() -> list[str]:
         lines.append(f"| `{name}` | {_range(field)} | {'required' if field.is_required() else f'`{field.default!r}`'} "
                      f"| `{getattr(current, name)!r}` |")
     return lines + [""]
+
+
+def options_by_concern() -> list[str]:
+    """The env's options beside the task's parameters, one table row per field of each option record
+    (:mod:`dvrl_marl.envs.scene_options`): its concern, range, default and what it does (the field's ``#:`` comment)."""
+    from dvrl_marl.envs import scene_options
+
+    lines = ["### Options by concern", "",
+             "Generated from the option records of `dvrl_marl.envs.scene_options` (`SceneOptions.of` sorts a preset and "
+             "the keywords over it into them, checking each value once, before anything is made; `env.options` keeps "
+             "them). Every form of the env takes each as a keyword.", "",
+             "| concern | keyword | range | default | what it does |", "|---|---|---|---|---|"]
+    for concern, record in scene_options.RECORDS.items():
+        said = _field_comments(record)
+        for name, field in record.__pydantic_fields__.items():
+            lines.append(f"| {concern} | `{name}` | {_range(field)} | `{field.default!r}` | {said.get(name, '')} |")
+    return lines + [""]
+
+
+def _field_comments(record) -> dict:
+    """``{field: its #: comment}`` from a record's source."""
+    said, comment = {}, []
+    for line in inspect.getsource(record).splitlines():
+        text = line.strip()
+        if text.startswith("#:"):
+            comment.append(text[2:].strip())
+        elif ":" in text and comment and text.split(":")[0].isidentifier():
+            said[text.split(":")[0]] = " ".join(comment)
+            comment = []
+        else:
+            comment = []
+    return said
 
 
 def keywords_by_form() -> list[str]:
@@ -93,6 +126,11 @@ def _described(annotation, metadata) -> str:
     if typing.get_origin(annotation) is typing.Annotated:
         kind, *extra = typing.get_args(annotation)
         return _described(kind, metadata + extra)
+    if annotation is typing.Any:
+        return "see what it does"
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return " or ".join("`None`" if kind is type(None) else _described(kind, metadata)
+                           for kind in typing.get_args(annotation))
     if typing.get_origin(annotation) is typing.Literal:
         return " or ".join(f"`{value!r}`" for value in typing.get_args(annotation))
     if typing.get_origin(annotation) is tuple:

@@ -351,7 +351,7 @@ def jax_env_scale() -> Table:
 
 
 def speed_side_by_side() -> Table:
-    path = "benchmarks/results/versus_commit_2026-12-01.jsonl"
+    path = "benchmarks/results/versus_commit_2026-12-02_one_world.jsonl"
     table = Table(["form", "setting", "checkout", "scene's version", "steps/s (median)", "its steps/s over here's"])
     rows = _read(path)
     for row in rows:
@@ -490,8 +490,9 @@ SECTIONS = (
     ("The collaborative step against earlier commits, side by side", "Env-steps per second of this checkout and "
      "earlier ones (`benchmarks/versus_commit.py`: each measurement a fresh process pinned to one core, checkouts "
      "alternating, the median of the repeats, random actions); the parallel env is one world with its resets, N = "
-     "4,096 the numpy batched env. 7599cfb is where issue 77 measured the scene; 91b6cb8 the commit before the state "
-     "became a record; 36a42a0 the last commit with the scalar-path versions.", speed_side_by_side),
+     "4,096 the numpy batched env. 52f9c21 is the commit before one world's moves took their common case in floats "
+     "(`core/lean_move.py`); 36a42a0 the last commit with the scalar-path versions (v7, and v2 before the sliding "
+     "rules).", speed_side_by_side),
     ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
      "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),
     ("Training to the target: the compiled trainer", "`dvrl-marl train suction_debris_mappo_large_batch --trainer jax` "

@@ -161,8 +161,8 @@ def test_observation_features_are_appended_and_match_what_a_policy_computes():
     ({"guidance": {"grasp_path": 5.0}}, None, "guidance settings need reward_type='guided'"),
     ({"reward_type": "guided", "guidance": {"grasp_paths": 5.0}}, None, "grasp_paths"),
     ({"reward_type": "guided", "guidance": {"hold_bonus": -1.0}}, None, "hold_bonus"),
-    ({"reward_type": "shaped"}, None, "reward_type must be one of"),
-    ({"observation_features": "suction_debris_everything"}, None, "unknown observation features"),
+    ({"reward_type": "shaped"}, None, "reward_type: must be one of"),
+    ({"observation_features": "suction_debris_everything"}, None, "observation_features: must be one of"),
     ({"start_level": 0.0}, {"blood_ml": [1.0, 1.0]}, "not both"),
 ])
 def test_bad_options_are_refused_by_name(kwargs, reset_options, message):

@@ -324,7 +324,7 @@ def test_export_matches_the_actor_with_switch_and_features(tmp_path, model):
 @pytest.mark.parametrize("text, message", [
     ("[model]\ntool_head = 'dice'\n", "[model] tool_head: must be one of"),
     ("[run]\ndevice = 'tpu'\n", "device must be"),
-    ("[env]\nobservation_features = 'everything'\n", "unknown observation features"),
+    ("[env]\nobservation_features = 'everything'\n", "observation_features: must be one of"),
     ("[env]\nreward_type = 'guided'\n[env.guidance]\nroute_to_park = 'yes'\n", "route_to_park"),
     ("[env]\nreward_type = 'guided'\n[env.guidance]\ncentred_grasps = 1\n", "centred_grasps"),
     ("[ppo]\nbounds_loss_coef = -1.0\n", "[ppo] bounds_loss_coef: must be >= 0"),

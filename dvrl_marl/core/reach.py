@@ -2,12 +2,35 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, sample_reachable_batch, world_indices
 
-__all__ = ["ReachCore", "GoalCoreBase"]
+__all__ = ["ReachCore", "GoalCoreBase", "goal_distance", "goal_reward"]
+
+
+def goal_distance(achieved, desired, workspace_range: float):
+    """The paper's distance (m) between normalised goals, rho * ||a~ - g~||: of 3-tuples of floats (one world: a
+    float) or of arrays ``(..., 3)`` (the sum written out, so that both give the same bits)."""
+    if isinstance(achieved, tuple):
+        dx, dy, dz = achieved[0] - desired[0], achieved[1] - desired[1], achieved[2] - desired[2]
+        return workspace_range * math.sqrt(dx * dx + dy * dy + dz * dz)
+    d = achieved - desired
+    return workspace_range * np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])
+
+
+def goal_reward(distance, threshold: float, sparse: bool, dense_scale: float):
+    """The paper's reward (Sec. III-B) and success for :func:`goal_distance`'s ``distance``: ``-1`` while it exceeds
+    delta (``threshold``), else ``0``; the dense variant minus ``dense_scale`` times it. Floats or arrays alike."""
+    success = distance <= threshold
+    if not sparse:
+        return -dense_scale * distance, success
+    if isinstance(success, bool):
+        return (0.0 if success else -1.0), success
+    return np.where(success, 0.0, -1.0)[()], success
 
 
 class GoalCoreBase:
@@ -47,12 +70,8 @@ class GoalCoreBase:
 
     def reward_and_success(self, achieved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The paper's reward for normalised achieved goals ``(N, 3)`` against each world's goal."""
-        d = achieved - self.goal_normalised
-        # Summed column by column, as the single env does, so the figures match it bit for bit.
-        distance = self.workspace_range * np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
-        success = distance <= self.distance_threshold
-        reward = np.where(success, 0.0, -1.0) if self.sparse else -self.dense_scale * distance
-        return reward, success
+        distance = goal_distance(achieved, self.goal_normalised, self.workspace_range)
+        return goal_reward(distance, self.distance_threshold, self.sparse, self.dense_scale)
 
     def worlds_of(self, worlds) -> np.ndarray:
         return world_indices(worlds, self.num_worlds, self.name)

@@ -27,6 +27,7 @@ import numpy as np
 # (the looks are re-exported: endoscope.Appearance, endoscope.held_out_only)
 from dvrl_marl.envs.appearance import APPEARANCES, QUANTITIES, Appearance, held_out_only  # noqa: F401
 from dvrl_marl.envs.scene_mirror import SceneMirror
+from dvrl_marl.envs.scene_options import IMAGE_SIZES
 from dvrl_marl.rendering import uncollected
 
 __all__ = ["EndoscopeRenderer", "ThreadedEndoscopeRenderer", "endoscope_renderer", "IMAGE_SIZES", "RENDER_PARTS",
@@ -43,8 +44,6 @@ SEGMENT_CLASSES = ("background", "tissue", "blood", "pin", "instrument")
 #: 2008, doi:10.1007/s00464-008-0032-8); the paper names the endoscope's "uniquely tight disparities" (Sec. VI).
 STEREO_BASELINE_MM = 5.0
 
-#: Image sizes (square, pixels) an image observation may have.
-IMAGE_SIZES = (32, 256)
 #: What :meth:`EndoscopeRenderer.render` can draw of a view.
 RENDER_PARTS = ("rgb", "depth", "segmentation")
 #: MuJoCo geom groups of this renderer's own model copy: what never moves, and what a world's state moves.

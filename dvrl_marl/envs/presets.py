@@ -10,12 +10,11 @@ win over its values.
 
 from __future__ import annotations
 
-import functools
 from types import MappingProxyType
 
 from dvrl_marl.core.collaborative_task import TASK
 
-__all__ = ["PRESETS", "LEARNING_OPTIONS", "with_preset", "accepts_preset", "scene_options"]
+__all__ = ["PRESETS", "LEARNING_OPTIONS", "with_preset", "scene_options"]
 
 #: Options that shape learning only (the reward, what is appended to or done to observations): a learned seat is
 #: evaluated without them, since an exported policy computes its own features and normalisation from the plain
@@ -58,18 +57,6 @@ def with_preset(kwargs: dict, owner: str = TASK) -> dict:
     if not isinstance(name, str) or name not in PRESETS:
         raise ValueError(f"{owner}: preset must be one of {sorted(PRESETS)}, got {name!r}")
     return {**PRESETS[name], **kwargs}
-
-
-def accepts_preset(init):
-    """Let a constructor take ``preset=``: its values fill in the keywords the caller did not give."""
-
-    @functools.wraps(init)
-    def wrapper(self, *args, **kwargs):
-        options = with_preset(kwargs)  # (checked first: an unknown preset is named before anything is made)
-        self.preset = kwargs.get("preset", "default")  # (set first: a shell passes it on to the env it wraps)
-        init(self, *args, **options)
-
-    return wrapper
 
 
 def scene_options(preset: str = "default", **kwargs) -> dict:

@@ -15,6 +15,7 @@ import numpy as np
 
 from dvrl_marl import kinematics
 from dvrl_marl.arm import Arm
+from dvrl_marl.core.reach import goal_distance, goal_reward
 from dvrl_marl.core.worlds import sample_reachable
 from dvrl_marl.rendering import RENDER_MODES, SceneRenderer, render_modes_here
 from dvrl_marl.scene import geom_top, load_model, object_id
@@ -218,14 +219,9 @@ class PSMGoalEnv(gym.Env):
         self.data.mocap_pos[self._goal_mocap] = self.arm.to_world(goal)
 
     def _reward_and_success(self, achieved: tuple[float, float, float]) -> tuple[float, bool]:
-        gx, gy, gz = self._goal_normalised
-        dx, dy, dz = achieved[0] - gx, achieved[1] - gy, achieved[2] - gz
-        # The same operations, in the same order, as compute_reward: step rewards equal it bit for bit.
-        distance = self.workspace_range * math.sqrt(dx * dx + dy * dy + dz * dz)
-        success = distance <= self.distance_threshold
-        if self.reward_type == "dense":
-            return -self.dense_scale * distance, success
-        return (0.0 if success else -1.0), success  # (the guided reward adds its potential's change to this)
+        # (the paper's reward, written once: core.reach; the guided reward adds its potential's change to it)
+        distance = goal_distance(tuple(achieved), self._goal_normalised, self.workspace_range)
+        return goal_reward(distance, self.distance_threshold, self.reward_type != "dense", self.dense_scale)
 
     # --- Gymnasium API ------------------------------------------------------------------------------------
     def compute_reward(self, achieved_goal, desired_goal, info) -> np.ndarray:
@@ -237,11 +233,9 @@ class PSMGoalEnv(gym.Env):
             raise ValueError(f"{type(self).__name__}: reward_type='guided' is not a function of the goals alone (its "
                              "potential reads the jaws and the grasp), so compute_reward cannot relabel it; HER needs "
                              "reward_type='sparse' or 'dense'")
-        difference = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        distance = self.workspace_range * np.sqrt(np.sum(difference * difference, axis=-1))
-        if self.reward_type == "sparse":
-            return -(distance > self.distance_threshold).astype(np.float64)
-        return -self.dense_scale * distance
+        distance = goal_distance(np.asarray(achieved_goal, dtype=np.float64), np.asarray(desired_goal, dtype=np.float64),
+                                 self.workspace_range)
+        return goal_reward(distance, self.distance_threshold, self.reward_type == "sparse", self.dense_scale)[0]
 
     def render(self):
         return self._renderer.render()

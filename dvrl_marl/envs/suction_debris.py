@@ -23,7 +23,6 @@ from dvrl_marl.core.collaborative import AGENTS
 from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
 from dvrl_marl.envs import start_levels
 from dvrl_marl.envs.one_world import WorldArm, WorldBlood, WorldPin
-from dvrl_marl.envs.presets import accepts_preset
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import REWARD_TYPES, SceneLayout, SuctionDebrisBatchedEnv
 from dvrl_marl.envs.surgeon_seat import SurgeonSeat, check_seat
@@ -33,7 +32,8 @@ __all__ = ["parallel_env", "env", "raw_env", "batched_env", "jax_env", "TASK", "
            "SuctionDebrisParams", "SceneLayout", "AGENTS", "env_name", "REWARD_TYPES"]
 
 #: Attributes of the one-world batch the env shows as its own (the scene's parameters, spaces' layouts, options).
-_SHARED = ("name", "params", "reward_type", "core", "phantom", "handoff", "workspace_centre", "workspace_range",
+_SHARED = ("name", "preset", "options", "params", "reward_type", "core", "phantom", "handoff", "workspace_centre",
+           "workspace_range",
            "observation_layout", "state_layout", "state_space", "feature_spec", "observation_scaling",
            "state_observations", "easy_episode_steps", "guidance")
 
@@ -48,15 +48,13 @@ class SuctionDebrisEnv(ParallelEnv):
         "is_parallelizable": True,
     }
 
-    @accepts_preset
-    def __init__(self, reward_type: str = "sparse", render_mode: str | None = None, max_cycles: int | None = None,
-                 width: int = 640, height: int = 480, **options):
+    def __init__(self, render_mode: str | None = None, max_cycles: int | None = None, width: int = 640,
+                 height: int = 480, **options):
         if render_mode == "human":
             raise ValueError(f"{TASK}: render_mode 'human' opens a window through parallel_env(render_mode='human')")
         #: one world of the scene: the core's step, the options, the spaces
-        self.world = SuctionDebrisBatchedEnv(1, reward_type=reward_type, max_cycles=max_cycles, render_mode=render_mode,
-                                             autoreset_mode="disabled", width=width, height=height,
-                                             preset=self.preset, **options)
+        self.world = SuctionDebrisBatchedEnv(1, max_cycles=max_cycles, render_mode=render_mode,
+                                             autoreset_mode="disabled", width=width, height=height, **options)
         for attribute in _SHARED:
             setattr(self, attribute, getattr(self.world, attribute))
         self.metadata = {**self.metadata, "name": self.name,

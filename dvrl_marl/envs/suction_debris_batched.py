@@ -64,15 +64,15 @@ from dvrl_marl import assets
 from dvrl_marl.core import layout
 from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
 from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
-from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
+from dvrl_marl.core.collaborative_task import TASK, env_name
 from dvrl_marl.core.scene_state import EnvState, SceneState, check_state
 from dvrl_marl.core.worlds import check_action_batch
 from dvrl_marl.envs import features, start_levels
 from dvrl_marl.envs.appearance import APPEARANCES, Appearance
-from dvrl_marl.envs.guidance import Guidance, GuidedReward, OverRims
+from dvrl_marl.envs.guidance import GuidedReward, OverRims
 from dvrl_marl.envs.observation_scaling import ObservationScaling
-from dvrl_marl.envs.presets import accepts_preset
 from dvrl_marl.envs.scene_keywords import form_signature
+from dvrl_marl.envs.scene_options import REWARD_TYPES, SceneOptions
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "IMAGE_PARTS", "SceneLayout", "batched_env",
            "takes_worlds"]
@@ -81,8 +81,6 @@ AUTORESET_MODES = ("same_step", "disabled")
 #: What ``images()`` draws of a view: the endoscope's (left eye's) colour image, the right eye's, the left eye's depth
 #: and segmentation mask, and the right eye's segmentation (on request only: no observation carries it).
 IMAGE_PARTS = ("image", "image_right", "depth", "segmentation", "segmentation_right")
-#: "guided": the dense reward plus the guided terms (:mod:`dvrl_marl.envs.guidance`).
-REWARD_TYPES = ("sparse", "dense", "guided")
 
 
 @dataclass(frozen=True)
@@ -107,17 +105,10 @@ class SuctionDebrisBatchedEnv:
 
     metadata = {"name": TASK, "render_modes": ["rgb_array"], "render_fps": 50}
 
-    @accepts_preset
-    def __init__(self, num_envs: int = 1, surgeon=None, surgeon_seat: str = "grasper", reward_type: str = "sparse",
-                 render_mode: str | None = None, max_cycles: int | None = None, autoreset_mode: str = "same_step",
-                 render_world: int = 0, task: str = TASK, guidance: dict | None = None, observation_features: str = "",
-                 start_level: float | str = 1.0,
-                 easy_episode_steps: int | None = start_levels.EASY_EPISODES.episode_steps,
-                 state_observations: bool = False, normalize_observations: bool = False, image_size: int = 0,
-                 image_depth: bool = False, image_segmentation: bool = False, image_stereo: bool = False,
-                 image_appearance: str | Appearance | None = None, image_contexts: int = 1,
-                 width: int = 640, height: int = 480, **params):
-        from dvrl_marl.schemas import EasyEpisodeSteps, Flag, PositiveInt, validated
+    def __init__(self, num_envs: int = 1, surgeon=None, surgeon_seat: str = "grasper", render_mode: str | None = None,
+                 max_cycles: int | None = None, autoreset_mode: str = "same_step", render_world: int = 0,
+                 task: str = TASK, width: int = 640, height: int = 480, preset: str = "default", **options):
+        from dvrl_marl.schemas import PositiveInt, validated
 
         if not isinstance(task, (str, Path)):
             raise ValueError(f"{TASK}: task must be a task file's name or path, got {task!r}")
@@ -125,8 +116,12 @@ class SuctionDebrisBatchedEnv:
         self.name = env_name(Path(task).stem)
         self.metadata = {**self.metadata, "name": self.name}
         num_envs = validated(PositiveInt, num_envs, f"{self.name}: num_envs")
-        if reward_type not in REWARD_TYPES:
-            raise ValueError(f"{self.name}: reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
+        #: every option by concern (the rules, the observation, the images, the learning aids), checked once
+        #: (:mod:`dvrl_marl.envs.scene_options`), from ``preset`` and the keywords over it
+        self.options = SceneOptions.of(self.name, preset=preset, task=task, max_cycles=max_cycles, **options)
+        self.preset = self.options.preset
+        observation, images, learning = self.options.observation, self.options.images, self.options.learning
+        reward_type = learning.reward_type
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"{self.name}: autoreset_mode must be one of {AUTORESET_MODES}, got {autoreset_mode!r}")
         if render_mode not in (None, "rgb_array"):
@@ -135,7 +130,7 @@ class SuctionDebrisBatchedEnv:
             raise ValueError(f"{self.name}: surgeon_seat must be one of {AGENTS}, got {surgeon_seat!r}")
         if hasattr(surgeon, "action") and callable(surgeon.action):
             raise ValueError(f"{self.name}: a teleop device drives one world; use parallel_env(surgeon=device)")
-        self.params = p = SuctionDebrisParams.from_task(task, max_cycles=max_cycles, **params)
+        self.params = p = self.options.rules
         self.reward_type = reward_type
         self.surgeon_seat = surgeon_seat if surgeon is not None else None
         self.possible_agents = [agent for agent in AGENTS if agent != self.surgeon_seat]
@@ -156,34 +151,19 @@ class SuctionDebrisBatchedEnv:
         self._render_size = tuple(validated(PositiveInt, value, f"{self.name}: render {name}")
                                   for name, value in (("width", width), ("height", height)))
         self._mirror = None  # the MuJoCo scene that shows a world (made on the first render)
-        self._spaces(observation_features, validated(Flag, state_observations, f"{self.name}: state_observations"),
-                     validated(Flag, normalize_observations, f"{self.name}: normalize_observations"))
-        self._image_spaces(image_size, validated(Flag, image_depth, f"{self.name}: image_depth"),
-                           validated(Flag, image_segmentation, f"{self.name}: image_segmentation"),
-                           validated(Flag, image_stereo, f"{self.name}: image_stereo"))
+        self._spaces(observation.observation_features, observation.state_observations,
+                     observation.normalize_observations)
+        self._image_spaces(images.image_size, images.image_depth, images.image_segmentation, images.image_stereo)
         #: GL contexts that draw the images, each in a thread of its own (more pay on a GPU; endoscope_renderer)
-        self.image_contexts = validated(PositiveInt, image_contexts, f"{self.name}: image_contexts")
-        if self.image_contexts > 1 and not self.image_size:
-            raise ValueError(f"{self.name}: image_contexts needs image_size (they draw the images)")
-        if not (image_appearance is None or isinstance(image_appearance, Appearance)
-                or (isinstance(image_appearance, str) and image_appearance in APPEARANCES)):
-            raise ValueError(f"{self.name}: image_appearance must be None (the scene's own look), one of "
-                             f"{sorted(APPEARANCES)} or an endoscope.Appearance, got {image_appearance!r}")
-        if image_appearance is not None and not self.image_size:
-            raise ValueError(f"{self.name}: image_appearance needs image_size (it is the image's)")
+        self.image_contexts = images.image_contexts
         #: the range each world's look is drawn from per episode (None: the scene's own look)
-        self.image_appearance = image_appearance
+        self.image_appearance = images.image_appearance
         # Options that help learning: start levels, the guided reward.
-        self.start_level = start_levels.checked_level(start_level, f"{self.name}: start_level")
-        if easy_episode_steps is not None:  # 0 says what None does where there is no null (a TOML configuration)
-            easy_episode_steps = validated(EasyEpisodeSteps, easy_episode_steps,
-                                           f"{self.name}: easy_episode_steps") or None
+        self.start_level = learning.level
         #: an easy episode's time limit (None: the task's max_cycles)
-        self.easy_episode_steps = easy_episode_steps
-        if guidance is not None and reward_type != "guided":
-            raise ValueError(f"{self.name}: guidance settings need reward_type='guided', got {reward_type!r}")
+        self.easy_episode_steps = learning.easy_steps
         #: the guided reward's settings (:class:`dvrl_marl.envs.guidance.Guidance`; None unless reward_type="guided")
-        self.guidance = _guidance_settings(guidance, self.name) if reward_type == "guided" else None
+        self.guidance = learning.guidance_settings(self.name)
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
         self._surgeon_resets_worlds = takes_worlds(getattr(self._surgeon, "reset", None))
         self.levels = np.full(self.num_envs, self.start_level)  # each world's start level
@@ -256,16 +236,8 @@ class SuctionDebrisBatchedEnv:
         indices of :data:`~dvrl_marl.envs.endoscope.SEGMENT_CLASSES`, with ``image_segmentation``: both of the left
         eye's view), drawn by :func:`dvrl_marl.envs.endoscope.endoscope_renderer` (the first time an observation is
         made)."""
-        from dvrl_marl.envs.endoscope import IMAGE_SIZES, SEGMENT_CLASSES
-        from dvrl_marl.schemas import NonNegativeInt, validated
+        from dvrl_marl.envs.endoscope import SEGMENT_CLASSES
 
-        size = validated(NonNegativeInt, size, f"{self.name}: image_size")
-        if size and not IMAGE_SIZES[0] <= size <= IMAGE_SIZES[1]:
-            raise ValueError(f"{self.name}: image_size must be 0 (no images) or {IMAGE_SIZES[0]}..{IMAGE_SIZES[1]} "
-                             f"px, got {size}")
-        for flag, on in (("image_depth", depth), ("image_segmentation", segmentation), ("image_stereo", stereo)):
-            if on and not size:
-                raise ValueError(f"{self.name}: {flag} needs image_size (it is the image's)")
         #: the image observations' size (0: none) and whether they carry the right eye, depth and a segmentation mask
         self.image_size, self.image_depth, self.image_segmentation = size, depth, segmentation
         self.image_stereo = stereo
@@ -869,19 +841,6 @@ def takes_worlds(reset) -> bool:
         return reset is not None and "worlds" in inspect.signature(reset).parameters
     except (TypeError, ValueError):
         return False
-
-
-def _guidance_settings(values, owner: str) -> Guidance:
-    """``guidance`` (a dict of :class:`Guidance` fields, or None for the defaults), checked."""
-    if values is None:
-        return Guidance()
-    if isinstance(values, Guidance):
-        return values
-    from dvrl_marl.schemas import validated
-
-    if not isinstance(values, dict):
-        raise ValueError(f"{owner}: guidance must be a dict of Guidance settings, got {type(values).__name__}")
-    return validated(Guidance, values, f"{owner}: guidance")
 
 
 def batched_env(num_envs: int = 1, **kwargs) -> SuctionDebrisBatchedEnv:
