@@ -430,7 +430,8 @@ class CollaborativeCore:
 
     def _move(self, agent: str, delta: np.ndarray) -> np.ndarray:
         arm = self.arms[agent]
-        if self._lean is not None and isinstance(delta, np.ndarray):  # one numpy world: its common case in floats
+        if self._lean is not None and isinstance(delta, np.ndarray) and isinstance(arm.tip, np.ndarray):
+            # one numpy world: its common move in floats
             other = self.arms[AGENTS[1 - AGENTS.index(agent)]]
             made = self._lean.move(agent, AGENTS[1 - AGENTS.index(agent)], arm.tip[0].tolist(), other.q[0].tolist(),
                                    other.tip[0].tolist(), delta[0].tolist())
@@ -633,7 +634,7 @@ class CollaborativeCore:
             self.held = self.held & ~dropped
             self.holding = xp.where(release, -1, self.holding)
         grab = ~holding & closed
-        if self._lean is not None and grab.any():  # one numpy world: only with a pin's centre within reach
+        if self._lean is not None and isinstance(grab, np.ndarray) and grab.any():  # one numpy world: a pin in reach?
             grab = grab & xp.any(distance(tip[:, None, :], self.debris_position) <= _CENTRE_IN_REACH, axis=1)
         if needed(grab):  # (numpy: on the closing worlds only)
             rows = rows_of(grab)
