@@ -10,6 +10,7 @@ import pytest
 
 from dvrl_marl.core.collaborative_task import SuctionDebrisParams
 from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.seats.seat_env import SeatEnv
 
 #: The keywords a form takes of its own: the parallel env's seat and window, the batch's, a device's.
 SEAT = {"teleop_timeout"}
@@ -34,6 +35,8 @@ def test_every_form_names_the_same_scene_keywords():
     task = {field.name for field in dataclasses.fields(SuctionDebrisParams)}
     assert task | {"preset", "reward_type", "guidance", "observation_features", "start_level"} <= jax_world
     assert "irrigation_ml_s" in inspect.signature(suction_debris_v8.parallel_env).parameters
+    # the seat as a Gymnasium env: its own keywords (the seat, its partner), then the scene's, as parallel_env's
+    assert _names(SeatEnv) == {"seat", "partner"} | parallel - SEAT - {"surgeon", "surgeon_seat"}
     # each task parameter's default is the task file's value, its annotation its checked type (its range)
     defaults = SuctionDebrisParams.from_task()
     parameter = inspect.signature(suction_debris_v8.batched_env).parameters["blood_threshold_ml"]

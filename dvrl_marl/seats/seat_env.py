@@ -38,6 +38,8 @@ import numpy as np
 
 from dvrl_marl.core import layout
 from dvrl_marl.envs import suction_debris
+from dvrl_marl.envs.scene_keywords import form_signature
+from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
 __all__ = ["SeatEnv", "PARTNERS"]
 
@@ -124,3 +126,9 @@ class SeatEnv(gym.Env):
 
     def close(self):
         self.scene.close()
+
+
+# (written out: the seat's own keywords, then the scene's, which it passes on; the partner fills the other seat)
+SeatEnv.__init__.__signature__ = form_signature(
+    SeatEnv.__init__, SuctionDebrisBatchedEnv.__init__,
+    without=("num_envs", "autoreset_mode", "render_world", "surgeon", "surgeon_seat"))
