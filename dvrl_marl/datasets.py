@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dvrl_marl.core import layout
 from dvrl_marl.core.collaborative_task import TASK
 
 __all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "EpisodeRecorder",
@@ -107,7 +108,7 @@ class EpisodeRecorder:
         self.observations, self.actions, self.rewards = [np.array(observation)], [], []
         self.terminations, self.truncations = [], []
         self.infos = {key: [info.get(key, False)] for key in self._keys}
-        self.infos["expert_action"] = [np.zeros(4, dtype=np.float32)]
+        self.infos["expert_action"] = [np.zeros(layout.ACTION_WIDTH, dtype=np.float32)]
 
     def __len__(self) -> int:
         return len(self.actions)

@@ -101,7 +101,7 @@ class SeatEnv(gym.Env):
         if hasattr(self.partner, "reset"):
             self.partner.reset()
         self._partner_observation = self._partner_view(observations)
-        return observations[self.seat], self._info(infos[self.seat], np.zeros(4, dtype=np.float32))
+        return observations[self.seat], self._info(infos[self.seat], np.zeros(layout.ACTION_WIDTH, dtype=np.float32))
 
     def step(self, action):
         if self._partner_observation is None:
