@@ -105,12 +105,12 @@ def main() -> None:
 def _test(folder: Path, config, episodes: int) -> float:
     """The exported policies' success by their mean action on the held-out test seeds (``teams.EVAL_SEED``)."""
     from dvrl_marl import policies
-    from dvrl_marl.envs.presets import scene_options
+    from dvrl_marl.envs.presets import evaluation_options
     from dvrl_marl.training import teams
 
     seats = {agent: policies.load(folder / f"marl-{agent}") for agent in ("suction", "grasper")}
     return float(teams.evaluate_team_batched(seats, episodes, seed=teams.EVAL_SEED,
-                                             **scene_options(**config.env))["success_rate"])
+                                             **evaluation_options(**config.env))["success_rate"])
 
 
 if __name__ == "__main__":

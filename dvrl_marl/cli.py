@@ -11,7 +11,7 @@ import tempfile
 from pathlib import Path
 
 from dvrl_marl.core.collaborative_task import TASK
-from dvrl_marl.envs.presets import PRESETS, scene_options
+from dvrl_marl.envs.presets import PRESETS, evaluation_options
 from dvrl_marl.schemas import cli_number
 
 __all__ = ["main"]
@@ -96,9 +96,10 @@ def _evaluate(args) -> int:
         preset = policy.spec.get("preset", "default")  # the scene the seat learnt on (its manifest says)
         from dvrl_marl.envs import suction_debris
 
-        scene = suction_debris.parallel_env(**scene_options(preset))  # (the pipeline reads its layout: it irrigates there)
+        # (the pipeline reads its layout: it irrigates there)
+        scene = suction_debris.parallel_env(**evaluation_options(preset))
         result = teams.evaluate_team_batched({agent: policy, partner: teams.seat("pipeline", partner, scene)},
-                                             args.episodes, seed=seed, **scene_options(preset))
+                                             args.episodes, seed=seed, **evaluation_options(preset))
         result = {k: v for k, v in result.items() if k not in ("success", "steps")}
         print(json.dumps({"policy": str(args.policy), "env_id": env_id, "preset": preset, "seat": agent,
                           "partner": "pipeline (learned_team)", **result}, indent=2))
@@ -128,7 +129,7 @@ def _evaluate_team(args) -> int:
     seed = teams.EVAL_SEED if args.seed is None else args.seed
     preset = _team_preset(args.suction, args.grasper, args.preset)  # every seat checked before any pair runs
     rows = teams.cross_play(args.suction, args.grasper, episodes=args.episodes, seed=seed, noise=args.noise,
-                            **scene_options(preset))
+                            **evaluation_options(preset))
     width = max(12, *(len(row["suction"]) for row in rows), *(len(row["grasper"]) for row in rows))
     print(f"{'suction':<{width}} {'grasper':<{width}} {'success':>8} {'blood ml':>9} {'debris':>7} "
           f"{'median steps':>13} {'contacts':>9}")

@@ -14,7 +14,7 @@ import pytest
 
 import dvrl_marl
 from dvrl_marl.envs import CURRENT, RECORDS_COMMIT, suction_debris_v8
-from dvrl_marl.envs.presets import PRESETS, scene_options
+from dvrl_marl.envs.presets import PRESETS, evaluation_options
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Names of versions that are not the current ones: the collaborative scene's v0-v7 (module, id, seat id), the
@@ -105,7 +105,7 @@ def test_the_benchmark_preset_is_one_argument_in_every_form_and_explicit_keyword
     assert batch.reward_type == "guided" and batch.params.tool_speed == 0.1 and batch.preset == "benchmark"
     seat = gym.make("dvrl_marl/SurgeonSeat-v8", partner="scripted", preset="benchmark")
     assert seat.unwrapped.scene.params.hold_until_handoff
-    assert "reward_type" not in scene_options("benchmark") and scene_options("benchmark")["tool_speed"] == 0.1
+    assert "reward_type" not in evaluation_options("benchmark") and evaluation_options("benchmark")["tool_speed"] == 0.1
 
 
 @pytest.mark.parametrize("bad", ["fast", None, 3])

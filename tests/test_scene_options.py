@@ -1,6 +1,6 @@
-"""The scene's options, one checked record per concern (dvrl_marl.envs.scene_options): every keyword lands in one record,
-a preset and the keywords over it are sorted once, a bad value is named before anything is made, and every form
-takes the same records."""
+"""The scene's options, one checked record per concern (dvrl_marl.envs.scene_options): every keyword lands in one
+record, a preset and the keywords over it are sorted once, a bad value is named before anything is made, and every
+form takes the same records."""
 
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ from types import MappingProxyType
 
 from dvrl_marl.core.collaborative_task import TASK
 
-__all__ = ["PRESETS", "LEARNING_OPTIONS", "with_preset", "scene_options"]
+__all__ = ["PRESETS", "LEARNING_OPTIONS", "with_preset", "evaluation_options"]
 
 #: Options that shape learning only (the reward, what is appended to or done to observations): a learned seat is
 #: evaluated without them, since an exported policy computes its own features and normalisation from the plain
@@ -59,7 +59,7 @@ def with_preset(kwargs: dict, owner: str = TASK) -> dict:
     return {**PRESETS[name], **kwargs}
 
 
-def scene_options(preset: str = "default", **kwargs) -> dict:
+def evaluation_options(preset: str = "default", **kwargs) -> dict:
     """The keyword arguments of ``preset`` (and ``kwargs``, which win) that make the scene, without the learning
     options (:data:`LEARNING_OPTIONS`): what an exported team is evaluated on."""
     return {key: value for key, value in with_preset({"preset": preset, **kwargs}).items()

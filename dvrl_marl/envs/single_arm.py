@@ -233,8 +233,8 @@ class PSMGoalEnv(gym.Env):
             raise ValueError(f"{type(self).__name__}: reward_type='guided' is not a function of the goals alone (its "
                              "potential reads the jaws and the grasp), so compute_reward cannot relabel it; HER needs "
                              "reward_type='sparse' or 'dense'")
-        distance = goal_distance(np.asarray(achieved_goal, dtype=np.float64), np.asarray(desired_goal, dtype=np.float64),
-                                 self.workspace_range)
+        achieved, desired = (np.asarray(goal, dtype=np.float64) for goal in (achieved_goal, desired_goal))
+        distance = goal_distance(achieved, desired, self.workspace_range)
         return goal_reward(distance, self.distance_threshold, self.reward_type == "sparse", self.dense_scale)[0]
 
     def render(self):

@@ -60,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.envs import suction_debris
-from dvrl_marl.envs.presets import scene_options
+from dvrl_marl.envs.presets import evaluation_options
 from dvrl_marl.envs.suction_debris import TASK, env_name
 from dvrl_marl.training import run_progress, teams, trainers
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
@@ -426,7 +426,7 @@ def _eval_kwargs(config: MappoConfig) -> dict:
     """The scene validation runs: the configured one without its learning options (the exported policies compute
     their observation features and normalisation from the plain observation), at the configured start level (a
     fixed ``start_level`` is the task being learnt; the ``[curriculum]`` schedule is not)."""
-    return scene_options(**config.env)
+    return evaluation_options(**config.env)
 
 
 

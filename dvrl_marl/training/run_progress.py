@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from dvrl_marl.envs import suction_debris
-from dvrl_marl.envs.presets import scene_options
+from dvrl_marl.envs.presets import evaluation_options
 from dvrl_marl.envs.suction_debris import env_name
 from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import MappoConfig, scene_metadata
@@ -52,7 +52,7 @@ def score(folders: dict, env_options: dict, episodes: int, with_noise: bool) -> 
         if with_noise:
             seats[agent] = seats[agent].with_noise(teams.noise_seed(agent, teams.VALIDATION_SEED))
     # the configured scene without its learning options (the exported policies compute their features and scaling)
-    return teams.evaluate_team_batched(seats, episodes, seed=teams.VALIDATION_SEED, **scene_options(**env_options))
+    return teams.evaluate_team_batched(seats, episodes, seed=teams.VALIDATION_SEED, **evaluation_options(**env_options))
 
 
 def _worker_start() -> None:
