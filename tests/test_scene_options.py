@@ -62,6 +62,8 @@ def test_every_form_keeps_the_records_it_was_made_with():
     (dict(reward_type="shaped"), "reward_type"),
     (dict(guidance={"grasp_path": 1.0}), "guidance settings need reward_type='guided'"),
     (dict(reward_type="guided", guidance=[1]), "guidance must be a dict"),
+    (dict(reward_type="guided", guidance={"grasp_paths": 5.0}), "guidance: grasp_paths"),
+    (dict(reward_type="guided", guidance={"hold_bonus": -1.0}), "guidance: hold_bonus: must be >= 0"),
     (dict(start_level="hard"), "level"),
     (dict(easy_episode_steps=-3), "easy_episode_steps"),
     (dict(contact_penalty=float("nan")), "contact_penalty"),

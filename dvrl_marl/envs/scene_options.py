@@ -105,6 +105,8 @@ class LearningAids:
                 raise ValueError(f"guidance settings need reward_type='guided', got {self.reward_type!r}")
             if not isinstance(self.guidance, (dict, Guidance)):
                 raise ValueError(f"guidance must be a dict of Guidance settings, got {type(self.guidance).__name__}")
+            if isinstance(self.guidance, dict):  # (each setting checked now, before anything is made)
+                validated(Guidance, self.guidance, "guidance")
 
     @property
     def level(self) -> float:
