@@ -282,6 +282,15 @@ def irrigation_training_frugal_quarter() -> Table:
     return irrigation_training("benchmarks/results/irrigation_training_waste_quarter_2026-12-02.jsonl")
 
 
+def irrigation_field_entropy() -> Table:
+    return irrigation_field("benchmarks/results/irrigation_field_entropy_2026-12-02.json", learned_only=True,
+                            speed=False)
+
+
+def irrigation_training_entropy() -> Table:
+    return irrigation_training("benchmarks/results/irrigation_training_entropy_2026-12-02.jsonl")
+
+
 def irrigation_zoo() -> Table:
     path = "benchmarks/results/partner_zoo_irrigation_2026-12-02.json"
     record = _read(path)
@@ -473,6 +482,12 @@ SECTIONS = (
      irrigation_field_frugal_quarter),
     ("Training with the lighter cost", "The runs above: validation success by the mean action.",
      irrigation_training_frugal_quarter),
+    ("Learning the irrigation level with an entropy bonus", "The level's own configuration with PPO's entropy bonus "
+     "(`[ppo] entropy_coef = 0.01`: `suction_debris_mappo_irrigation_entropy.toml`), no cost on saline, five seeds, "
+     "each stopped at 0.9 validation or at its first validation after 660 s. Its teams on the level's 100 held-out "
+     "episodes:", irrigation_field_entropy),
+    ("Training with the entropy bonus", "The runs above: validation success by the mean action.",
+     irrigation_training_entropy),
     ("The irrigation level beside the partner zoo's suctions", "The zoo's suctions on the irrigation level (the "
      "scripted one, the Reach + Pick pipeline, the measured person and the held-out person-like kinds made from the "
      "scripted suction, all irrigating clotted cavities) beside the scripted surgeon, 100 test episodes each, a "
