@@ -264,31 +264,23 @@ def irrigation_training(path: str = "benchmarks/results/irrigation_training_2026
     return table
 
 
-def irrigation_field_frugal() -> Table:
-    return irrigation_field("benchmarks/results/irrigation_field_waste_2026-12-02.json", learned_only=True,
-                            speed=False)
+def _learned_irrigation(variant: str, record: str):
+    """The tables of one configuration's five irrigation runs: their teams on the level (``irrigation_field_<variant>``)
+    and their training (``irrigation_training_<variant>``), from ``benchmarks/results/irrigation_*_<record>.json(l)``."""
+    def field() -> Table:
+        return irrigation_field(f"benchmarks/results/irrigation_field_{record}.json", learned_only=True, speed=False)
+
+    def training() -> Table:
+        return irrigation_training(f"benchmarks/results/irrigation_training_{record}.jsonl")
+
+    field.__name__, training.__name__ = f"irrigation_field_{variant}", f"irrigation_training_{variant}"
+    return field, training
 
 
-def irrigation_training_frugal() -> Table:
-    return irrigation_training("benchmarks/results/irrigation_training_waste_2026-12-02.jsonl")
-
-
-def irrigation_field_frugal_quarter() -> Table:
-    return irrigation_field("benchmarks/results/irrigation_field_waste_quarter_2026-12-02.json", learned_only=True,
-                            speed=False)
-
-
-def irrigation_training_frugal_quarter() -> Table:
-    return irrigation_training("benchmarks/results/irrigation_training_waste_quarter_2026-12-02.jsonl")
-
-
-def irrigation_field_entropy() -> Table:
-    return irrigation_field("benchmarks/results/irrigation_field_entropy_2026-12-02.json", learned_only=True,
-                            speed=False)
-
-
-def irrigation_training_entropy() -> Table:
-    return irrigation_training("benchmarks/results/irrigation_training_entropy_2026-12-02.jsonl")
+irrigation_field_frugal, irrigation_training_frugal = _learned_irrigation("frugal", "waste_2026-12-02")
+irrigation_field_frugal_quarter, irrigation_training_frugal_quarter = _learned_irrigation(
+    "frugal_quarter", "waste_quarter_2026-12-02")
+irrigation_field_entropy, irrigation_training_entropy = _learned_irrigation("entropy", "entropy_2026-12-02")
 
 
 def irrigation_zoo() -> Table:

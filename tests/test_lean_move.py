@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
 from dvrl_marl.core import lean_move, scene_state
 from dvrl_marl.envs import suction_debris_v8
 
@@ -70,6 +71,28 @@ def test_the_lean_path_is_the_array_path_bit_for_bit(blocked_moves, preset):
     actions[::2, [2, 6]] = -1.0
     counting = _same_episodes(dict(preset=preset, blocked_moves=blocked_moves, max_cycles=150), actions, seed=5)
     assert counting.made > 100 and counting.handed_back > 10, (counting.made, counting.handed_back)
+
+
+@pytest.mark.parametrize("preset", ["default", "irrigation"])
+def test_a_scripted_team_plays_alike_on_both_paths(preset):
+    """The scripted team grasps pins, hands them off and (irrigation) irrigates: the grasp's reach check and the
+    moves near the pins and the other arm, which random actions seldom reach, on both paths."""
+    lean, arrays = _env(True, preset=preset), _env(False, preset=preset)
+    experts = [{"suction": ScriptedSuction.for_env(env), "grasper": ScriptedSurgeon.for_env(env)}
+               for env in (lean, arrays)]
+    observations = [env.reset(seed=11)[0] for env in (lean, arrays)]
+    grasped = False
+    for step in range(1500):
+        results = [env.step({agent: team[agent](seen[agent]) for agent in AGENTS})
+                   for env, team, seen in zip((lean, arrays), experts, observations)]
+        left, right = (scene_state.SceneState.as_dict(env.core.get_state()) for env in (lean, arrays))
+        for name in left:
+            assert np.array_equal(left[name], right[name], equal_nan=True), f"step {step}: {name} differs"
+        grasped = grasped or bool(left["held"].any())
+        observations = [result[0] for result in results]
+        if not lean.agents:
+            break
+    assert grasped and not lean.agents, "the scripted team should grasp and finish"
 
 
 @settings(max_examples=15, deadline=None)

@@ -432,9 +432,10 @@ class CollaborativeCore:
         arm = self.arms[agent]
         if self._lean is not None and isinstance(delta, np.ndarray) and isinstance(arm.tip, np.ndarray):
             # one numpy world: its common move in floats
-            other = self.arms[AGENTS[1 - AGENTS.index(agent)]]
-            made = self._lean.move(agent, AGENTS[1 - AGENTS.index(agent)], arm.tip[0].tolist(), other.q[0].tolist(),
-                                   other.tip[0].tolist(), delta[0].tolist())
+            partner = AGENTS[1 - AGENTS.index(agent)]
+            other = self.arms[partner]
+            made = self._lean.move(agent, partner, arm.tip[0].tolist(), other.q[0].tolist(), other.tip[0].tolist(),
+                                   delta[0].tolist())
             if made is not None:
                 tip, q, clearance = made
                 arm.tip, arm.q = np.array([tip]), np.array([q])

@@ -220,7 +220,7 @@ class PSMGoalEnv(gym.Env):
 
     def _reward_and_success(self, achieved: tuple[float, float, float]) -> tuple[float, bool]:
         # (the paper's reward, written once: core.reach; the guided reward adds its potential's change to it)
-        distance = goal_distance(tuple(achieved), self._goal_normalised, self.workspace_range)
+        distance = goal_distance(achieved, self._goal_normalised, self.workspace_range)
         return goal_reward(distance, self.distance_threshold, self.reward_type != "dense", self.dense_scale)
 
     # --- Gymnasium API ------------------------------------------------------------------------------------
