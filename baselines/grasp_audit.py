@@ -2,7 +2,7 @@
 
 The jaw takes a pin wherever its axis passes within 3 mm of the tip, anywhere along the pin's 25 mm, and the
 hand-off point lies 2 mm inside the workspace's +x face: a pin held more than about 5 mm toward -x of the tip can
-never reach it (``GraspPathShaping(centred=True)`` in ``dvrl_marl.envs.guidance`` charges such grasps). This
+never reach it (``GraspPathShaping(centred=True)`` in ``dvrl_marl.suction_debris.guidance`` charges such grasps). This
 script counts them, from the grasper's own observation, on the held-out evaluation seeds, with the pins of the
 cavity on the grasper's own side (near, x > 0) apart from those of the far one (a grasper can learn one and not
 the other):

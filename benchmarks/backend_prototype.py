@@ -1,6 +1,6 @@
 """Which array backend for the collaborative core: one piece of its step on each, at N = 1 and N = 4,096 worlds.
 
-The piece is the instruments' clearance (:func:`dvrl_marl.core.instruments.instrument_clearance`: the four pairs of
+The piece is the instruments' clearance (:func:`dvrl_marl.suction_debris.instruments.instrument_clearance`: the four pairs of
 segments between the two instruments, about a third of the step's arithmetic), written once against the array API
 standard and run here on numpy, on torch (CPU, and CUDA where there is a GPU) and on JAX (``jax.jit``; where JAX is
 installed). Each figure is the median of several timed rounds of calls on one core's worth of work; a line per
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from dvrl_marl.core.instruments import instrument_clearance
+from dvrl_marl.suction_debris.instruments import instrument_clearance
 
 
 def _points(n: int, rng) -> list[np.ndarray]:
@@ -67,8 +67,8 @@ def backends():
 
 
 def core_step_seconds(n: int, rounds: int) -> float:
-    from dvrl_marl.core.collaborative import CollaborativeCore
-    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+    from dvrl_marl.suction_debris.rules import CollaborativeCore
+    from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
     core = CollaborativeCore(SuctionDebrisParams.from_task(), n)
     core.reset(seed=0)
@@ -87,9 +87,9 @@ def jax_step_seconds(n: int, rounds: int) -> float | None:
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from dvrl_marl.core import scene_state
-    from dvrl_marl.core.collaborative import CollaborativeCore
-    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+    from dvrl_marl.suction_debris import scene_state
+    from dvrl_marl.suction_debris.rules import CollaborativeCore
+    from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
     core = CollaborativeCore(SuctionDebrisParams.from_task(), n)
     core.reset(seed=0)

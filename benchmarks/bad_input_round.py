@@ -81,7 +81,7 @@ class Defect(Exception):
 
 def _state(env) -> dict:
     """Every field of the env's state record (the numpy and the device env alike give an ``EnvState``)."""
-    from dvrl_marl.core.scene_state import SPECS
+    from dvrl_marl.suction_debris.scene_state import SPECS
 
     state = env.world_state
     out = {name: np.array(getattr(state.scene, name)) for name in SPECS}

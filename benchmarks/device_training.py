@@ -105,7 +105,7 @@ def main() -> None:
 def _test(folder: Path, config, episodes: int) -> float:
     """The exported policies' success by their mean action on the held-out test seeds (``teams.EVAL_SEED``)."""
     from dvrl_marl import policies
-    from dvrl_marl.envs.presets import evaluation_options
+    from dvrl_marl.suction_debris.presets import evaluation_options
     from dvrl_marl.training import teams
 
     seats = {agent: policies.load(folder / f"marl-{agent}") for agent in ("suction", "grasper")}

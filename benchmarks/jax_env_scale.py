@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     import jax
     import jax.numpy as jnp
 
-    from dvrl_marl.core import scene_state
+    from dvrl_marl.suction_debris import scene_state
     from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.envs.suction_debris_jax import seed_of
 

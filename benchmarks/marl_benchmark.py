@@ -109,7 +109,7 @@ def _scene_option(key: str, value) -> str:
 def _scene_of(options: dict) -> str:
     """The scene a run used: its version, and any scene option (a preset's included), e.g.
     ``suction_debris_v8_tool_speed0.05``."""
-    from dvrl_marl.envs.presets import with_preset
+    from dvrl_marl.suction_debris.presets import with_preset
     from dvrl_marl.envs.suction_debris import TASK
 
     options = with_preset(options)

@@ -2,7 +2,7 @@
 (``"settle"``), batched, measured in the same run.
 
 A move that nothing blocks costs what it costs when moves stop (one more test); a blocked one runs the candidates of
-:func:`dvrl_marl.core.sliding.resolve_blocked`. Uniform random commands block in most steps (the adversarial case:
+:func:`dvrl_marl.suction_debris.sliding.resolve_blocked`. Uniform random commands block in most steps (the adversarial case:
 they push into the phantom, the joint limits and each other); the scripted experts' commands never do.
 
     python benchmarks/sliding_cost.py [--worlds 256 4096]

@@ -17,8 +17,8 @@ PAGE = Path(__file__).resolve().parent / "environments.md"
 
 
 def render() -> str:
-    from dvrl_marl.envs import (guidance, presets, psm_pick, psm_reach, start_levels, suction_debris_batched,
-                                suction_debris_v8, surgeon_seat, vector)
+    from dvrl_marl.envs import psm_pick, psm_reach, suction_debris_batched, suction_debris_v8, surgeon_seat, vector
+    from dvrl_marl.suction_debris import guidance, presets, start_levels
     from dvrl_marl.seats import seat_env as seat
 
     parts = ["# dvrl-marl environments", "",
@@ -44,7 +44,7 @@ def render() -> str:
 def task_parameters() -> list[str]:
     """The collaborative task's parameters, each with its range (from its field's type: one place), the default of
     the simple rule and the task file's value; every env form takes each as a keyword."""
-    from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, task_schema
+    from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams, task_schema
 
     schema, current = task_schema(), SuctionDebrisParams.from_task()
     lines = ["### Parameters", "",
@@ -61,11 +61,11 @@ def task_parameters() -> list[str]:
 
 def options_by_concern() -> list[str]:
     """The env's options beside the task's parameters, one table row per field of each option record
-    (:mod:`dvrl_marl.envs.scene_options`): its concern, range, default and what it does (the field's ``#:`` comment)."""
-    from dvrl_marl.envs import scene_options
+    (:mod:`dvrl_marl.suction_debris.scene_options`): its concern, range, default and what it does (the field's ``#:`` comment)."""
+    from dvrl_marl.suction_debris import scene_options
 
     lines = ["### Options by concern", "",
-             "Generated from the option records of `dvrl_marl.envs.scene_options` (`SceneOptions.of` sorts a preset and "
+             "Generated from the option records of `dvrl_marl.suction_debris.scene_options` (`SceneOptions.of` sorts a preset and "
              "the keywords over it into them, checking each value once, before anything is made; `env.options` keeps "
              "them). Every form of the env takes each as a keyword.", "",
              "| concern | keyword | range | default | what it does |", "|---|---|---|---|---|"]
@@ -94,7 +94,7 @@ def _field_comments(record) -> dict:
 def keywords_by_form() -> list[str]:
     """The env's own keywords (beside the task's parameters above), from the forms' signatures: which form takes
     each, and its default."""
-    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+    from dvrl_marl.suction_debris.task import SuctionDebrisParams
     from dvrl_marl.envs import suction_debris_v8
 
     forms = {"`parallel_env`, `env`": suction_debris_v8.parallel_env, "`batched_env`": suction_debris_v8.batched_env,

@@ -513,7 +513,7 @@ SECTIONS = (
      "earlier ones (`benchmarks/versus_commit.py`: each measurement a fresh process pinned to one core, checkouts "
      "alternating, the median of the repeats, random actions); the parallel env is one world with its resets, N = "
      "4,096 the numpy batched env. 52f9c21 is the commit before one world's moves took their common case in floats "
-     "(`core/lean_move.py`); 36a42a0 the last commit with the scalar-path versions (v7, and v2 before the sliding "
+     "(`suction_debris/lean_move.py`); 36a42a0 the last commit with the scalar-path versions (v7, and v2 before the sliding "
      "rules).", speed_side_by_side),
     ("Images: the endoscope's speed", "Frames per second of image observations (the batched env's step with its "
      "images) against a bare `mujoco.Renderer` drawing one world at a time, in one run each.", endoscope_speed),

@@ -10,8 +10,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from dvrl_marl.core.collaborative_task import TASK
-from dvrl_marl.envs.presets import PRESETS, evaluation_options
+from dvrl_marl.suction_debris.task import TASK
+from dvrl_marl.suction_debris.presets import PRESETS, evaluation_options
 from dvrl_marl.schemas import cli_number
 
 __all__ = ["main"]

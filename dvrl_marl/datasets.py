@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.core import layout
-from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.suction_debris import layout
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["record", "record_episodes", "transitions", "replay", "replay_device", "from_recording", "EpisodeRecorder",
            "save_episodes", "next_free_id", "SEAT_ENV_ID"]

@@ -150,7 +150,7 @@ class SingleArmTask(BaseModel):
     original_goal_floor: NonNegative | None = None
 
 
-# (the collaborative task's schema is made from its parameters' fields: core.collaborative_task.task_schema)
+# (the collaborative task's schema is made from its parameters' fields: suction_debris.task.task_schema)
 
 
 # --- training configurations without a dataclass of their own --------------------------------------------------------

@@ -9,10 +9,10 @@
         --envs-per-runner 8 --test-episodes 100   # the env's learning options: learns the easy level (20 minutes)
 
 ``--guided`` turns on the env's options that made the task learnable, the benchmark's (``preset="benchmark"``:
-``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.envs.guidance``; the slow
+``reward_type="guided"``, the observation features the learned seats read, ``dvrl_marl.suction_debris.guidance``; the slow
 tool ``tool_speed=0.1``, the jaw a switch that holds a pin until the hand-off, ``dvrl_marl.core.tools``), and the
 PPO settings BenchMARL's MAPPO learns it with (:func:`benchmark_ppo_settings`); ``--level`` its start level
-(``easy`` ... ``default``, ``dvrl_marl.envs.start_levels``); the trained team is then tested on ``--test-episodes``
+(``easy`` ... ``default``, ``dvrl_marl.suction_debris.start_levels``); the trained team is then tested on ``--test-episodes``
 held-out episodes at that level, by the mean action.
 
 The env is registered with RLlib as ``dvrl_marl/suction_debris-v8`` (``dvrl_marl.integrations.rllib``; its

@@ -11,7 +11,7 @@ jax = pytest.importorskip("jax")
 jax.config.update("jax_enable_x64", True)  # the core is float64
 import jax.numpy as jnp  # noqa: E402
 
-from dvrl_marl.core import scene_state  # noqa: E402
+from dvrl_marl.suction_debris import scene_state  # noqa: E402
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 AGENTS = ("suction", "grasper")

@@ -395,7 +395,7 @@ def test_a_spectator_sees_no_controls_it_cannot_use(browser, served):
 def test_a_pin_gripped_off_centre_is_delivered_from_the_page(browser, served):
     """The scene's old trap, met as a person meets it: the jaws close 9 mm from a pin's centre on the assistant's
     side, and the keys bring it to the hand-off point, which takes it (suction_debris_v8 judges the grip)."""
-    from dvrl_marl.core.collaborative import PIN_RADIUS
+    from dvrl_marl.suction_debris.rules import PIN_RADIUS
 
     page = browser.new_page()
     page.goto(served.url)

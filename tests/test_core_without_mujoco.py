@@ -9,8 +9,8 @@ WITHOUT_MUJOCO = """
 import sys
 sys.modules["mujoco"] = None  # ``import mujoco`` now fails
 import numpy as np
-from dvrl_marl.core.collaborative import CollaborativeCore
-from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+from dvrl_marl.suction_debris.rules import CollaborativeCore
+from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
 core = CollaborativeCore(SuctionDebrisParams.from_task(), 4, reward_type="dense")
 core.reset(seed=0)
@@ -38,8 +38,8 @@ def test_the_core_steps_where_mujoco_cannot_be_imported(tmp_path):
 
 
 def test_the_scene_files_text_gives_the_geometry_mujoco_compiles():
-    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
-    from dvrl_marl.core.scene_geometry import SceneGeometry
+    from dvrl_marl.suction_debris.task import SuctionDebrisParams
+    from dvrl_marl.suction_debris.scene_geometry import SceneGeometry
     from dvrl_marl.envs.scene_mirror import SceneMirror
 
     params = SuctionDebrisParams.from_task()

@@ -14,7 +14,7 @@ import pytest
 
 import dvrl_marl
 from dvrl_marl.envs import CURRENT, RECORDS_COMMIT, suction_debris_v8
-from dvrl_marl.envs.presets import PRESETS, evaluation_options
+from dvrl_marl.suction_debris.presets import PRESETS, evaluation_options
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Names of versions that are not the current ones: the collaborative scene's v0-v7 (module, id, seat id), the
@@ -144,11 +144,11 @@ def test_the_readmes_examples_run():
 
 def test_the_library_says_the_scenes_version_in_one_place():
     """PettingZoo's way: internals import the unversioned module (dvrl_marl.envs.suction_debris); the version's name is
-    the task's (core.collaborative_task.TASK), and only dvrl_marl.envs, its versioned module and the registry say it
+    the task's (suction_debris.task.TASK), and only dvrl_marl.envs, its versioned module and the registry say it
     in code (the docstrings are the users' pages, which name what users import)."""
     import ast
 
-    allowed = {"envs/__init__.py", "envs/suction_debris_v8.py", "registration.py", "core/collaborative_task.py"}
+    allowed = {"envs/__init__.py", "envs/suction_debris_v8.py", "registration.py", "suction_debris/task.py"}
     package = ROOT / "dvrl_marl"
     found = []
     for path in sorted(package.rglob("*.py")):

@@ -139,7 +139,7 @@ def _seat_copy(tmp_path, name):
 
 
 def _felt(spec, **changes):
-    from dvrl_marl.envs.scripted_team import felt_contact_rule
+    from dvrl_marl.suction_debris.scripted_team import felt_contact_rule
 
     spec["felt_contact"] = {**felt_contact_rule(0.08, 30.0, 2.0, 100, 0.3), **changes}
 

@@ -10,9 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.envs import start_levels, suction_debris_v8
-from dvrl_marl.envs.guidance import Guidance, GuidedReward
-from dvrl_marl.envs import features
+from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.suction_debris import start_levels
+from dvrl_marl.suction_debris.guidance import Guidance, GuidedReward
+from dvrl_marl.suction_debris import features
 
 OPTIONS = dict(reward_type="guided", observation_features="suction_debris_cleared_pins_zoom")
 
@@ -350,10 +351,10 @@ def test_torchrl_state_carries_both_observations():
                                td["agents", "observation"].numpy(), rtol=0, atol=1e-6)
 
 
-# --- normalize_observations (dvrl_marl.envs.observation_scaling) ------------------------------------------------
+# --- normalize_observations (dvrl_marl.suction_debris.observation_scaling) ------------------------------------------------
 
 def _normalized_pair(**kwargs):
-    from dvrl_marl.envs.observation_scaling import ObservationScaling
+    from dvrl_marl.suction_debris.observation_scaling import ObservationScaling
 
     kwargs = dict(task="suction_debris_v8", state_observations=True, **OPTIONS, **kwargs)
     return (suction_debris_v8.parallel_env(**kwargs),
@@ -444,7 +445,7 @@ def test_normalize_observations_keeps_the_seat_plain_and_checks_its_value():
     with pytest.raises(ValueError, match="normalize_observations.*debris"):
         suction_debris_v8.parallel_env(normalize_observations=True, debris_count=2)
     with pytest.raises(ValueError, match="normalize_observations.*observation_features"):
-        from dvrl_marl.envs.observation_scaling import ObservationScaling
+        from dvrl_marl.suction_debris.observation_scaling import ObservationScaling
 
         ObservationScaling.for_env("env", "no_such_features", ("suction",), 62, 31, False)
 
@@ -455,7 +456,8 @@ def test_shipped_observation_scales_are_what_measure_gives():
     set gives the file's numbers."""
     import json
 
-    from dvrl_marl.envs import observation_measure, observation_scaling
+    from dvrl_marl.envs import observation_measure
+    from dvrl_marl.suction_debris import observation_scaling
 
     shipped = json.loads(observation_scaling.SCALES_FILE.read_text())
     name = OPTIONS["observation_features"]

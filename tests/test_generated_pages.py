@@ -116,7 +116,7 @@ def test_the_environments_page_lists_every_task_parameter_with_its_range():
     """The collaborative task's parameter table is generated from SuctionDebrisParams: a row per field, none empty."""
     from dataclasses import fields
 
-    from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+    from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
     page = (ROOT / "docs" / "environments.md").read_text()
     table = page.split("### Parameters", 1)[1].split("\n## ", 1)[0].split("\n### ", 1)[0]

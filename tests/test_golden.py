@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dvrl_marl.core.scene_state import SPECS
+from dvrl_marl.suction_debris.scene_state import SPECS
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 
@@ -38,7 +38,7 @@ def recorder():
 
 
 def test_the_benchmark_preset_is_the_recorded_benchmark_setting(recorder):
-    from dvrl_marl.envs.presets import PRESETS
+    from dvrl_marl.suction_debris.presets import PRESETS
 
     assert dict(PRESETS["benchmark"]) == recorder.BENCHMARK
 

@@ -387,7 +387,7 @@ def _overlay_text(env):
 
 
 def test_the_desktop_seat_shows_the_cues_and_delivers_a_pin_gripped_off_centre(desktop, monkeypatch):
-    from dvrl_marl.core.collaborative import PIN_RADIUS
+    from dvrl_marl.suction_debris.rules import PIN_RADIUS
     from dvrl_marl.envs import suction_debris_v8
 
     monkeypatch.setenv("DISPLAY", desktop)

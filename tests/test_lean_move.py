@@ -1,4 +1,4 @@
-"""One world's moves in floats (core/lean_move.py) are the array path's, bit for bit, under every rule set.
+"""One world's moves in floats (suction_debris/lean_move.py) are the array path's, bit for bit, under every rule set.
 
 The parallel env takes an arm's common move in Python floats and hands every move that needs a rare rule (a wall,
 the surface, a joint limit, the other instrument, a descent without headway) to the array path. Each test steps the
@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.core import lean_move, scene_state
+from dvrl_marl.suction_debris import lean_move, scene_state
 from dvrl_marl.envs import suction_debris_v8
 
 AGENTS = suction_debris_v8.AGENTS

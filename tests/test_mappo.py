@@ -22,8 +22,8 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
 from dvrl_marl import policies  # noqa: E402
-from dvrl_marl.envs import guidance  # noqa: E402
-from dvrl_marl.envs.presets import with_preset  # noqa: E402
+from dvrl_marl.suction_debris import guidance  # noqa: E402
+from dvrl_marl.suction_debris.presets import with_preset  # noqa: E402
 from dvrl_marl.training import mappo, mappo_config, models  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -189,7 +189,7 @@ def test_export_folds_the_envs_observation_normalisation(tmp_path):
 def test_training_on_normalized_observations_exports_policies_that_read_the_scenes_units(tmp_path, monkeypatch):
     """With ``normalize_observations`` in [env] the trainer hands each agent's map to the export (and validates the
     exported policies on the plain env, as the seat and the benchmark's test episodes run them)."""
-    from dvrl_marl.envs.observation_scaling import ObservationScaling
+    from dvrl_marl.suction_debris.observation_scaling import ObservationScaling
 
     path = _config(tmp_path)
     path.write_text(path.read_text().replace('reward_type = "guided"', 'reward_type = "guided"\nnormalize_observations = true'))

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from dvrl_marl import policies
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.envs import features
+from dvrl_marl.suction_debris import features
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")

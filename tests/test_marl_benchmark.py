@@ -98,7 +98,7 @@ def test_the_grasp_options_name_their_own_scene():
         "suction_debris_v5_tool_speed0.1_jaw_command-switch_hold_until_handoff")
     assert marl_benchmark._scene_of({**base, "jaw_command": "proportional", "hold_until_handoff": False}) == (
         "suction_debris_v5_tool_speed0.1_jaw_command-proportional")
-    from dvrl_marl.envs.presets import with_preset
+    from dvrl_marl.suction_debris.presets import with_preset
 
     shipped = with_preset(_shipped_options())
     assert shipped["jaw_command"] == "switch" and shipped["hold_until_handoff"] is True

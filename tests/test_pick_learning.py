@@ -145,7 +145,7 @@ def test_a_curriculum_sets_the_level_of_every_worlds_later_resets():
 
 def test_the_pick_magnifier_reads_the_jaws_and_goal_offsets_alike_in_numpy_and_torch():
     torch = pytest.importorskip("torch")
-    from dvrl_marl.envs import features
+    from dvrl_marl.suction_debris import features
 
     env = gym.make(PICK)
     spec = features.pick_spec(env)

@@ -41,7 +41,7 @@ def test_another_seat_acts_on_the_same_estimates(bench):
     acting = bench.acting_as(policies.load("marl-suction-pixels"), other)
     expected = policies.load(other)(estimated)
     if pixel.keep_clear is not None:  # the seat's own rule stays with it
-        from dvrl_marl.core.instruments import keep_clear
+        from dvrl_marl.suction_debris.instruments import keep_clear
 
         expected = keep_clear(expected, estimated, pixel.keep_clear)
     np.testing.assert_allclose(acting(observation), expected, atol=1e-6)
@@ -88,7 +88,7 @@ def test_exact_estimates_are_the_teacher_on_the_truth_where_the_seat_estimates(b
 
 
 def test_keeping_clear_gives_the_seat_the_yielding_rule_on_what_it_fills(bench):
-    from dvrl_marl.core.instruments import keep_clear
+    from dvrl_marl.suction_debris.instruments import keep_clear
 
     pixel = bench.keeping_clear(policies.load("marl-suction-pixels"), 15.0)
     assert pixel.keep_clear["keep_mm"] == 15.0

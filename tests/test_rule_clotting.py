@@ -73,7 +73,7 @@ def test_a_bad_rate_is_named(rate):
 def test_the_rule_runs_alike_under_jax():
     jax = pytest.importorskip("jax")
     jax.config.update("jax_enable_x64", True)
-    from dvrl_marl.core import scene_state
+    from dvrl_marl.suction_debris import scene_state
 
     env = _env(clotting_ml_s=0.5)
     core = env.core

@@ -7,9 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.core import layout, tools
+from dvrl_marl.core import tools
+from dvrl_marl.suction_debris import layout
 from dvrl_marl.envs import suction_debris
-from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
 
 WORLDS = 3
 IRRIGATE, SUCK = -1.0, 1.0
@@ -243,7 +244,7 @@ def test_saline_wasted_costs_every_agent_its_penalty_per_ml():
 def test_the_rule_runs_alike_under_jax():
     jax = pytest.importorskip("jax")
     jax.config.update("jax_enable_x64", True)
-    from dvrl_marl.core import scene_state
+    from dvrl_marl.suction_debris import scene_state
 
     env = _env(preset="irrigation", spill_s=0.5, blood_ml=[10.0, 8.0])
     core = env.core
@@ -340,7 +341,7 @@ def test_a_person_in_the_suction_seat_irrigates_with_the_key_and_the_cues_say_so
 
 
 def test_a_feature_set_of_a_scene_with_fluids_reads_its_whole_plain_observation():
-    from dvrl_marl.envs import features
+    from dvrl_marl.suction_debris import features
 
     env = _env(preset="irrigation")
     spec = env.feature_spec
@@ -387,7 +388,7 @@ def test_a_look_tints_the_fluids_as_it_tints_the_blood():
     """Domain randomisation's colour gain reaches the fluids' colours (drawn per cavity by what they hold), as it
     reaches liquid blood's material in a scene without fluids; the pins and the phantom's segments stay."""
     pytest.importorskip("OpenGL")
-    from dvrl_marl.envs.appearance import Appearance
+    from dvrl_marl.suction_debris.appearance import Appearance
 
     colour_only = Appearance(colour=0.3, light=0.0, light_degrees=0.0, camera_mm=0.0, camera_degrees=0.0, noise=0.0)
     images = {}

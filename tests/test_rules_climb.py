@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.core import sliding
-from dvrl_marl.core.collaborative import Cavities
+from dvrl_marl.suction_debris import sliding
+from dvrl_marl.suction_debris.rules import Cavities
 from rule_sets import v4_rules, v5_rules
 
 pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)
@@ -72,7 +72,7 @@ def test_a_tip_pressed_out_and_down_against_a_wall_rides_over_the_rim_in_v5_and_
 
 def move_over_the_surface(env, where, command):
     """A tip ``where`` (normalised x, y and a lift above the surface) and a command: the cavities, the parameters,
-    the tip (1, 3), the move (1, 3) and the workspace box, as :func:`dvrl_marl.core.sliding.surface_target` takes
+    the tip (1, 3), the move (1, 3) and the workspace box, as :func:`dvrl_marl.suction_debris.sliding.surface_target` takes
     them."""
     cavities, p = Cavities(env.phantom), env.params
     x, y, lift = env.workspace_centre + env.workspace_range * np.array(where)

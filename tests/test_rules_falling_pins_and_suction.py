@@ -8,7 +8,7 @@ from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.core.collaborative import GRAVITY, PIN_RADIUS
+from dvrl_marl.suction_debris.rules import GRAVITY, PIN_RADIUS
 from rule_sets import v0_rules, v1_rules
 
 pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)

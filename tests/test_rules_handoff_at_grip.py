@@ -9,7 +9,7 @@ from pettingzoo.test import api_test, parallel_api_test
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import ScriptedSuction
 from dvrl_marl.envs.scene_view import SceneView
-from dvrl_marl.core.collaborative import PHANTOM_EDGE_MARGIN, PIN_RADIUS, PIN_SENSOR_RANGE
+from dvrl_marl.suction_debris.rules import PHANTOM_EDGE_MARGIN, PIN_RADIUS, PIN_SENSOR_RANGE
 from rule_sets import v1_rules, v2_rules
 from dvrl_marl.teleop.person import run_episode
 

@@ -9,7 +9,7 @@ from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.agents import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.core.collaborative import PIN_HALF_LENGTH, PIN_RADIUS, PIN_SENSOR_RANGE
+from dvrl_marl.suction_debris.rules import PIN_HALF_LENGTH, PIN_RADIUS, PIN_SENSOR_RANGE
 from rule_sets import v3_rules, v4_rules
 
 pytestmark = pytest.mark.extended  # each rule against the one it replaced, over whole episodes (.ci/extended runs them)

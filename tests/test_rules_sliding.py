@@ -1,4 +1,4 @@
-"""v3_rules: a blocked move slides (dvrl_marl.core.sliding) instead of stopping; v2 stays as it was."""
+"""v3_rules: a blocked move slides (dvrl_marl.suction_debris.sliding) instead of stopping; v2 stays as it was."""
 
 import numpy as np
 import pytest

@@ -8,7 +8,7 @@ import inspect
 import numpy as np
 import pytest
 
-from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+from dvrl_marl.suction_debris.task import SuctionDebrisParams
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.seats.seat_env import SeatEnv
 

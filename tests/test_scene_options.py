@@ -1,4 +1,4 @@
-"""The scene's options, one checked record per concern (dvrl_marl.envs.scene_options): every keyword lands in one
+"""The scene's options, one checked record per concern (dvrl_marl.suction_debris.scene_options): every keyword lands in one
 record, a preset and the keywords over it are sorted once, a bad value is named before anything is made, and every
 form takes the same records."""
 
@@ -9,10 +9,10 @@ import dataclasses
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from dvrl_marl.core.collaborative_task import SuctionDebrisParams
+from dvrl_marl.suction_debris.task import SuctionDebrisParams
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.envs.presets import PRESETS
-from dvrl_marl.envs.scene_options import RECORDS, SceneOptions
+from dvrl_marl.suction_debris.presets import PRESETS
+from dvrl_marl.suction_debris.scene_options import RECORDS, SceneOptions
 
 OWNER = suction_debris_v8.TASK
 

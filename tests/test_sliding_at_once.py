@@ -5,7 +5,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.core import scene_state, sliding
+from dvrl_marl.suction_debris import scene_state, sliding
 from dvrl_marl.envs import suction_debris
 
 WORLDS = 5

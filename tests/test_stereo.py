@@ -8,7 +8,7 @@ import pytest
 from test_endoscope import _stepped  # (a batch stepped with random actions)
 
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.envs.appearance import APPEARANCES
+from dvrl_marl.suction_debris.appearance import APPEARANCES
 from dvrl_marl.envs.endoscope import STEREO_BASELINE_MM, EndoscopeRenderer, _software_renderer
 
 

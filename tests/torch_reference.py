@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from dvrl_marl.core.layout import ACTION_WIDTH
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH
 from dvrl_marl.training.mappo_config import MappoConfig
 from dvrl_marl.training.models import actor_arrays, bounds_loss, build_models, switch_gaussian
 

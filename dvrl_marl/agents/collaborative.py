@@ -1,7 +1,7 @@
-"""The collaborative scene's scripted experts (they live with the task: :mod:`dvrl_marl.envs.scripted_team`)."""
+"""The collaborative scene's scripted experts (they live with the task: :mod:`dvrl_marl.suction_debris.scripted_team`)."""
 
-from dvrl_marl.envs.scripted_team import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction, ScriptedSurgeon,
-                                          SweepingSuction, SweepingSurgeon, YieldingSuction)
+from dvrl_marl.suction_debris.scripted_team import (KeepClearSuction, KeepClearSurgeon, ScriptedSuction,
+                                                    ScriptedSurgeon, SweepingSuction, SweepingSurgeon, YieldingSuction)
 
 __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "SweepingSuction",
            "SweepingSurgeon", "YieldingSuction"]

@@ -295,7 +295,7 @@ class SceneRobotSeat(RobotSeat):
     def __init__(self, arm: ArmLink, policy, *, partner="scripted", preset: str = "default", seed: int = 0,
                  rate_hz: float = 50.0, stale_after_s: float = 0.1, clock=time.monotonic, sleep=time.sleep, log=None):
         from dvrl_marl.envs import suction_debris
-        from dvrl_marl.envs.presets import evaluation_options
+        from dvrl_marl.suction_debris.presets import evaluation_options
 
         self.agent = policy.spec.get("agent") if hasattr(policy, "spec") else None
         if self.agent not in ("suction", "grasper"):
@@ -316,7 +316,7 @@ class SceneRobotSeat(RobotSeat):
     def start_pose(policy, preset: str = "default", seed: int = 0) -> np.ndarray:
         """The servo_cp pose (4x4, the arm's base frame) where the scene's model starts the seat's arm."""
         from dvrl_marl.envs import suction_debris
-        from dvrl_marl.envs.presets import evaluation_options
+        from dvrl_marl.suction_debris.presets import evaluation_options
 
         agent = policy.spec["agent"]
         env = suction_debris.batched_env(num_envs=1, autoreset_mode="disabled", **evaluation_options(preset))

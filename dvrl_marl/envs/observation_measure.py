@@ -1,4 +1,4 @@
-"""How the centres and spreads of ``normalize_observations`` were measured (:mod:`dvrl_marl.envs.observation_scaling`):
+"""How the centres and spreads of ``normalize_observations`` were measured (:mod:`dvrl_marl.suction_debris.observation_scaling`):
 episodes of the scripted team and of random actions in the batched scene. ``python -m dvrl_marl.envs.observation_measure``
 rewrites the file the option reads."""
 
@@ -9,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.core import layout
-from dvrl_marl.envs.observation_scaling import MEASURE_SEED, MEASURE_TASK, MEASURE_WORLDS, MIN_SPREAD, SCALES_FILE
+from dvrl_marl.suction_debris import layout
+from dvrl_marl.suction_debris.observation_scaling import (MEASURE_SEED, MEASURE_TASK, MEASURE_WORLDS, MIN_SPREAD,
+                                                          SCALES_FILE)
 
 __all__ = ["measure", "write"]
 
@@ -24,7 +25,7 @@ def _statistics(samples: np.ndarray) -> dict:
 def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_SEED) -> dict:
     """Centres and spreads of every agent's observation (with ``feature_set``) and of the plain state, over one
     episode of the scripted team and one of uniformly random actions in each of ``worlds`` worlds."""
-    from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
+    from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
     from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
     env = SuctionDebrisBatchedEnv(num_envs=worlds, task=MEASURE_TASK, observation_features=feature_set,
@@ -50,7 +51,7 @@ def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_
 
 def write(path: Path = SCALES_FILE) -> dict:
     """Measure every feature set (and none) and write the file the option reads."""
-    from dvrl_marl.envs.features import SCENE_FEATURE_SETS
+    from dvrl_marl.suction_debris.features import SCENE_FEATURE_SETS
 
     content = {"source": "dvrl_marl.envs.observation_measure.measure", "task": MEASURE_TASK,
                "worlds": MEASURE_WORLDS, "seed": MEASURE_SEED, "min_spread": MIN_SPREAD,

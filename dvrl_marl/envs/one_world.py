@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from dvrl_marl.core.collaborative import PIN_HALF_LENGTH
+from dvrl_marl.suction_debris.rules import PIN_HALF_LENGTH
 
 __all__ = ["WorldArm", "WorldBlood", "WorldPin"]
 

@@ -4,10 +4,10 @@
 seat and a window for the parallel env; ``num_envs``, ``autoreset_mode`` and a device for the batched one). They pass
 them on as ``**kwargs``; :func:`form_signature` writes them out for ``inspect.signature`` (what ``help()``, IPython
 and Jupyter show and complete): the form's own keywords, the option records' fields
-(:mod:`dvrl_marl.envs.scene_options`), ``preset``, and the task's parameters
-(:class:`~dvrl_marl.core.collaborative_task.SuctionDebrisParams`), each annotated with its checked type (its range),
+(:mod:`dvrl_marl.suction_debris.scene_options`), ``preset``, and the task's parameters
+(:class:`~dvrl_marl.suction_debris.task.SuctionDebrisParams`), each annotated with its checked type (its range),
 with its default (the task file's value). Nothing here checks a value: the env does, once, where it is made
-(:meth:`~dvrl_marl.envs.scene_options.SceneOptions.of`).
+(:meth:`~dvrl_marl.suction_debris.scene_options.SceneOptions.of`).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import functools
 import inspect
 from dataclasses import fields
 
-from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams
-from dvrl_marl.envs.scene_options import RECORDS
+from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams
+from dvrl_marl.suction_debris.scene_options import RECORDS
 
 __all__ = ["form_signature", "scene_keywords"]
 
@@ -34,7 +34,7 @@ def _task_defaults() -> dict:
 def scene_keywords(*inits, without=()) -> list[inspect.Parameter]:
     """The keywords that make the scene, as keyword-only parameters: the named ones of each of ``inits`` (the
     batched env's constructor: a seat, rendering, the batch; a device env's own) but ``without`` and ``preset``, then
-    the option records' fields by concern (:data:`dvrl_marl.envs.scene_options.RECORDS`: the observation, the images,
+    the option records' fields by concern (:data:`dvrl_marl.suction_debris.scene_options.RECORDS`: the observation, the images,
     the learning aids), then ``preset``, then every task parameter, each record's and the task's with its default
     (the task file's value) and its checked type (its range) as its annotation."""
     own, named = [], {*without, "preset"}

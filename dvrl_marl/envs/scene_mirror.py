@@ -1,6 +1,6 @@
 """The collaborative scene in MuJoCo, only to be seen: a model that shows one world of the core's state.
 
-The core (:mod:`dvrl_marl.core.collaborative`) steps the worlds; to render one, its state is written into this model
+The core (:mod:`dvrl_marl.suction_debris.rules`) steps the worlds; to render one, its state is written into this model
 (joint values, jaw, blood surfaces, pins) and drawn. Nothing here feeds back into the step.
 """
 
@@ -14,9 +14,9 @@ import numpy as np
 from dvrl_marl import assets
 from dvrl_marl.arm import Arm
 from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
-from dvrl_marl.core.collaborative import AGENTS, SPILL_MARGIN, TOOLS
-from dvrl_marl.core.phantom import Cavity, Phantom
-from dvrl_marl.core.scene_geometry import ARM_PREFIXES, SceneGeometry
+from dvrl_marl.suction_debris.rules import AGENTS, SPILL_MARGIN, TOOLS
+from dvrl_marl.suction_debris.phantom import Cavity, Phantom
+from dvrl_marl.suction_debris.scene_geometry import ARM_PREFIXES, SceneGeometry
 from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.scene import geom_top, load_model, object_id
 

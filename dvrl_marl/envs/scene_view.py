@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from dvrl_marl.core.collaborative import AGENTS, PIN_SENSOR_RANGE, closest_on_segment, distance
+from dvrl_marl.suction_debris.rules import AGENTS, PIN_SENSOR_RANGE, closest_on_segment, distance
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
 
 __all__ = ["SceneView"]

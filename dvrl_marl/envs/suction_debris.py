@@ -2,7 +2,7 @@
 
 Users import the current version, :mod:`dvrl_marl.envs.suction_debris_v8`, whose module documentation is the
 environment's page; this module holds what that version re-exports. The step itself is the core's
-(:mod:`dvrl_marl.core.collaborative`), reached through the batched env with one world
+(:mod:`dvrl_marl.suction_debris.rules`), reached through the batched env with one world
 (:class:`~dvrl_marl.envs.suction_debris_batched.SuctionDebrisBatchedEnv`): this class turns its arrays into PettingZoo's
 dicts. A filled surgeon seat and the window a person watches are a wrapper's (:mod:`dvrl_marl.envs.surgeon_seat`),
 what a person is shown a view's (:mod:`dvrl_marl.envs.scene_view`); :func:`parallel_env` puts them together.
@@ -18,10 +18,10 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from dvrl_marl.core import tools
-from dvrl_marl.core import layout
-from dvrl_marl.core.collaborative import AGENTS
-from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams, env_name
-from dvrl_marl.envs import start_levels
+from dvrl_marl.suction_debris import layout
+from dvrl_marl.suction_debris.rules import AGENTS
+from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams, env_name
+from dvrl_marl.suction_debris import start_levels
 from dvrl_marl.envs.one_world import WorldArm, WorldBlood, WorldPin
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import REWARD_TYPES, SceneLayout, SuctionDebrisBatchedEnv
@@ -73,7 +73,7 @@ class SuctionDebrisEnv(ParallelEnv):
 
     @property
     def start_level(self) -> float:
-        """The start level of the next episodes (:mod:`dvrl_marl.envs.start_levels`)."""
+        """The start level of the next episodes (:mod:`dvrl_marl.suction_debris.start_levels`)."""
         return float(self.world.levels[0])
 
     @start_level.setter
@@ -289,7 +289,7 @@ env.__signature__ = parallel_env.__signature__
 
 
 # The scene's every form, from this unversioned module: the library imports it (PettingZoo's way); only users and
-# dvrl_marl.envs say the version (suction_debris_v8), whose name is the task's (core.collaborative_task.TASK).
-from dvrl_marl.envs.presets import PRESETS  # noqa: E402
+# dvrl_marl.envs say the version (suction_debris_v8), whose name is the task's (suction_debris.task.TASK).
+from dvrl_marl.suction_debris.presets import PRESETS  # noqa: E402
 from dvrl_marl.envs.suction_debris_device import batched_env  # noqa: E402
 from dvrl_marl.envs.suction_debris_jax import jax_env  # noqa: E402

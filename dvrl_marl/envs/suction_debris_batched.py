@@ -33,7 +33,7 @@ reachable, and leave the instruments apart). Rows of worlds that are not reset a
 default task is what you get without them.
 
 ``level`` (one level, ``"easy"`` / ``"default"``, or one per world) sets the start level of those worlds' episodes,
-this one and the later ones, automatic resets included (:mod:`dvrl_marl.envs.start_levels`; ``set_start_level``
+this one and the later ones, automatic resets included (:mod:`dvrl_marl.suction_debris.start_levels`; ``set_start_level``
 does the same between resets); below 1 it draws blood, debris and starts itself, so it is refused together with
 the three options above. World ``i``'s level draws are those of a single env reset with ``seed + i``.
 
@@ -61,18 +61,18 @@ import numpy as np
 from gymnasium import spaces
 
 from dvrl_marl import assets
-from dvrl_marl.core import layout
+from dvrl_marl.suction_debris import layout
 from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
-from dvrl_marl.core.collaborative import AGENTS, OBSERVATION_BOUND, CollaborativeCore
-from dvrl_marl.core.collaborative_task import TASK, env_name
-from dvrl_marl.core.scene_state import EnvState, SceneState, check_state
+from dvrl_marl.suction_debris.rules import AGENTS, OBSERVATION_BOUND, CollaborativeCore
+from dvrl_marl.suction_debris.task import TASK, env_name
+from dvrl_marl.suction_debris.scene_state import EnvState, SceneState, check_state
 from dvrl_marl.core.worlds import check_action_batch
-from dvrl_marl.envs import features, start_levels
-from dvrl_marl.envs.appearance import APPEARANCES, Appearance
-from dvrl_marl.envs.guidance import GuidedReward, OverRims
-from dvrl_marl.envs.observation_scaling import ObservationScaling
+from dvrl_marl.suction_debris import features, start_levels
+from dvrl_marl.suction_debris.appearance import APPEARANCES, Appearance
+from dvrl_marl.suction_debris.guidance import GuidedReward, OverRims
+from dvrl_marl.suction_debris.observation_scaling import ObservationScaling
 from dvrl_marl.envs.scene_keywords import form_signature
-from dvrl_marl.envs.scene_options import REWARD_TYPES, SceneOptions
+from dvrl_marl.suction_debris.scene_options import REWARD_TYPES, SceneOptions
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "IMAGE_PARTS", "SceneLayout", "batched_env",
            "takes_worlds"]
@@ -97,7 +97,7 @@ class SceneLayout:
     gain: float  # rho / eta: steps per normalised unit
     clearance: float  # tip clearance, normalised
     irrigates: bool = False  # the suction's valve irrigates on a negative command (irrigation_ml_s > 0)
-    fluids: bool = False  # observations end with the fluids' slots (irrigation or clots: core.layout.FLUID_FIELDS)
+    fluids: bool = False  # observations end with the fluids' slots (irrigation or clots: suction_debris.layout.FLUID_FIELDS)
 
 
 class SuctionDebrisBatchedEnv:
@@ -117,7 +117,7 @@ class SuctionDebrisBatchedEnv:
         self.metadata = {**self.metadata, "name": self.name}
         num_envs = validated(PositiveInt, num_envs, f"{self.name}: num_envs")
         #: every option by concern (the rules, the observation, the images, the learning aids), checked once
-        #: (:mod:`dvrl_marl.envs.scene_options`), from ``preset`` and the keywords over it
+        #: (:mod:`dvrl_marl.suction_debris.scene_options`), from ``preset`` and the keywords over it
         self.options = SceneOptions.of(self.name, preset=preset, task=task, max_cycles=max_cycles, **options)
         self.preset = self.options.preset
         observation, images, learning = self.options.observation, self.options.images, self.options.learning
@@ -162,7 +162,7 @@ class SuctionDebrisBatchedEnv:
         self.start_level = learning.level
         #: an easy episode's time limit (None: the task's max_cycles)
         self.easy_episode_steps = learning.easy_steps
-        #: the guided reward's settings (:class:`dvrl_marl.envs.guidance.Guidance`; None unless reward_type="guided")
+        #: the guided reward's settings (:class:`dvrl_marl.suction_debris.guidance.Guidance`; None unless reward_type="guided")
         self.guidance = learning.guidance_settings(self.name)
         self._surgeon = self._bind_surgeon(surgeon, surgeon_seat)
         self._surgeon_resets_worlds = takes_worlds(getattr(self._surgeon, "reset", None))
@@ -212,7 +212,7 @@ class SuctionDebrisBatchedEnv:
             low = np.concatenate([self.state_space.low, *([observation_space.low] * len(AGENTS))])
             self.state_space = spaces.Box(low, -low, dtype=np.float64)
         #: ``normalize_observations``: every agent's observation and the state mapped by fixed, measured centres and
-        #: spreads (:mod:`dvrl_marl.envs.observation_scaling`); None without the option. The seat's observation stays
+        #: spreads (:mod:`dvrl_marl.suction_debris.observation_scaling`); None without the option. The seat's observation stays
         #: plain (a scripted surgeon and an exported policy read the scene's units).
         self.observation_scaling = None
         if normalize and fluids:
@@ -379,7 +379,7 @@ class SuctionDebrisBatchedEnv:
         if isinstance(surgeon, str):
             if surgeon != "scripted":
                 raise ValueError(f"{self.name}: surgeon must be None, 'scripted' or a callable, got {surgeon!r}")
-            from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
+            from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
 
             return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self)
         if callable(surgeon):
@@ -521,7 +521,7 @@ class SuctionDebrisBatchedEnv:
         self.core.reset(worlds, blood_ml=blood_ml)
 
     def set_start_level(self, level, worlds=None) -> None:
-        """The start level (:mod:`dvrl_marl.envs.start_levels`) of the next episodes of ``worlds`` (default all; a
+        """The start level (:mod:`dvrl_marl.suction_debris.start_levels`) of the next episodes of ``worlds`` (default all; a
         mask or indices), automatic resets included: for a library's curriculum that cannot pass reset options."""
         worlds = self.core.worlds_of(worlds)
         self.levels[worlds] = self._checked_levels(level)[worlds]
@@ -537,7 +537,7 @@ class SuctionDebrisBatchedEnv:
         return np.full(self.num_envs, start_levels.checked_level(level, f"{self.name}: level"))
 
     def _start_at_levels(self, worlds: np.ndarray) -> None:
-        """New episodes for ``worlds`` at their levels (easy starts: :mod:`dvrl_marl.envs.start_levels`)."""
+        """New episodes for ``worlds`` at their levels (easy starts: :mod:`dvrl_marl.suction_debris.start_levels`)."""
         mask = np.zeros(self.num_envs, dtype=bool)
         mask[worlds] = True
         self.start_at_levels(mask, self.levels)
@@ -577,7 +577,7 @@ class SuctionDebrisBatchedEnv:
 
     @property
     def world_state(self) -> EnvState:
-        """The worlds' state as one record (copies): the scene's :class:`~dvrl_marl.core.scene_state.SceneState`, each
+        """The worlds' state as one record (copies): the scene's :class:`~dvrl_marl.suction_debris.scene_state.SceneState`, each
         world's start level and the guided reward's potentials; the device env's ``world_state`` is the same record
         of JAX arrays. Setting it puts every world there (checked first: a wrong field is named and nothing
         changes); a seat's filler keeps its own state."""

@@ -1,7 +1,7 @@
 """The collaborative scene's batched env on an accelerator: the step compiled whole, its state kept on the device.
 
 ``batched_env(num_envs=N, device="cuda")`` (or ``"cpu"``) returns this env. The one implementation of the step
-(:class:`~dvrl_marl.core.collaborative.CollaborativeCore`), the guided reward, the observation features and the
+(:class:`~dvrl_marl.suction_debris.rules.CollaborativeCore`), the guided reward, the observation features and the
 observation scaling, the automatic resets included, are traced by JAX (``pip install "dvrl-marl[jax]"``; a GPU
 needs JAX's CUDA build) and compiled into one function per env; the worlds' state never leaves the device. Actions
 go in and observations, rewards and flags come out as torch tensors on that device (``arrays="jax"``: JAX arrays),
@@ -38,9 +38,9 @@ import functools
 
 import numpy as np
 
-from dvrl_marl.core import layout
-from dvrl_marl.core.collaborative_task import TASK
-from dvrl_marl.core.scene_state import EnvState, register_with_jax
+from dvrl_marl.suction_debris import layout
+from dvrl_marl.suction_debris.task import TASK
+from dvrl_marl.suction_debris.scene_state import EnvState, register_with_jax
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
@@ -252,7 +252,7 @@ class SuctionDebrisDeviceEnv:
         raise ValueError(f"{self.name}: actions contain NaN or inf; {outcome}")  # (not reached: one agent's did)
 
     def set_start_level(self, level, worlds=None) -> None:
-        """The start level (:mod:`dvrl_marl.envs.start_levels`) of the next episodes of ``worlds`` (default all; a
+        """The start level (:mod:`dvrl_marl.suction_debris.start_levels`) of the next episodes of ``worlds`` (default all; a
         mask or indices), automatic resets included (checked on the host, then sent to the device)."""
         self.host.set_start_level(level, worlds)
         if self._state is not None:
@@ -310,7 +310,7 @@ class SuctionDebrisDeviceEnv:
 
     @property
     def world_state(self) -> EnvState:
-        """The worlds' state on the device (an :class:`~dvrl_marl.core.scene_state.EnvState` of JAX arrays: the
+        """The worlds' state on the device (an :class:`~dvrl_marl.suction_debris.scene_state.EnvState` of JAX arrays: the
         scene's record, the start levels and the guided reward's potentials; what :attr:`step_function` takes and
         gives)."""
         if self._state is None:

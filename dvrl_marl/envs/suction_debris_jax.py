@@ -22,7 +22,7 @@ vmapped batch equal to world i of the numpy batched env, step by step.
 and its episode count), not from the key: ``reset(key)`` starts the episode the numpy env starts with
 ``seed=seed_of(key)``, and the following episodes of that world are those of the same seed, wherever they are
 played. ``step``'s key is taken for the API's form and not used. The state is an
-:class:`~dvrl_marl.core.scene_state.EnvState` record (the scene's :class:`~dvrl_marl.core.scene_state.SceneState`, the
+:class:`~dvrl_marl.suction_debris.scene_state.EnvState` record (the scene's :class:`~dvrl_marl.suction_debris.scene_state.SceneState`, the
 start level and, with the guided reward, the potentials; float64: JAX's x64 is switched on for the process), a pytree
 that ``jit``, ``vmap`` and ``lax.scan`` carry; ``benchmarks/jax_env_scale.py`` prints its bytes a world and XLA's
 figures for a step over many worlds (the results page has them). Some of it is NaN or inf by design (a pin that is
@@ -35,7 +35,7 @@ that world and says so in ``infos["actions_finite"]``.
 
 from __future__ import annotations
 
-from dvrl_marl.core.scene_state import SPECS, EnvState
+from dvrl_marl.suction_debris.scene_state import SPECS, EnvState
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
 
@@ -56,7 +56,7 @@ class SuctionDebrisJaxEnv:
     keyword arguments but for the host's (``surgeon``, ``render_mode``, ``image_size``)."""
 
     def __init__(self, **options):
-        from dvrl_marl.core.collaborative_task import TASK
+        from dvrl_marl.suction_debris.task import TASK
         from dvrl_marl.envs.suction_debris_device import SuctionDebrisDeviceEnv
 
         for option in ("num_envs", "autoreset_mode", "device", "arrays", "check_actions"):
@@ -89,7 +89,7 @@ class SuctionDebrisJaxEnv:
 
     @property
     def state_keys(self) -> tuple:
-        """The names of the scene record's fields (:data:`dvrl_marl.core.scene_state.SPECS`)."""
+        """The names of the scene record's fields (:data:`dvrl_marl.suction_debris.scene_state.SPECS`)."""
         return tuple(SPECS)
 
     # --- the pure functions ---------------------------------------------------------------------------------

@@ -48,7 +48,7 @@ by the command's sign (closed when phi <= 0, open when phi > 0) instead of j = (
 dropped; the jaw follows phi again from the step after the hand-off).
 
 ``p <- p + eta * Delta`` (eta = 1 mm), projected into the workspace box, above the phantom, cavity floors and
-table, and within the joint limits. A blocked move slides instead of stopping (:mod:`dvrl_marl.core.sliding`):
+table, and within the joint limits. A blocked move slides instead of stopping (:mod:`dvrl_marl.suction_debris.sliding`):
 
 - a move into a cavity's wall has its component into the bowl taken away and slides along it (a frictionless
   contact: a tip pushed sideways against the wall rides up it and over the rim);
@@ -80,7 +80,7 @@ x~ = (x - p_c) / rho with the scene's p_c and rho (``tasks/suction_debris_v8.tom
 | with fluids, last 1 + 4C | irrigating side (-1 shut .. +1 open); per cavity its liquid, its blood's share of that liquid (concentration), its clot (liquid and clot as shares of its capacity), and its spill's time left (share) |
 
 The fluids' slots (``observation_layout["irrigation"]``, ``["liquid"]``, ``["concentration"]``, ``["clot"]``,
-``["spill"]``; :data:`dvrl_marl.core.layout.FLUID_FIELDS`) come only in a scene with irrigation or clots
+``["spill"]``; :data:`dvrl_marl.suction_debris.layout.FLUID_FIELDS`) come only in a scene with irrigation or clots
 (``irrigation_ml_s``, ``clot_share`` or ``clotting_ml_s`` above 0): elsewhere the observation is as before.
 
 ``state()`` / ``state_space`` give the global state for centralised critics: both tips, jaw, valve, blood
@@ -135,9 +135,9 @@ image and its own tip and valve alone, is trained by ``dvrl-marl train suction_p
 ``"dense"``: shaped: +1 per ml of blood removed, +2 for each debris first lifted, +5 for each delivered, and
 10 x the decrease of each agent's own distance (m) to what it should work on next (potential-based shaping).
 ``"guided"``: the dense reward plus the potential-based terms that made the task learnable from scratch
-(:mod:`dvrl_marl.envs.guidance`: the grasper's path over a pin to the hand-off, centred grasps, a hold bonus and a
+(:mod:`dvrl_marl.suction_debris.guidance`: the grasper's path over a pin to the hand-off, centred grasps, a hold bonus and a
 waiting place; the suction's route over the cavities still to clear, a clearing bonus and a parking place, and
-where there are clots 1 per ml of clot broken up; all measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.envs.guidance.Guidance`,
+where there are clots 1 per ml of clot broken up; all measured around the phantom's rims); ``guidance={...}`` changes its settings (:class:`~dvrl_marl.suction_debris.guidance.Guidance`,
 defaults: the configuration of record). Potential-based terms leave the optimal policy unchanged, and success is
 the sparse rule in every case. All: each agent in an instrument-instrument contact gets ``-contact_penalty``, and
 each agent ``-waste_penalty`` per ml of saline wasted, irrigated into no cavity (0 unless asked;
@@ -178,7 +178,7 @@ Tips near their own side above the phantom (seeded jitter of +/-5 mm), grasper j
 floors, hidden under the blood. ``reset(options={"blood_ml": [v0, v1]})`` sets the blood for that episode (and
 the ones after it); other keys are ignored with a warning.
 
-Start levels (:mod:`dvrl_marl.envs.start_levels`): ``reset(options={"level": x})`` (``start_level=x`` when made;
+Start levels (:mod:`dvrl_marl.suction_debris.start_levels`): ``reset(options={"level": x})`` (``start_level=x`` when made;
 ``"easy"`` = 0, ``"default"`` = 1, the default) draws an easy episode with probability ``1 - x``: cavities
 emptier, fewer debris, the grasper starting near a visible pin (receding from it as ``x`` rises), 300 steps at
 most (``easy_episode_steps``; ``None`` or 0: the task's own limit, so that every easy episode can be completed). Level
@@ -204,7 +204,7 @@ real time at 50 Hz), ``max_cycles``,
 ``teleop_timeout`` and the paper's ``workspace_centre``, ``workspace_range``, ``step_size``,
 ``distance_threshold``, ``grasp_threshold``; defaults in ``tasks/suction_debris_v8.toml``.
 Options that help learning (off by default; ``preset="benchmark"`` sets them): ``reward_type="guided"`` and ``guidance``,
-``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.envs.features.SCENE_FEATURE_SETS`): each
+``start_level``, and ``observation_features`` (a name in :data:`dvrl_marl.suction_debris.features.SCENE_FEATURE_SETS`): each
 agent's observation gets those features appended (relative targets computed from the observation alone: the pin
 to collect, the carry, the routes out of the cavities, zoomed offsets, a bleeding field's levels in thresholds and
 the last pin; ``observation_layout["features"]``), the ones the learned seats read. ``tool_speed`` (above): a tool that a Gaussian policy's noise cannot flick open;
@@ -212,7 +212,7 @@ the last pin; ``observation_layout["features"]``), the ones the learned seats re
 ``state_observations`` (above): both arms' observations in the state, for a library's centralised critics.
 ``normalize_observations``: every agent's observation (features included) and the state as ``(x - centre) / spread``
 per dimension, fixed centres and spreads measured on the scripted team's and random episodes
-(:mod:`dvrl_marl.envs.observation_scaling`; ``observation_scaling`` maps back): inputs at one scale for a library
+(:mod:`dvrl_marl.suction_debris.observation_scaling`; ``observation_scaling`` maps back): inputs at one scale for a library
 whose networks do not normalise their own (the pins' y and a carry's offsets vary 25-100 times less than a tip's
 position). The surgeon seat reads the scene's units either way.
 
@@ -224,7 +224,7 @@ exposes it to TorchRL.
 
 ## Presets
 ``preset="benchmark"`` is the setting of the benchmark table, the configurations of record and the reference team
-(:data:`dvrl_marl.envs.presets.PRESETS`): ``reward_type="guided"``,
+(:data:`dvrl_marl.suction_debris.presets.PRESETS`): ``reward_type="guided"``,
 ``observation_features="suction_debris_cleared_pins_zoom"``, ``state_observations=True``, ``contact_penalty=0.1``,
 ``tool_speed=0.1``, ``jaw_command="switch"``, ``hold_until_handoff=True``. Keywords given beside it win.
 ``preset="irrigation"`` is the benchmark's setting on a clotted field, the benchmark's irrigation level:

@@ -15,7 +15,7 @@ import math
 
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-from dvrl_marl.core.collaborative import AGENTS
+from dvrl_marl.suction_debris.rules import AGENTS
 from dvrl_marl.envs.scene_view import SceneView
 from dvrl_marl.pacing import PacedDisplay
 
@@ -77,7 +77,7 @@ class SurgeonSeat(BaseParallelWrapper):
             if surgeon != "scripted":
                 raise ValueError(f"{self.env.name}: surgeon must be None, 'scripted', a callable or a teleop device, "
                                  f"got {surgeon!r}")
-            from dvrl_marl.envs.scripted_team import ScriptedSuction, ScriptedSurgeon
+            from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
 
             return (ScriptedSurgeon if seat == "grasper" else ScriptedSuction).for_env(self.env), False
         if hasattr(surgeon, "action") and callable(surgeon.action):

@@ -42,8 +42,8 @@ except ImportError as error:  # pragma: no cover - exercised where BenchMARL is 
     raise ImportError('dvrl_marl.integrations.benchmarl needs BenchMARL: pip install "dvrl-marl[benchmarl]"') from error
 from torchrl.data import Composite
 
-from dvrl_marl.envs.presets import with_preset
-from dvrl_marl.envs.start_levels import checked_schedule, scheduled_level
+from dvrl_marl.suction_debris.presets import with_preset
+from dvrl_marl.suction_debris.start_levels import checked_schedule, scheduled_level
 from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
 __all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_debris_task", "experiment_config",
@@ -144,7 +144,7 @@ class SuccessCurve(Callback):
 
 
 class StartLevelSchedule(Callback):
-    """A BenchMARL callback that drives the env's start level (:mod:`dvrl_marl.envs.start_levels`) as a
+    """A BenchMARL callback that drives the env's start level (:mod:`dvrl_marl.suction_debris.start_levels`) as a
     piecewise-linear schedule over the run, ``levels = [(progress, level), ...]`` (progress: the share of
     ``max_n_frames`` collected): after each collected batch the training worlds' next episodes start at the scheduled
     level. The same curriculum as this project's trainer (``[curriculum] levels``), from outside the algorithm; the

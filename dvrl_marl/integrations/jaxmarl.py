@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
-from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.envs.suction_debris_jax import SuctionDebrisJaxEnv
 
 __all__ = ["SuctionDebrisJaxMARLEnv", "suction_debris_env"]

@@ -123,7 +123,7 @@ class SuctionDebrisTorchRLEnv(EnvBase):
         return {"agents": list(self.agent_names)}
 
     def set_start_level(self, level, worlds=None) -> None:
-        """The start level of the next episodes (see :mod:`dvrl_marl.envs.start_levels`)."""
+        """The start level of the next episodes (see :mod:`dvrl_marl.suction_debris.start_levels`)."""
         self.batched.set_start_level(level, worlds)
 
     def _tensor(self, array) -> torch.Tensor:

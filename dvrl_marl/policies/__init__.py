@@ -14,7 +14,7 @@ A multi-agent PPO policy also records the exploration noise it trained with (``p
 ``policy.with_noise(seed)`` acts as it did in training (its mean action plus that noise, seeded), which is the
 policy PPO optimised; some of these act better that way than by their mean (``baselines/README.md``). A policy may
 also name observation ``features`` it computes from its observation before its first layer
-(:mod:`dvrl_marl.envs.features`), and ``switch_dimensions``: action dimensions it learnt as a switch (a jaw made
+(:mod:`dvrl_marl.suction_debris.features`), and ``switch_dimensions``: action dimensions it learnt as a switch (a jaw made
 with ``jaw_command="switch"``), which it sends as -1 or 1 by their sign, so that a proportional jaw does the same.
 
 A **pixel policy** (``policy.json``'s ``"image"``: :mod:`dvrl_marl.policies.image_encoder`) reads the endoscope's
@@ -79,7 +79,7 @@ class NumpyPolicy:
                                  f"keep_clear, which it lacks")
             self.felt_contact = FeltContact(spec["felt_contact"], self.keep_clear)
         if spec.get("preset") is not None:  # the scene it learnt on, which the evaluations make
-            from dvrl_marl.envs.presets import PRESETS
+            from dvrl_marl.suction_debris.presets import PRESETS
 
             if spec["preset"] not in PRESETS:
                 raise ValueError(f"policy {self.name!r}: preset {spec['preset']!r} is not a preset of the scene "
@@ -90,8 +90,8 @@ class NumpyPolicy:
 
             self.encoder = ImageEncoder(spec["image"], kernels or [], readout, keypoint_gains)
         self._feature_count = 0
-        if "features" in spec:  # checked once here, not on every call (dvrl_marl.envs.features)
-            from dvrl_marl.envs import features
+        if "features" in spec:  # checked once here, not on every call (dvrl_marl.suction_debris.features)
+            from dvrl_marl.suction_debris import features
 
             features.check_spec(spec["features"])
             self._feature_count = features.feature_count(spec["features"]["name"])
@@ -176,7 +176,7 @@ class NumpyPolicy:
         _check_finite(self.name, x, "observation")
         expected = self.weights[0][0].shape[1] - self._feature_count
         if self._feature_count and x.shape[-1] == expected:  # features it computes from its observation
-            from dvrl_marl.envs import features
+            from dvrl_marl.suction_debris import features
 
             return features.apply(self.spec["features"], x)
         if self._feature_count and x.shape[-1] == expected + self._feature_count:
@@ -220,7 +220,7 @@ class NumpyPolicy:
     def _kept_clear(self, action: np.ndarray, observed) -> np.ndarray:
         """``keep_clear``: the motion withheld where it would bring the instrument within ``keep`` of the other's
         and nearer (the scripted yielding suction's rule, on what this policy reads of the two tips)."""
-        from dvrl_marl.core.instruments import keep_clear
+        from dvrl_marl.suction_debris.instruments import keep_clear
 
         x = np.asarray(observed["observation"] if isinstance(observed, dict) else observed, dtype=np.float64)
         action = keep_clear(action, x, self.keep_clear)

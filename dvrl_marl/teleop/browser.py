@@ -29,7 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from dvrl_marl.core.layout import ACTION_WIDTH
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH
 from dvrl_marl.teleop.devices import KeyboardDevice
 
 __all__ = ["BrowserDevice", "TeleopLost", "BadMessage", "BROWSER_KEYS"]

@@ -11,7 +11,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from dvrl_marl.core import tools
-from dvrl_marl.core.layout import ACTION_WIDTH
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH
 
 __all__ = [
     "Device",

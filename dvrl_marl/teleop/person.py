@@ -180,7 +180,7 @@ def run_episode(seed: int, operator: PersonLikeOperator | None = None, *, partne
 
     operator = operator or PersonLikeOperator(seed, reaction_s=reaction_s)
     operator.reset()
-    from dvrl_marl.core.collaborative_task import TASK  # the scene of TELEOP_ENV_ID
+    from dvrl_marl.suction_debris.task import TASK  # the scene of TELEOP_ENV_ID
     from dvrl_marl.task import load_task_table
 
     dt = float(load_task_table(TASK)[1]["control_dt"])

@@ -25,8 +25,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from dvrl_marl.core.layout import ACTION_WIDTH
-from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH
+from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.teleop.browser import BrowserDevice
 from dvrl_marl.envs.scene_view import SceneView
 from dvrl_marl.pacing import RealTimePacer

@@ -21,7 +21,7 @@ import socket
 
 import numpy as np
 
-from dvrl_marl.core.layout import ACTION_WIDTH
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH
 from dvrl_marl.training.mappo_config import TRAIN_SEED_BASE, partner
 from dvrl_marl.training.models import build_models, limit_threads, require_torch
 

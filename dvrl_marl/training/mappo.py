@@ -16,10 +16,10 @@
 - **Loss**: TorchRL's ``ClipPPOLoss`` and ``GAE`` over the ``("agents", ...)`` keys, rewards scaled by a running
   standard deviation of the discounted return (per agent), a few epochs on large minibatches (Yu et al. 2022).
 - **What makes the task learnable** is the env's, not the trainer's: ``[env] reward_type = "guided"``
-  (:mod:`dvrl_marl.envs.guidance`, potential-based: success is still the sparse rule), ``[env]
+  (:mod:`dvrl_marl.suction_debris.guidance`, potential-based: success is still the sparse rule), ``[env]
   observation_features`` (relative targets the actors read; the exported numpy policies compute them from the
   plain observation), ``[env] contact_penalty``, and ``[curriculum] levels``: a schedule of the env's start level
-  (:mod:`dvrl_marl.envs.start_levels`), the level at which ended worlds restart as the run progresses. Any library
+  (:mod:`dvrl_marl.suction_debris.start_levels`), the level at which ended worlds restart as the run progresses. Any library
   can use the same options; this trainer only schedules the level.
 - **What the measurements of this trainer added** (``[model]`` and ``[ppo]`` options, off by default;
   ``baselines/README.md`` has the figures): ``tool_head = "switch"`` decides the valve / jaw as open or closed (a
@@ -60,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.envs import suction_debris
-from dvrl_marl.envs.presets import evaluation_options
+from dvrl_marl.suction_debris.presets import evaluation_options
 from dvrl_marl.envs.suction_debris import TASK, env_name
 from dvrl_marl.training import run_progress, teams, trainers
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,

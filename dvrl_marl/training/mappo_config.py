@@ -1,7 +1,7 @@
 """The MAPPO / IPPO trainer's configuration: its schema (:class:`MappoConfig`), the TOML reader
 (:func:`load_config`) and who fills the partner seat. What makes the task learnable is not here: it is the env's
 options under ``[env]`` (``reward_type = "guided"``, ``[env.guidance]``, ``observation_features``, ``contact_penalty``)
-and ``[curriculum] levels``, a schedule of the env's start level (:mod:`dvrl_marl.envs.start_levels`).
+and ``[curriculum] levels``, a schedule of the env's start level (:mod:`dvrl_marl.suction_debris.start_levels`).
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
-from dvrl_marl.envs import start_levels, suction_debris
-from dvrl_marl.envs.presets import with_preset
+from dvrl_marl.envs import suction_debris
+from dvrl_marl.suction_debris import start_levels
+from dvrl_marl.suction_debris.presets import with_preset
 from dvrl_marl.schemas import (STRICT, Finite, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval)
 from dvrl_marl.training import teams
@@ -79,7 +80,7 @@ class MappoConfig:
     # MAPPO's critic input: "state" (the env's state()), or "state_and_observation": the state and the agent's own
     # observation (with its features), one value network per agent (Yu et al. 2022's agent-specific global state)
     critic_input: Literal[CRITIC_INPUTS] = "state"
-    # curriculum: the env's start level (dvrl_marl.envs.start_levels) as a piecewise-linear schedule over the run,
+    # curriculum: the env's start level (dvrl_marl.suction_debris.start_levels) as a piecewise-linear schedule over the run,
     # [[progress, level], ...] (progress in [0, 1], increasing); [] leaves the env's own start_level
     levels: list[tuple[Fraction, Fraction]] = field(default_factory=list)
     torch_threads: NonNegativeInt = 0  # 0: torch's default

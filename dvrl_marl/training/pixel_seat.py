@@ -44,8 +44,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from dvrl_marl.core.layout import MOVE, TOOL
-from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.suction_debris.layout import MOVE, TOOL
+from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.schemas import (STRICT, Flag, Fraction, NonNegative, NonNegativeInt, Positive, PositiveInt, Text,
                                UnitInterval, validated)
 from dvrl_marl.training import trainers
@@ -325,7 +325,7 @@ def _estimates_other_tip(config: PixelSeatConfig) -> bool:
 def _keep_clear_table(config: PixelSeatConfig) -> dict | None:
     """The seat's ``keep_clear`` table (``keep_clear_mm``: the yielding suction's rule for ``config.agent``), or
     None."""
-    from dvrl_marl.envs.scripted_team import keep_clear_rule
+    from dvrl_marl.suction_debris.scripted_team import keep_clear_rule
 
     if config.keep_clear_mm is None:
         return None
@@ -350,7 +350,7 @@ def collect(config: PixelSeatConfig, student, seed: int, noise_seed: int) -> dic
     auxiliary targets ``(M, a)`` (the estimates, by ``acts_by = "teacher"``), "cleared" per cavity ``(M, C)``, how far
     apart the two arms' tips are ``(M,)`` mm, the episodes' success rate and the observation's constants (NaN where a
     value varied)."""
-    from dvrl_marl.core.instruments import keep_clear
+    from dvrl_marl.suction_debris.instruments import keep_clear
     from dvrl_marl.training import teams
 
     agent, other = config.agent, _other(config)

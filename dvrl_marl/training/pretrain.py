@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.core.layout import MOVE, TOOL
+from dvrl_marl.suction_debris.layout import MOVE, TOOL
 __all__ = ["record_expert", "clone_actor", "clone_experts", "start_from_policies"]
 
 

@@ -122,7 +122,7 @@ class RunConfig:
         """The spec of the features the policy computes (what its ``policy.json`` records), or None."""
         if not self.observation_features:
             return None
-        from dvrl_marl.envs import features
+        from dvrl_marl.suction_debris import features
 
         return features.pick_spec(gym.make(self.env_id, **self.env))
 

@@ -1,4 +1,4 @@
-"""SB3's features extractor for a policy that computes its own observation features (:mod:`dvrl_marl.envs.features`).
+"""SB3's features extractor for a policy that computes its own observation features (:mod:`dvrl_marl.suction_debris.features`).
 
 The Dict observation is flattened key by key in the space's order (what SB3's ``CombinedExtractor`` and an exported
 policy's ``observation_keys`` do) and the named features are appended, in torch, by the same arithmetic the exported
@@ -12,7 +12,7 @@ import torch
 from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-from dvrl_marl.envs import features
+from dvrl_marl.suction_debris import features
 
 __all__ = ["ObservationFeatures"]
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.core.collaborative import FLUID_FIGURES
+from dvrl_marl.suction_debris.rules import FLUID_FIGURES
 from dvrl_marl.envs import suction_debris
 from dvrl_marl.agents.partners import Partners
 

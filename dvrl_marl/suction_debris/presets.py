@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from types import MappingProxyType
 
-from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["PRESETS", "LEARNING_OPTIONS", "with_preset", "evaluation_options"]
 

@@ -3,7 +3,7 @@
 Every form of the scene (``parallel_env``, ``env``, ``batched_env``, ``jax_env``, the seat) takes the same keywords;
 :meth:`SceneOptions.of` sorts them into their records and checks each value once, before anything is made:
 
-- :class:`~dvrl_marl.core.collaborative_task.SuctionDebrisParams`, **the scene's rules** (the task file's values,
+- :class:`~dvrl_marl.suction_debris.task.SuctionDebrisParams`, **the scene's rules** (the task file's values,
   overridden keyword by keyword);
 - :class:`ObservationOptions`, **what is observed** beyond the plain observation (features, the state, scaling);
 - :class:`ImageOptions`, **the endoscope's images** in the observations;
@@ -22,11 +22,11 @@ from typing import Any, Literal
 
 from pydantic.dataclasses import dataclass
 
-from dvrl_marl.core.collaborative_task import TASK, SuctionDebrisParams
-from dvrl_marl.envs import features, start_levels
-from dvrl_marl.envs.appearance import APPEARANCES, Appearance
-from dvrl_marl.envs.guidance import Guidance
-from dvrl_marl.envs.presets import with_preset
+from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams
+from dvrl_marl.suction_debris import features, start_levels
+from dvrl_marl.suction_debris.appearance import APPEARANCES, Appearance
+from dvrl_marl.suction_debris.guidance import Guidance
+from dvrl_marl.suction_debris.presets import with_preset
 from dvrl_marl.schemas import STRICT, EasyEpisodeSteps, Flag, NonNegativeInt, PositiveInt, validated
 
 __all__ = ["SceneOptions", "ObservationOptions", "ImageOptions", "LearningAids", "RECORDS", "REWARD_TYPES",
@@ -87,7 +87,7 @@ class ImageOptions:
 @dataclass(frozen=True, config=STRICT)
 class LearningAids:
     """What helps learning without changing the scene: an exported policy is evaluated without them
-    (:data:`dvrl_marl.envs.presets.LEARNING_OPTIONS`)."""
+    (:data:`dvrl_marl.suction_debris.presets.LEARNING_OPTIONS`)."""
 
     #: the reward: the paper's sparse one, the env's dense shaping, or the guided reward
     reward_type: Literal[REWARD_TYPES] = "sparse"

@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from dvrl_marl.core import tools
-from dvrl_marl.core.instruments import keep_clear
-from dvrl_marl.core.layout import (ACTION_WIDTH, MOVE, PIN_DELIVERED, PIN_HELD, PIN_POSITION, PIN_VISIBLE, PIN_WIDTH,
-                                   TOOL)
-from dvrl_marl.envs.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
+from dvrl_marl.suction_debris.instruments import keep_clear
+from dvrl_marl.suction_debris.layout import (ACTION_WIDTH, MOVE, PIN_DELIVERED, PIN_HELD, PIN_POSITION, PIN_VISIBLE,
+                                             PIN_WIDTH, TOOL)
+from dvrl_marl.suction_debris.places import SAFE_HEIGHT, park_height, suction_parking_place, surgeon_waiting_place
 
 __all__ = ["ScriptedSuction", "ScriptedSurgeon", "KeepClearSuction", "KeepClearSurgeon", "SweepingSuction",
            "SweepingSurgeon", "YieldingSuction", "keep_clear_rule", "burst_valve"]

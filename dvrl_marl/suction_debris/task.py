@@ -57,7 +57,7 @@ class SuctionDebrisParams:
     bleeding_ml_s: NonNegative = 0.0  # largest bleeding rate per cavity (0: no bleeding)
     bleeding_onset_s: NonNegative = 0.0  # each cavity starts bleeding at a seeded time in [0, this] (s)
     clotting_ml_s: NonNegative = 0.0  # liquid blood clots at this rate per cavity (ml/s); suction draws no clot
-    # Irrigation (the S&I valve's other half; core.collaborative, the irrigation rule): off by default.
+    # Irrigation (the S&I valve's other half; suction_debris.rules, the irrigation rule): off by default.
     irrigation_ml_s: NonNegative = 0.0  # saline flow while the valve irrigates (ml/s; 0: a negative command shuts it)
     clot_share: Fraction = 0.0  # share of each cavity's starting blood that is clotted (suction draws no clot)
     clot_per_saline_ml: NonNegative = 0.0  # clot broken up (made liquid) per ml of saline irrigated onto it (ml)
@@ -65,7 +65,7 @@ class SuctionDebrisParams:
     waste_penalty: NonNegative = 0.0  # per ml of saline wasted (irrigated but into no cavity), off every agent's reward
     deliver_at_grip: Flag = False  # hand-off judged where the jaws hold the pin (simple: at the pin's centre)
     pins_stay_on_phantom: Flag = False  # a pin released beyond the phantom lands on its nearest edge (simple: table)
-    blocked_moves: Literal["stop", "slide", "climb", "climb_ahead", "settle"] = "stop"  # how it slides (core.sliding)
+    blocked_moves: Literal["stop", "slide", "climb", "climb_ahead", "settle"] = "stop"  # how it slides (suction_debris.sliding)
     held_pin_at_grip: Flag = False  # a held pin is observed (and carried, in the dense reward) at the point judged
     # Options that help learning (default: the paper's instant tool and jaw):
     tool_speed: UnitInterval = 1.0  # fraction of the jaw's / valve's stroke per control step (dvrl_marl.core.tools)
@@ -75,7 +75,7 @@ class SuctionDebrisParams:
     @property
     def fluids(self) -> bool:
         """The cavities hold more than liquid blood: clots, or saline from the irrigating valve (observations, the
-        state and the endoscope then show the fluids: :data:`dvrl_marl.core.layout.FLUID_FIELDS`)."""
+        state and the endoscope then show the fluids: :data:`dvrl_marl.suction_debris.layout.FLUID_FIELDS`)."""
         return self.irrigation_ml_s > 0.0 or self.clot_share > 0.0 or self.clotting_ml_s > 0.0
 
     @classmethod

@@ -5,7 +5,7 @@ instruments that may not pass through each other), suction and the blood level i
 revealed, grasped by the paper's rule, carried, dropped and delivered, the team's reward, completion and truncation.
 Every form of the scene (the parallel and AEC envs, one world; the batched env; the seat envs; the Gymnasium vector
 envs) is a shell over this core, and one world is a batch of one. It is built from the task's parameters and the
-scene file's geometry (:class:`~dvrl_marl.core.scene_geometry.SceneGeometry`) and imports no MuJoCo: a MuJoCo model
+scene file's geometry (:class:`~dvrl_marl.suction_debris.scene_geometry.SceneGeometry`) and imports no MuJoCo: a MuJoCo model
 only mirrors a world to render it.
 
 Memory: about 1.5 kB per world with 3 debris.
@@ -19,15 +19,16 @@ import math
 import numpy as np
 
 from dvrl_marl import kinematics
-from dvrl_marl.core import layout, scene_state, sliding, tools
+from dvrl_marl.core import tools
+from dvrl_marl.suction_debris import layout, scene_state, sliding
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.backend import join, namespace, needed, put, rows_of, take
-from dvrl_marl.core.collaborative_task import PIN_SLOTS, SuctionDebrisParams
-from dvrl_marl.core.lean_move import LeanMove
-from dvrl_marl.core.phantom import Cavities
-from dvrl_marl.core.scene_geometry import SceneGeometry
-from dvrl_marl.core.scene_state import SceneState
-from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
+from dvrl_marl.suction_debris.task import PIN_SLOTS, SuctionDebrisParams
+from dvrl_marl.suction_debris.lean_move import LeanMove
+from dvrl_marl.suction_debris.phantom import Cavities
+from dvrl_marl.suction_debris.scene_geometry import SceneGeometry
+from dvrl_marl.suction_debris.scene_state import SceneState
+from dvrl_marl.suction_debris.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.core.streams import STREAMS, ResetStreams, uniforms
 from dvrl_marl.core.worlds import check_action_batch, world_indices
 
@@ -65,7 +66,7 @@ STARTS = {"suction": (-0.045, -0.015, 0.065), "grasper": (0.05, -0.012, 0.07)}
 START_JITTER = 0.005
 
 
-#: Where the core keeps each field of its state record (:class:`~dvrl_marl.core.scene_state.SceneState`) that is not
+#: Where the core keeps each field of its state record (:class:`~dvrl_marl.suction_debris.scene_state.SceneState`) that is not
 #: an attribute of its own name: an arm's, a per-agent dict's, the random streams'.
 _ARM_FIELDS = {"suction_tip": ("suction", "tip"), "suction_q": ("suction", "q"), "grasper_tip": ("grasper", "tip"),
                "grasper_q": ("grasper", "q"), "jaw": ("grasper", "jaw")}
@@ -820,7 +821,7 @@ class CollaborativeCore:
                      self.clot_ml / capacity, spill], xp)
 
     def _pins(self, positions, xp, visible=None):
-        """(N, PIN_WIDTH D): each pin's slot (:mod:`dvrl_marl.core.layout`): its position, then whether it is visible,
+        """(N, PIN_WIDTH D): each pin's slot (:mod:`dvrl_marl.suction_debris.layout`): its position, then whether it is visible,
         held, delivered."""
         n, d = positions.shape[:2]
         width = layout.PIN_WIDTH

@@ -10,7 +10,7 @@ motionless for 100+ steps against a blocker; its exploration noise had shaken it
 exploration noise to its commands, so the scene resolves contacts as a frictionless constraint does (a
 forbidden-region virtual fixture). The rules, each adding to the ones before it:
 
-- ``slide``. **A cavity's wall** is a sphere (the bowl, :class:`~dvrl_marl.core.collaborative.Cavities`): the move's
+- ``slide``. **A cavity's wall** is a sphere (the bowl, :class:`~dvrl_marl.suction_debris.rules.Cavities`): the move's
   component into it is taken away and the rest slides along it (``d - min(d.n, 0) n``, ``n`` the wall's normal at
   the tip, toward the sphere's centre). Its upward part lifts a tip pushed outward over the rim, as a tool tip
   pressed sideways against a bowl rides up its side. The phantom's vertical sides stay walls (a horizontal push
@@ -52,7 +52,7 @@ import numpy as np
 
 from dvrl_marl import kinematics
 from dvrl_marl.core.backend import columns, namespace, needed, scan
-from dvrl_marl.core.instruments import contact_normal, instrument_clearance
+from dvrl_marl.suction_debris.instruments import contact_normal, instrument_clearance
 
 __all__ = ["MoveRules", "BLOCKED_MOVES", "wall_slide", "surface_target", "fallback_moves", "resolve_blocked", "OUTER_JOINTS", "CONTACT_LIFT",
            "NO_HEADWAY"]

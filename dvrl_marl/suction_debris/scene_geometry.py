@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dvrl_marl import assets
-from dvrl_marl.core.phantom import Cavity, Phantom
+from dvrl_marl.suction_debris.phantom import Cavity, Phantom
 
 __all__ = ["SceneGeometry", "ARM_PREFIXES"]
 

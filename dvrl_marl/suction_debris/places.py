@@ -1,7 +1,7 @@
 """Where the collaborative scene's arms wait: the suction's parking place and the surgeon's waiting place.
 
-Both are scene facts shared by the scripted experts (:mod:`dvrl_marl.envs.scripted_team`) and the env's guided
-reward (:mod:`dvrl_marl.envs.guidance`), which leads a learning arm to the same places. Heights are metres above the
+Both are scene facts shared by the scripted experts (:mod:`dvrl_marl.suction_debris.scripted_team`) and the env's guided
+reward (:mod:`dvrl_marl.suction_debris.guidance`), which leads a learning arm to the same places. Heights are metres above the
 phantom's top (normalised units are scene-specific), converted with the workspace range.
 """
 

@@ -6,7 +6,7 @@ each, with its shape per world and how an episode starts it (:data:`SPECS`). It 
 Nothing converts it by hand: choosing, writing and stacking worlds, checking a record's shapes and dtypes and counting
 its bytes are written once here, over its fields.
 
-The rules that advance it are :class:`~dvrl_marl.core.collaborative.CollaborativeCore`'s; ``core.step_state(state,
+The rules that advance it are :class:`~dvrl_marl.suction_debris.rules.CollaborativeCore`'s; ``core.step_state(state,
 commands)`` and ``core.reset_state(state, mask)`` are them as pure functions of the record.
 """
 
@@ -53,7 +53,7 @@ SPECS = {
     "added_ml": FieldSpec(("C",), _F, 0.0), "bleed_onset": FieldSpec(("C",)), "bleed_rate": FieldSpec(("C",)),
     # clotted blood per cavity (ml; part of remaining_ml, which suction cannot draw)
     "clot_ml": FieldSpec(("C",), _F, 0.0),
-    # irrigation (core.collaborative's irrigation rule): the valve's irrigating stroke (0 shut .. 1 open), saline in
+    # irrigation (suction_debris.rules's irrigation rule): the valve's irrigating stroke (0 shut .. 1 open), saline in
     # each cavity (ml; with the liquid blood, the mix suction draws), seconds each cavity's spill still covers the
     # phantom, whether it overflowed this step; the episode's saline used and wasted, spilt (ml), overflows begun and
     # steps with a cavity overflowing

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
-from dvrl_marl.core.instruments import SHAFT_RADIUS, WRIST_RADIUS
-from dvrl_marl.core.sliding import NO_HEADWAY
+from dvrl_marl.suction_debris.instruments import SHAFT_RADIUS, WRIST_RADIUS
+from dvrl_marl.suction_debris.sliding import NO_HEADWAY
 
 __all__ = ["LeanMove"]
 
@@ -28,7 +28,7 @@ def _clip01(x):
 
 
 def _segment_distance(p1, q1, p2, q2):
-    """:func:`dvrl_marl.core.instruments.segment_offset`'s length, on 3-tuples."""
+    """:func:`dvrl_marl.suction_debris.instruments.segment_offset`'s length, on 3-tuples."""
     d10, d11, d12 = q1[0] - p1[0], q1[1] - p1[1], q1[2] - p1[2]
     d20, d21, d22 = q2[0] - p2[0], q2[1] - p2[1], q2[2] - p2[2]
     r0, r1, r2 = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
@@ -104,7 +104,7 @@ class LeanMove:
         self.radii = ((2 * SHAFT_RADIUS, 0.0), (SHAFT_RADIUS, rb), (ra, SHAFT_RADIUS), (ra, rb))
 
     def floor(self, x, y):
-        """:meth:`dvrl_marl.core.phantom.Cavities.surface_height` plus the tip's clearance."""
+        """:meth:`dvrl_marl.suction_debris.phantom.Cavities.surface_height` plus the tip's clearance."""
         cx, cy, half_x, half_y, top_z, table_z = self.phantom
         deepest = 0.0
         for centre_x, centre_y, radius, depth, mouth2 in self.cavities:
@@ -117,7 +117,7 @@ class LeanMove:
         return surface + self.clearance_of_tip
 
     def target(self, agent, old, delta):
-        """:func:`dvrl_marl.core.sliding.surface_target` where no rule of a blocked move applies, else None."""
+        """:func:`dvrl_marl.suction_debris.sliding.surface_target` where no rule of a blocked move applies, else None."""
         low, high = self.low, self.high
         target = tuple(min(max(o + d, lo), hi) for o, d, lo, hi in zip(old, delta, low, high))
         if target[2] < self.floor(target[0], target[1]):  # into a wall or below the surface: the array path

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.core.collaborative_task import TASK
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["ObservationScaling", "SCALES_FILE", "MEASURE_WORLDS", "MEASURE_SEED", "MIN_SPREAD", "MEASURE_TASK"]
 

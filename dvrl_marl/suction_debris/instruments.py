@@ -1,7 +1,7 @@
 """The two instruments as segments, for contact: an RCM-to-wrist shaft and a wrist-to-tip segment per arm.
 
 Shared by the collaborative scene's batched core (contact and the refusal of intersecting moves) and the sliding rules
-(:mod:`dvrl_marl.core.sliding`: the contact's normal), batched over leading axes. Written against the Python array API
+(:mod:`dvrl_marl.suction_debris.sliding`: the contact's normal), batched over leading axes. Written against the Python array API
 standard (``array_api_compat.array_namespace``): the same functions take numpy arrays (the default), torch tensors
 on a CPU or a GPU, or JAX arrays (under ``jax.jit`` too), and give each the same floating-point results
 (``benchmarks/backend_prototype.py`` measures them on each).
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import array_api_compat.numpy  # noqa: F401  (numpy's namespace, loaded now rather than on the first step)
 
-from dvrl_marl.core.layout import MOVE
+from dvrl_marl.suction_debris.layout import MOVE
 from dvrl_marl import assets
 from dvrl_marl.core.backend import namespace
 
@@ -62,7 +62,7 @@ def withheld_moves(tip, step, other, own_centre, other_centre, keep: float):
 
 def keep_clear(action, observation, rule: dict):
     """``action`` ``(..., A)`` with its motion (the first three values) withheld by :func:`withheld_moves` where
-    ``rule`` (a policy's ``keep_clear`` table: :func:`dvrl_marl.envs.scripted_team.keep_clear_rule`) says so, the
+    ``rule`` (a policy's ``keep_clear`` table: :func:`dvrl_marl.suction_debris.scripted_team.keep_clear_rule`) says so, the
     tips read from ``observation`` ``(..., d)``; numpy, a new array."""
     tip, other = observation[..., slice(*rule["own_tip"])], observation[..., slice(*rule["other_tip"])]
     withheld = withheld_moves(tip, action[..., MOVE] / rule["gain"], other, np.asarray(rule["own_centre"]),

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.core import layout
+from dvrl_marl.suction_debris import layout
 
 __all__ = ["spec", "suction_debris_targets", "suction_debris_routes", "suction_debris_cleared_pins",
            "suction_debris_cleared_pins_zoom", "suction_debris_bleeding", "psm_pick_zoom", "pick_spec", "SCENE_FEATURE_SETS", "routes_geometry", "feature_count", "apply", "FEATURES",
@@ -100,7 +100,7 @@ def feature_count(name: str) -> int:
 
 
 def _part(observation, name: str, cavities: int, debris: int):
-    """The observation's part ``name`` (:func:`dvrl_marl.core.layout.observation_layout`)."""
+    """The observation's part ``name`` (:func:`dvrl_marl.suction_debris.layout.observation_layout`)."""
     return observation[..., layout.observation_layout(cavities, debris)[name]]
 
 

@@ -25,10 +25,10 @@ from dataclasses import asdict
 import numpy as np
 from pydantic.dataclasses import dataclass
 
-from dvrl_marl.core import layout
+from dvrl_marl.suction_debris import layout
 from dvrl_marl.core.backend import namespace
-from dvrl_marl.core.collaborative import Cavities
-from dvrl_marl.envs.places import suction_parking_place, surgeon_waiting_place
+from dvrl_marl.suction_debris.rules import Cavities
+from dvrl_marl.suction_debris.places import suction_parking_place, surgeon_waiting_place
 from dvrl_marl.schemas import STRICT, Flag, NonNegative
 
 __all__ = ["Guidance", "GuidedReward", "SceneFacts", "GraspPathShaping", "SuctionRouteShaping", "OverRims"]
@@ -287,7 +287,7 @@ class OverRims:
     BESIDE = -2
 
     def __init__(self, cavities, margin: float = 0.002):
-        """``cavities``: a :class:`~dvrl_marl.core.collaborative.Cavities`, or an env (its scene's)."""
+        """``cavities``: a :class:`~dvrl_marl.suction_debris.rules.Cavities`, or an env (its scene's)."""
         if not isinstance(cavities, Cavities):
             cavities = SceneFacts(cavities).cavities
         self.cavities = cavities
