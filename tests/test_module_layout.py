@@ -127,3 +127,23 @@ def test_the_scenes_vectors_are_read_by_name():
             if literal.search(code) and not code.lstrip().startswith(('"', "'", "``")):
                 found.append(f"{reader}:{number}: {line.strip()}")
     assert not found, "\n".join(found)
+
+
+def test_the_scene_folder_knows_no_api():
+    """The collaborative scene's folder (its task, state, rules, observation, shaping, experts) reaches neither MuJoCo
+    nor Gymnasium nor PettingZoo, through any import of its own or of the modules it imports: the environments drive
+    it, it knows none of them (docs/design.md, "One step, many shells")."""
+    folder = [name for name in MODULES if name.startswith("dvrl_marl.suction_debris.")]
+    assert len(folder) >= 15, folder
+    seen, stack, outside = set(), list(folder), {}
+    while stack:
+        name = stack.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        for module, names in _imports(MODULES[name]):
+            targets = _targets(module, names)
+            stack += [t for t in targets if t != "dvrl_marl"]  # (the package's face registers the envs; not imported for it)
+            if not module.startswith("dvrl_marl"):
+                outside.setdefault(module.split(".")[0], set()).add(name)
+    assert not {api: sorted(users) for api, users in outside.items() if api in ("mujoco", "gymnasium", "pettingzoo")}
