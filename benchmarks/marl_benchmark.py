@@ -67,8 +67,8 @@ RLLIB_ENV_RUNNERS, RLLIB_ENVS_PER_RUNNER = 2, 8
 #: RLlib's validation episodes during training (BenchMARL's: experiment.yaml's evaluation_episodes).
 RLLIB_EVAL_EPISODES = 20
 LEVELS = ("easy", "default")
-#: The levels a run may take: the table's, and the irrigation level (``preset="irrigation"``), whose cells join the
-#: table once its runs are recorded (none are yet).
+#: The levels a run may take: the table's, and the irrigation level (``preset="irrigation"``: its cells join the
+#: table's, not its plot).
 RUN_LEVELS = (*LEVELS, "irrigation")
 TEST_EPISODES = 100
 #: The start-level schedule of the default level's runs, both libraries (the configuration of record's
@@ -530,11 +530,15 @@ def _docs_page(rows: list[dict], plot: str, records: int) -> str:
         "name below spells the preset's scene options out; records made on 0.1.0's last version with the same",
         "options ran this scene step for step). Success on 100 held-out test episodes per run at the run's level, by",
         "the policies' mean action (what a robot is driven by) and sampled as in training; per cell the interquartile",
-        "mean over seeds with a 95 % stratified-bootstrap interval (`rliable`). One row per run:", "",
+        "mean over seeds with a 95 % stratified-bootstrap interval (`rliable`). The irrigation level's rows ran",
+        "`preset=\"irrigation\"`: the same scene options on a clotted field, the Suction & Irrigation valve signed",
+        "(`dvrl_marl/integrations/benchmarl_tasks/suction_debris_irrigation.yaml`). One row per run:", "",
         "    python benchmarks/marl_benchmark.py run --library dvrl-marl --algorithm mappo --level default --seed N \\",
         "        --frames 4000000 --eval-every 1000000",
         "    python benchmarks/marl_benchmark.py run --library benchmarl --algorithm mappo --level default --seed N \\",
         "        --frames 3932160 --eval-every 491520 [--algorithm-file baselines/configs/benchmarl_mappo_entropy.yaml]",
+        "    python benchmarks/marl_benchmark.py run --library benchmarl --algorithm mappo --level irrigation --seed N \\",
+        "        --frames 15728640 --eval-every 1966080 --algorithm-file baselines/configs/benchmarl_mappo_irrigation.yaml",
         "    python benchmarks/marl_benchmark.py run --library rllib --algorithm ippo --level easy --seed N \\",
         "        --frames 983040 --eval-every 245760", "",
         "Cells of every earlier scene, and how each change was found: [history](history.md).", "",

@@ -63,7 +63,7 @@ def test_the_marl_eval_export_is_the_records_in_marl_evals_form():
     run, the steps' metrics in the absolute metrics)."""
     records = [json.loads(path.read_text()) for path in sorted(marl_benchmark.RESULTS.glob("*_seed*.json"))]
     exported = marl_benchmark.marl_eval_json(records)
-    assert sorted(exported) == sorted(marl_benchmark.LEVELS)
+    assert set(marl_benchmark.LEVELS) <= set(exported) <= set(marl_benchmark.RUN_LEVELS)  # (the table's, and any run)
     for level, data in exported.items():
         path = marl_benchmark.RESULTS / marl_benchmark.MARL_EVAL.format(level)
         assert json.loads(path.read_text()) == data, f"{path} is stale: python benchmarks/marl_benchmark.py table"
