@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("benchmarl", reason='BenchMARL is not installed (pip install "dvrl-marl[benchmarl]")')
 
 from dvrl_marl.integrations.benchmarl import LEVELS, SuctionDebrisTask, suction_debris_task  # noqa: E402
+from dvrl_marl.suction_debris.presets import PRESETS  # noqa: E402
 
 
 @pytest.mark.parametrize("level", LEVELS)
@@ -25,7 +26,7 @@ def test_shipped_levels_build_the_task_with_groups_specs_and_state(level):
     assert task.observation_spec(env)["agents", "observation"].shape[0] == 2  # one world's: (agents, obs_dim)
     assert "state" in task.state_spec(env).keys() and "state" not in task.observation_spec(env).keys()
     assert task.action_spec(env)["agents", "action"].shape == (2, 4)
-    assert task.max_steps(env) == 1500
+    assert task.max_steps(env) == (PRESETS["irrigation"]["max_cycles"] if level == "irrigation" else 1500)
     assert env.batched.levels.tolist() == [0.0 if level == "easy" else 1.0] * 3
 
 
