@@ -107,15 +107,16 @@ def test_no_import_circles():
 
 def test_the_scenes_vectors_are_read_by_name():
     """The scene's modules take an action's move and tool, a pin's flags and the observation's parts from
-    dvrl_marl.suction_debris.layout, not from literal positions (a new field changes that file, not every reader): the scene's
-    step and envs, its experts and partners, the pipeline, the policies' rules, the trainers and the devices."""
+    dvrl_marl.suction_debris.layout, not from literal positions (a new field changes that file, not every reader): the
+    scene's step and envs, its experts and partners, the pipeline, the policies' rules, the trainers and the devices."""
     import re
 
     literal = re.compile(r"\[(?:\.\.\.|:|:, :|resting|resting & close|batch), (?:3|4|5|:3)\]|reshape\([^)]*\b6\)|"
                          r"shape=\(4,\)|shape != \(4,\)|, 4\), dtype|action_dim: int = 4|"
                          r"observation\[\.\.\., (?:0:3|4:7|7:|-3:)")  # (the collaborative observation's parts)
-    readers = ["suction_debris/rules.py", "suction_debris/instruments.py", "suction_debris/features.py", "suction_debris/guidance.py",
-               "suction_debris/scripted_team.py", "envs/suction_debris.py", "envs/suction_debris_batched.py",
+    readers = ["suction_debris/rules.py", "suction_debris/instruments.py", "suction_debris/features.py",
+               "suction_debris/guidance.py", "suction_debris/scripted_team.py", "envs/suction_debris.py",
+               "envs/suction_debris_batched.py",
                "envs/suction_debris_device.py", "pipeline/core.py", "agents/partners.py", "agents/in_the_way.py",
                "policies/felt_contact.py", "training/pretrain.py", "training/pixel_seat.py", "training/models.py",
                "training/jax_mappo.py", "training/collectors.py", "teleop/devices.py", "teleop/browser.py",
