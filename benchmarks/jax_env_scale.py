@@ -33,9 +33,9 @@ def main(argv=None) -> int:
     import jax
     import jax.numpy as jnp
 
-    from dvrl_marl.suction_debris import scene_state
     from dvrl_marl.envs import suction_debris_v8
     from dvrl_marl.envs.suction_debris_jax import seed_of
+    from dvrl_marl.suction_debris import scene_state
 
     env = suction_debris_v8.jax_env()
     agents = env.agents

@@ -109,8 +109,8 @@ def _scene_option(key: str, value) -> str:
 def _scene_of(options: dict) -> str:
     """The scene a run used: its version, and any scene option (a preset's included), e.g.
     ``suction_debris_v8_tool_speed0.05``."""
-    from dvrl_marl.suction_debris.presets import with_preset
     from dvrl_marl.envs.suction_debris import TASK
+    from dvrl_marl.suction_debris.presets import with_preset
 
     options = with_preset(options)
     task = SAME_SCENE.get(options.get("task", TASK), options.get("task", TASK))

@@ -71,8 +71,8 @@ def keeping_clear(policy, keep_mm: float):
 def feeling_contact(policy, settings: list[float]):
     """``--felt-contact NEAR_MM RETREAT_MM HOLD_STEPS THRESHOLD_MM``: the pixel seat keeping back from where its own
     moves were stopped near the other instrument (``policy.json``'s ``felt_contact``), without training again."""
-    from dvrl_marl.suction_debris.scripted_team import felt_contact_rule
     from dvrl_marl.policies.felt_contact import FeltContact
+    from dvrl_marl.suction_debris.scripted_team import felt_contact_rule
 
     if policy.keep_clear is None:
         raise ValueError("--felt-contact reads keep_clear's geometry: give --keep-clear-mm too")

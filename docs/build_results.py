@@ -292,6 +292,12 @@ IRRIGATION_CONFIGURATIONS = (("suction_debris_mappo_irrigation", "2026-12-02"),
                              ("suction_debris_mappo_irrigation_entropy_frugal", "entropy_frugal_2026-12-02"))
 
 
+def _team_outcome(row: dict) -> str:
+    """A team's row of an irrigation record in brief: its run, success, median steps and saline."""
+    return (f"{row['team'].removeprefix('MAPPO team (').rstrip(')')}: {_percent(row['success_rate'])}, "
+            f"{_count(row['median_steps_to_completion'])} steps, {row['mean_saline_used_ml']:.2f} ml")
+
+
 def irrigation_configurations() -> Table:
     """Issue 78's learning target, configuration by configuration: the IQM over five seeds, and which teams went
     beyond the script (less saline and fewer steps than the scripted irrigating team, on the same episodes)."""
@@ -303,11 +309,6 @@ def irrigation_configurations() -> Table:
         script = next(row for row in record["rows"] if row["team"] == "scripted irrigating team")
         learned = [row for row in record["rows"] if row["team"].startswith("MAPPO")]
         best = max(learned, key=lambda row: row["success_rate"])
-
-        def described(row) -> str:
-            return (f"{row['team'].removeprefix('MAPPO team (').rstrip(')')}: {_percent(row['success_rate'])}, "
-                    f"{_count(row['median_steps_to_completion'])} steps, {row['mean_saline_used_ml']:.2f} ml")
-
         beyond = [row for row in learned if row["success_rate"] > 0
                   and row["mean_saline_used_ml"] < script["mean_saline_used_ml"]
                   and row["median_steps_to_completion"] < script["median_steps_to_completion"]]
@@ -315,8 +316,8 @@ def irrigation_configurations() -> Table:
         reached = sum(bool(row["reached_target"]) for row in _read(training))
         low, high = record["learned"]["ci95"]
         table.rows.append([f"`{config}`", f"{reached} of {len(learned)}",
-                           f"{record['learned']['iqm_success']:.2f} [{low:.2f}, {high:.2f}]", described(best),
-                           "; ".join(described(row) for row in beyond) or "none"])
+                           f"{record['learned']['iqm_success']:.2f} [{low:.2f}, {high:.2f}]", _team_outcome(best),
+                           "; ".join(_team_outcome(row) for row in beyond) or "none"])
         table.source(path, record["command"], record["commit"])
     script_text = (f"the script: {_percent(script['success_rate'])}, {_count(script['median_steps_to_completion'])} "
                    f"steps, {script['mean_saline_used_ml']:.2f} ml")

@@ -10,9 +10,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from dvrl_marl.suction_debris.task import TASK
-from dvrl_marl.suction_debris.presets import PRESETS, evaluation_options
 from dvrl_marl.schemas import cli_number
+from dvrl_marl.suction_debris.presets import PRESETS, evaluation_options
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["main"]
 

@@ -38,9 +38,9 @@ def test_the_core_steps_where_mujoco_cannot_be_imported(tmp_path):
 
 
 def test_the_scene_files_text_gives_the_geometry_mujoco_compiles():
-    from dvrl_marl.suction_debris.task import SuctionDebrisParams
-    from dvrl_marl.suction_debris.scene_geometry import SceneGeometry
     from dvrl_marl.envs.scene_mirror import SceneMirror
+    from dvrl_marl.suction_debris.scene_geometry import SceneGeometry
+    from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
     params = SuctionDebrisParams.from_task()
     read, compiled = SceneGeometry.from_scene(params.scene), SceneMirror(params).geometry()

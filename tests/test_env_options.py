@@ -11,9 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.suction_debris import start_levels
+from dvrl_marl.suction_debris import start_levels, features
 from dvrl_marl.suction_debris.guidance import Guidance, GuidedReward
-from dvrl_marl.suction_debris import features
 
 OPTIONS = dict(reward_type="guided", observation_features="suction_debris_cleared_pins_zoom")
 

@@ -16,8 +16,8 @@ from dvrl_marl import policies
 from dvrl_marl.agents.collaborative import ScriptedSuction, YieldingSuction
 from dvrl_marl.agents.in_the_way import InTheWayPartner, Obstruction
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.suction_debris.scripted_team import felt_contact_rule
 from dvrl_marl.policies.felt_contact import FeltContact
+from dvrl_marl.suction_debris.scripted_team import felt_contact_rule
 from dvrl_marl.training import teams
 
 

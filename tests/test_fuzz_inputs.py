@@ -20,8 +20,8 @@ from hypothesis import strategies as st
 import dvrl_marl  # noqa: F401  (registration)
 from dvrl_marl.assets import tasks_dir
 from dvrl_marl.envs.suction_debris import SuctionDebrisParams
-from dvrl_marl.suction_debris.task import task_schema
 from dvrl_marl.schemas import SingleArmTask
+from dvrl_marl.suction_debris.task import task_schema
 from dvrl_marl.task import load_task
 
 ROOT = Path(__file__).resolve().parents[1]

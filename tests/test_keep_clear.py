@@ -13,8 +13,8 @@ from hypothesis.extra.numpy import arrays
 
 from dvrl_marl import policies
 from dvrl_marl.agents.collaborative import ScriptedSuction, YieldingSuction
-from dvrl_marl.suction_debris.instruments import keep_clear, segment_distance
 from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.suction_debris.instruments import keep_clear, segment_distance
 
 
 @pytest.fixture(scope="module")

@@ -387,8 +387,8 @@ def _overlay_text(env):
 
 
 def test_the_desktop_seat_shows_the_cues_and_delivers_a_pin_gripped_off_centre(desktop, monkeypatch):
-    from dvrl_marl.suction_debris.rules import PIN_RADIUS
     from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.suction_debris.rules import PIN_RADIUS
 
     monkeypatch.setenv("DISPLAY", desktop)
     keys = _WindowKeys()

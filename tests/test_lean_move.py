@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from dvrl_marl.agents.collaborative import ScriptedSuction, ScriptedSurgeon
-from dvrl_marl.suction_debris import lean_move, scene_state
 from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.suction_debris import lean_move, scene_state
 
 AGENTS = suction_debris_v8.AGENTS
 

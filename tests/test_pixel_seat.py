@@ -729,8 +729,8 @@ def test_a_seat_keeping_clear_acts_by_the_yielding_rule_on_its_estimate_of_the_o
     """keep_clear_mm: the exported seat names the yielding suction's rule, which reads the other tip it estimates and
     its own tip it knows; the teacher drives the collection by the same rule."""
     from dvrl_marl.agents.collaborative import YieldingSuction
-    from dvrl_marl.suction_debris.instruments import keep_clear
     from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.suction_debris.instruments import keep_clear
 
     config = _config(acts_by="teacher", estimated=[4, 9], keep_clear_mm=12.0, convolutions=[[8, 8, 4]])
     torch.manual_seed(0)

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dvrl_marl.core import tools
-from dvrl_marl.suction_debris import layout
 from dvrl_marl.envs import suction_debris
+from dvrl_marl.suction_debris import layout
 from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
 
 WORLDS = 3

@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test
 
 import dvrl_marl  # noqa: F401  (registration)
-from dvrl_marl.suction_debris import sliding
 from dvrl_marl.envs import suction_debris_v8
+from dvrl_marl.suction_debris import sliding
 from rule_sets import v6_rules
 from test_rules_climb import move_over_the_surface, suction_on_the_wall, suction_path
 

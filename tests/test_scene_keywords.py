@@ -8,9 +8,9 @@ import inspect
 import numpy as np
 import pytest
 
-from dvrl_marl.suction_debris.task import SuctionDebrisParams
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.seats.seat_env import SeatEnv
+from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
 #: The keywords a form takes of its own: the parallel env's seat and window, the batch's, a device's.
 SEAT = {"teleop_timeout"}

@@ -9,10 +9,10 @@ import dataclasses
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from dvrl_marl.suction_debris.task import SuctionDebrisParams
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.suction_debris.presets import PRESETS
 from dvrl_marl.suction_debris.scene_options import RECORDS, SceneOptions
+from dvrl_marl.suction_debris.task import SuctionDebrisParams
 
 OWNER = suction_debris_v8.TASK
 

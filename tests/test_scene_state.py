@@ -6,9 +6,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from dvrl_marl.envs import suction_debris
 from dvrl_marl.suction_debris import scene_state
 from dvrl_marl.suction_debris.scene_state import SPECS, SceneState
-from dvrl_marl.envs import suction_debris
 
 WORLDS = 3
 

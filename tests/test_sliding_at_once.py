@@ -5,8 +5,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dvrl_marl.suction_debris import scene_state, sliding
 from dvrl_marl.envs import suction_debris
+from dvrl_marl.suction_debris import scene_state, sliding
 
 WORLDS = 5
 

@@ -8,8 +8,8 @@ import pytest
 from test_endoscope import _stepped  # (a batch stepped with random actions)
 
 from dvrl_marl.envs import suction_debris_v8
-from dvrl_marl.suction_debris.appearance import APPEARANCES
 from dvrl_marl.envs.endoscope import STEREO_BASELINE_MM, EndoscopeRenderer, _software_renderer
+from dvrl_marl.suction_debris.appearance import APPEARANCES
 
 
 def test_the_right_eye_is_the_endoscope_moved_by_the_baseline_along_its_x_axis():

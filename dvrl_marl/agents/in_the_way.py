@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dvrl_marl.suction_debris.layout import ACTION_WIDTH, MOVE, TOOL
 from dvrl_marl.agents.population import Partners, draw_within
 from dvrl_marl.suction_debris.instruments import segment_distance
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH, MOVE, TOOL
 
 __all__ = ["Obstruction", "InTheWayPartner", "TRAINING_RANGES", "HELD_OUT", "draw_obstructions",
            "training_obstructors", "held_out_obstructors", "TRAINING_SEED", "ZOO_SEED"]

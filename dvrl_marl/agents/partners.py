@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dvrl_marl.suction_debris.layout import ACTION_WIDTH, MOVE, TOOL
 from dvrl_marl.agents.population import Partners, draw_within
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH, MOVE, TOOL
 
 __all__ = ["Partners", "Profile", "PersonLikePartner", "TRAINING_RANGES", "HELD_OUT", "PERSON", "draw_profiles", "zoo_partner",
            "training_partners", "ZOO_SEED", "TRAINING_SEED"]

@@ -8,10 +8,10 @@ import importlib.abc
 import re
 import sys
 
-from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.envs.psm_pick import PSMPickEnv
 from dvrl_marl.envs.psm_reach import PSMReachEnv
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["PSMReachEnv", "PSMPickEnv", "suction_debris_v8", "CURRENT", "RECORDS_COMMIT"]
 

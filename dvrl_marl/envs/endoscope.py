@@ -27,8 +27,8 @@ import numpy as np
 # (the looks are re-exported: endoscope.Appearance, endoscope.held_out_only)
 from dvrl_marl.suction_debris.appearance import APPEARANCES, QUANTITIES, Appearance, held_out_only  # noqa: F401
 from dvrl_marl.envs.scene_mirror import SceneMirror
-from dvrl_marl.suction_debris.scene_options import IMAGE_SIZES
 from dvrl_marl.rendering import uncollected
+from dvrl_marl.suction_debris.scene_options import IMAGE_SIZES
 
 __all__ = ["EndoscopeRenderer", "ThreadedEndoscopeRenderer", "endoscope_renderer", "IMAGE_SIZES", "RENDER_PARTS",
            "STEREO_BASELINE_MM",

@@ -25,8 +25,8 @@ def _statistics(samples: np.ndarray) -> dict:
 def measure(feature_set: str, worlds: int = MEASURE_WORLDS, seed: int = MEASURE_SEED) -> dict:
     """Centres and spreads of every agent's observation (with ``feature_set``) and of the plain state, over one
     episode of the scripted team and one of uniformly random actions in each of ``worlds`` worlds."""
-    from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
     from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
+    from dvrl_marl.suction_debris.scripted_team import ScriptedSuction, ScriptedSurgeon
 
     env = SuctionDebrisBatchedEnv(num_envs=worlds, task=MEASURE_TASK, observation_features=feature_set,
                                   autoreset_mode="disabled")

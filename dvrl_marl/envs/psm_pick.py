@@ -81,8 +81,8 @@ from gymnasium import spaces
 from dvrl_marl.core.pick import easy_tips, pick_potential, simulate_free_object
 from dvrl_marl.core.tools import JAW_COMMANDS, jaw_target
 from dvrl_marl.envs.single_arm import PSMGoalEnv
-from dvrl_marl.suction_debris.start_levels import DEFAULT, checked_level
 from dvrl_marl.scene import object_id
+from dvrl_marl.suction_debris.start_levels import DEFAULT, checked_level
 
 __all__ = ["PSMPickEnv"]
 

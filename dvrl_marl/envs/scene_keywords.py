@@ -16,8 +16,8 @@ import functools
 import inspect
 from dataclasses import fields
 
-from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams
 from dvrl_marl.suction_debris.scene_options import RECORDS
+from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams
 
 __all__ = ["form_signature", "scene_keywords"]
 

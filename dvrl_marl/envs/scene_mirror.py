@@ -14,11 +14,11 @@ import numpy as np
 from dvrl_marl import assets
 from dvrl_marl.arm import Arm
 from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
-from dvrl_marl.suction_debris.rules import AGENTS, SPILL_MARGIN, TOOLS
-from dvrl_marl.suction_debris.phantom import Cavity, Phantom
-from dvrl_marl.suction_debris.scene_geometry import ARM_PREFIXES, SceneGeometry
 from dvrl_marl.rendering import SceneRenderer
 from dvrl_marl.scene import geom_top, load_model, object_id
+from dvrl_marl.suction_debris.phantom import Cavity, Phantom
+from dvrl_marl.suction_debris.rules import AGENTS, SPILL_MARGIN, TOOLS
+from dvrl_marl.suction_debris.scene_geometry import ARM_PREFIXES, SceneGeometry
 
 __all__ = ["SceneMirror", "fluid_colour", "FLUID_COLOURS"]
 

@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from dvrl_marl.suction_debris.rules import AGENTS, PIN_SENSOR_RANGE, closest_on_segment, distance
 from dvrl_marl.envs.marks import COLOURS, Mark, add_marks
+from dvrl_marl.suction_debris.rules import AGENTS, PIN_SENSOR_RANGE, closest_on_segment, distance
 
 __all__ = ["SceneView"]
 

@@ -18,15 +18,14 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from dvrl_marl.core import tools
-from dvrl_marl.suction_debris import layout
-from dvrl_marl.suction_debris.rules import AGENTS
-from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams, env_name
-from dvrl_marl.suction_debris import start_levels
 from dvrl_marl.envs.one_world import WorldArm, WorldBlood, WorldPin
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import REWARD_TYPES, SceneLayout, SuctionDebrisBatchedEnv
 from dvrl_marl.envs.surgeon_seat import SurgeonSeat, check_seat
 from dvrl_marl.rendering import render_modes_here
+from dvrl_marl.suction_debris import layout, start_levels
+from dvrl_marl.suction_debris.rules import AGENTS
+from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams, env_name
 
 __all__ = ["parallel_env", "env", "raw_env", "batched_env", "jax_env", "TASK", "PRESETS", "SuctionDebrisEnv",
            "SuctionDebrisParams", "SceneLayout", "AGENTS", "env_name", "REWARD_TYPES"]

@@ -61,18 +61,17 @@ import numpy as np
 from gymnasium import spaces
 
 from dvrl_marl import assets
-from dvrl_marl.suction_debris import layout
 from dvrl_marl.core.backend import namespace, needed, put, rows_of, take
-from dvrl_marl.suction_debris.rules import AGENTS, OBSERVATION_BOUND, CollaborativeCore
-from dvrl_marl.suction_debris.task import TASK, env_name
-from dvrl_marl.suction_debris.scene_state import EnvState, SceneState, check_state
 from dvrl_marl.core.worlds import check_action_batch
-from dvrl_marl.suction_debris import features, start_levels
+from dvrl_marl.envs.scene_keywords import form_signature
+from dvrl_marl.suction_debris import layout, features, start_levels
 from dvrl_marl.suction_debris.appearance import APPEARANCES, Appearance
 from dvrl_marl.suction_debris.guidance import GuidedReward, OverRims
 from dvrl_marl.suction_debris.observation_scaling import ObservationScaling
-from dvrl_marl.envs.scene_keywords import form_signature
+from dvrl_marl.suction_debris.rules import AGENTS, OBSERVATION_BOUND, CollaborativeCore
 from dvrl_marl.suction_debris.scene_options import REWARD_TYPES, SceneOptions
+from dvrl_marl.suction_debris.scene_state import EnvState, SceneState, check_state
+from dvrl_marl.suction_debris.task import TASK, env_name
 
 __all__ = ["SuctionDebrisBatchedEnv", "AUTORESET_MODES", "REWARD_TYPES", "IMAGE_PARTS", "SceneLayout", "batched_env",
            "takes_worlds"]

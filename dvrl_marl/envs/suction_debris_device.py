@@ -38,11 +38,11 @@ import functools
 
 import numpy as np
 
-from dvrl_marl.suction_debris import layout
-from dvrl_marl.suction_debris.task import TASK
-from dvrl_marl.suction_debris.scene_state import EnvState, register_with_jax
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
+from dvrl_marl.suction_debris import layout
+from dvrl_marl.suction_debris.scene_state import EnvState, register_with_jax
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["SuctionDebrisDeviceEnv", "batched_env", "jax_device"]
 

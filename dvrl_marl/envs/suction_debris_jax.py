@@ -35,9 +35,9 @@ that world and says so in ``infos["actions_finite"]``.
 
 from __future__ import annotations
 
-from dvrl_marl.suction_debris.scene_state import SPECS, EnvState
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
+from dvrl_marl.suction_debris.scene_state import SPECS, EnvState
 
 __all__ = ["SuctionDebrisJaxEnv", "jax_env", "seed_of"]
 
@@ -56,8 +56,8 @@ class SuctionDebrisJaxEnv:
     keyword arguments but for the host's (``surgeon``, ``render_mode``, ``image_size``)."""
 
     def __init__(self, **options):
-        from dvrl_marl.suction_debris.task import TASK
         from dvrl_marl.envs.suction_debris_device import SuctionDebrisDeviceEnv
+        from dvrl_marl.suction_debris.task import TASK
 
         for option in ("num_envs", "autoreset_mode", "device", "arrays", "check_actions"):
             if option in options:

@@ -15,9 +15,9 @@ import math
 
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-from dvrl_marl.suction_debris.rules import AGENTS
 from dvrl_marl.envs.scene_view import SceneView
 from dvrl_marl.pacing import PacedDisplay
+from dvrl_marl.suction_debris.rules import AGENTS
 
 __all__ = ["SurgeonSeat", "check_seat"]
 

@@ -42,9 +42,9 @@ except ImportError as error:  # pragma: no cover - exercised where BenchMARL is 
     raise ImportError('dvrl_marl.integrations.benchmarl needs BenchMARL: pip install "dvrl-marl[benchmarl]"') from error
 from torchrl.data import Composite
 
+from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 from dvrl_marl.suction_debris.presets import with_preset
 from dvrl_marl.suction_debris.start_levels import checked_schedule, scheduled_level
-from dvrl_marl.integrations.torchrl import SuctionDebrisTorchRLEnv
 
 __all__ = ["SuctionDebrisTask", "SuccessCurve", "StartLevelSchedule", "suction_debris_task", "experiment_config",
            "algorithm_config", "model_config", "settings_overrides", "first_episode_success", "TASK_FILES", "LEVELS"]

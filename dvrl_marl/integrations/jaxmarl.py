@@ -15,8 +15,8 @@ from __future__ import annotations
 
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
-from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.envs.suction_debris_jax import SuctionDebrisJaxEnv
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["SuctionDebrisJaxMARLEnv", "suction_debris_env"]
 

@@ -34,10 +34,10 @@ import numpy as np
 
 import dvrl_marl  # noqa: F401  (registers the single-arm environments)
 from dvrl_marl import policies
-from dvrl_marl.core import tools
-from dvrl_marl.suction_debris import layout
-from dvrl_marl.schemas import STRICT, Finite, Flag, NonNegative, Positive, PositiveInt, Text
 from dvrl_marl.agents.experts import PickExpert, ReachExpert
+from dvrl_marl.core import tools
+from dvrl_marl.schemas import STRICT, Finite, Flag, NonNegative, Positive, PositiveInt, Text
+from dvrl_marl.suction_debris import layout
 from dvrl_marl.suction_debris.scripted_team import burst_valve
 from dvrl_marl.task import load_task
 

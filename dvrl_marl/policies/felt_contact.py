@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.suction_debris.layout import MOVE
 from dvrl_marl.suction_debris.instruments import segment_distance
+from dvrl_marl.suction_debris.layout import MOVE
 
 __all__ = ["FeltContact"]
 

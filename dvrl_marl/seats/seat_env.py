@@ -36,10 +36,10 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from dvrl_marl.suction_debris import layout
 from dvrl_marl.envs import suction_debris
 from dvrl_marl.envs.scene_keywords import form_signature
 from dvrl_marl.envs.suction_debris_batched import SuctionDebrisBatchedEnv
+from dvrl_marl.suction_debris import layout
 
 __all__ = ["SeatEnv", "PARTNERS"]
 

@@ -25,11 +25,11 @@ from dataclasses import asdict
 import numpy as np
 from pydantic.dataclasses import dataclass
 
-from dvrl_marl.suction_debris import layout
 from dvrl_marl.core.backend import namespace
-from dvrl_marl.suction_debris.rules import Cavities
-from dvrl_marl.suction_debris.places import suction_parking_place, surgeon_waiting_place
 from dvrl_marl.schemas import STRICT, Flag, NonNegative
+from dvrl_marl.suction_debris import layout
+from dvrl_marl.suction_debris.places import suction_parking_place, surgeon_waiting_place
+from dvrl_marl.suction_debris.rules import Cavities
 
 __all__ = ["Guidance", "GuidedReward", "SceneFacts", "GraspPathShaping", "SuctionRouteShaping", "OverRims"]
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import array_api_compat.numpy  # noqa: F401  (numpy's namespace, loaded now rather than on the first step)
 
-from dvrl_marl.suction_debris.layout import MOVE
 from dvrl_marl import assets
 from dvrl_marl.core.backend import namespace
+from dvrl_marl.suction_debris.layout import MOVE
 
 __all__ = ["SHAFT_RADIUS", "WRIST_RADIUS", "segment_distance", "segment_offset", "instrument_clearance",
            "contact_normal", "withheld_moves", "keep_clear"]

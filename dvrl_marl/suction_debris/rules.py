@@ -20,17 +20,17 @@ import numpy as np
 
 from dvrl_marl import kinematics
 from dvrl_marl.core import tools
-from dvrl_marl.suction_debris import layout, scene_state, sliding
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.backend import join, namespace, needed, put, rows_of, take
-from dvrl_marl.suction_debris.task import PIN_SLOTS, SuctionDebrisParams
+from dvrl_marl.core.streams import STREAMS, ResetStreams, uniforms
+from dvrl_marl.core.worlds import check_action_batch, world_indices
+from dvrl_marl.suction_debris import layout, scene_state, sliding
+from dvrl_marl.suction_debris.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
 from dvrl_marl.suction_debris.lean_move import LeanMove
 from dvrl_marl.suction_debris.phantom import Cavities
 from dvrl_marl.suction_debris.scene_geometry import SceneGeometry
 from dvrl_marl.suction_debris.scene_state import SceneState
-from dvrl_marl.suction_debris.instruments import SHAFT_RADIUS, WRIST_RADIUS, instrument_clearance, segment_distance
-from dvrl_marl.core.streams import STREAMS, ResetStreams, uniforms
-from dvrl_marl.core.worlds import check_action_batch, world_indices
+from dvrl_marl.suction_debris.task import PIN_SLOTS, SuctionDebrisParams
 
 __all__ = ["CollaborativeCore", "Cavities", "PIN_SLOTS", "AGENTS", "closest_on_segment", "distance", "TOOLS", "place_debris", "segment_distance",
            "SHAFT_RADIUS", "WRIST_RADIUS"]

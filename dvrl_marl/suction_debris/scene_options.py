@@ -22,12 +22,12 @@ from typing import Any, Literal
 
 from pydantic.dataclasses import dataclass
 
-from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams
+from dvrl_marl.schemas import STRICT, EasyEpisodeSteps, Flag, NonNegativeInt, PositiveInt, validated
 from dvrl_marl.suction_debris import features, start_levels
 from dvrl_marl.suction_debris.appearance import APPEARANCES, Appearance
 from dvrl_marl.suction_debris.guidance import Guidance
 from dvrl_marl.suction_debris.presets import with_preset
-from dvrl_marl.schemas import STRICT, EasyEpisodeSteps, Flag, NonNegativeInt, PositiveInt, validated
+from dvrl_marl.suction_debris.task import TASK, SuctionDebrisParams
 
 __all__ = ["SceneOptions", "ObservationOptions", "ImageOptions", "LearningAids", "RECORDS", "REWARD_TYPES",
            "IMAGE_SIZES"]

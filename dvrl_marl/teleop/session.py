@@ -25,11 +25,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from dvrl_marl.envs.scene_view import SceneView
+from dvrl_marl.pacing import RealTimePacer
 from dvrl_marl.suction_debris.layout import ACTION_WIDTH
 from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.teleop.browser import BrowserDevice
-from dvrl_marl.envs.scene_view import SceneView
-from dvrl_marl.pacing import RealTimePacer
 
 __all__ = ["TeleopSession", "PARTNERS", "TELEOP_MAX_CYCLES", "DEFAULT_DATASET_ID", "TELEOP_ENV_ID", "scene_view", "pack_frame", "unpack_frame"]
 

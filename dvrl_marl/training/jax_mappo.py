@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dvrl_marl.suction_debris.layout import ACTION_WIDTH, MOVE
 from dvrl_marl.envs import suction_debris
+from dvrl_marl.suction_debris.layout import ACTION_WIDTH, MOVE
 from dvrl_marl.suction_debris.observation_scaling import MIN_SPREAD
 from dvrl_marl.training import run_progress, trainers
 from dvrl_marl.training.mappo_config import MappoConfig, load_config

@@ -60,8 +60,8 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.envs import suction_debris
-from dvrl_marl.suction_debris.presets import evaluation_options
 from dvrl_marl.envs.suction_debris import TASK, env_name
+from dvrl_marl.suction_debris.presets import evaluation_options
 from dvrl_marl.training import run_progress, teams, trainers
 from dvrl_marl.training.mappo_config import (ALGORITHMS, CRITIC_INPUTS, TABLE_KEYS, TOOL_HEADS, TRAIN_SEED_BASE,
                                              MappoConfig, config_toml, demonstrations, load_config, partner, partners,

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from dvrl_marl.suction_debris.layout import MOVE
-from dvrl_marl.suction_debris.task import TASK
 from dvrl_marl.suction_debris.observation_scaling import MIN_SPREAD
+from dvrl_marl.suction_debris.task import TASK
 
 __all__ = ["require_torch", "switch_gaussian", "bounds_loss", "build_models", "export_actor", "actor_arrays",
            "write_actor", "limit_threads",

@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 
 from dvrl_marl.envs import suction_debris
-from dvrl_marl.suction_debris.presets import evaluation_options
 from dvrl_marl.envs.suction_debris import env_name
+from dvrl_marl.suction_debris.presets import evaluation_options
 from dvrl_marl.training import teams
 from dvrl_marl.training.mappo_config import MappoConfig, scene_metadata
 from dvrl_marl.training.models import write_actor

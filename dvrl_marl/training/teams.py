@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from dvrl_marl.suction_debris.rules import FLUID_FIGURES
-from dvrl_marl.envs import suction_debris
 from dvrl_marl.agents.partners import Partners
+from dvrl_marl.envs import suction_debris
+from dvrl_marl.suction_debris.rules import FLUID_FIGURES
 
 __all__ = ["evaluate_team_batched", "evaluate_beside", "seat", "seats", "partner", "Partners", "cross_play",
            "EVAL_SEED", "VALIDATION_SEED"]
