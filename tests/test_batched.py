@@ -13,6 +13,7 @@ from rule_sets import v0_rules
 
 import dvrl_marl  # noqa: F401  (registers the ids)
 from dvrl_marl.agents import PickExpert, ScriptedSuction, ScriptedSurgeon
+from dvrl_marl.core.pick import carried_floor, grasp_events
 from dvrl_marl.envs import suction_debris_v8
 from dvrl_marl.registration import SINGLE_ARM_ENV_IDS
 
@@ -100,6 +101,25 @@ def test_pick_batch_exercises_grasp_release_and_falling_physics():
         grasps += int(infos["grasped"].sum())
         falls += int((~envs.unwrapped.core.at_rest & ~envs.unwrapped.core.grasped).sum())
     assert grasps > 50 and falls > 5
+
+
+@given(grasped=st.booleans(), jaw=st.floats(0.0, 1.0), sensed=st.booleans(), low=st.floats(-0.2, 0.0),
+       span=st.floats(0.0, 0.2), rest=st.floats(-0.2, 0.0), offset=st.floats(-0.05, 0.05))
+def test_pick_rules_give_one_world_what_they_give_a_batch(grasped, jaw, sensed, low, span, rest, offset):
+    """The grasp rule and the carried floor, written once: on one world's bools and floats (the single env) as on a
+    batch's arrays (the core), and as the paper says (release when the jaw opens to the threshold, grab when it closes
+    below it over the object; the tip's floor keeps a hanging object above the table, within the box)."""
+    threshold = 0.25
+    closed = jaw < threshold
+    release, grab = grasp_events(grasped, closed, sensed)
+    assert (bool(release), bool(grab)) == (grasped and not closed, not grasped and closed and sensed)
+    batch = grasp_events(np.array([grasped, not grasped]), np.array([closed, closed]), np.array([sensed, sensed]))
+    assert (bool(batch[0][0]), bool(batch[1][0])) == (bool(release), bool(grab))
+    high = low + span
+    floor = carried_floor(low, high, rest, offset)
+    assert low <= floor <= high
+    assert floor == (min(rest - offset, high) if rest - offset > low else low)
+    assert carried_floor(np.array([low, low]), high, rest, np.array([offset, offset]))[0] == floor
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

@@ -14,11 +14,11 @@ import mujoco
 import numpy as np
 
 from dvrl_marl.assets import JAW_FINGER_OPEN_ANGLE
-from dvrl_marl.core.reach import GoalCoreBase
+from dvrl_marl.core.reach import GoalCoreBase, position_or_sample
 from dvrl_marl.core.tools import jaw_target
 
 __all__ = ["PickCore", "simulate_free_object", "REST_LINEAR_SPEED", "REST_ANGULAR_SPEED", "GRASP_BONUS_STEPS",
-           "easy_tips", "pick_potential"]
+           "easy_tips", "pick_potential", "pick_starts", "grasp_events", "carried_floor"]
 
 #: The object is considered at rest (and physics stops being stepped for it) below these speeds.
 REST_LINEAR_SPEED = 1e-4  # m/s
@@ -46,6 +46,50 @@ def easy_tips(share, start, grasp_tip, goal_tip):
     second = grasp_tip + carry * np.where(carry_length > 0.0, (along - down_length) / np.maximum(carry_length, 1e-12),
                                           0.0)
     return np.where(held, second, first), held[..., 0]
+
+
+def pick_starts(env, generators, options: dict, level: float):
+    """Where PSM Pick episodes start, one row per generator: the tips p_0, the goals g (for the object), the objects'
+    centres (base frame, m) and whether each starts held. From the checked reset ``options`` or drawn (``env``'s
+    boxes): p_0 = p_c, the object under it on the table, g reachable in the goal box; below ``level`` 1 an episode is
+    easy with probability 1 - level and starts along the expert's way (:func:`easy_tips`), holding the object on its
+    second leg. Each generator draws g, then the level's two numbers, as the single env draws from its
+    ``np_random``; the single env (one generator) and the batched core (one per world) both reset through this."""
+    count = len(generators)
+    start = np.broadcast_to(env.workspace_centre if options["start"] is None else options["start"], (count, 3))
+    goal = position_or_sample(options["goal"], generators, env.tool, env.goal_low, env.goal_high, 0.0)
+    if options["object"] is None:
+        obj = np.empty((count, 3))
+        obj[:, :2] = start[:, :2]
+        obj[:, 2] = env.object_rest_height
+    else:
+        obj = np.broadcast_to(options["object"], (count, 3))
+    held = np.zeros(count, dtype=bool)
+    if level < 1.0:  # (level 1 draws nothing: the default task bit for bit)
+        draws = np.array([generator.random(2) for generator in generators])
+        easy = draws[:, 0] >= level
+        drop = np.array([0.0, 0.0, env.arm.tool_point_drop])
+        tips, on_carry = easy_tips(draws[:, 1], start, obj + drop, goal + drop)
+        start = np.where(easy[:, None], np.clip(tips, env.tip_low, env.tip_high), start)
+        held = easy & on_carry
+        if held.any():  # in the jaws, as the grasp rule leaves it: the tool point, by way of the world frame
+            base = env.arm.base_position
+            obj = np.where(held[:, None], (start + base - drop) - base, obj)
+    return start, goal, obj, held
+
+
+def grasp_events(grasped, closed, sensed):
+    """The paper's grasp rule (Sec. III-C): ``(release, grab)``. A held object is released where the jaw opened to
+    the grasp threshold or past it (``closed`` False); one not held is grabbed where the jaw closed below it and the
+    proximity sensor between the jaws senses the object. Bools (one world) or boolean arrays alike."""
+    return grasped & (closed ^ True), (grasped ^ True) & closed & sensed
+
+
+def carried_floor(low, high, rest_height, grasp_offset):
+    """The tip's floor while an object hangs ``grasp_offset`` (m, vertical; negative: below the tip) under it: raised
+    so that the object stays above the table (it rests at ``rest_height``), never above the box's ceiling ``high``,
+    never below the box's floor ``low``. Floats or arrays alike."""
+    return np.maximum(low, np.minimum(rest_height - grasp_offset, high))
 
 
 def pick_potential(jaws, obj, goal, grasped, step_size: float):
@@ -131,30 +175,11 @@ class PickCore(GoalCoreBase):
 
     def _reset_worlds(self, worlds, generators, options) -> None:
         count = len(worlds)
-        start = self.centre if options["start"] is None else options["start"]
-        start = np.broadcast_to(start, (count, 3))
-        self.goal[worlds] = self._position_or_sample(options["goal"], generators, self.goal_low, self.goal_high,
-                                                     tool_point_drop=0.0)
-        if options["object"] is None:
-            obj = np.empty((count, 3))
-            obj[:, :2] = start[:, :2]
-            obj[:, 2] = self.object_rest_height
-        else:
-            obj = np.broadcast_to(options["object"], (count, 3))
         level = self.start_level if options["level"] is None else options["level"]
-        held = np.zeros(count, dtype=bool)
-        if level < 1.0:  # (level 1 draws nothing: the default task bit for bit)
-            draws = np.array([generator.random(2) for generator in generators])
-            easy = draws[:, 0] >= level
-            drop = np.array([0.0, 0.0, self.arm.tool_point_drop])
-            tips, on_carry = easy_tips(draws[:, 1], start, obj + drop, self.goal[worlds] + drop)
-            start = np.where(easy[:, None], np.clip(tips, self.tip_low, self.tip_high), start)
-            held = easy & on_carry
+        start, self.goal[worlds], obj, held = pick_starts(self.template, generators, options, level)
         self.arm.set_tips(worlds, start)
         jaw = np.where(held, 0.0, self.initial_jaw)
         self.arm.jaw[worlds] = jaw
-        if held.any():  # in the jaws, as the grasp rule leaves it
-            obj = np.where(held[:, None], self.arm.tool_point_world()[worlds] - self.arm.base_position, obj)
         qpos = np.tile(self.model.qpos0, (count, 1))  # mj_resetData
         qpos[:, self._joints] = self.arm.q[worlds]
         qpos[:, self._jaws] = (JAW_FINGER_OPEN_ANGLE * jaw)[:, None]
@@ -198,12 +223,10 @@ class PickCore(GoalCoreBase):
         action = self.read_actions(actions)
         arm = self.arm
         low = self.tip_low
-        if self.grasped.any():
-            # A carried object stays above the table: raise the tip's floor by how far the object hangs below it.
-            floor = self.object_rest_height - self.grasp_offset[:, 2]
-            raise_floor = self.grasped & (floor > low[2])
+        if self.grasped.any():  # a carried object stays above the table
             low = np.broadcast_to(low, (self.num_worlds, 3)).copy()
-            low[raise_floor, 2] = np.minimum(floor[raise_floor], self.tip_high[2])
+            low[self.grasped, 2] = carried_floor(low[self.grasped, 2], self.tip_high[2], self.object_rest_height,
+                                                 self.grasp_offset[self.grasped, 2])
         arm.move(self.step_size * action[:, :3], low, self.tip_high)
         jaw = jaw_target(action[:, 3], self.jaw_command)
         arm.jaw = jaw
@@ -213,10 +236,8 @@ class PickCore(GoalCoreBase):
         # The paper's grasp rule.
         tip_world = arm.tip_world()
         obj = self.qpos[:, self._object]
-        closed = jaw < self.grasp_threshold
-        release = self.grasped & ~closed
         sensed = np.all(np.abs(obj - arm.tool_point_world()) <= self.grasp_half_extents, axis=1)
-        grab = ~self.grasped & closed & sensed
+        release, grab = grasp_events(self.grasped, jaw < self.grasp_threshold, sensed)
         if release.any() or grab.any():
             self.at_rest[release] = False
             self.qvel[release | grab, self._object_velocity] = 0.0

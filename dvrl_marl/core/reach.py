@@ -9,7 +9,7 @@ import numpy as np
 from dvrl_marl.core.arms import ArmBatch
 from dvrl_marl.core.worlds import WorldRandom, check_action_batch, sample_reachable_batch, world_indices
 
-__all__ = ["ReachCore", "GoalCoreBase", "goal_distance", "goal_reward"]
+__all__ = ["ReachCore", "GoalCoreBase", "goal_distance", "goal_reward", "position_or_sample", "reach_starts"]
 
 
 def goal_distance(achieved, desired, workspace_range: float):
@@ -31,6 +31,26 @@ def goal_reward(distance, threshold: float, sparse: bool, dense_scale: float):
     if isinstance(success, bool):
         return (0.0 if success else -1.0), success
     return np.where(success, 0.0, -1.0)[()], success
+
+
+def position_or_sample(value, generators, tool, low, high, tool_point_drop: float) -> np.ndarray:
+    """A reset option's position (metres, base frame, already checked) for every generator's world, or a reachable
+    draw from each generator (``(len(generators), 3)``): tips whose tool point lies ``tool_point_drop`` below them
+    (objects and goals for an object: 0)."""
+    if value is not None:
+        return np.broadcast_to(value, (len(generators), 3))
+    return sample_reachable_batch(generators, tool, low, high, tool_point_drop)
+
+
+def reach_starts(env, generators, options: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Where PSM Reach episodes start: the tips p_0 and the goals g, ``(len(generators), 3)`` each, from the checked
+    reset ``options`` or drawn in the workspace (``env``'s boxes), p_0 then g from each generator. The single env
+    (one generator, its ``np_random``) and the batched core (one per world) both reset through this, so world ``i``
+    draws what the single env seeded alike draws."""
+    drop = env.arm.tool_point_drop
+    start = position_or_sample(options["start"], generators, env.tool, env.start_low, env.start_high, drop)
+    goal = position_or_sample(options["goal"], generators, env.tool, env.goal_low, env.goal_high, drop)
+    return start, goal
 
 
 class GoalCoreBase:
@@ -95,13 +115,6 @@ class GoalCoreBase:
         """Draw new episodes for ``worlds`` (each from its own generator, in the single env's order)."""
         raise NotImplementedError
 
-    def _position_or_sample(self, value, generators, low, high, tool_point_drop: float | None = None) -> np.ndarray:
-        """A reset option's value, or a reachable sample: tips (default), or tool points with ``tool_point_drop=0``."""
-        if value is not None:
-            return np.broadcast_to(value, (len(generators), 3))
-        drop = self.arm.tool_point_drop if tool_point_drop is None else tool_point_drop
-        return sample_reachable_batch(generators, self.tool, low, high, drop)
-
     def truncation(self) -> np.ndarray:
         if self.max_episode_steps is None:
             return np.zeros(self.num_worlds, dtype=bool)
@@ -112,9 +125,7 @@ class ReachCore(GoalCoreBase):
     """N worlds of PSM Reach. ``step`` returns ``(reward, terminated, truncated, success)`` arrays of shape (N,)."""
 
     def _reset_worlds(self, worlds, generators, options) -> None:
-        template = self.template
-        start = self._position_or_sample(options["start"], generators, template.start_low, template.start_high)
-        self.goal[worlds] = self._position_or_sample(options["goal"], generators, template.goal_low, template.goal_high)
+        start, self.goal[worlds] = reach_starts(self.template, generators, options)
         self.arm.set_tips(worlds, start)
 
     def __init__(self, template, num_worlds: int, max_episode_steps: int | None):

@@ -6,7 +6,7 @@ import numpy as np
 
 from dvrl_marl import kinematics
 
-__all__ = ["WorldRandom", "check_action_batch", "world_indices", "sample_reachable", "sample_reachable_batch"]
+__all__ = ["WorldRandom", "check_action_batch", "world_indices", "sample_reachable_batch"]
 
 #: How many candidate positions to draw at once when sampling the reachable workspace.
 _SAMPLE_BATCH = 16
@@ -82,14 +82,9 @@ def check_action_batch(actions, num_worlds: int, width: int, who: str) -> np.nda
     return np.clip(array, -1.0, 1.0)
 
 
-def sample_reachable(rng: np.random.Generator, tool, low, high, tool_point_drop: float = 0.0) -> np.ndarray:
-    """Uniform sample from the box [low, high] restricted to positions ``tool`` can reach (rejection sampling);
-    positions are tips whose tool point lies ``tool_point_drop`` below them (see ``Arm.tool_point_drop``)."""
-    return sample_reachable_batch([rng], tool, low, high, tool_point_drop)[0]
-
-
 def sample_reachable_batch(generators, tool, low, high, tool_point_drop: float = 0.0) -> np.ndarray:
-    """One :func:`sample_reachable` draw per generator, ``(len(generators), 3)``, the reachability test batched.
+    """One uniform draw per generator from the box [low, high], restricted to positions ``tool`` can reach (rejection
+    sampling; positions are tips whose tool point lies ``tool_point_drop`` below them): ``(len(generators), 3)``.
 
     Each generator draws exactly what it would alone (16 candidates at a time, the first reachable one kept;
     ``low + (high - low) * u`` is how NumPy's ``uniform`` computes its samples), so the single-arm environments and

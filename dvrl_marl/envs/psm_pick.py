@@ -78,7 +78,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from dvrl_marl.core.pick import easy_tips, pick_potential, simulate_free_object
+from dvrl_marl.core.pick import carried_floor, grasp_events, pick_potential, pick_starts, simulate_free_object
 from dvrl_marl.core.tools import JAW_COMMANDS, jaw_target
 from dvrl_marl.envs.single_arm import PSMGoalEnv
 from dvrl_marl.scene import object_id
@@ -197,26 +197,12 @@ class PSMPickEnv(PSMGoalEnv):
         super().reset(seed=seed)
         parsed = self.parse_reset_options(options)
         mujoco.mj_resetData(self.model, self.data)
-        start, goal, obj = parsed["start"], parsed["goal"], parsed["object"]
-        if start is None:
-            start = self.workspace_centre.copy()
-        if goal is None:
-            goal = self._sample_in_box(self.goal_low, self.goal_high, tool_point_drop=0.0)
-        if obj is None:
-            obj = np.array([start[0], start[1], self.object_rest_height])
         level = self.start_level if parsed["level"] is None else parsed["level"]
-        held = False
-        if level < 1.0:  # an easy episode with probability 1 - level (level 1 draws nothing: the default task)
-            easy, share = self.np_random.random(2)
-            if easy >= level:
-                drop = np.array([0.0, 0.0, self.arm.tool_point_drop])
-                tip, on_carry = easy_tips(share, start, obj + drop, goal + drop)
-                start, held = np.clip(tip, self.tip_low, self.tip_high), bool(on_carry)
+        start, goal, obj, held = (rows[0] for rows in pick_starts(self, [self.np_random], parsed, level))
+        held = bool(held)
         self.arm.set_tip(*start.tolist())
         self.arm.set_jaw(0.0 if held else self.initial_jaw)
         self._set_goal(goal)
-        if held:  # in the jaws, as the grasp rule leaves it
-            obj = self.arm.to_base(self.arm.tool_point_world())
         self._place_object(obj)
         self.grasped = held
         self._grasp_offset = tuple((self.arm.to_world(obj) - self.arm.tip_world()).tolist()) if held else (0.0, 0.0, 0.0)
@@ -236,22 +222,23 @@ class PSMPickEnv(PSMGoalEnv):
         eta = self.step_size
         high = self._tip_high
         low = self._tip_low
-        if self.grasped:
-            # A carried object stays above the table: raise the tip's floor by how far the object hangs below it.
-            floor = self.object_rest_height - self._grasp_offset[2]
-            if floor > low[2]:
-                low = (low[0], low[1], min(floor, high[2]))
+        if self.grasped:  # a carried object stays above the table
+            low = (low[0], low[1], float(carried_floor(low[2], high[2], self.object_rest_height,
+                                                        self._grasp_offset[2])))
         self.arm.move(eta * dx, eta * dy, eta * dz, low, high)
         jaw = jaw_target(phi, self.jaw_command)
         self.arm.set_jaw(jaw)
 
-        # The paper's grasp rule.
         adr = self._object_qpos
-        if self.grasped and jaw >= self.grasp_threshold:
+        closed = jaw < self.grasp_threshold
+        # (the sensor is read only where it can grab: it is the rule's costliest input)
+        sensed = closed and not self.grasped and self.arm.grasp_sensor(self.data.qpos[adr:adr + 3])
+        release, grab = grasp_events(self.grasped, closed, sensed)
+        if release:
             self.grasped = False
             self._object_at_rest = False
             self.data.qvel[self._object_qvel:self._object_qvel + 6] = 0.0
-        elif not self.grasped and jaw < self.grasp_threshold and self.arm.grasp_sensor(self.data.qpos[adr:adr + 3]):
+        elif grab:
             self.grasped = True
             tx, ty, tz = self.arm.tip_world()
             ox, oy, oz = self.data.qpos[adr:adr + 3].tolist()

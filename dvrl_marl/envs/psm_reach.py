@@ -58,6 +58,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
+from dvrl_marl.core.reach import reach_starts
 from dvrl_marl.envs.single_arm import PSMGoalEnv
 
 __all__ = ["PSMReachEnv"]
@@ -90,12 +91,7 @@ class PSMReachEnv(PSMGoalEnv):
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        parsed = self.parse_reset_options(options)
-        start, goal = parsed["start"], parsed["goal"]
-        if start is None:
-            start = self._sample_in_box(self.start_low, self.start_high)
-        if goal is None:
-            goal = self._sample_in_box(self.goal_low, self.goal_high)
+        start, goal = (rows[0] for rows in reach_starts(self, [self.np_random], self.parse_reset_options(options)))
         self.arm.set_tip(*start.tolist())
         self._set_goal(goal)
         tip = self._normalised_tuple(*self.arm.tip)

@@ -16,7 +16,6 @@ import numpy as np
 from dvrl_marl import kinematics
 from dvrl_marl.arm import Arm
 from dvrl_marl.core.reach import goal_distance, goal_reward
-from dvrl_marl.core.worlds import sample_reachable
 from dvrl_marl.rendering import RENDER_MODES, SceneRenderer, render_modes_here
 from dvrl_marl.scene import geom_top, load_model, object_id
 from dvrl_marl.task import TaskSpec, load_task
@@ -160,12 +159,6 @@ class PSMGoalEnv(gym.Env):
         high = self.workspace_centre + self.workspace_range
         low[2], high[2] = floor, floor + self.workspace_range
         return low, high
-
-    def _sample_in_box(self, low, high, tool_point_drop: float | None = None) -> np.ndarray:
-        """Uniform sample from the box [low, high] restricted to positions the arm can reach: tips (default), or
-        tool points with ``tool_point_drop=0``."""
-        drop = self.arm.tool_point_drop if tool_point_drop is None else tool_point_drop
-        return sample_reachable(self.np_random, self.tool, low, high, drop)
 
     def _position_option(self, options: dict, key: str, low, high, reach_drop: float | None) -> np.ndarray | None:
         """A position reset option in metres (base frame), checked against [low, high] and, unless ``reach_drop``
