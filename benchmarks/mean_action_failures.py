@@ -5,7 +5,9 @@ resting points the noise shook it out of. For every failed test episode this pri
 the episode's last ``--window`` steps: ``pushing`` (it stood still while commanding a move: the command goes into
 something, a wall, the workspace's face, the other instrument), ``resting`` (it stood still at a command of about
 zero: the policy's own fixed point) or ``moving``; whether the grasper held a pin within reach of the hand-off point;
-which cavities kept blood above the clearing mark. Counted by class, with an example episode of each.
+which cavities kept blood above the clearing mark; where the scene irrigates, what the suction's signed valve did
+(``irrigating``, ``sucking``, or ``shut``: its mean command below -VALVE_OPEN, above it, or between). Counted by class,
+with an example episode of each.
 
     python benchmarks/mean_action_failures.py baselines/results/benchmark/runs/<a run>
 
@@ -14,6 +16,8 @@ BenchMARL run of ``marl_benchmark.py`` (``env_options.json`` and the final ``pol
 environment). The test episodes are the benchmark's (seeds ``teams.EVAL_SEED`` on). ``--option KEY=VALUE`` plays the
 policies on a changed scene (an env keyword argument over the run's own, the value read as JSON where it parses,
 else as text), e.g. ``--option blocked_moves=climb``: what a rule's change does to a learnt team, untrained.
+``--sampled SEAT:SLOT`` (a BenchMARL run) samples that part of a seat's action as in training and keeps the mean
+action elsewhere, e.g. ``--sampled suction:tool``: which part of a team leans on its exploration noise.
 """
 
 from __future__ import annotations
@@ -31,15 +35,23 @@ STILL = 0.01
 ZERO_COMMAND = 0.05
 #: Within this (normalised, 12 mm) of the hand-off point a held pin counts as "at the hand-off".
 NEAR_HANDOFF = 0.15
+#: A suction valve whose mean command over the window lies beyond this (either sign) was irrigating or sucking.
+VALVE_OPEN = 0.1
 
 
 def is_benchmarl_run(run: Path) -> bool:
     return (run / "policy.pt").is_file() and (run / "env_options.json").is_file()
 
 
-def team_of(run: Path):
-    """A run's env options and its team's mean action, ``act({agent: (N, obs)}) -> {agent: (N, 4)}``."""
+#: The parts of a seat's action ``--sampled`` names (the action layout's slots).
+SLOTS = ("move", "tool")
+
+
+def team_of(run: Path, sampled: tuple = ()):
+    """A run's env options and its team's mean action, ``act({agent: (N, obs)}) -> {agent: (N, 4)}``; the
+    ``(seat, slot)`` pairs of ``sampled`` (a BenchMARL run's) drawn from the policy's distribution instead."""
     from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.suction_debris.layout import MOVE, TOOL
 
     if is_benchmarl_run(run):
         import json
@@ -51,16 +63,27 @@ def team_of(run: Path):
         policy = torch.load(run / "policy.pt", weights_only=False)
         agents = suction_debris_v8.AGENTS
 
+        def actions_of(batch, kind):
+            with torch.no_grad(), set_exploration_type(kind):
+                return policy(batch).get(("agents", "action")).numpy().astype(np.float64)
+
         def act(observations):
             stacked = torch.as_tensor(np.stack([observations[a] for a in agents], axis=1), dtype=torch.float32)
             batch = TensorDict({"agents": TensorDict({"observation": stacked}, batch_size=stacked.shape[:2])},
                                batch_size=stacked.shape[:1])
-            with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-                action = policy(batch).get(("agents", "action")).numpy().astype(np.float64)
+            action = actions_of(batch, ExplorationType.DETERMINISTIC)
+            if sampled:
+                drawn = actions_of(batch, ExplorationType.RANDOM)
+                for seat, slot in sampled:
+                    part = {"move": MOVE, "tool": TOOL}[slot]
+                    action[:, agents.index(seat), part] = drawn[:, agents.index(seat), part]
             return {agent: action[:, index] for index, agent in enumerate(agents)}
 
         options = json.loads((run / "env_options.json").read_text())
     else:
+        if sampled:
+            raise ValueError("--sampled needs a BenchMARL run (its policy.pt keeps the distribution); this project's "
+                             "exported policies act by their mean")
         from dvrl_marl import policies
         from dvrl_marl.files import read_toml
 
@@ -74,17 +97,21 @@ def team_of(run: Path):
     return {k: v for k, v in options.items() if k != "reward_type"}, act
 
 
-def classify(run: Path, episodes: int, window: int, changes: dict | None = None) -> tuple[float, Counter, dict]:
+def classify(run: Path, episodes: int, window: int, changes: dict | None = None,
+             sampled: tuple = ()) -> tuple[float, Counter, dict]:
     from dvrl_marl.envs import suction_debris_v8
+    from dvrl_marl.suction_debris.layout import MOVE, TOOL
     from dvrl_marl.training import teams
 
-    options, act = team_of(run)
+    options, act = team_of(run, sampled)
     options = {**options, **(changes or {})}
     env = suction_debris_v8.batched_env(num_envs=episodes, autoreset_mode="disabled", **options)
     observations, _ = env.reset(seed=teams.EVAL_SEED)
     layout = env.observation_layout
     tips = {agent: [] for agent in env.agents}
     commands = {agent: [] for agent in env.agents}
+    valve = []
+    irrigates = env.params.irrigation_ml_s > 0.0
     done = np.zeros(episodes, dtype=bool)
     success = np.zeros(episodes, dtype=bool)
     info = {}
@@ -97,7 +124,8 @@ def classify(run: Path, episodes: int, window: int, changes: dict | None = None)
         actions = act(observations)
         for agent in env.agents:  # (only the last window is kept)
             tips[agent] = (tips[agent] + [plain(agent, observations[agent])[:, layout["own_tip"]].copy()])[-window:]
-            commands[agent] = (commands[agent] + [actions[agent][:, :3]])[-window:]
+            commands[agent] = (commands[agent] + [actions[agent][:, MOVE]])[-window:]
+        valve = (valve + [np.asarray(actions["suction"])[:, TOOL]])[-window:]
         observations, _, terminations, truncations, infos = env.step(actions)
         info = infos[env.agents[0]]
         success |= ~done & info["is_success"]
@@ -121,6 +149,9 @@ def classify(run: Path, episodes: int, window: int, changes: dict | None = None)
         parts.append("grasper holds a pin at the hand-off" if at_handoff[world] else
                      "grasper holds a pin" if holding[world].any() else
                      f"grasper empty, jaw {'closed' if jaw_closed[world] else 'open'}")
+        if irrigates:
+            mean = float(np.mean(np.stack(valve)[:, world]))
+            parts.append(f"valve {'irrigating' if mean < -VALVE_OPEN else 'sucking' if mean > VALVE_OPEN else 'shut'}")
         left = [str(c) for c in range(blood.shape[1]) if blood[world, c] >= threshold]
         parts.append(f"blood left in cavity {', '.join(left)}" if left else "cavities clear")
         key = "; ".join(parts)
@@ -138,9 +169,21 @@ def main(argv=None) -> int:
     parser.add_argument("--window", type=int, default=50, help="steps at the end of an episode looked at")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="an env keyword argument over the run's own (repeatable), e.g. blocked_moves=climb")
+    parser.add_argument("--sampled", action="append", default=[], metavar="SEAT:SLOT",
+                        help="sample this part of a seat's action as in training (a BenchMARL run; repeatable), "
+                             "e.g. suction:tool")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.window < 2:
         parser.error("--episodes must be >= 1 and --window >= 2")
+    from dvrl_marl.envs import suction_debris_v8
+
+    sampled = []
+    for part in args.sampled:
+        seat, _, slot = part.partition(":")
+        if seat not in suction_debris_v8.AGENTS or slot not in SLOTS:
+            parser.error(f"--sampled {part!r}: expected SEAT:SLOT with SEAT one of {list(suction_debris_v8.AGENTS)} "
+                         f"and SLOT one of {list(SLOTS)}, e.g. suction:tool")
+        sampled.append((seat, slot))
     changes = {}
     for option in args.option:
         key, sep, value = option.partition("=")
@@ -155,11 +198,12 @@ def main(argv=None) -> int:
             parser.error(f"{run}: neither a run folder of this project's trainer (config.toml, policies/) nor a "
                          f"BenchMARL run of marl_benchmark.py (policy.pt, env_options.json)")
         try:
-            success, classes, examples = classify(run, args.episodes, args.window, changes)
+            success, classes, examples = classify(run, args.episodes, args.window, changes, tuple(sampled))
         except (TypeError, ValueError) as error:  # an option the scene refuses, named
             parser.error(f"{run}: {error}")
         on = f" on {changes}" if changes else ""
-        print(f"{run.name}{on}: success by the mean action {success:.2f}; {sum(classes.values())} failed")
+        acting = "the mean action" + (f", {', '.join(args.sampled)} sampled" if sampled else "")
+        print(f"{run.name}{on}: success by {acting} {success:.2f}; {sum(classes.values())} failed")
         for key, count in classes.most_common():
             world, tip, command = examples[key]
             print(f"  {count:3d}  {key}   (e.g. episode {world}: tips {tip}, last commands {command})")

@@ -36,6 +36,34 @@ def test_progress_writes_a_row_per_validation_and_says_when_the_run_stops(tmp_pa
     assert len(lines) == 2 and "validation 0.50" in lines[1]
 
 
+def test_a_training_record_is_made_from_the_run_folders_progress(tmp_path):
+    """benchmarks/training_record.py: a run's row says its last validation and when it first reached the target, from
+    the folder the trainer wrote; a folder that is not a finished run is refused by name."""
+    import json
+    from pathlib import Path
+
+    import pytest
+    from conftest import load_script
+
+    record = load_script(Path(__file__).resolve().parents[1] / "benchmarks" / "training_record.py")
+    out = new_run_folder(tmp_path / "run-seed3")
+    progress = Progress(out, TINY, 3, time.perf_counter(), log=lambda line: None)
+    result = {"success_rate": 0.25, "mean_blood_removed_ml": 10.0, "mean_contact_steps": 1.0}
+    for steps, success in ((512, 0.25), (1024, 0.92), (1536, 0.88)):
+        progress.report(steps, steps / 100.0, {**result, "success_rate": success})
+    progress.finish(device="cpu:0", backend="jax")
+    target = tmp_path / "record.jsonl"
+    assert record.main([str(out), "--target", "0.9", "--commit", "abc1234", "--command",
+                        "train --out {out} --seed {seed}", "--out", str(target)]) == 0
+    (row,) = [json.loads(line) for line in target.read_text().splitlines()]
+    assert (row["seed"], row["validation_success"], row["steps"]) == (3, 0.88, 1536)
+    assert (row["reached_target"], row["steps_to_target"]) == (True, 1024)
+    assert row["seconds_to_target"] == row["curve"][1]["wall_seconds"]  # (the first validation at 0.9 or above)
+    assert row["command"] == f"train --out {out.as_posix()} --seed 3" and len(row["curve"]) == 3
+    with pytest.raises(SystemExit):
+        record.main([str(tmp_path / "nothing"), "--commit", "x", "--command", "{seed}", "--out", str(target)])
+
+
 def test_an_export_records_the_preset_its_configuration_file_names(tmp_path):
     """A configuration file's ``[env] preset`` is expanded into the scene's options and its name kept, so that the
     policies exported record the scene they learnt on (evaluations make it)."""
