@@ -177,6 +177,12 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
     assert 0.0 <= again <= 1.0 and sum(changed.values()) == round(3 * (1.0 - again))
     with pytest.raises(SystemExit):
         failures.main([str(tmp_path / "runs" / records[0].stem), "--episodes", "2", "--option", "tool_speed=fast"])
+    if library == "benchmarl":  # ... and with a seat's slot sampled as in training (--sampled), named when unknown
+        sampled, classes, _ = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10, None,
+                                                (("suction", "tool"),))
+        assert 0.0 <= sampled <= 1.0 and sum(classes.values()) == round(3 * (1.0 - sampled))
+        with pytest.raises(SystemExit):
+            failures.main([str(tmp_path / "runs" / records[0].stem), "--episodes", "2", "--sampled", "suction:valve"])
 
 
 def test_a_cells_interval_does_not_depend_on_the_other_cells():
