@@ -27,7 +27,6 @@ form (see :func:`inverse_kinematics`) and batched over any leading axes.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -409,9 +408,16 @@ def inverse_kinematics_batch(tool: Tool, position):
     return q, (radial > 0.0) & xp.all((q >= lower) & (q <= upper), axis=-1)
 
 
-@functools.lru_cache(maxsize=None)
+#: id(tool) -> (tool, lower, upper): the limits as arrays, made once per tool (keyed by identity: a cache keyed by the
+#: tool itself would hash its DH rows on every batched IK call; the tool is kept, so its id is never reused).
+_LIMIT_ARRAYS: dict[int, tuple] = {}
+
+
 def _limit_arrays(tool: Tool) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(tool.lower), np.asarray(tool.upper)
+    entry = _LIMIT_ARRAYS.get(id(tool))
+    if entry is None or entry[0] is not tool:
+        entry = _LIMIT_ARRAYS[id(tool)] = (tool, np.asarray(tool.lower), np.asarray(tool.upper))
+    return entry[1], entry[2]
 
 
 def inverse_kinematics(tool: Tool | str, position) -> np.ndarray:

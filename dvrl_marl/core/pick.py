@@ -56,14 +56,14 @@ def pick_starts(env, generators, options: dict, level: float):
     second leg. Each generator draws g, then the level's two numbers, as the single env draws from its
     ``np_random``; the single env (one generator) and the batched core (one per world) both reset through this."""
     count = len(generators)
-    start = np.broadcast_to(env.workspace_centre if options["start"] is None else options["start"], (count, 3))
+    start, obj = np.empty((count, 3)), np.empty((count, 3))  # (filled in place: cheaper than broadcasting, per reset)
+    start[:] = env.workspace_centre if options["start"] is None else options["start"]
     goal = position_or_sample(options["goal"], generators, env.tool, env.goal_low, env.goal_high, 0.0)
     if options["object"] is None:
-        obj = np.empty((count, 3))
         obj[:, :2] = start[:, :2]
         obj[:, 2] = env.object_rest_height
     else:
-        obj = np.broadcast_to(options["object"], (count, 3))
+        obj[:] = options["object"]
     held = np.zeros(count, dtype=bool)
     if level < 1.0:  # (level 1 draws nothing: the default task bit for bit)
         draws = np.array([generator.random(2) for generator in generators])
@@ -88,8 +88,11 @@ def grasp_events(grasped, closed, sensed):
 def carried_floor(low, high, rest_height, grasp_offset):
     """The tip's floor while an object hangs ``grasp_offset`` (m, vertical; negative: below the tip) under it: raised
     so that the object stays above the table (it rests at ``rest_height``), never above the box's ceiling ``high``,
-    never below the box's floor ``low``. Floats or arrays alike."""
-    return np.maximum(low, np.minimum(rest_height - grasp_offset, high))
+    never below the box's floor ``low``. Floats (one world: a float) or arrays alike."""
+    floor = rest_height - grasp_offset
+    if isinstance(floor, float):
+        return max(low, min(floor, high))
+    return np.maximum(low, np.minimum(floor, high))
 
 
 def pick_potential(jaws, obj, goal, grasped, step_size: float):

@@ -223,17 +223,18 @@ class PSMPickEnv(PSMGoalEnv):
         high = self._tip_high
         low = self._tip_low
         if self.grasped:  # a carried object stays above the table
-            low = (low[0], low[1], float(carried_floor(low[2], high[2], self.object_rest_height,
-                                                        self._grasp_offset[2])))
+            low = (low[0], low[1], carried_floor(low[2], high[2], self.object_rest_height, self._grasp_offset[2]))
         self.arm.move(eta * dx, eta * dy, eta * dz, low, high)
         jaw = jaw_target(phi, self.jaw_command)
         self.arm.set_jaw(jaw)
 
         adr = self._object_qpos
         closed = jaw < self.grasp_threshold
-        # (the sensor is read only where it can grab: it is the rule's costliest input)
-        sensed = closed and not self.grasped and self.arm.grasp_sensor(self.data.qpos[adr:adr + 3])
-        release, grab = grasp_events(self.grasped, closed, sensed)
+        release = grab = False
+        if closed or self.grasped:  # (open jaws holding nothing: the rule has no event to give; most steps)
+            # (the sensor is read only where it can grab: it is the rule's costliest input)
+            sensed = closed and not self.grasped and self.arm.grasp_sensor(self.data.qpos[adr:adr + 3])
+            release, grab = grasp_events(self.grasped, closed, sensed)
         if release:
             self.grasped = False
             self._object_at_rest = False
@@ -248,9 +249,11 @@ class PSMPickEnv(PSMGoalEnv):
         unstable = False
         if self.grasped:
             self._carry_object()
+            self._update_object_normalised()
         elif not self._object_at_rest:
             unstable = not self._simulate_object()
-        self._update_object_normalised()
+            self._update_object_normalised()
+        # (an object at rest and not held kept its place: its normalised position stands)
         reward, success = self._reward_and_success(self._object_normalised)
         if self.reward_type == "guided":
             potential = self._current_potential()
