@@ -538,7 +538,7 @@ def _docs_page(rows: list[dict], plot: str, records: int) -> str:
         "    python benchmarks/marl_benchmark.py run --library benchmarl --algorithm mappo --level default --seed N \\",
         "        --frames 3932160 --eval-every 491520 [--algorithm-file baselines/configs/benchmarl_mappo_entropy.yaml]",
         "    python benchmarks/marl_benchmark.py run --library benchmarl --algorithm mappo --level irrigation --seed N \\",
-        "        --frames 15728640 --eval-every 1966080 --algorithm-file baselines/configs/benchmarl_mappo_irrigation.yaml",
+        "        --frames 15728640 --eval-every 1966080 [--algorithm-file baselines/configs/benchmarl_mappo_irrigation.yaml]",
         "    python benchmarks/marl_benchmark.py run --library rllib --algorithm ippo --level easy --seed N \\",
         "        --frames 983040 --eval-every 245760", "",
         "Cells of every earlier scene, and how each change was found: [history](history.md).", "",
