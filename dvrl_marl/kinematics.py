@@ -409,13 +409,13 @@ def inverse_kinematics_batch(tool: Tool, position):
 
 
 #: id(tool) -> (tool, lower, upper): the limits as arrays, made once per tool (keyed by identity: a cache keyed by the
-#: tool itself would hash its DH rows on every batched IK call; the tool is kept, so its id is never reused).
+#: tool itself would hash its DH rows on every batched IK call; the entry keeps the tool, so its id is never reused).
 _LIMIT_ARRAYS: dict[int, tuple] = {}
 
 
 def _limit_arrays(tool: Tool) -> tuple[np.ndarray, np.ndarray]:
     entry = _LIMIT_ARRAYS.get(id(tool))
-    if entry is None or entry[0] is not tool:
+    if entry is None:
         entry = _LIMIT_ARRAYS[id(tool)] = (tool, np.asarray(tool.lower), np.asarray(tool.upper))
     return entry[1], entry[2]
 

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import load_script
 
@@ -181,6 +182,17 @@ def test_a_tiny_run_writes_its_record(tmp_path, library):
         sampled, classes, _ = failures.classify(tmp_path / "runs" / records[0].stem, 3, 10, None,
                                                 (("suction", "tool"),))
         assert 0.0 <= sampled <= 1.0 and sum(classes.values()) == round(3 * (1.0 - sampled))
+        # only the named slot is drawn: the suction's valve varies from call to call, the rest is the mean action
+        from dvrl_marl.envs import suction_debris_v8
+        from dvrl_marl.suction_debris.layout import MOVE, TOOL
+
+        options, mean_act = failures.team_of(tmp_path / "runs" / records[0].stem)
+        _, sampled_act = failures.team_of(tmp_path / "runs" / records[0].stem, (("suction", "tool"),))
+        observations, _ = suction_debris_v8.batched_env(num_envs=4, **options).reset(seed=0)
+        mean, first, second = mean_act(observations), sampled_act(observations), sampled_act(observations)
+        np.testing.assert_array_equal(first["suction"][:, MOVE], mean["suction"][:, MOVE])
+        np.testing.assert_array_equal(first["grasper"], mean["grasper"])
+        assert not np.array_equal(first["suction"][:, TOOL], second["suction"][:, TOOL])
         with pytest.raises(SystemExit):
             failures.main([str(tmp_path / "runs" / records[0].stem), "--episodes", "2", "--sampled", "suction:valve"])
 

@@ -146,8 +146,6 @@ class PickCore(GoalCoreBase):
         self.grasp_threshold = template.grasp_threshold
         self.initial_jaw = template.initial_jaw
         self.object_rest_height = template.object_rest_height
-        self.goal_low = template.goal_low.copy()
-        self.goal_high = template.goal_high.copy()
         self.grasp_half_extents = np.asarray(template.arm.grasp_zone_half_extents_base)
         self._joints = template.arm.joint_qpos_addresses
         self._jaws = template.arm.jaw_qpos_addresses
